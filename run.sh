@@ -1,0 +1,157 @@
+#!/usr/bin/env bash
+# Chronos/CRS in Python: the one entry point.
+#   ./run.sh                  set up .venv (if needed) and run the demo (crs demo --out "${OUT:-out/demo}")
+#   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...)
+#   ./run.sh setup            only set up .venv
+#   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
+# The set-up installs requirements.lock with --no-deps, then this project in editable mode,
+# and is skipped when .venv/.crs-setup-stamp matches sha256(requirements.lock + pyproject.toml).
+set -euo pipefail
+
+cd "$(dirname "${BASH_SOURCE[0]}")"
+ROOT="$PWD"
+
+VENV="$ROOT/.venv"
+STAMP="$VENV/.crs-setup-stamp"
+LOG="$VENV/setup.log"
+
+# Never send DDS discovery traffic off this machine.
+export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
+# Cache of compiled (CasADi-generated C) code; the core reads this variable.
+export CRS_CACHE_DIR="${CRS_CACHE_DIR:-$ROOT/.cache/crs}"
+
+usage() {
+    cat >&2 <<'EOF'
+usage: ./run.sh                  set up .venv and run the demo (writes a report to ${OUT:-out/demo})
+       ./run.sh test [ARGS...]   set up .venv and run the test suite (pytest -q ARGS...)
+       ./run.sh setup            only set up .venv
+       ./run.sh crs ARGS...      set up .venv and run the crs command line
+EOF
+}
+
+log() { echo "[setup] $*"; }
+
+die() {
+    echo "[setup] error: $*" >&2
+    exit 1
+}
+
+# Prints the path of a Python 3.11 interpreter, or fails.
+find_python() {
+    local cand
+    for cand in "${PYTHON:-}" python3.11 python3; do
+        [ -n "$cand" ] || continue
+        command -v "$cand" >/dev/null 2>&1 || continue
+        # pyenv shims exist even when they can't run, so actually run the candidate
+        # (and check it can make a venv: Debian splits that off into python3.11-venv).
+        if "$cand" -c 'import sys, venv, ensurepip; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
+            >/dev/null 2>&1; then
+            echo "$cand"
+            return 0
+        fi
+    done
+    return 1
+}
+
+venv_ok() {
+    "$VENV/bin/python" -c 'import sys; sys.exit(0 if sys.version_info[:2] == (3, 11) else 1)' \
+        >/dev/null 2>&1
+}
+
+setup_hash() {
+    cat requirements.lock pyproject.toml | sha256sum | cut -d' ' -f1
+}
+
+bootstrap() {
+    [ -f requirements.lock ] || die "requirements.lock not found in $ROOT"
+    [ -f pyproject.toml ] || die "pyproject.toml not found in $ROOT"
+    local want
+    want="$(setup_hash)"
+
+    # A venv is usable when its interpreter runs and is 3.11.
+    if [ -d "$VENV" ] && ! venv_ok; then
+        log "existing .venv is broken or not Python 3.11: recreating it"
+        rm -rf "$VENV"
+    fi
+
+    if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$want" ]; then
+        log ".venv is up to date (stamp matches requirements.lock + pyproject.toml)"
+        return 0
+    fi
+
+    local t0=$SECONDS
+    if [ ! -d "$VENV" ]; then
+        local py
+        py="$(find_python)" || die "Python 3.11 is required: tried \$PYTHON, python3.11 and python3" \
+            "(python3 is: $(python3 --version 2>&1 | head -n1)). Install CPython 3.11 with its venv module" \
+            "(Debian: apt-get install python3.11-venv) or set PYTHON=/path/to/python3.11."
+        log "creating .venv with $py ($("$py" --version 2>&1))"
+        "$py" -m venv "$VENV" || die "$py -m venv .venv failed"
+        venv_ok || die "$py -m venv made no working Python 3.11 in .venv"
+    fi
+    rm -f "$STAMP"
+    : >"$LOG"
+
+    log "installing $(grep -c '^[A-Za-z0-9]' requirements.lock) pinned packages from requirements.lock (log: .venv/setup.log)"
+    if ! "$VENV/bin/python" -m pip install --no-deps --disable-pip-version-check \
+        -r requirements.lock >>"$LOG" 2>&1; then
+        tail -n 30 "$LOG" >&2
+        die "pip install -r requirements.lock failed (full log: .venv/setup.log)"
+    fi
+
+    log "installing chronos-crs in editable mode"
+    if ! "$VENV/bin/python" -m pip install --no-deps --no-build-isolation --disable-pip-version-check \
+        -e . >>"$LOG" 2>&1; then
+        tail -n 30 "$LOG" >&2
+        die "pip install -e . failed (full log: .venv/setup.log)"
+    fi
+
+    log "checking dependencies (pip check)"
+    if ! "$VENV/bin/python" -m pip check --disable-pip-version-check >>"$LOG" 2>&1; then
+        tail -n 30 "$LOG" >&2
+        die "pip check failed: requirements.lock is not a consistent set"
+    fi
+
+    echo "$want" >"$STAMP"
+    log "done in $((SECONDS - t0)) s"
+}
+
+cmd="${1:-demo}"
+case "$cmd" in
+    demo)
+        [ $# -le 1 ] || { usage; exit 2; }
+        bootstrap
+        mkdir -p "$CRS_CACHE_DIR"
+        exec "$VENV/bin/crs" demo --out "${OUT:-out/demo}"
+        ;;
+    test)
+        shift
+        bootstrap
+        mkdir -p "$CRS_CACHE_DIR"
+        rc=0
+        "$VENV/bin/python" -m pytest -q "$@" || rc=$?
+        if [ "$rc" -eq 5 ]; then
+            echo "run.sh: no tests were collected: treating that as a failure" >&2
+            exit 1
+        fi
+        exit "$rc"
+        ;;
+    setup)
+        [ $# -le 1 ] || { usage; exit 2; }
+        bootstrap
+        ;;
+    crs)
+        shift
+        bootstrap
+        mkdir -p "$CRS_CACHE_DIR"
+        exec "$VENV/bin/crs" "$@"
+        ;;
+    -h | --help | help)
+        usage
+        exit 0
+        ;;
+    *)
+        usage
+        exit 2
+        ;;
+esac
