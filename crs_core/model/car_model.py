@@ -1,0 +1,320 @@
+"""The Chronos car model: dynamics, sensors and effects composed into one CasADi definition.
+
+:class:`CarModel` builds the symbolic model once and derives everything from it: the
+continuous dynamics, an RK4 step, every sensor output, and (lazily) their compiled numeric
+versions. The simulator, estimators, controllers and identification all use this one object.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from crs_core.codegen import NumericFunction, compile_functions
+from crs_core.integrators import rk4
+from crs_core.model import sensors
+from crs_core.model.bicycle import INPUT_NAMES, STATE_NAMES, STATE_UNITS, state_derivative
+from crs_core.model.chronos import (
+    base_station_parameters,
+    default_base_stations,
+    dynamics_parameters,
+    photodiode_parameters,
+)
+from crs_core.model.effects import EFFECTS, Effect
+from crs_core.parameters import ParameterSet
+
+#: Largest RK4 substep (s). Measured with :func:`crs_core.model.stability.largest_stable_step`
+#: over speeds 0..3 m/s and full steering: the fastest Jacobian eigenvalue is about -380 1/s
+#: near v_x = eps, so RK4 is stable up to 6.8 ms; 4 ms keeps a 1.7x margin (and is exactly one
+#: substep per 250 Hz sensor sample). One 1/30 s step is stable only above about 0.8 m/s.
+MAX_SUBSTEP = 0.004
+
+
+def effect_names_and_values(
+    effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None],
+) -> tuple[tuple[str, ...], dict[str, float]]:
+    """Normalise an effect specification to (names, parameter values).
+
+    Accepts ``["steering_lag", ...]`` or ``{"steering_lag": 0.08}`` (the value of its single
+    parameter) or ``{"steering_lag": {"tau_steer": 0.08}}`` or ``{"gyro_bias": None}``.
+    """
+    if isinstance(effects, Mapping):
+        items = list(effects.items())
+    else:
+        items = [(name, None) for name in effects]
+    names, values = [], {}
+    for name, spec in items:
+        if name not in EFFECTS:
+            raise KeyError(f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        if name in names:
+            raise ValueError(f"effect {name!r} given twice")
+        names.append(name)
+        params = EFFECTS[name].parameters
+        if spec is None:
+            continue
+        if isinstance(spec, Mapping):
+            values.update({str(k): float(v) for k, v in spec.items()})
+        elif len(params) == 1:
+            values[params[0].name] = float(spec)
+        else:
+            raise ValueError(f"effect {name!r} has several parameters; give a mapping")
+    # keep the registry order so the signal chain is the same however effects are listed
+    order = tuple(n for n in EFFECTS if n in names)
+    return order, values
+
+
+@dataclass(frozen=True)
+class SensorOutput:
+    """A sensor channel group of the model: name and channel labels."""
+
+    name: str
+    channels: tuple[str, ...]
+
+
+class CarModel:
+    """Dynamic bicycle car with sensors and optional effects.
+
+    Parameters
+    ----------
+    effects : iterable of str or mapping
+        Effects to compose onto the base model (see :func:`effect_names_and_values`).
+    n_base_stations : int
+        Number of Lighthouse base stations with sensor outputs.
+    parameters : ParameterSet, optional
+        Values for all model parameters; by default the Chronos identified values, the recorded
+        Lighthouse geometry and each effect's default. Effect values given in ``effects`` are
+        applied on top.
+
+    Attributes
+    ----------
+    state_names : tuple of str
+        ``x, y, yaw, vx, vy, omega`` followed by effect states.
+    input_names : tuple of str
+        ``steer, torque`` (commanded).
+    outputs : dict of str to SensorOutput
+        ``imu``, ``wheel_encoders``, ``pose`` and ``lighthouse/<station>/<plane>``.
+    """
+
+    input_names = INPUT_NAMES
+
+    def __init__(
+        self,
+        effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None] = (),
+        n_base_stations: int = 1,
+        parameters: ParameterSet | None = None,
+    ) -> None:
+        if n_base_stations < 0:
+            raise ValueError("n_base_stations must be >= 0")
+        names, effect_values = effect_names_and_values(effects)
+        self.effects: tuple[Effect, ...] = tuple(EFFECTS[n] for n in names)
+        self.n_base_stations = n_base_stations
+        defaults = (
+            dynamics_parameters()
+            .merged(photodiode_parameters())
+            .merged(base_station_parameters(default_base_stations(n_base_stations)))
+        )
+        for effect in self.effects:
+            defaults = defaults.merged(ParameterSet(list(effect.parameters)))
+        if parameters is not None:
+            missing = set(defaults.names) - set(parameters.names)
+            if missing:
+                raise KeyError(f"parameters lack {sorted(missing)}")
+            defaults = defaults.updated({n: parameters.value(n) for n in defaults.names})
+        self.parameters = defaults.updated(effect_values)
+        self.state_names = STATE_NAMES + tuple(s for e in self.effects for s, _ in e.states)
+        self.state_units = STATE_UNITS + tuple(u for e in self.effects for _, u in e.states)
+        self.nx, self.nu, self.np = len(self.state_names), 2, len(self.parameters)
+        self._build_symbolic()
+
+    # --- symbolic model ------------------------------------------------------------------
+    def _build_symbolic(self) -> None:
+        x = ca.SX.sym("x", self.nx)
+        u = ca.SX.sym("u", self.nu)
+        p = ca.SX.sym("p", self.np)
+        index = {name: i for i, name in enumerate(self.parameters.names)}
+
+        def P(name: str) -> ca.SX:
+            return p[index[name]]
+
+        self.x_sym, self.u_sym, self.p_sym = x, u, p
+        xdot, applied = self._rhs(x, u, P)
+        outputs = {
+            "imu": sensors.imu(x, applied, P),
+            "wheel_encoders": sensors.wheel_encoders(x, applied, P),
+            "pose": sensors.pose(x),
+        }
+        for station in range(self.n_base_stations):
+            first, second = sensors.lighthouse(x, station, P)
+            outputs[f"lighthouse/{station}/1"] = first
+            outputs[f"lighthouse/{station}/2"] = second
+        for effect in self.effects:
+            outputs = {name: effect.output(name, y, P) for name, y in outputs.items()}
+        self.output_expressions: dict[str, ca.SX] = outputs
+        self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
+        self.xdot_expression = xdot
+        self.applied_input_expression = applied
+        self._P = P
+
+    def _rhs(self, x: ca.SX, u: ca.SX, P) -> tuple[ca.SX, ca.SX]:
+        """State derivative and applied input for augmented state ``x`` and command ``u``."""
+        for effect in self.effects:
+            u = effect.command(u, P)
+        derivatives = []
+        offset = len(STATE_NAMES)
+        for effect in self.effects:
+            z = x[offset : offset + len(effect.states)]
+            u, zdot = effect.actuator(z, u, P)
+            derivatives.append(zdot)
+            offset += len(effect.states)
+        return ca.vertcat(state_derivative(x[: len(STATE_NAMES)], u, P), *derivatives), u
+
+    def rhs(self, x: ca.SX, u: ca.SX, p: ca.SX) -> ca.SX:
+        """Continuous dynamics for arbitrary symbols (for building OCPs and estimators)."""
+        return self.dynamics_function(x, u, p)
+
+    @cached_property
+    def dynamics_function(self) -> ca.Function:
+        """``f(x, u, p) -> xdot``."""
+        return ca.Function(
+            "f",
+            [self.x_sym, self.u_sym, self.p_sym],
+            [self.xdot_expression],
+            ["x", "u", "p"],
+            ["xdot"],
+        )
+
+    def step_function(self, substeps: int = 1, name: str = "rk4") -> ca.Function:
+        """``F(x, u, p, dt) -> x_next`` with ``substeps`` RK4 substeps of ``dt / substeps``."""
+        dt = ca.SX.sym("dt")
+        f = self.dynamics_function
+
+        def rhs(xx: ca.SX, uu: ca.SX) -> ca.SX:
+            return f(xx, uu, self.p_sym)
+
+        x_next = rk4(rhs, self.x_sym, self.u_sym, dt, substeps)
+        return ca.Function(
+            name,
+            [self.x_sym, self.u_sym, self.p_sym, dt],
+            [x_next],
+            ["x", "u", "p", "dt"],
+            ["x_next"],
+        )
+
+    def output_function(self, sensor: str) -> ca.Function:
+        """``h(x, u, p) -> y`` for one sensor."""
+        if sensor not in self.output_expressions:
+            raise KeyError(f"unknown sensor {sensor!r}; known: {', '.join(self.outputs)}")
+        return ca.Function(
+            _c_name("h_" + sensor),
+            [self.x_sym, self.u_sym, self.p_sym],
+            [self.output_expressions[sensor]],
+            ["x", "u", "p"],
+            ["y"],
+        )
+
+    # --- numbers --------------------------------------------------------------------------
+    def input_delay(self, parameters: ParameterSet | None = None) -> float:
+        """Transport delay of both inputs (s): the ``input_delay`` effect's value, else 0."""
+        if not any(e.name == "input_delay" for e in self.effects):
+            return 0.0
+        return (parameters or self.parameters).value("input_delay")
+
+    def initial_state(self, pose_and_velocity: Iterable[float], u: Iterable[float] = (0, 0)):
+        """Augmented state from the 6 base states, effect states at rest under command ``u``."""
+        base = [float(v) for v in pose_and_velocity]
+        if len(base) != len(STATE_NAMES):
+            raise ValueError(f"expected {len(STATE_NAMES)} base states, got {len(base)}")
+        command = [float(v) for v in u]
+        extra = [value for e in self.effects for value in e.initial_states(command)]
+        return np.array(base + extra)
+
+    @cached_property
+    def numeric(self) -> NumericModel:
+        """Compiled (or VM) numeric functions of this model, built on first use."""
+        return NumericModel(self)
+
+    def __repr__(self) -> str:
+        names = ", ".join(e.name for e in self.effects) or "none"
+        return f"CarModel(effects: {names}; stations: {self.n_base_stations})"
+
+
+class NumericModel:
+    """Numeric evaluation of a :class:`CarModel` with fixed-size, reusable buffers.
+
+    ``step`` integrates over any ``dt`` with RK4 substeps no longer than :data:`MAX_SUBSTEP`.
+    """
+
+    def __init__(self, model: CarModel, backend: str | None = None) -> None:
+        self.model = model
+        sensors_all = ca.vertcat(*model.output_expressions.values())
+        functions = [
+            model.dynamics_function,
+            model.step_function(1, "rk4_step"),
+            ca.Function(
+                "outputs",
+                [model.x_sym, model.u_sym, model.p_sym],
+                [sensors_all],
+                ["x", "u", "p"],
+                ["y"],
+            ),
+            ca.Function(
+                "applied_input",
+                [model.x_sym, model.u_sym, model.p_sym],
+                [model.applied_input_expression],
+                ["x", "u", "p"],
+                ["u_applied"],
+            ),
+        ]
+        tag = "_".join(e.name for e in model.effects) or "base"
+        self.functions: dict[str, NumericFunction] = compile_functions(
+            functions, _c_name(f"chronos_{tag}_{model.n_base_stations}bs"), backend
+        )
+        self.backend = self.functions["f"].backend
+        self._slices = {}
+        start = 0
+        for name, expression in model.output_expressions.items():
+            self._slices[name] = slice(start, start + expression.numel())
+            start += expression.numel()
+
+    def f(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Continuous dynamics ``xdot``."""
+        return self.functions["f"](x, u, p)[0]
+
+    def step(self, x: np.ndarray, u: np.ndarray, p: np.ndarray, dt: float) -> np.ndarray:
+        """State after ``dt`` s under held command ``u`` (``ceil(dt / MAX_SUBSTEP)`` RK4 steps)."""
+        if dt < 0 or not math.isfinite(dt):
+            raise ValueError(f"dt must be finite and >= 0, got {dt}")
+        n = max(1, math.ceil(dt / MAX_SUBSTEP - 1e-9))
+        h = dt / n
+        step = self.functions["rk4_step"]
+        for _ in range(n):
+            x = step(x, u, p, h)[0]
+        return x
+
+    def outputs(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> dict[str, np.ndarray]:
+        """All sensor outputs at state ``x`` under command ``u``, by sensor name."""
+        y = self.functions["outputs"](x, u, p)[0]
+        return {name: y[s] for name, s in self._slices.items()}
+
+    def applied_input(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The input that reaches the car (after offset and actuator lags)."""
+        return self.functions["applied_input"](x, u, p)[0]
+
+
+def _channels(sensor: str) -> tuple[str, ...]:
+    if sensor == "imu":
+        return ("ax", "ay", "omega")
+    if sensor == "wheel_encoders":
+        return ("fl", "fr", "rl", "rr")
+    if sensor == "pose":
+        return ("x", "y", "yaw")
+    return tuple(f"diode{k}" for k in range(sensors.N_PHOTODIODES))
+
+
+def _c_name(name: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in name)

@@ -1,0 +1,191 @@
+"""Model extensions ("effects") composed onto the base car model by name.
+
+An effect adds parameters and may act at three places of the signal chain, in this order:
+
+1. on the **command** before the actuators (``steering_offset``);
+2. as an **actuator** with its own states (``steering_lag``, ``motor_lag``);
+3. on a **sensor** output (``gyro_bias``, ``wheel_radius_error``).
+
+``input_delay`` is a pure transport delay of both inputs. It has no state-space form: the
+simulator applies it exactly to the input history, and model users read it from
+:meth:`crs_core.model.CarModel.input_delay`.
+
+The registry :data:`EFFECTS` maps names to effect objects; the simulator switches effects on as
+hidden truth, identification fits their parameters, the discrepancy workflow searches over them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+
+from crs_core.model.bicycle import ParameterAccess
+from crs_core.parameters import Parameter
+
+
+@dataclass(frozen=True)
+class Effect:
+    """Base class: an effect that changes nothing. Subclasses override the hooks they need.
+
+    Attributes
+    ----------
+    name : str
+        Registry key, also the prefix of its parameters' group (``effect:<name>``).
+    description : str
+        The physical effect in one sentence.
+    parameters : tuple of Parameter
+        Its parameters; the value is the default used when the effect is switched on without one.
+    states : tuple of (name, unit)
+        Extra states it appends to the model state.
+    """
+
+    name: str
+    description: str
+    parameters: tuple[Parameter, ...]
+    states: tuple[tuple[str, str], ...] = field(default=())
+
+    def command(self, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        """Transform the commanded input ``[delta, T]`` before the actuators."""
+        return u
+
+    def actuator(self, z: ca.SX, u: ca.SX, P: ParameterAccess) -> tuple[ca.SX, ca.SX]:
+        """Return (applied input, time derivative of this effect's states ``z``)."""
+        return u, ca.SX(0, 1)
+
+    def initial_states(self, u: list[float]) -> list[float]:
+        """Values of this effect's states at rest under command ``u``."""
+        return []
+
+    def output(self, sensor: str, y: ca.SX, P: ParameterAccess) -> ca.SX:
+        """Transform the output of sensor ``sensor`` (``imu``, ``wheel_encoders``, ...)."""
+        return y
+
+
+def _parameter(
+    effect: str, name: str, value: float, unit: str, lower: float, upper: float, description: str
+) -> Parameter:
+    return Parameter(
+        name, value, unit, lower, upper, abs(upper - lower) / 4, description, f"effect:{effect}"
+    )
+
+
+@dataclass(frozen=True)
+class SteeringOffset(Effect):
+    """Steering trim error: the wheels sit at ``delta_cmd + delta0``."""
+
+    def command(self, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        return ca.vertcat(u[0] + P("steering_offset"), u[1])
+
+
+@dataclass(frozen=True)
+class FirstOrderLag(Effect):
+    """First-order actuator on input channel ``channel`` with time constant parameter ``tau``."""
+
+    channel: int = 0
+    tau: str = ""
+
+    def actuator(self, z: ca.SX, u: ca.SX, P: ParameterAccess) -> tuple[ca.SX, ca.SX]:
+        applied = [u[0], u[1]]
+        applied[self.channel] = z[0]
+        return ca.vertcat(*applied), (u[self.channel] - z[0]) / P(self.tau)
+
+    def initial_states(self, u: list[float]) -> list[float]:
+        return [u[self.channel]]
+
+
+@dataclass(frozen=True)
+class GyroBias(Effect):
+    """Constant additive bias on the IMU yaw rate."""
+
+    def output(self, sensor: str, y: ca.SX, P: ParameterAccess) -> ca.SX:
+        if sensor != "imu":
+            return y
+        return ca.vertcat(y[0], y[1], y[2] + P("gyro_bias"))
+
+
+@dataclass(frozen=True)
+class WheelRadiusError(Effect):
+    """The wheels' true radius is ``r + wheel_radius_error``; encoders read ``v / (r + dr)``."""
+
+    def output(self, sensor: str, y: ca.SX, P: ParameterAccess) -> ca.SX:
+        if sensor != "wheel_encoders":
+            return y
+        return y * P("r") / (P("r") + P("wheel_radius_error"))
+
+
+EFFECTS: dict[str, Effect] = {
+    e.name: e
+    for e in (
+        SteeringOffset(
+            "steering_offset",
+            "steering trim error: applied angle = command + delta0",
+            (
+                _parameter(
+                    "steering_offset",
+                    "steering_offset",
+                    0.02,
+                    "rad",
+                    -0.2,
+                    0.2,
+                    "steering offset delta0",
+                ),
+            ),
+        ),
+        Effect(
+            "input_delay",
+            "transport delay of both inputs (radio link, firmware loop)",
+            (_parameter("input_delay", "input_delay", 0.03, "s", 0.0, 0.2, "input delay d"),),
+        ),
+        FirstOrderLag(
+            "steering_lag",
+            "steering servo as a first-order lag",
+            (
+                _parameter(
+                    "steering_lag",
+                    "tau_steer",
+                    0.05,
+                    "s",
+                    0.005,
+                    0.5,
+                    "steering servo time constant",
+                ),
+            ),
+            states=(("steer_applied", "rad"),),
+            channel=0,
+            tau="tau_steer",
+        ),
+        FirstOrderLag(
+            "motor_lag",
+            "motor torque builds up as a first-order lag",
+            (
+                _parameter(
+                    "motor_lag", "tau_motor", 0.05, "s", 0.005, 0.5, "motor torque time constant"
+                ),
+            ),
+            states=(("torque_applied", "-"),),
+            channel=1,
+            tau="tau_motor",
+        ),
+        GyroBias(
+            "gyro_bias",
+            "constant yaw-rate bias of the IMU gyroscope",
+            (_parameter("gyro_bias", "gyro_bias", 0.05, "rad/s", -0.5, 0.5, "gyro bias"),),
+        ),
+        WheelRadiusError(
+            "wheel_radius_error",
+            "the wheels' true radius differs from the nominal r",
+            (
+                _parameter(
+                    "wheel_radius_error",
+                    "wheel_radius_error",
+                    0.001,
+                    "m",
+                    -0.005,
+                    0.005,
+                    "true minus nominal wheel radius",
+                ),
+            ),
+        ),
+    )
+}

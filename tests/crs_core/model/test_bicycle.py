@@ -1,0 +1,132 @@
+"""Physics properties of the dynamic bicycle model (paper Sec. III-A)."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from crs_core.model import CarModel
+from crs_core.model.bicycle import axle_forces, slip_angles
+
+
+@pytest.fixture(scope="module")
+def model() -> CarModel:
+    return CarModel()
+
+
+def _slip_and_force_functions(model: CarModel):
+    x = ca.SX.sym("x", 6)
+    u = ca.SX.sym("u", 2)
+
+    def P(name: str) -> float:
+        return model.parameters.value(name)
+
+    alpha_f, alpha_r = slip_angles(x, u, P)
+    forces = axle_forces(x, u, P)
+    out = ca.vertcat(alpha_f, alpha_r, forces.fy_front, forces.fy_rear)
+    value = ca.Function("v", [x, u], [out])
+    slope = ca.Function("d", [x, u], [ca.jacobian(out, x[3])])
+    return value, slope
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+@pytest.mark.parametrize(
+    "vy, omega, delta", [(0.05, 0.8, 0.2), (-0.1, -1.5, -0.3), (0.0, 2.0, 0.0)]
+)
+def test_slip_angles_and_forces_are_c1_across_eps(model, sign, vy, omega, delta):
+    """Value and slope of slip angles and lateral forces agree on both sides of v_x = ±eps."""
+    value, slope = _slip_and_force_functions(model)
+    eps = model.parameters.value("eps")
+    u = [delta, 0.3]
+    h = 1e-9
+
+    def at(vx):
+        return [0, 0, 0, vx, vy, omega]
+
+    inside, outside = sign * (eps - h), sign * (eps + h)
+    v_in, v_out = np.array(value(at(inside), u)), np.array(value(at(outside), u))
+    np.testing.assert_allclose(v_in, v_out, atol=1e-7)
+    d_in, d_out = np.array(slope(at(inside), u)), np.array(slope(at(outside), u))
+    np.testing.assert_allclose(d_in, d_out, rtol=1e-6, atol=1e-6)
+    # and the slope is a genuine derivative of the value (finite difference away from the joint)
+    k = 1e-6
+    fd = (np.array(value(at(sign * eps + 2 * k), u)) - np.array(value(at(sign * eps + k), u))) / k
+    np.testing.assert_allclose(fd, d_out, rtol=1e-3, atol=1e-3)
+
+
+def test_everything_finite_at_standstill(model):
+    """Slip angles, forces and the state derivative are finite at v_x = 0, also with steering."""
+    value, slope = _slip_and_force_functions(model)
+    p = model.parameters.vector()
+    for vy, omega, delta in [(0, 0, 0), (0.1, 0, 0.3), (0, 1.0, -0.34), (-0.2, -2, 0.1)]:
+        x = [0, 0, 0, 0.0, vy, omega]
+        assert np.all(np.isfinite(np.array(value(x, [delta, 0.5]))))
+        assert np.all(np.isfinite(np.array(slope(x, [delta, 0.5]))))
+        assert np.all(np.isfinite(model.numeric.f(np.array(x, float), np.array([delta, 0.5]), p)))
+
+
+def test_no_tire_force_at_standstill_even_when_steering(model):
+    """At rest, slip angles and lateral forces are zero for any steering angle."""
+    value, _ = _slip_and_force_functions(model)
+    for delta in (-0.34, 0.0, 0.2):
+        np.testing.assert_allclose(np.array(value([0, 0, 0, 0, 0, 0], [delta, 0])), 0, atol=1e-15)
+
+
+def test_standstill_with_zero_input_stays_at_rest(model):
+    """No creeping: 10 s at rest with zero input (and with steering only) changes nothing."""
+    numeric, p = model.numeric, model.parameters.vector()
+    for u in ([0.0, 0.0], [0.3, 0.0]):
+        x = np.array([0.5, -0.2, 0.3, 0.0, 0.0, 0.0])
+        x_end = numeric.step(x, np.array(u), p, 10.0)
+        np.testing.assert_array_equal(x_end, x)
+
+
+def test_coasting_car_stops_without_reversing(model):
+    """Released at 0.5 m/s, friction brings the car to (near) rest and never drives it backwards."""
+    numeric, p = model.numeric, model.parameters.vector()
+    x = np.array([0, 0, 0, 0.5, 0, 0.0])
+    speeds = []
+    for _ in range(2000):
+        x = numeric.step(x, np.zeros(2), p, 0.01)
+        speeds.append(x[3])
+    assert min(speeds) > -1e-6
+    assert speeds[-1] < 0.01
+
+
+@pytest.mark.parametrize("torque", [0.1, 0.3, 0.6])
+def test_straight_line_steady_state_speed(model, torque):
+    """Constant torque converges to the speed where motor force equals friction."""
+    P = model.parameters.value
+    # independent solution of (Cm1 - Cm2 v) T = Cd2 v^2 + Cd1 v + Cd0 for v > 0
+    a, b, c = P("Cd2"), P("Cd1") + P("Cm2") * torque, P("Cd0") - P("Cm1") * torque
+    v_expected = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    x = np.zeros(6)
+    x = model.numeric.step(x, np.array([0.0, torque]), model.parameters.vector(), 60.0)
+    assert x[3] == pytest.approx(v_expected, rel=1e-4)
+    assert abs(x[4]) < 1e-12 and abs(x[5]) < 1e-12 and abs(x[1]) < 1e-9
+
+
+def test_friction_is_odd_in_speed(model):
+    """Reversing at -v decelerates exactly like driving at +v (mirror symmetry)."""
+    p = model.parameters.vector()
+    forward = model.numeric.f(np.array([0, 0, 0, 0.7, 0, 0.0]), np.zeros(2), p)
+    backward = model.numeric.f(np.array([0, 0, 0, -0.7, 0, 0.0]), np.zeros(2), p)
+    assert forward[3] < 0
+    assert backward[3] == pytest.approx(-forward[3], rel=1e-12)
+
+
+def test_left_right_mirror_symmetry(model):
+    """Steering left and right gives mirrored lateral and yaw dynamics."""
+    p = model.parameters.vector()
+    left = model.numeric.f(np.array([0, 0, 0, 1.0, 0.05, 1.0]), np.array([0.2, 0.4]), p)
+    right = model.numeric.f(np.array([0, 0, 0, 1.0, -0.05, -1.0]), np.array([-0.2, 0.4]), p)
+    np.testing.assert_allclose(right[[3, 4, 5]], left[[3, 4, 5]] * [1, -1, -1], rtol=1e-12)
+
+
+def test_kinematics_rotate_body_velocity_into_world(model):
+    """x_p and y_p derivatives are the body velocity rotated by yaw."""
+    psi = 0.7
+    xdot = model.numeric.f(
+        np.array([0, 0, psi, 1.2, 0.1, 0.4]), np.zeros(2), model.parameters.vector()
+    )
+    c, s = np.cos(psi), np.sin(psi)
+    np.testing.assert_allclose(xdot[:3], [1.2 * c - 0.1 * s, 1.2 * s + 0.1 * c, 0.4], rtol=1e-14)

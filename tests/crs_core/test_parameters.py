@@ -1,0 +1,71 @@
+"""Named parameters: Chronos defaults, validation at the boundary, YAML round trip."""
+
+import pytest
+import yaml
+
+from crs_core.model import CarModel
+from crs_core.model.chronos import ROUGH_PRIOR, dynamics_parameters
+from crs_core.parameters import Parameter, ParameterSet
+
+
+def test_chronos_defaults_are_the_identified_values():
+    """Defaults equal the values identified for the recorded car (data README)."""
+    params = dynamics_parameters()
+    assert params.value("m") == 0.242 and params.value("Bf") == 5.19600518
+    assert params.value("gamma") == 0.50199235 and params.value("eps") == 0.2
+    assert params.value("r") == 0.0175 and params.value("b_car") == 0.12
+    assert params["Cm1"].unit == "N" and params["Iz"].unit == "kg m^2"
+
+
+def test_model_parameter_vector_follows_names():
+    """The model's p vector is laid out in ParameterSet order, looked up by name."""
+    model = CarModel()
+    p = model.parameters.vector()
+    assert p[model.parameters.index("Cd2")] == model.parameters.value("Cd2")
+    assert model.np == len(p)
+
+
+def test_yaml_round_trip(tmp_path):
+    """to_yaml then updated_from_yaml reproduces every field."""
+    params = CarModel(["steering_lag"]).parameters.updated({"m": 0.25, "tau_steer": 0.07})
+    path = tmp_path / "p.yaml"
+    params.to_yaml(path)
+    again = CarModel(["steering_lag"]).parameters.updated_from_yaml(path)
+    assert again.to_dict() == params.to_dict()
+
+
+def test_yaml_with_plain_numbers_applies_onto_defaults(tmp_path):
+    """A YAML of plain numbers (e.g. the rough prior) overrides only those values."""
+    path = tmp_path / "prior.yaml"
+    path.write_text(yaml.safe_dump({"parameters": ROUGH_PRIOR}))
+    params = dynamics_parameters().updated_from_yaml(path)
+    assert params.value("Cd0") == 0.014 and params.value("b_car") == 0.088
+    assert params.value("m") == 0.242
+
+
+@pytest.mark.parametrize(
+    "content, field",
+    [
+        ({"parameters": {"m": "heavy"}}, "m"),
+        ({"parameters": {"m": float("nan")}}, "m"),
+        ({"parameters": {"m": 7.0}}, "m"),
+        ({"parameters": {"mass": 0.3}}, "mass"),
+        ({"parameters": {"m": {"value": 0.3, "lower": 0.4}}}, "m"),
+        ({"params": {}}, "parameters"),
+    ],
+)
+def test_bad_yaml_is_rejected_naming_the_field(tmp_path, content, field):
+    """Malformed, non-finite, out-of-bounds or unknown entries raise errors naming the field."""
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(content))
+    with pytest.raises((ValueError, KeyError), match=field):
+        dynamics_parameters().updated_from_yaml(path)
+
+
+def test_duplicate_and_inconsistent_parameters_rejected():
+    """Duplicate names and inverted bounds are refused."""
+    a = Parameter("k", 1.0, "-", 0.0, 2.0, 0.1, "a gain", "car")
+    with pytest.raises(ValueError, match="duplicate"):
+        ParameterSet([a, a])
+    with pytest.raises(ValueError, match="lower bound"):
+        Parameter("k", 1.0, "-", 3.0, 2.0, 0.1, "a gain", "car")
