@@ -1,0 +1,175 @@
+"""The ``crs`` command line: ``crs sim``, ``crs demo``, ``crs consistency``, ``crs bench model``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from crs_core.analysis.consistency import channel_errors
+from crs_core.control.path_following import PathFollower, PathFollowerSettings
+from crs_core.dataset import Dataset
+from crs_core.model import EFFECTS, CarModel
+from crs_core.track import Track, load_demo_track
+from sim.report import write_report
+from sim.sensors import Blackout, SensorSuite
+from sim.simulator import Simulator
+
+REAL_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "chronos_real"
+
+
+def parse_effect(text: str) -> tuple[str, str | None, float | None]:
+    """``NAME``, ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` -> (effect, parameter, value)."""
+    name, _, value = text.partition("=")
+    effect, _, parameter = name.partition(".")
+    if effect not in EFFECTS:
+        raise argparse.ArgumentTypeError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
+    params = [p.name for p in EFFECTS[effect].parameters]
+    if parameter and parameter not in params:
+        raise argparse.ArgumentTypeError(f"effect {effect!r} has parameters {params}")
+    if not value:
+        return effect, None, None
+    try:
+        number = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"effect {effect!r}: {value!r} is not a number") from None
+    return effect, parameter or params[0], number
+
+
+def parse_blackout(text: str) -> Blackout:
+    """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``."""
+    try:
+        sensor, start, duration = text.split(":")
+        return Blackout(sensor, float(start), float(duration))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"blackout {text!r}: {error}") from None
+
+
+def build_model(
+    effects: Sequence[tuple[str, str | None, float | None]], stations: int, params_yaml: Path | None
+) -> CarModel:
+    spec: dict[str, dict[str, float] | None] = {}
+    for effect, parameter, value in effects:
+        entry = spec.setdefault(effect, None)
+        if parameter is not None:
+            spec[effect] = {**(entry or {}), parameter: value}
+    model = CarModel(spec, n_base_stations=stations)
+    if params_yaml is not None:
+        model = CarModel(spec, stations, model.parameters.updated_from_yaml(params_yaml))
+    return model
+
+
+def simulate(args: argparse.Namespace) -> Path:
+    """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
+    track = Track.from_yaml(args.track) if args.track else load_demo_track()
+    model = build_model(args.effect or [], args.stations, args.params)
+    sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
+    if args.noise_free:
+        sensors = sensors.ideal()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=args.speed))
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    simulator = Simulator(model, sensors, seed=args.seed)
+    started = time.perf_counter()
+    result = simulator.run(controller, args.duration, x0, progress=sys.stderr.isatty())
+    elapsed = time.perf_counter() - started
+    result.extra_meta["noise_free"] = bool(args.noise_free)
+    out = Path(args.out)
+    result.to_dataset().save(out)
+    print(
+        f"dataset: {out}  ({len(result.measurements)} measurements, "
+        f"{args.duration / elapsed:.0f}x real time)"
+    )
+    if args.report:
+        report = write_report(
+            result, track, out / "report", {"real_time_factor": round(args.duration / elapsed, 1)}
+        )
+        print(f"report:  {report}/summary.txt, path.png, sensors.png")
+        print((report / "summary.txt").read_text(), end="")
+    return out
+
+
+def consistency(args: argparse.Namespace) -> None:
+    """Real-data consistency of the sensor models (median / p95 error per channel)."""
+    folders = args.data or sorted(p for p in REAL_DATA.iterdir() if p.is_dir())
+    rows = {}
+    for folder in folders:
+        rows[Path(folder).name] = channel_errors(Dataset.load(folder))
+    text = json.dumps({"command": " ".join(sys.argv), "runs": rows}, indent=2)
+    if args.out:
+        Path(args.out).write_text(text)
+    print(f"{'channel':18s}" + "".join(f"{name[-12:]:>26s}" for name in rows))
+    for channel in next(iter(rows.values())):
+        cells = "".join(
+            f"{r[channel]['median']:12.4g} /{r[channel]['p95']:11.4g}" for r in rows.values()
+        )
+        print(f"{channel:18s}{cells}")
+    print("(median / p95 of |recorded - model(recorded state)|; rad for Lighthouse, rad/s else)")
+
+
+def bench(args: argparse.Namespace) -> None:
+    from sim.benchmarks import model_benchmark
+
+    result = model_benchmark()
+    text = json.dumps(result, indent=2)
+    if args.out:
+        Path(args.out).write_text(text)
+    print(text)
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="crs", description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+    for name, help_text, duration in (
+        ("sim", "simulate the car on a track and save a dataset", 30.0),
+        ("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0),
+    ):
+        sub = commands.add_parser(name, help=help_text)
+        sub.add_argument("--duration", type=float, default=duration, help="simulated time, s")
+        sub.add_argument("--seed", type=int, default=0)
+        sub.add_argument("--out", required=name == "sim", default="out/demo")
+        sub.add_argument("--noise-free", action="store_true", help="ideal sensors")
+        sub.add_argument(
+            "--effect",
+            type=parse_effect,
+            action="append",
+            metavar="NAME[=VALUE]",
+            help=f"hidden truth effect, one of: {', '.join(EFFECTS)}",
+        )
+        sub.add_argument(
+            "--blackout", type=parse_blackout, action="append", metavar="SENSOR:START:DURATION"
+        )
+        sub.add_argument("--stations", type=int, default=1, help="Lighthouse base stations")
+        sub.add_argument("--speed", type=float, default=1.0, help="reference speed, m/s")
+        sub.add_argument("--params", type=Path, help="parameter YAML applied to the truth")
+        sub.add_argument("--track", type=Path, help="track YAML (CRS format)")
+        sub.add_argument("--report", action=argparse.BooleanOptionalAction, default=name == "demo")
+        sub.set_defaults(handler=simulate)
+    sub = commands.add_parser("consistency", help="sensor models vs. the real recordings")
+    sub.add_argument("--data", type=Path, action="append", help="dataset folder(s)")
+    sub.add_argument("--out", type=Path, help="JSON file")
+    sub.set_defaults(handler=consistency)
+    sub = commands.add_parser("bench", help="benchmarks that print JSON")
+    sub.add_argument("what", choices=["model"])
+    sub.add_argument("--out", type=Path, help="JSON file")
+    sub.set_defaults(handler=bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = make_parser().parse_args(argv)
+    try:
+        args.handler(args)
+    except (ValueError, KeyError, FileNotFoundError) as error:
+        print(f"crs {args.command}: error: {error}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
