@@ -17,14 +17,20 @@ import hashlib
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
 _CINT = ctypes.c_longlong  # matches the generated code's casadi_int
+
+#: Options for every SX function that is evaluated numerically: common subexpression
+#: elimination cuts the RK4 step with its Jacobian from about 20k to 12k instructions.
+SX_OPTIONS = {"cse": True}
 
 
 def cache_dir() -> Path:
@@ -116,12 +122,29 @@ class CompiledFunction(NumericFunction):
         )
 
 
+@contextmanager
+def quiet_stderr() -> Iterator[None]:
+    """Silence C-level writes to stderr (CasADi's notice that its own VM runs maps serially)."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 2)
+            yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def compiler_available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
 
 def compile_functions(
-    functions: Sequence[ca.Function], library_name: str, backend: str | None = None
+    functions: Sequence[ca.Function],
+    library_name: str,
+    backend: str | None = None,
+    openmp: bool = False,
 ) -> dict[str, NumericFunction]:
     """Numeric callables for ``functions``, keyed by function name.
 
@@ -133,6 +156,8 @@ def compile_functions(
         Stem of the generated C file (a valid C identifier).
     backend : {"compiled", "vm", None}
         ``None`` picks ``$CRS_CODEGEN`` if set, else ``compiled`` when a compiler exists.
+    openmp : bool
+        Compile with ``-fopenmp`` so ``Function.map(..., "openmp")`` runs on all cores.
     """
     backend = (
         backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
@@ -141,11 +166,14 @@ def compile_functions(
         return {f.name(): VMFunction(f) for f in functions}
     if backend != "compiled":
         raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
-    library = ctypes.CDLL(str(_build_library(functions, library_name)))
+    flags = ["-O2", "-fPIC", "-shared", *(["-fopenmp"] if openmp else [])]
+    library = ctypes.CDLL(str(_build_library(functions, library_name, flags)))
     return {f.name(): CompiledFunction(f, library) for f in functions}
 
 
-def _build_library(functions: Sequence[ca.Function], library_name: str) -> Path:
+def _build_library(
+    functions: Sequence[ca.Function], library_name: str, flags: list[str]
+) -> Path:
     with tempfile.TemporaryDirectory() as scratch:
         generator = ca.CodeGenerator(
             f"{library_name}.c", {"with_header": False, "casadi_int": "long long int"}
@@ -154,7 +182,6 @@ def _build_library(functions: Sequence[ca.Function], library_name: str) -> Path:
             generator.add(f)
         generator.generate(scratch + os.sep)
         source = Path(scratch, f"{library_name}.c").read_text()
-    flags = ["-O2", "-fPIC", "-shared"]
     digest = hashlib.sha256((source + " ".join(flags)).encode()).hexdigest()[:20]
     target = cache_dir() / f"{library_name}_{digest}.so"
     if target.exists():

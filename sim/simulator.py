@@ -29,6 +29,17 @@ Controller = Callable[[float, np.ndarray], np.ndarray]
 _APPLY, _CONTROL, _SENSOR = 0, 1, 2
 
 
+#: Sweep angles beyond this (rad) are out of the base station's view; the host drops them.
+LIGHTHOUSE_VIEW_LIMIT = 1.5
+
+
+def _in_view(sensor: str, values: np.ndarray) -> bool:
+    """False for a Lighthouse sweep that cannot reach a photodiode or lies outside the view."""
+    if not sensor.startswith("lighthouse"):
+        return True
+    return bool(np.all(np.isfinite(values)) and np.all(np.abs(values) <= LIGHTHOUSE_VIEW_LIMIT))
+
+
 def _rng(seed: int, name: str) -> np.random.Generator:
     digest = int.from_bytes(hashlib.sha256(name.encode()).digest()[:4], "little")
     return np.random.default_rng([seed, digest])
@@ -144,14 +155,12 @@ class Simulator:
     def _schedule(self, duration: float) -> list[tuple[float, str]]:
         """Acquisition times of every sensor sample."""
         events = []
-        for name in ("imu", "wheel_encoders"):
+        for name in ("imu", "wheel_encoders", "pose"):
+            if name == "pose" and self.sensors.pose is None:
+                continue
             spec = self.sensors.spec(name)
-            events += [(t, name) for t in sample_times(spec, duration, 0.0, _rng(self.seed, name))]
-        if self.sensors.pose is not None:
-            spec = self.sensors.pose
-            events += [
-                (t, "pose") for t in sample_times(spec, duration, 0.0, _rng(self.seed, "pose"))
-            ]
+            times = sample_times(spec, duration, 0.0, _rng(self.seed, name + "/time"))
+            events += [(t, name) for t in times]
         spec = self.sensors.lighthouse
         for station in range(self.model.n_base_stations):
             for plane in (1, 2):
@@ -182,18 +191,15 @@ class Simulator:
         u_active = np.zeros(2)
         heap: list[tuple[float, int, int, object]] = []
         counter = 0
-        for t, name in self._schedule(duration):
+        schedule = self._schedule(duration)
+        for t, name in schedule:
             heap.append((t, _SENSOR, counter, name))
             counter += 1
         for t in np.arange(0.0, duration, 1.0 / control_rate_hz):
             heap.append((t, _CONTROL, counter, None))
             counter += 1
         heapq.heapify(heap)
-        rngs = {
-            name: _rng(self.seed, name)
-            for name in self.model.outputs
-            if name != "pose" or self.sensors.pose is not None
-        }
+        rngs = {name: _rng(self.seed, name) for name in sorted({n for _, n in schedule})}
         noise = {name: np.array(self.sensors.spec(name).noise_std) for name in rngs}
         bias = {
             name: np.array(self.sensors.spec(name).bias or np.zeros(noise[name].size))
@@ -233,7 +239,7 @@ class Simulator:
                 dropped = rng.random() < spec.dropout_probability
                 values = numeric.outputs(x, u_active, self._p)[name]
                 values = values + bias[name] + noise[name] * rng.standard_normal(values.size)
-                if dropped or self.sensors.blacked_out(name, now):
+                if dropped or self.sensors.blacked_out(name, now) or not _in_view(name, values):
                     continue
                 measurements.append(Measurement(now + spec.latency_s, name, values))
         bar.close()

@@ -15,7 +15,7 @@ from functools import cached_property
 import casadi as ca
 import numpy as np
 
-from crs_core.codegen import NumericFunction, compile_functions
+from crs_core.codegen import SX_OPTIONS, NumericFunction, compile_functions
 from crs_core.integrators import rk4
 from crs_core.model import sensors
 from crs_core.model.bicycle import INPUT_NAMES, STATE_NAMES, STATE_UNITS, state_derivative
@@ -97,7 +97,7 @@ class CarModel:
     input_names : tuple of str
         ``steer, torque`` (commanded).
     outputs : dict of str to SensorOutput
-        ``imu``, ``wheel_encoders``, ``pose`` and ``lighthouse/<station>/<plane>``.
+        ``imu``, ``gyro``, ``wheel_encoders``, ``pose`` and ``lighthouse/<station>/<plane>``.
     """
 
     input_names = INPUT_NAMES
@@ -154,6 +154,7 @@ class CarModel:
             outputs[f"lighthouse/{station}/2"] = second
         for effect in self.effects:
             outputs = {name: effect.output(name, y, P) for name, y in outputs.items()}
+        outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
         self.xdot_expression = xdot
@@ -186,6 +187,7 @@ class CarModel:
             [self.xdot_expression],
             ["x", "u", "p"],
             ["xdot"],
+            SX_OPTIONS,
         )
 
     def step_function(self, substeps: int = 1, name: str = "rk4") -> ca.Function:
@@ -203,6 +205,7 @@ class CarModel:
             [x_next],
             ["x", "u", "p", "dt"],
             ["x_next"],
+            SX_OPTIONS,
         )
 
     def output_function(self, sensor: str) -> ca.Function:
@@ -215,6 +218,7 @@ class CarModel:
             [self.output_expressions[sensor]],
             ["x", "u", "p"],
             ["y"],
+            SX_OPTIONS,
         )
 
     # --- numbers --------------------------------------------------------------------------
@@ -261,6 +265,7 @@ class NumericModel:
                 [sensors_all],
                 ["x", "u", "p"],
                 ["y"],
+                SX_OPTIONS,
             ),
             ca.Function(
                 "applied_input",
@@ -268,6 +273,7 @@ class NumericModel:
                 [model.applied_input_expression],
                 ["x", "u", "p"],
                 ["u_applied"],
+                SX_OPTIONS,
             ),
         ]
         tag = "_".join(e.name for e in model.effects) or "base"
@@ -309,6 +315,8 @@ class NumericModel:
 def _channels(sensor: str) -> tuple[str, ...]:
     if sensor == "imu":
         return ("ax", "ay", "omega")
+    if sensor == "gyro":
+        return ("omega",)
     if sensor == "wheel_encoders":
         return ("fl", "fr", "rl", "rr")
     if sensor == "pose":

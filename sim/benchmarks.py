@@ -1,0 +1,94 @@
+"""Speed benchmarks that print JSON: model evaluation and simulator real-time factor."""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from crs_core.control.path_following import PathFollower
+from crs_core.model import CarModel
+from crs_core.model.car_model import NumericModel
+from crs_core.track import load_demo_track
+from sim.sensors import SensorSuite
+from sim.simulator import Simulator
+
+
+def machine() -> dict[str, Any]:
+    """Where a figure was measured."""
+    cpu = platform.processor()
+    try:
+        with open("/proc/cpuinfo") as info:
+            cpu = next(line.split(":", 1)[1].strip() for line in info if "model name" in line)
+    except (OSError, StopIteration):
+        pass
+    return {
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+    }
+
+
+def timing(call: Callable[[], object], repeats: int) -> dict[str, float]:
+    """Median, p95 and max wall time of ``call`` in microseconds."""
+    call()
+    samples = np.empty(repeats)
+    for k in range(repeats):
+        start = time.perf_counter()
+        call()
+        samples[k] = time.perf_counter() - start
+    us = samples * 1e6
+    return {
+        "median_us": round(float(np.median(us)), 2),
+        "p95_us": round(float(np.percentile(us, 95)), 2),
+        "max_us": round(float(us.max()), 2),
+    }
+
+
+def model_benchmark(repeats: int = 20000, sim_duration: float = 60.0) -> dict[str, Any]:
+    """Per-call times of the compiled and VM model functions, and the simulator's speed."""
+    model = CarModel()
+    p = model.parameters.vector()
+    x = np.array([0.3, -1.0, 0.2, 1.2, 0.05, 1.5])
+    u = np.array([0.2, 0.4])
+    rows = []
+    for backend in ("compiled", "vm"):
+        numeric = NumericModel(model, backend=backend)
+        step = numeric.functions["rk4_step"]
+        n = repeats if backend == "compiled" else repeats // 10
+        rows.append(
+            {
+                "backend": numeric.backend,
+                "f": timing(lambda numeric=numeric: numeric.f(x, u, p), n),
+                "rk4_step": timing(lambda step=step: step(x, u, p, 0.004), n),
+                "all_sensor_outputs": timing(lambda numeric=numeric: numeric.outputs(x, u, p), n),
+                "calls": n,
+            }
+        )
+    track = load_demo_track()
+    controller = PathFollower(track, model.parameters.value("lf") + model.parameters.value("lr"))
+    simulator = Simulator(model, SensorSuite(), seed=0)
+    start = time.perf_counter()
+    result = simulator.run(
+        controller, sim_duration, np.array([track.start_x, track.start_y, track.start_yaw, 0, 0, 0])
+    )
+    elapsed = time.perf_counter() - start
+    return {
+        "machine": machine(),
+        "command": " ".join(["crs", *sys.argv[1:]]) if sys.argv else "crs bench model",
+        "model_evaluation": rows,
+        "simulator": {
+            "simulated_s": sim_duration,
+            "wall_s": round(elapsed, 3),
+            "real_time_factor": round(sim_duration / elapsed, 1),
+            "measurements": len(result.measurements),
+            "sensors": "imu 250 Hz, wheel encoders 250 Hz, lighthouse 2 planes x 50 Hz",
+            "controller_hz": 50,
+        },
+    }

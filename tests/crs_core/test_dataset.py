@@ -1,0 +1,319 @@
+"""Tests of crs_core.dataset: save/load round trip, the real recordings, and input validation."""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from crs_core.dataset import FORMAT, Y_CHANNELS, Dataset, Geometry
+from crs_core.measurements import lighthouse_sensor
+from crs_core.model import CarModel
+from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES
+from sim import SensorSpec, SensorSuite, Simulator
+
+REAL_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "chronos_real"
+REAL_RUNS = {"fie_mpc_lighthouse_1": 1462, "fie_mpc_lighthouse_2": 1472}
+
+
+def weaving(t: float, x: np.ndarray) -> np.ndarray:
+    """Varying steer so that the two input columns are distinguishable."""
+    return np.array([0.15 * np.sin(3.0 * t), 0.25])
+
+
+@pytest.fixture(scope="module")
+def simulated() -> Dataset:
+    result = Simulator(CarModel(), SensorSuite(), seed=3).run(weaving, 2.0, np.zeros(6))
+    data = result.to_dataset()
+    data.y[3, 12] = np.nan  # a missing yaw rate must survive the round trip
+    return data
+
+
+@pytest.fixture(scope="module")
+def saved(simulated: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return simulated.save(tmp_path_factory.mktemp("dataset") / "run")
+
+
+@pytest.fixture
+def corruptible(saved: Path, tmp_path: Path) -> Path:
+    """A fresh copy of the saved dataset, to be broken by a test."""
+    return Path(shutil.copytree(saved, tmp_path / "broken"))
+
+
+def real_run(name: str) -> Path:
+    folder = REAL_DATA / name
+    if not folder.is_dir():
+        pytest.skip(f"real recordings not found: {folder}")
+    return folder
+
+
+# --- round trip -----------------------------------------------------------------------------------
+def test_save_writes_the_documented_files(saved: Path, simulated: Dataset):
+    """A simulated dataset folder holds t/u/y/x .npy (recorded orientation), YAML and stream."""
+    names = {p.name for p in saved.iterdir()}
+    assert names == {"t.npy", "u.npy", "y.npy", "x.npy", "dataset.yaml", "stream.npz"}
+    n = simulated.t.size
+    assert np.load(saved / "y.npy").shape == (len(Y_CHANNELS), n)
+    assert np.load(saved / "x.npy").shape == (6, n)
+
+
+def test_u_on_disk_is_torque_first(saved: Path, simulated: Dataset):
+    """Raw u.npy row 0 is the torque and row 1 the steering, as in the real recordings."""
+    raw = np.load(saved / "u.npy")
+    assert raw.shape == (2, simulated.t.size)
+    np.testing.assert_array_equal(raw[0], simulated.u[:, 1])
+    np.testing.assert_array_equal(raw[1], simulated.u[:, 0])
+    assert np.all(raw[0] == 0.25)
+    assert np.ptp(raw[1]) > 0.1
+
+
+def test_round_trip_preserves_samples_and_geometry(saved: Path, simulated: Dataset):
+    """Loading what was saved gives identical t, u, y (NaN included), x and the same geometry."""
+    loaded = Dataset.load(saved)
+    for name in ("t", "u", "y", "x"):
+        np.testing.assert_array_equal(getattr(loaded, name), getattr(simulated, name))
+    assert np.isnan(loaded.y[3, 12])
+    assert len(loaded.geometry.base_stations) == 1
+    for got, want in zip(loaded.geometry.base_stations, simulated.geometry.base_stations,
+                         strict=True):  # fmt: skip
+        np.testing.assert_allclose(got.angles, want.angles, rtol=0, atol=1e-12)
+        assert got.position == want.position
+        assert (got.dt1, got.dt2) == (want.dt1, want.dt2)
+    assert loaded.geometry.photodiodes == simulated.geometry.photodiodes
+
+
+def test_round_trip_preserves_metadata(saved: Path, simulated: Dataset):
+    """Metadata (source, seed, truth parameters, sensor settings) comes back unchanged."""
+    loaded = Dataset.load(saved)
+    for key in ("source", "seed", "duration_s", "truth", "sensors"):
+        assert loaded.meta[key] == simulated.meta[key]
+    assert loaded.meta["format"] == FORMAT
+    assert loaded.meta["y_channels"] == list(Y_CHANNELS)
+    assert "geometry" not in loaded.meta  # parsed into Dataset.geometry
+    assert loaded.meta["sensors"]["lighthouse"]["dropout_probability"] == 0.05
+
+
+def test_round_trip_preserves_full_stream_inputs_and_truth(saved: Path, simulated: Dataset):
+    """The full-rate stream, commanded inputs and dense truth come back value for value."""
+    loaded = Dataset.load(saved)
+    assert simulated.measurements is not None and loaded.measurements is not None
+    assert len(loaded.measurements) == len(simulated.measurements) > 1000
+    for got, want in zip(loaded.measurements, simulated.measurements, strict=True):
+        assert (got.stamp, got.sensor) == (want.stamp, want.sensor)
+        np.testing.assert_array_equal(got.values, want.values)
+    assert loaded.inputs is not None and simulated.inputs is not None
+    np.testing.assert_array_equal([s.stamp for s in loaded.inputs],
+                                  [s.stamp for s in simulated.inputs])  # fmt: skip
+    np.testing.assert_array_equal(np.stack([s.u for s in loaded.inputs]),
+                                  np.stack([s.u for s in simulated.inputs]))  # fmt: skip
+    np.testing.assert_array_equal(loaded.truth_t, simulated.truth_t)
+    np.testing.assert_array_equal(loaded.truth_x, simulated.truth_x)
+
+
+def test_sample_stream_skips_missing_channels(simulated: Dataset):
+    """sample_stream gives 4 measurements per sample, minus groups with a NaN (one here)."""
+    stream = simulated.sample_stream()
+    assert len(stream) == 4 * simulated.t.size - 1
+    gyro = [m for m in stream if m.sensor == "gyro"]
+    assert simulated.t[3] not in [m.stamp for m in gyro]
+    first = stream[:4]
+    assert [m.sensor for m in first] == [
+        lighthouse_sensor(0, 1),
+        lighthouse_sensor(0, 2),
+        "wheel_encoders",
+        "gyro",
+    ]
+    assert all(m.stamp == simulated.t[0] for m in first)
+    np.testing.assert_array_equal(first[1].values, simulated.y[0, 4:8])
+
+
+# --- the real recordings --------------------------------------------------------------------------
+@pytest.mark.parametrize(("name", "samples"), sorted(REAL_RUNS.items()))
+def test_real_runs_load_in_model_order(name: str, samples: int):
+    """The recordings load with their sample counts; u becomes [steer, torque] by name."""
+    data = Dataset.load(real_run(name))
+    assert data.t.shape == (samples,)
+    assert data.u.shape == (samples, 2)
+    assert data.y.shape == (samples, len(Y_CHANNELS))
+    assert data.x is not None and data.x.shape == (samples, 6)
+    steer, torque = data.u[:, 0], data.u[:, 1]
+    assert np.all(np.abs(steer) <= 0.34 + 1e-12)
+    assert steer.min() < -0.3 and steer.max() > 0.3  # both directions used
+    assert np.all((torque >= 0.05) & (torque <= 1.0))
+    raw = np.load(real_run(name) / "u.npy")
+    np.testing.assert_array_equal(raw[0], torque)
+    assert np.all(np.diff(data.t) > 0)
+    assert 30.0 < data.t[-1] - data.t[0] < 33.0
+
+
+@pytest.mark.parametrize("name", sorted(REAL_RUNS))
+def test_real_runs_use_recorded_geometry_without_yaml(name: str):
+    """Without dataset.yaml the geometry is the recorded base station and photodiodes."""
+    folder = real_run(name)
+    assert not (folder / "dataset.yaml").exists()
+    data = Dataset.load(folder)
+    assert data.geometry == Geometry()
+    assert data.geometry.base_stations == (RECORDED_BASE_STATION,)
+    assert data.geometry.photodiodes == RECORDED_PHOTODIODES
+    assert data.meta == {"source": "real"}
+    assert data.measurements is None and data.truth_t is None
+
+
+@pytest.mark.parametrize(("name", "samples"), sorted(REAL_RUNS.items()))
+def test_real_sample_stream_has_four_measurements_per_sample(name: str, samples: int):
+    """Every real sample yields both planes of station 0, the wheel speeds and the yaw rate."""
+    data = Dataset.load(real_run(name))
+    stream = data.sample_stream()
+    assert len(stream) == 4 * samples
+    counts = {s: sum(m.sensor == s for m in stream) for s in
+              ("lighthouse/0/1", "lighthouse/0/2", "wheel_encoders", "gyro")}  # fmt: skip
+    assert counts == dict.fromkeys(counts, samples)
+    last = stream[-4:]
+    assert all(m.stamp == data.t[-1] for m in last)
+    np.testing.assert_array_equal(last[0].values, data.y[-1, 0:4])
+    np.testing.assert_array_equal(last[2].values, data.y[-1, 8:12])
+    np.testing.assert_array_equal(last[3].values, data.y[-1, 12:13])
+
+
+# --- malformed inputs -----------------------------------------------------------------------------
+def test_missing_folder_is_a_file_not_found_error(tmp_path: Path):
+    """Loading a folder that does not exist raises FileNotFoundError naming it."""
+    with pytest.raises(FileNotFoundError, match="nowhere"):
+        Dataset.load(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("shape", [(3, -1), (-1, 2), (2, -1, 1)])
+def test_u_of_wrong_shape_is_rejected(corruptible: Path, shape: tuple[int, ...]):
+    """u.npy that is not (2, N) (three rows, model-order transposed, 3-D) names u.npy."""
+    n = np.load(corruptible / "t.npy").size
+    np.save(corruptible / "u.npy", np.zeros([n if s == -1 else s for s in shape]))
+    with pytest.raises(ValueError, match=r"^u\.npy: expected shape \(2, N\)"):
+        Dataset.load(corruptible)
+
+
+def test_u_of_wrong_length_is_rejected(corruptible: Path):
+    """u.npy with one sample too many is rejected naming u."""
+    n = np.load(corruptible / "t.npy").size
+    np.save(corruptible / "u.npy", np.zeros((2, n + 1)))
+    with pytest.raises(ValueError, match=r"^u: expected shape"):
+        Dataset.load(corruptible)
+
+
+def test_y_with_wrong_rows_is_rejected(corruptible: Path):
+    """y.npy without its 13 rows is rejected naming y.npy."""
+    np.save(corruptible / "y.npy", np.load(corruptible / "y.npy")[:12])
+    with pytest.raises(ValueError, match=r"^y\.npy: expected shape \(13, N\)"):
+        Dataset.load(corruptible)
+
+
+@pytest.mark.parametrize("kind", ["repeated", "reversed"])
+def test_non_increasing_stamps_are_rejected(corruptible: Path, kind: str):
+    """A repeated or backwards stamp in t.npy is rejected naming t."""
+    t = np.load(corruptible / "t.npy")
+    if kind == "repeated":
+        t[5] = t[4]
+    else:
+        t[[4, 5]] = t[[5, 4]]
+    np.save(corruptible / "t.npy", t)
+    with pytest.raises(ValueError, match=r"^t: stamps must be strictly increasing"):
+        Dataset.load(corruptible)
+
+
+@pytest.mark.parametrize(("file", "row", "field"), [("x", 3, "x"), ("t", None, "t"),
+                                                   ("u", 1, "u")])  # fmt: skip
+def test_nan_outside_y_is_rejected_naming_the_field(corruptible: Path, file, row, field):
+    """NaN is allowed only in y (a missing channel): in x, t or u it is rejected by name."""
+    array = np.load(corruptible / f"{file}.npy")
+    if row is None:
+        array[7] = np.nan
+    else:
+        array[row, 7] = np.nan
+    np.save(corruptible / f"{file}.npy", array)
+    with pytest.raises(ValueError, match=rf"^{field}: contains non-finite values"):
+        Dataset.load(corruptible)
+
+
+def test_inf_in_y_is_rejected(corruptible: Path):
+    """y may hold NaN for missing channels but never inf."""
+    y = np.load(corruptible / "y.npy")
+    y[2, 4] = np.inf
+    np.save(corruptible / "y.npy", y)
+    with pytest.raises(ValueError, match=r"^y: contains non-finite values"):
+        Dataset.load(corruptible)
+
+
+def test_malformed_yaml_is_rejected(corruptible: Path):
+    """A dataset.yaml that is not a mapping, or has broken geometry, is rejected by name."""
+    (corruptible / "dataset.yaml").write_text("- just\n- a list\n")
+    with pytest.raises(ValueError, match=r"^dataset\.yaml: expected a mapping"):
+        Dataset.load(corruptible)
+    (corruptible / "dataset.yaml").write_text(
+        yaml.safe_dump({"geometry": {"base_stations": [{"rotation": [[1, 0, 0]]}]}})
+    )
+    with pytest.raises(ValueError, match=r"^geometry: malformed"):
+        Dataset.load(corruptible)
+
+
+def test_constructor_validates_shapes():
+    """Building a Dataset with u in the wrong orientation raises ValueError naming u."""
+    t = np.arange(5.0)
+    y = np.zeros((5, len(Y_CHANNELS)))
+    with pytest.raises(ValueError, match=r"^u: expected shape \(5, 2\), got \(2, 5\)"):
+        Dataset(t=t, u=np.zeros((2, 5)), y=y)
+    with pytest.raises(ValueError, match=r"^y: expected shape"):
+        Dataset(t=t, u=np.zeros((5, 2)), y=y[:, :12])
+
+
+def test_two_station_geometry_round_trips(tmp_path: Path):
+    """A two-station geometry survives save/load (rotation, position, tilt offsets per station)."""
+    model = CarModel(n_base_stations=2)
+    geometry = Geometry.from_parameters(model.parameters, 2)
+    n = 3
+    data = Dataset(t=np.arange(n) * 0.02, u=np.zeros((n, 2)),
+                   y=np.full((n, len(Y_CHANNELS)), np.nan), geometry=geometry)  # fmt: skip
+    loaded = Dataset.load(data.save(tmp_path / "two"))
+    assert loaded.x is None and loaded.measurements is None
+    assert len(loaded.geometry.base_stations) == 2
+    for got, want in zip(loaded.geometry.base_stations, geometry.base_stations, strict=True):
+        np.testing.assert_allclose(got.rotation, want.rotation, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got.position, want.position, rtol=0, atol=1e-15)
+    second = loaded.geometry.base_stations[1].position
+    np.testing.assert_allclose(second[:2], -np.array(RECORDED_BASE_STATION.position[:2]),
+                               atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        loaded.geometry.parameters().vector(), geometry.parameters().vector(), atol=1e-12
+    )
+
+
+@pytest.mark.xfail(
+    strict=True, raises=AssertionError,
+    reason="bug: Dataset.save leaves a stale x.npy/stream.npz of an earlier save in the folder",
+)  # fmt: skip
+def test_saving_over_a_folder_does_not_mix_in_stale_files(saved: Path, tmp_path: Path):
+    """Saving a dataset without x or stream over an older one loads without the old x/stream."""
+    folder = Path(shutil.copytree(saved, tmp_path / "reused"))
+    old = Dataset.load(folder)
+    Dataset(t=old.t, u=np.zeros_like(old.u), y=old.y).save(folder)
+    loaded = Dataset.load(folder)
+    assert loaded.x is None
+    assert loaded.measurements is None
+
+
+@pytest.mark.xfail(
+    strict=True, raises=AssertionError,
+    reason="bug: _read_stream sorts by stamp only; the simulator orders by (stamp, sensor)",
+)  # fmt: skip
+def test_stream_order_of_equal_stamps_survives_round_trip(tmp_path: Path):
+    """Measurements sharing a stamp (pose and plane 2 at 100 Hz) load in the saved order."""
+    sensors = replace(SensorSuite().ideal(), pose=SensorSpec(100.0, (0.0, 0.0, 0.0)))
+    result = Simulator(CarModel(), sensors, seed=0).run(weaving, 0.2, np.zeros(6))
+    data = result.to_dataset()
+    loaded = Dataset.load(data.save(tmp_path / "ties"))
+    assert loaded.measurements is not None and data.measurements is not None
+    saved_order = [(m.stamp, m.sensor) for m in data.measurements]
+    assert len(set(saved_order)) > len({stamp for stamp, _ in saved_order})  # ties exist
+    assert [(m.stamp, m.sensor) for m in loaded.measurements] == saved_order
