@@ -171,9 +171,7 @@ def compile_functions(
     return {f.name(): CompiledFunction(f, library) for f in functions}
 
 
-def _build_library(
-    functions: Sequence[ca.Function], library_name: str, flags: list[str]
-) -> Path:
+def _build_library(functions: Sequence[ca.Function], library_name: str, flags: list[str]) -> Path:
     with tempfile.TemporaryDirectory() as scratch:
         generator = ca.CodeGenerator(
             f"{library_name}.c", {"with_header": False, "casadi_int": "long long int"}

@@ -153,6 +153,8 @@ class Dataset:
             meta = yaml.safe_load((folder / "dataset.yaml").read_text()) or {}
             if not isinstance(meta, dict):
                 raise ValueError("dataset.yaml: expected a mapping")
+            if meta.get("format", FORMAT) != FORMAT:
+                raise ValueError(f"dataset.yaml: format {meta['format']!r}, expected {FORMAT!r}")
             if "geometry" in meta:
                 geometry = Geometry.from_dict(meta.pop("geometry"))
         dataset = cls(
@@ -169,12 +171,16 @@ class Dataset:
         np.save(folder / "t.npy", self.t)
         np.save(folder / "u.npy", self.u[:, ::-1].T.copy())  # torque first on disk
         np.save(folder / "y.npy", self.y.T.copy())
+        optional = {"x.npy": self.x is not None, "stream.npz": bool(self.measurements)}
+        for name, present in optional.items():
+            if not present:
+                (folder / name).unlink(missing_ok=True)  # no stale file from an earlier save
         if self.x is not None:
             np.save(folder / "x.npy", self.x.T.copy())
         meta = {"format": FORMAT, **self.meta, "geometry": self.geometry.to_dict()}
         meta["y_channels"] = list(Y_CHANNELS)
         (folder / "dataset.yaml").write_text(yaml.safe_dump(_plain(meta), sort_keys=False))
-        if self.measurements is not None:
+        if self.measurements:
             _write_stream(self, folder / "stream.npz")
         return folder
 
@@ -251,7 +257,7 @@ def _read_stream(dataset: Dataset, path: Path) -> None:
                 measurements.extend(
                     Measurement(float(s), sensor, v) for s, v in zip(data[key], values, strict=True)
                 )
-        measurements.sort(key=lambda m: m.stamp)
+        measurements.sort(key=lambda m: (m.stamp, m.sensor))
         dataset.measurements = measurements
         if "inputs:t" in data.files:
             dataset.inputs = [

@@ -25,14 +25,16 @@ from dataclasses import dataclass
 import numpy as np
 
 _FIXED_SIZES = {"imu": 3, "gyro": 1, "wheel_encoders": 4, "pose": 3}
-_LIGHTHOUSE = re.compile(r"^lighthouse/(\d+)/([12])$")
+_LIGHTHOUSE = re.compile(r"lighthouse/(0|[1-9][0-9]*)/([12])")
 
 
 def sensor_size(sensor: str) -> int:
     """Number of values of ``sensor``; ``ValueError`` for an unknown name."""
+    if not isinstance(sensor, str):
+        raise ValueError(f"sensor: expected a name (str), got {sensor!r}")
     if sensor in _FIXED_SIZES:
         return _FIXED_SIZES[sensor]
-    if _LIGHTHOUSE.match(sensor):
+    if _LIGHTHOUSE.fullmatch(sensor):
         return 4
     raise ValueError(
         f"sensor: unknown name {sensor!r} (imu, gyro, wheel_encoders, pose, lighthouse/<bs>/<1|2>)"
@@ -45,7 +47,7 @@ def lighthouse_sensor(station: int, plane: int) -> str:
 
 def parse_lighthouse(sensor: str) -> tuple[int, int] | None:
     """``(station, plane)`` of a Lighthouse sensor name, else ``None``."""
-    match = _LIGHTHOUSE.match(sensor)
+    match = _LIGHTHOUSE.fullmatch(sensor)
     return (int(match.group(1)), int(match.group(2))) if match else None
 
 
@@ -68,15 +70,10 @@ class Measurement:
     values: np.ndarray
 
     def __post_init__(self) -> None:
-        if not isinstance(self.stamp, int | float) or not math.isfinite(self.stamp):
-            raise ValueError(f"stamp: must be a finite number, got {self.stamp!r}")
+        stamp = _finite_stamp(self.stamp)
         size = sensor_size(self.sensor)
-        values = np.asarray(self.values, dtype=float)
-        if values.shape != (size,):
-            raise ValueError(f"values: {self.sensor} needs shape ({size},), got {values.shape}")
-        if not np.all(np.isfinite(values)):
-            raise ValueError(f"values: {self.sensor} at t={self.stamp} has NaN or inf: {values}")
-        object.__setattr__(self, "stamp", float(self.stamp))
+        values = _finite_vector("values", self.values, size, f"{self.sensor} at t={stamp}")
+        object.__setattr__(self, "stamp", stamp)
         object.__setattr__(self, "values", values)
 
 
@@ -88,7 +85,30 @@ class InputSample:
     u: np.ndarray
 
     def __post_init__(self) -> None:
-        u = np.asarray(self.u, dtype=float)
-        if u.shape != (2,) or not np.all(np.isfinite(u)) or not math.isfinite(self.stamp):
-            raise ValueError(f"input: needs finite stamp and u of shape (2,), got {self.u!r}")
-        object.__setattr__(self, "u", u)
+        stamp = _finite_stamp(self.stamp)
+        object.__setattr__(self, "stamp", stamp)
+        object.__setattr__(self, "u", _finite_vector("u", self.u, 2, f"input at t={stamp}"))
+
+
+def _finite_stamp(stamp: object) -> float:
+    """A finite float from a Python or numpy real number (not bool); else ValueError."""
+    if isinstance(stamp, bool | np.bool_) or not isinstance(stamp, int | float | np.number):
+        raise ValueError(f"stamp: must be a finite real number, got {stamp!r}")
+    value = float(stamp)
+    if not math.isfinite(value):
+        raise ValueError(f"stamp: must be finite, got {stamp!r}")
+    return value
+
+
+def _finite_vector(field: str, values: object, size: int, what: str) -> np.ndarray:
+    """A read-only float copy of shape ``(size,)`` with finite entries; else ValueError."""
+    try:
+        array = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{field}: {what} is not numeric: {values!r}") from None
+    if array.shape != (size,):
+        raise ValueError(f"{field}: {what} needs shape ({size},), got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{field}: {what} has NaN or inf: {array}")
+    array.flags.writeable = False
+    return array

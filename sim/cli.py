@@ -31,7 +31,9 @@ def parse_effect(text: str) -> tuple[str, str | None, float | None]:
         raise argparse.ArgumentTypeError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
     params = [p.name for p in EFFECTS[effect].parameters]
     if parameter and parameter not in params:
-        raise argparse.ArgumentTypeError(f"effect {effect!r} has parameters {params}")
+        raise argparse.ArgumentTypeError(
+            f"effect {effect!r} has no parameter {parameter!r}; it has {params}"
+        )
     if not value:
         return effect, None, None
     try:

@@ -108,6 +108,12 @@ class SimulationResult:
                         [np.interp(stamps_arr, ts, picked[:, i]) for i in range(picked.shape[1])],
                         axis=1,
                     )
+                    # no values invented across a gap (drop-out, blackout): NaN there
+                    gap = 1.5 / self.sensors.spec(sensor).rate_hz
+                    after = np.clip(np.searchsorted(ts, stamps_arr), 1, ts.size - 1)
+                    bracket = ts[after] - ts[after - 1] if ts.size > 1 else np.zeros(1)
+                    outside = (stamps_arr < ts[0]) | (stamps_arr > ts[-1])
+                    y[(bracket > gap) | outside, columns] = np.nan
         meta = {
             "source": "simulated",
             "seed": self.seed,

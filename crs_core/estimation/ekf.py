@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -45,7 +45,7 @@ class EkfSettings:
         Initial standard deviation of ``[x, y, yaw, vx, vy, omega]`` when ``reset`` gets none.
     """
 
-    noise: EstimatorNoise = EstimatorNoise()
+    noise: EstimatorNoise = field(default_factory=EstimatorNoise)
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 25
     initial_std: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0, 0.5, 2.0)
@@ -129,9 +129,7 @@ class ExtendedKalmanFilter(Estimator):
         self._t = float(t0)
         self._x = self.model.initial_state(x0)
         if covariance is None:
-            std = np.concatenate(
-                [self.settings.initial_std, np.full(self.model.nx - 6, 0.05)]
-            )
+            std = np.concatenate([self.settings.initial_std, np.full(self.model.nx - 6, 0.05)])
             covariance = np.diag(std**2)
         self._P = np.array(covariance, dtype=float)
         self._u = np.zeros(2)

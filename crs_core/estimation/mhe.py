@@ -9,7 +9,8 @@ least-squares problem in the nodes alone,
 
     \min_{x_0..x_M}\ \eta^{M_t}\|x_0 - \bar x_0\|^2_{P^{-1}}
       + \sum_j \eta^{M-1-j}\|x_{j+1} - f(x_j, \bar u_j, \Delta_j)\|^2_{(Q\Delta_j)^{-1}}
-      + \sum_j \eta^{M-j} \sum_{s} n_{j,s}\,\|\bar y_{j,s} - h_s(\phi(x_j, \tau_{j,s}))\|^2_{R_s^{-1}}
+      + \sum_j \eta^{M-j} \sum_{s} n_{j,s}\,
+        \|\bar y_{j,s} - h_s(\phi(x_j, \tau_{j,s}))\|^2_{R_s^{-1}}
       + \text{soft bounds},
 
 with :math:`M_t = \min(t, M)` nodes in use at start-up. Measurements arrive on their own
@@ -24,10 +25,11 @@ penalties (soft constraints), so the Gauss-Newton Hessian stays block tridiagona
 Each call shifts the horizon (warm start by prediction), runs one Gauss-Newton step (the
 real-time iteration of the acados-based original; more with ``iterations``) and solves the
 banded normal equations with LAPACK. Stage and node residuals, their Jacobians and the Hessian
-blocks come from one generated and compiled function of the car model. If a step is not finite
-or increases the cost by orders of magnitude, the estimate falls back to the model prediction
-and the status says so. A Lighthouse sample far from the prediction (``outlier_sigma``) is
-dropped, unless ``max_consecutive_rejections`` were dropped in a row.
+blocks come from one generated and compiled function of the car model. If the cost or the step
+is not finite, or the normal equations are not positive definite, the estimate falls back to
+the model prediction (the warm start) and the status says so. A Lighthouse sample far from the
+prediction (``outlier_sigma``) is dropped, unless ``max_consecutive_rejections`` were dropped in
+a row.
 """
 
 from __future__ import annotations
@@ -35,7 +37,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
@@ -84,7 +86,7 @@ class MheSettings:
     horizon: int = 40
     rate_hz: float = 60.0
     discount: float = 0.95
-    noise: EstimatorNoise = EstimatorNoise()
+    noise: EstimatorNoise = field(default_factory=EstimatorNoise)
     arrival_std: tuple[float, ...] = (0.05, 0.05, 0.05, 0.3, 0.3, 1.0)
     state_lower: tuple[float, float, float] = (-1.0, -2.0, -12.0)
     state_upper: tuple[float, float, float] = (5.0, 2.0, 12.0)
@@ -298,7 +300,7 @@ class MovingHorizonEstimator(Estimator):
         x0 = np.asarray(x0, dtype=float)
         if x0.shape != (6,) or not np.all(np.isfinite(x0)):
             raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
-        M, nx, ny = self.settings.horizon, self.model.nx, self._slot[self.groups[-1]].stop
+        M, ny = self.settings.horizon, self._slot[self.groups[-1]].stop
         ng = len(self.groups)
         self._times = np.full(M + 1, float(t0))
         self._X = np.tile(self.model.initial_state(x0)[:, None], (1, M + 1))
@@ -443,9 +445,11 @@ class MovingHorizonEstimator(Estimator):
         M, nx = self.settings.horizon, self.model.nx
         first = M + 1 - self._active
         wp, wy, y, tau = self._weights()
-        D, O, G, cost, _ = self._solve_blocks(
+        D, upper, G, cost, _ = self._solve_blocks(
             self._X, self._U, self._DT, wp, y, wy, tau, self._UN, self._p, self._bounds
         )
+        if not np.isfinite(cost[0]):
+            return self._fallback("non-finite cost")
         arrival_weight = self.settings.discount ** (self._active - 1) * self._arrival_weight
         arrival_residual = self._X[:, first] - self._arrival
         D[:, first * nx : (first + 1) * nx] += np.diag(arrival_weight)
@@ -454,8 +458,8 @@ class MovingHorizonEstimator(Estimator):
             D[:, j * nx : (j + 1) * nx] = np.eye(nx)
             G[:, j] = 0.0
             if j < M:
-                O[:, j * nx : (j + 1) * nx] = 0.0
-        ab = self._band.matrix(D, O)
+                upper[:, j * nx : (j + 1) * nx] = 0.0
+        ab = self._band.matrix(D, upper)
         ab[-1] += 1e-9  # Levenberg-Marquardt floor against rank deficiency
         factor, info = dpbtrf(ab)
         if info != 0:

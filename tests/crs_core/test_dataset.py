@@ -289,10 +289,6 @@ def test_two_station_geometry_round_trips(tmp_path: Path):
     )
 
 
-@pytest.mark.xfail(
-    strict=True, raises=AssertionError,
-    reason="bug: Dataset.save leaves a stale x.npy/stream.npz of an earlier save in the folder",
-)  # fmt: skip
 def test_saving_over_a_folder_does_not_mix_in_stale_files(saved: Path, tmp_path: Path):
     """Saving a dataset without x or stream over an older one loads without the old x/stream."""
     folder = Path(shutil.copytree(saved, tmp_path / "reused"))
@@ -303,10 +299,6 @@ def test_saving_over_a_folder_does_not_mix_in_stale_files(saved: Path, tmp_path:
     assert loaded.measurements is None
 
 
-@pytest.mark.xfail(
-    strict=True, raises=AssertionError,
-    reason="bug: _read_stream sorts by stamp only; the simulator orders by (stamp, sensor)",
-)  # fmt: skip
 def test_stream_order_of_equal_stamps_survives_round_trip(tmp_path: Path):
     """Measurements sharing a stamp (pose and plane 2 at 100 Hz) load in the saved order."""
     sensors = replace(SensorSuite().ideal(), pose=SensorSpec(100.0, (0.0, 0.0, 0.0)))

@@ -79,7 +79,7 @@ def test_unknown_sensor_names_are_rejected_naming_sensor(sensor: str):
 @pytest.mark.parametrize("stamp", [math.nan, math.inf, -math.inf, "1.0", None])
 def test_non_finite_or_non_numeric_stamps_are_rejected_naming_stamp(stamp):
     """NaN, inf, a string or None as stamp raise ValueError whose message names `stamp`."""
-    with pytest.raises(ValueError, match=r"^stamp: must be a finite number"):
+    with pytest.raises(ValueError, match=r"^stamp: must be (a )?finite"):
         Measurement(stamp, "gyro", [0.0])
 
 
@@ -90,19 +90,12 @@ def test_measurement_is_immutable():
         m.stamp = math.nan  # type: ignore[misc]
 
 
-@pytest.mark.xfail(
-    strict=True, raises=pytest.fail.Exception,
-    reason="bug: the sensor regex ends in `$`, which allows a trailing newline",
-)  # fmt: skip
 def test_sensor_name_with_trailing_newline_is_rejected():
     """'lighthouse/0/1\\n' is not a sensor name (it would open a separate stream)."""
     with pytest.raises(ValueError, match=r"^sensor:"):
         Measurement(0.0, "lighthouse/0/1\n", [0.0] * 4)
 
 
-@pytest.mark.xfail(
-    strict=True, raises=TypeError, reason="bug: a non-string sensor raises TypeError"
-)
 @pytest.mark.parametrize("sensor", [None, 5, ["imu"]])
 def test_non_string_sensor_is_rejected_with_value_error(sensor):
     """A sensor that is not a string raises ValueError naming `sensor`."""
@@ -110,9 +103,6 @@ def test_non_string_sensor_is_rejected_with_value_error(sensor):
         Measurement(0.0, sensor, [0.0] * 3)
 
 
-@pytest.mark.xfail(
-    strict=True, raises=ValueError, reason="bug: numpy scalar stamps fail isinstance(int | float)"
-)
 @pytest.mark.parametrize("stamp", [np.float32(0.5), np.int64(2)])
 def test_numpy_scalar_stamps_are_accepted(stamp):
     """Finite numpy scalars (e.g. from a float32 or int array) are valid stamps."""
@@ -134,16 +124,14 @@ def test_input_sample_converts_u_to_float_array():
      (0.0, [0.1, np.inf]), (math.nan, [0.1, 0.2]), (math.inf, [0.1, 0.2])],
 )  # fmt: skip
 def test_input_sample_rejects_bad_shape_and_non_finite(stamp: float, u):
-    """Wrong shape, NaN/inf in u, or a non-finite stamp raise ValueError ('input: ...')."""
-    with pytest.raises(ValueError, match=r"^input: needs finite stamp and u of shape \(2,\)"):
+    """Wrong shape, NaN/inf in u, or a non-finite stamp raise ValueError naming the field."""
+    field = "stamp" if not math.isfinite(stamp) else "u"
+    with pytest.raises(ValueError, match=rf"^{field}: "):
         InputSample(stamp, u)
 
 
-@pytest.mark.xfail(
-    strict=True, raises=TypeError, reason="bug: math.isfinite(None/str) raises TypeError"
-)
 @pytest.mark.parametrize("stamp", [None, "0.5"])
 def test_input_sample_rejects_non_numeric_stamp_with_value_error(stamp):
     """A stamp that is not a number raises ValueError, like every other bad input."""
-    with pytest.raises(ValueError, match=r"^input:"):
+    with pytest.raises(ValueError, match=r"^stamp: "):
         InputSample(stamp, [0.1, 0.2])
