@@ -17,10 +17,8 @@ import hashlib
 import os
 import shutil
 import subprocess
-import sys
 import tempfile
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from pathlib import Path
 
 import casadi as ca
@@ -122,20 +120,6 @@ class CompiledFunction(NumericFunction):
         )
 
 
-@contextmanager
-def quiet_stderr() -> Iterator[None]:
-    """Silence C-level writes to stderr (CasADi's notice that its own VM runs maps serially)."""
-    sys.stderr.flush()
-    saved = os.dup(2)
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 2)
-            yield
-    finally:
-        os.dup2(saved, 2)
-        os.close(saved)
-
-
 def compiler_available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
@@ -144,7 +128,6 @@ def compile_functions(
     functions: Sequence[ca.Function],
     library_name: str,
     backend: str | None = None,
-    openmp: bool = False,
 ) -> dict[str, NumericFunction]:
     """Numeric callables for ``functions``, keyed by function name.
 
@@ -156,8 +139,6 @@ def compile_functions(
         Stem of the generated C file (a valid C identifier).
     backend : {"compiled", "vm", None}
         ``None`` picks ``$CRS_CODEGEN`` if set, else ``compiled`` when a compiler exists.
-    openmp : bool
-        Compile with ``-fopenmp`` so ``Function.map(..., "openmp")`` runs on all cores.
     """
     backend = (
         backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
@@ -166,7 +147,7 @@ def compile_functions(
         return {f.name(): VMFunction(f) for f in functions}
     if backend != "compiled":
         raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
-    flags = ["-O2", "-fPIC", "-shared", *(["-fopenmp"] if openmp else [])]
+    flags = ["-O2", "-fPIC", "-shared"]
     library = ctypes.CDLL(str(_build_library(functions, library_name, flags)))
     return {f.name(): CompiledFunction(f, library) for f in functions}
 

@@ -115,13 +115,25 @@ def consistency(args: argparse.Namespace) -> None:
 
 
 def bench(args: argparse.Namespace) -> None:
-    from sim.benchmarks import model_benchmark
+    """``crs bench model`` or ``crs bench estimation``: JSON to ``--out`` and stdout."""
+    from sim.benchmarks import machine, model_benchmark
 
-    result = model_benchmark()
-    text = json.dumps(result, indent=2)
+    if args.what == "model":
+        result = model_benchmark()
+        text = json.dumps(result, indent=2)
+        print(text)
+    else:
+        from sim.estimation_benchmark import format_table, run_all
+
+        folders = sorted(p for p in REAL_DATA.iterdir() if p.is_dir()) if REAL_DATA.is_dir() else []
+        plots = Path(args.out).parent / "estimation_plots" if args.out else None
+        rows = run_all(tuple(range(args.seeds)), folders, plots, peers=not args.no_peers)
+        result = {"machine": machine(), "command": "crs " + " ".join(sys.argv[1:]), "rows": rows}
+        text = json.dumps(result, indent=2)
+        print(format_table(rows))
     if args.out:
         Path(args.out).write_text(text)
-    print(text)
+        print(f"JSON: {args.out}")
 
 
 def make_parser() -> argparse.ArgumentParser:
@@ -157,8 +169,10 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", type=Path, help="JSON file")
     sub.set_defaults(handler=consistency)
     sub = commands.add_parser("bench", help="benchmarks that print JSON")
-    sub.add_argument("what", choices=["model"])
+    sub.add_argument("what", choices=["model", "estimation"])
     sub.add_argument("--out", type=Path, help="JSON file")
+    sub.add_argument("--seeds", type=int, default=5, help="estimation: seeds per row")
+    sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.set_defaults(handler=bench)
     return parser
 

@@ -43,7 +43,7 @@ import casadi as ca
 import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
-from crs_core.codegen import SX_OPTIONS, compile_functions, quiet_stderr
+from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.estimation.base import Estimate, Estimator, sensor_group
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.integrators import rk4
@@ -66,8 +66,13 @@ class MheSettings:
         :math:`\\eta \\in (0, 1]`.
     noise : EstimatorNoise
         Process noise :math:`Q` (per second) and measurement noise :math:`R`.
-    arrival_std : tuple of float
-        Square root of the diagonal of the arrival weight :math:`P` (6 base states).
+    initial_std : tuple of float
+        Standard deviations of the initial guess: the arrival cost until the first node leaves
+        the window (``reset`` may pass a covariance instead). From then on the arrival cost is
+        the marginal of what leaves the window (see the module docstring).
+    arrival_floor_std : float
+        The arrival information is floored at ``1 / arrival_floor_std^2`` per state, so
+        directions the dropped data did not observe stay well posed.
     state_lower, state_upper : tuple of float
         Soft bounds on ``vx, vy, omega`` (m/s, m/s, rad/s).
     process_bound : tuple of float
@@ -87,14 +92,15 @@ class MheSettings:
     rate_hz: float = 60.0
     discount: float = 0.95
     noise: EstimatorNoise = field(default_factory=EstimatorNoise)
-    arrival_std: tuple[float, ...] = (0.05, 0.05, 0.05, 0.3, 0.3, 1.0)
+    initial_std: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0, 0.5, 2.0)
+    arrival_floor_std: float = 10.0
     state_lower: tuple[float, float, float] = (-1.0, -2.0, -12.0)
     state_upper: tuple[float, float, float] = (5.0, 2.0, 12.0)
     process_bound: tuple[float, ...] = (0.05, 0.05, 0.1, 0.5, 0.5, 3.0)
     bound_weight: float = 1e3
     iterations: int = 1
     outlier_sigma: float = 30.0
-    max_consecutive_rejections: int = 10
+    max_consecutive_rejections: int = 25
 
     def __post_init__(self) -> None:
         if self.horizon < 1:
@@ -115,15 +121,20 @@ def measurement_groups(model: CarModel) -> list[str]:
     return groups
 
 
-def _extrapolate(x: ca.SX, tau: ca.SX) -> ca.SX:
-    """Move the pose by ``tau`` seconds at constant body velocity; velocities unchanged."""
-    psi, vx, vy, omega = x[2], x[3], x[4], x[5]
-    moved = ca.vertcat(
-        x[0] + tau * (vx * ca.cos(psi) - vy * ca.sin(psi)),
-        x[1] + tau * (vx * ca.sin(psi) + vy * ca.cos(psi)),
-        psi + tau * omega,
-    )
-    return ca.vertcat(moved, x[3:])
+def offset_output_functions(model: CarModel, groups: list[str]) -> list[ca.Function]:
+    """Per sensor ``y(x, u, p, tau) = h(x + tau f(x, u), u, p)``: the output ``tau`` s after
+    the node, the state moved by one Euler step (exact to first order in ``tau``)."""
+    x, u, p, tau = model.x_sym, model.u_sym, model.p_sym, ca.SX.sym("tau")
+    moved = x + tau * model.dynamics_function(x, u, p)
+    return [
+        ca.Function(
+            "offset_" + group.replace("/", "_"),
+            [x, u, p, tau],
+            [model.output_function(group)(moved, u, p)],
+            SX_OPTIONS,
+        )
+        for group in groups
+    ]
 
 
 def _hinge(value: ca.SX, lower: ca.SX, upper: ca.SX) -> ca.SX:
@@ -134,10 +145,11 @@ def build_mhe_function(model: CarModel, horizon: int, substeps: int, groups: lis
     """One function returning the Gauss-Newton blocks of the whole horizon.
 
     Inputs: ``X`` (nx, M+1), ``U`` (2, M), ``DT`` (1, M), ``WP`` (nx, M) process weights,
-    ``Y`` (ny, M+1), ``WY`` (ny, M+1) measurement weights, ``TAU`` (ng, M+1) offsets, ``UN``
+    ``Y`` (ny, M+1), ``WY`` (ny, M+1) measurement weights, ``TAU`` (ng, M+1) offsets, ``UG``
     (2, M+1) node inputs, ``p``, ``BND`` bound data. Outputs: diagonal blocks ``D``
     (nx, nx (M+1)), upper blocks ``O`` (nx, nx M), gradient ``G`` (nx, M+1), cost, and the
-    weighted measurement residuals ``RY`` (ny, M+1).
+    weighted measurement residuals ``RY`` (ny, M+1), and stage 0's contributions to node 1
+    (``S0`` block and ``g0b`` gradient) for the marginalization of node 0.
     """
     nx, p = model.nx, model.p_sym
     xa, xb = ca.SX.sym("xa", nx), ca.SX.sym("xb", nx)
@@ -157,19 +169,20 @@ def build_mhe_function(model: CarModel, horizon: int, substeps: int, groups: lis
     sizes = [model.output_expressions[g].numel() for g in groups]
     ny = sum(sizes)
     y, wy = ca.SX.sym("y", ny), ca.SX.sym("wy", ny)
-    tau = ca.SX.sym("tau", len(groups))
+    ng = len(groups)
+    tau, ug = ca.SX.sym("tau", ng), ca.SX.sym("ug", 2 * ng)
     xstate_bounds = ca.SX.sym("xbnd", 7)  # vx, vy, omega lower; upper; weight
-    predicted_y = []
-    for g, group in enumerate(groups):
-        h = model.output_function(group)
-        predicted_y.append(h(_extrapolate(xa, tau[g]), u, p))
+    predicted_y = [
+        h(xa, ug[2 * g : 2 * g + 2], p, tau[g])
+        for g, h in enumerate(offset_output_functions(model, groups))
+    ]
     r_y = wy * (y - ca.vertcat(*predicted_y))
     r_bounds = xstate_bounds[6] * _hinge(xa[3:6], xstate_bounds[0:3], xstate_bounds[3:6])
     r_node = ca.vertcat(r_y, r_bounds)
     Jn = ca.jacobian(r_node, xa)
     node = ca.Function(
         "node",
-        [xa, u, y, wy, tau, xstate_bounds, p],
+        [xa, ug, y, wy, tau, xstate_bounds, p],
         [Jn.T @ Jn, Jn.T @ r_node, ca.sumsqr(r_node), r_y],
         SX_OPTIONS,
     )
@@ -179,15 +192,16 @@ def build_mhe_function(model: CarModel, horizon: int, substeps: int, groups: lis
     X, P = ca.MX.sym("X", nx, M + 1), ca.MX.sym("p", p.numel())
     U, DT, WP = ca.MX.sym("U", 2, M), ca.MX.sym("DT", 1, M), ca.MX.sym("WP", nx, M)
     Y, WY = ca.MX.sym("Y", ny, M + 1), ca.MX.sym("WY", ny, M + 1)
-    TAU, UN = ca.MX.sym("TAU", len(groups), M + 1), ca.MX.sym("UN", 2, M + 1)
+    TAU, UG = ca.MX.sym("TAU", ng, M + 1), ca.MX.sym("UG", 2 * ng, M + 1)
     BND = ca.MX.sym("BND", nx + 1 + 7)
-    with quiet_stderr():  # the maps run in parallel in the compiled code (OpenMP)
-        stage_map, node_map = stage.map(M, "openmp"), node.map(M + 1, "openmp")
+    # serial on purpose: OpenMP gained ~10 % alone but stalled to >10 ms per call when other
+    # processes (simulator, controller) shared the two cores
+    stage_map, node_map = stage.map(M, "serial"), node.map(M + 1, "serial")
     s_aa, s_ab, s_bb, s_ga, s_gb, s_cost = stage_map(
         X[:, :M], X[:, 1:], U, DT, WP, ca.repmat(BND[: nx + 1], 1, M), ca.repmat(P, 1, M)
     )
     n_h, n_g, n_cost, n_ry = node_map(
-        X, UN, Y, WY, TAU, ca.repmat(BND[nx + 1 :], 1, M + 1), ca.repmat(P, 1, M + 1)
+        X, UG, Y, WY, TAU, ca.repmat(BND[nx + 1 :], 1, M + 1), ca.repmat(P, 1, M + 1)
     )
     zero_block = ca.MX.zeros(nx, nx)
     zero_col = ca.MX.zeros(nx, 1)
@@ -196,10 +210,10 @@ def build_mhe_function(model: CarModel, horizon: int, substeps: int, groups: lis
     cost = ca.sum2(s_cost) + ca.sum2(n_cost)
     return ca.Function(
         "mhe_gn",
-        [X, U, DT, WP, Y, WY, TAU, UN, P, BND],
-        [ca.densify(v) for v in (D, s_ab, G, cost, n_ry)],
-        ["X", "U", "DT", "WP", "Y", "WY", "TAU", "UN", "p", "BND"],
-        ["D", "O", "G", "cost", "RY"],
+        [X, U, DT, WP, Y, WY, TAU, UG, P, BND],
+        [ca.densify(v) for v in (D, s_ab, G, cost, n_ry, s_bb[:, :nx], s_gb[:, 0])],
+        ["X", "U", "DT", "WP", "Y", "WY", "TAU", "UG", "p", "BND"],
+        ["D", "O", "G", "cost", "RY", "S0", "g0b"],
     ), sizes
 
 
@@ -259,15 +273,16 @@ class MovingHorizonEstimator(Estimator):
         self._substeps = max(1, math.ceil(1.0 / s.rate_hz / MAX_SUBSTEP - 1e-9))
         function, sizes = build_mhe_function(model, s.horizon, self._substeps, self.groups)
         tag = "_".join(e.name for e in model.effects) or "base"
+        offset_outputs = offset_output_functions(model, self.groups)
         compiled = compile_functions(
-            [function, model.step_function(self._substeps, "mhe_predict")]
-            + [model.output_function(g) for g in self.groups],
+            [function, model.step_function(self._substeps, "mhe_predict"), *offset_outputs],
             f"mhe_{tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
-            openmp=True,
         )
         self._solve_blocks = compiled["mhe_gn"]
         self._predict = compiled["mhe_predict"]
-        self._outputs = {g: compiled[model.output_function(g).name()] for g in self.groups}
+        self._outputs = {
+            g: compiled[f.name()] for g, f in zip(self.groups, offset_outputs, strict=True)
+        }
         offsets = np.cumsum([0, *sizes])
         self._slot = {g: slice(offsets[i], offsets[i + 1]) for i, g in enumerate(self.groups)}
         self._group_index = {g: i for i, g in enumerate(self.groups)}
@@ -287,8 +302,8 @@ class MovingHorizonEstimator(Estimator):
             ]
         )
         self._q = s.noise.process_std_for(nx)
-        arrival = np.concatenate([s.arrival_std, np.full(nx - 6, 0.05)])
-        self._arrival_weight = 1.0 / arrival**2
+        extra = np.full(nx - 6, 0.05)
+        self._default_initial_weight = 1.0 / np.concatenate([s.initial_std, extra]) ** 2
         self._rejections: Counter = Counter()
         self.reset(0.0, np.zeros(6))
 
@@ -309,17 +324,22 @@ class MovingHorizonEstimator(Estimator):
         self._count = np.zeros((ng, M + 1))
         self._tausum = np.zeros((ng, M + 1))
         self._U = np.zeros((2, M))
-        self._UN = np.zeros((2, M + 1))
+        self._usum = np.zeros((2 * ng, M + 1))  # commands at the stamps, per group
         self._DT = np.full((1, M), 1.0 / self.settings.rate_hz)
         self._arrival = self._X[:, 0].copy()
+        self._initial_weight = self._default_initial_weight.copy()
+        self._arrival_information: np.ndarray | None = None  # set once node 0 is marginalized
+        self._last_blocks: tuple | None = None
         if covariance is not None:
             cov = np.asarray(covariance, dtype=float)
-            self._arrival_weight[:6] = 1.0 / np.clip(np.diag(cov)[:6], 1e-12, None)
+            if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+                raise ValueError("covariance: needs a finite 6 x 6 matrix")
+            self._initial_weight[:6] = 1.0 / np.clip(np.diag(cov), 1e-12, None)
         self._input_history: list[InputSample] = [InputSample(float(t0), np.zeros(2))]
         self._pending: list[Measurement] = []
         self._queue.clear()
         self._processed_until = t0
-        self._covariance = np.diag(1.0 / self._arrival_weight)[:6, :6]
+        self._covariance = np.diag(1.0 / self._initial_weight)[:6, :6]
         self._rejections.clear()
 
     def _command_average(self, t0: float, t1: float) -> np.ndarray:
@@ -345,12 +365,13 @@ class MovingHorizonEstimator(Estimator):
         """Append a node at ``t``; drop the oldest when the horizon is full."""
         M = self.settings.horizon
         if self._active == M + 1:
-            self._arrival = self._X[:, 1].copy()
-        for array in (self._X, self._ysum, self._count, self._tausum, self._UN, self._times):
+            self._marginalize_first_node()
+        for array in (self._X, self._ysum, self._count, self._tausum, self._usum, self._times):
             array[..., :-1] = array[..., 1:]
         for array in (self._U, self._DT):
             array[..., :-1] = array[..., 1:]
         self._ysum[:, -1] = 0
+        self._usum[:, -1] = 0
         self._count[:, -1] = 0
         self._tausum[:, -1] = 0
         t_prev = self._times[-2]
@@ -358,7 +379,6 @@ class MovingHorizonEstimator(Estimator):
         self._times[-1] = t
         self._DT[0, -1] = dt
         self._U[:, -1] = self._command_average(t_prev, t)
-        self._UN[:, -1] = self._command_at(t)
         self._X[:, -1] = self._predict(self._X[:, -2], self._U[:, -1], self._p, dt)[0]
         self._active = min(self._active + 1, M + 1)
         first = self._input_history
@@ -380,20 +400,20 @@ class MovingHorizonEstimator(Estimator):
         sensor = measurement.sensor
         g = self._group_index[sensor]
         tau = measurement.stamp - times[j]
-        if sensor.startswith("lighthouse") and not self._plausible(measurement, j, tau):
+        command = self._command_at(measurement.stamp)
+        if sensor.startswith("lighthouse") and not self._plausible(measurement, j, tau, command):
             return
         self._ysum[self._slot[sensor], j] += measurement.values
         self._count[g, j] += 1
         self._tausum[g, j] += tau
+        self._usum[2 * g : 2 * g + 2, j] += command
         self.diagnostics.processed[sensor] += 1
 
-    def _plausible(self, measurement: Measurement, j: int, tau: float) -> bool:
+    def _plausible(
+        self, measurement: Measurement, j: int, tau: float, command: np.ndarray
+    ) -> bool:
         """Outlier check of a Lighthouse sweep against the current trajectory."""
-        x = self._X[:, j].copy()
-        x[0] += tau * (x[3] * math.cos(x[2]) - x[4] * math.sin(x[2]))
-        x[1] += tau * (x[3] * math.sin(x[2]) + x[4] * math.cos(x[2]))
-        x[2] += tau * x[5]
-        predicted = self._outputs[measurement.sensor](x, self._UN[:, j], self._p)[0]
+        predicted = self._outputs[measurement.sensor](self._X[:, j], command, self._p, tau)[0]
         deviation = np.max(np.abs(measurement.values - predicted) / self._std[measurement.sensor])
         key = sensor_group(measurement.sensor)
         if (
@@ -426,8 +446,9 @@ class MovingHorizonEstimator(Estimator):
         self.diagnostics.last_solve_time_s = time.perf_counter() - start
         return Estimate(float(t), self._X[:6, -1].copy(), self._covariance.copy(), status)
 
-    def _weights(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Process weights, measurement weights, mean measurement values and offsets."""
+    def _weights(self) -> tuple[np.ndarray, ...]:
+        """Process and measurement weights; per node and sensor the mean value, stamp offset
+        and command."""
         s, M = self.settings, self.settings.horizon
         first = M + 1 - self._active
         ages = np.arange(M, -1, -1, dtype=float)  # node j has age M - j
@@ -439,21 +460,24 @@ class MovingHorizonEstimator(Estimator):
         y = self._ysum / count[self._row_group]
         wy = np.sqrt(row_count * node_discount) * self._row_inverse_std[:, None]
         wy[:, :first] = 0.0
-        return wp, wy, y, self._tausum / count
+        return wp, wy, y, self._tausum / count, self._usum / np.repeat(count, 2, axis=0)
 
     def _gauss_newton_step(self) -> str:
         M, nx = self.settings.horizon, self.model.nx
         first = M + 1 - self._active
-        wp, wy, y, tau = self._weights()
-        D, upper, G, cost, _ = self._solve_blocks(
-            self._X, self._U, self._DT, wp, y, wy, tau, self._UN, self._p, self._bounds
+        wp, wy, y, tau, ug = self._weights()
+        D, upper, G, cost, _, stage0_block, stage0_gradient = self._solve_blocks(
+            self._X, self._U, self._DT, wp, y, wy, tau, ug, self._p, self._bounds
         )
         if not np.isfinite(cost[0]):
             return self._fallback("non-finite cost")
-        arrival_weight = self.settings.discount ** (self._active - 1) * self._arrival_weight
-        arrival_residual = self._X[:, first] - self._arrival
-        D[:, first * nx : (first + 1) * nx] += np.diag(arrival_weight)
-        G[:, first] += arrival_weight * arrival_residual
+        if self._arrival_information is None:  # start-up: the initial guess, discounted
+            weight = self.settings.discount ** (self._active - 1) * self._initial_weight
+            information = np.diag(weight)
+        else:
+            information = self._arrival_information
+        D[:, first * nx : (first + 1) * nx] += information
+        G[:, first] += information @ (self._X[:, first] - self._arrival)
         for j in range(first):  # unused nodes: keep them where they are
             D[:, j * nx : (j + 1) * nx] = np.eye(nx)
             G[:, j] = 0.0
@@ -472,9 +496,36 @@ class MovingHorizonEstimator(Estimator):
         covariance = solution[M * nx : M * nx + 6, 1:]
         if not np.all(np.isfinite(step)):
             return self._fallback("non-finite step")
+        self._last_blocks = (
+            D[:, :nx].copy(), upper[:, :nx].copy(), stage0_block, G[:, 0].copy(),
+            stage0_gradient, self._X[:, 1].copy(),
+        )  # fmt: skip
         self._X += step
         self._covariance = 0.5 * (covariance + covariance.T)
         return "ok"
+
+    def _marginalize_first_node(self) -> None:
+        """Fold node 0 (its arrival cost, measurements and first stage) into a prior on node 1.
+
+        With the Gauss-Newton model of the last solve, the terms that leave the window are
+        ``1/2 [d0; d1]^T [[D0, O0], [O0^T, S0]] [d0; d1] + [g0; g1]^T [d0; d1]`` in the deviations
+        from its linearization point. Minimising over ``d0`` leaves ``1/2 d1^T L d1 + b^T d1``
+        with ``L = S0 - O0^T D0^-1 O0`` and ``b = g1 - O0^T D0^-1 g0``: the prior mean is
+        ``x1_lin - L^-1 b`` and its information ``L`` (the EKF prediction in information form),
+        aged by one discount factor like every other term.
+        """
+        if self._last_blocks is None:  # no solve yet or it failed: keep the current prior
+            self._arrival = self._X[:, 1].copy()
+            return
+        D0, O0, S0, g0, g1, x1_lin = self._last_blocks
+        solved = np.linalg.solve(D0, np.column_stack([O0, g0]))
+        information = S0 - O0.T @ solved[:, :-1]
+        b = g1 - O0.T @ solved[:, -1]
+        information = 0.5 * (information + information.T)
+        information += np.eye(information.shape[0]) / self.settings.arrival_floor_std**2
+        self._arrival = x1_lin - np.linalg.solve(information, b)
+        self._arrival_information = self.settings.discount * information
+        self._last_blocks = None
 
     def _fallback(self, reason: str) -> str:
         """Keep the predicted trajectory (already in place from the shift) and say why."""

@@ -1,0 +1,434 @@
+"""Estimation benchmarks (``crs bench estimation``): accuracy, blackout, speed, peers, real data.
+
+Every row is computed on simulated data with known truth, except the real-data rows, whose
+reference is the car's own on-line estimate (not ground truth).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from crs_core.analysis.consistency import predicted_samples
+from crs_core.dataset import Dataset
+from crs_core.estimation import ExtendedKalmanFilter
+from crs_core.estimation.base import Estimator
+from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
+from crs_core.measurements import InputSample
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from sim.scenarios import JoystickDriver
+from sim.sensors import Blackout, SensorSuite
+from sim.simulator import SimulationResult, Simulator
+
+#: Sensor combinations of the paper's Table I.
+SENSOR_SETS = ("lh", "lh+imu", "lh+we", "lh+imu+we")
+#: Initial estimate error of the standard runs: x, y (m), yaw (rad), vx, vy, omega.
+INITIAL_ERROR = np.array([0.1, -0.1, 0.2, 0.0, 0.0, 0.0])
+#: RMSE is taken after this settling time, s.
+SETTLING_S = 2.0
+
+
+def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> SimulationResult:
+    """The standard open-loop drive: joystick-like inputs on DEMO_TRACK, default sensor noise."""
+    track = load_demo_track()
+    model = CarModel()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    simulator = Simulator(model, SensorSuite(blackouts=tuple(blackouts)), seed=seed)
+    return simulator.run(JoystickDriver(track, wheelbase, seed), duration, x0)
+
+
+def make_estimator(kind: str, sensors: str, rate_hz: float = 60.0) -> Estimator:
+    """``ekf`` or ``mhe`` on the Chronos model (M = 40)."""
+    if kind == "ekf":
+        return ExtendedKalmanFilter(CarModel(), sensors)
+    if kind == "mhe":
+        return MovingHorizonEstimator(CarModel(), sensors, MheSettings(rate_hz=rate_hz))
+    raise ValueError(f"estimator: unknown kind {kind!r} (ekf, mhe)")
+
+
+@dataclass
+class Run:
+    """Estimates of one estimator over one simulated run."""
+
+    stamps: np.ndarray
+    estimates: np.ndarray
+    update_times_s: np.ndarray
+    statuses: list[str]
+
+
+def replay(
+    estimator: Estimator,
+    result: SimulationResult,
+    rate_hz: float,
+    x0: np.ndarray,
+    on_update: Callable[[float], None] | None = None,
+) -> Run:
+    """Feed a run to an estimator as it would arrive live and query it at ``rate_hz``.
+
+    Data stamped up to each query time is delivered before the query, so the per-update time
+    includes the work on the measurements that arrived since the previous query.
+    """
+    estimator.reset(0.0, x0)
+    events = sorted(
+        [(s.stamp, 0, s) for s in result.inputs] + [(m.stamp, 1, m) for m in result.measurements],
+        key=lambda e: (e[0], e[1]),
+    )
+    stamps = np.arange(1.0 / rate_hz, result.duration, 1.0 / rate_hz)
+    estimates, times, statuses = [], [], []
+    k = 0
+    for t in stamps:
+        start = time.perf_counter()
+        while k < len(events) and events[k][0] <= t:
+            item = events[k][2]
+            if events[k][1] == 0:
+                estimator.add_input(item)
+            else:
+                estimator.add_measurement(item)
+            k += 1
+        estimate = estimator.estimate(t)
+        times.append(time.perf_counter() - start)
+        estimates.append(estimate.x)
+        statuses.append(estimate.status)
+        if on_update:
+            on_update(t)
+    return Run(stamps, np.array(estimates), np.array(times), statuses)
+
+
+def errors(run: Run, result: SimulationResult) -> np.ndarray:
+    """Estimate minus truth at the query stamps (yaw wrapped), shape (n, 6)."""
+    error = run.estimates - result.truth_at(run.stamps)
+    error[:, 2] = np.arctan2(np.sin(error[:, 2]), np.cos(error[:, 2]))
+    return error
+
+
+def rmse(run: Run, result: SimulationResult, after: float = SETTLING_S) -> dict[str, float]:
+    """Root-mean-square error per state after the settling time, SI units."""
+    error = errors(run, result)[run.stamps >= after]
+    values = np.sqrt(np.mean(error**2, axis=0))
+    return dict(zip(("x", "y", "yaw", "vx", "vy", "omega"), map(float, values), strict=True))
+
+
+def time_summary(seconds: Sequence[float]) -> dict[str, float]:
+    ms = np.asarray(seconds) * 1e3
+    return {
+        "median": round(float(np.median(ms)), 4),
+        "p95": round(float(np.percentile(ms, 95)), 4),
+        "p99": round(float(np.percentile(ms, 99)), 4),
+        "max": round(float(ms.max()), 4),
+    }
+
+
+def start_state(result: SimulationResult) -> np.ndarray:
+    """The standard wrong initial estimate: truth at t = 0 plus :data:`INITIAL_ERROR`."""
+    return result.truth_x[0] + INITIAL_ERROR
+
+
+# --- the benchmark suite ---------------------------------------------------------------------
+PAPER_TABLE_I = {  # real car, motion-capture reference (paper Table I): mm, mrad, mm/s
+    ("ekf", "lh"): (31, 21, 42, 69, 67),
+    ("mhe", "lh"): (29, 18, 71, 99, 83),
+    ("ekf", "lh+imu"): (25, 16, 44, 375, 290),
+    ("mhe", "lh+imu"): (23, 15, 62, 262, 241),
+    ("ekf", "lh+we"): (30, 20, 49, 31, 42),
+    ("mhe", "lh+we"): (32, 21, 74, 34, 44),
+    ("ekf", "lh+imu+we"): (30, 20, 45, 26, 36),
+    ("mhe", "lh+imu+we"): (32, 21, 45, 25, 32),
+}
+STATES = ("x", "y", "yaw", "vx", "vy", "omega")
+
+
+def accuracy_rows(seeds: Sequence[int], kinds=("ekf", "mhe"), progress=None) -> list[dict]:
+    """Table I on simulation: every sensor set x estimator, mean and std over seeds."""
+    drives = {seed: standard_drive(seed) for seed in seeds}
+    rows = []
+    for kind in kinds:
+        for sensors in SENSOR_SETS:
+            per_seed, times = [], []
+            for result in drives.values():
+                run = replay(make_estimator(kind, sensors), result, 60.0, start_state(result))
+                per_seed.append([rmse(run, result)[s] for s in STATES])
+                times.extend(run.update_times_s)
+                if progress:
+                    progress()
+            values = np.array(per_seed)
+            rows.append(
+                {
+                    "benchmark": "accuracy",
+                    "estimator": kind,
+                    "sensors": sensors,
+                    "rate_hz": 60.0,
+                    "rmse": dict(zip(STATES, values.mean(0).round(6).tolist(), strict=True)),
+                    "rmse_std": dict(zip(STATES, values.std(0).round(6).tolist(), strict=True)),
+                    "time_ms": time_summary(times),
+                    "seeds": list(seeds),
+                }
+            )
+    return rows
+
+
+def blackout_rows(seeds: Sequence[int], start: float = 9.0, duration: float = 1.127) -> list[dict]:
+    """Lighthouse off for ``duration`` s mid-lap: error at its end and time to recover.
+
+    Recovered means the position error is back below ``max(3 * nominal, 3 mm)`` and stays there
+    for at least 0.5 s, where nominal is the estimator's own position RMSE on the same run
+    without blackout.
+    """
+    rows = []
+    for kind in ("ekf", "mhe"):
+        end_errors, recover_times = [], []
+        for seed in seeds:
+            clean = standard_drive(seed)
+            dark = standard_drive(seed, blackouts=[Blackout("lighthouse", start, duration)])
+            reference = rmse(replay(make_estimator(kind, "lh+imu+we"), clean, 60.0,
+                                    start_state(clean)), clean)  # fmt: skip
+            nominal = float(np.hypot(reference["x"], reference["y"]))
+            run = replay(make_estimator(kind, "lh+imu+we"), dark, 60.0, start_state(dark))
+            error = errors(run, dark)
+            position = np.hypot(error[:, 0], error[:, 1])
+            end = start + duration
+            end_errors.append(float(np.interp(end, run.stamps, position)))
+            recover_times.append(
+                _time_to_recover(run.stamps, position, end, max(3 * nominal, 3e-3))
+            )
+        rows.append(
+            {
+                "benchmark": "blackout",
+                "estimator": kind,
+                "sensors": "lh+imu+we",
+                "blackout_s": [start, duration],
+                "position_error_at_end_m": {
+                    "mean": float(np.mean(end_errors)), "max": float(np.max(end_errors))
+                },
+                "time_to_recover_s": {
+                    "mean": float(np.mean(recover_times)), "max": float(np.max(recover_times))
+                },
+                "seeds": list(seeds),
+            }
+        )  # fmt: skip
+    return rows
+
+
+def _time_to_recover(stamps: np.ndarray, error: np.ndarray, start: float, bound: float) -> float:
+    """Seconds after ``start`` until ``error`` stays below ``bound`` for 0.5 s (inf if never)."""
+    good_since = None
+    for t, e in zip(stamps, error, strict=True):
+        if t < start:
+            continue
+        if e < bound:
+            good_since = t if good_since is None else good_since
+            if t - good_since >= 0.5:
+                return float(good_since - start)
+        else:
+            good_since = None
+    return float("inf")
+
+
+def speed_rows(seed: int = 0) -> list[dict]:
+    """MHE M = 40 per update at 60 and 250 Hz; EKF per measurement."""
+    result = standard_drive(seed)
+    rows = []
+    for rate in (60.0, 250.0):
+        run = replay(make_estimator("mhe", "lh+imu+we", rate), result, rate, start_state(result))
+        rows.append(
+            {
+                "benchmark": "speed",
+                "estimator": "mhe",
+                "sensors": "lh+imu+we",
+                "rate_hz": rate,
+                "horizon": 40,
+                "time_ms": time_summary(run.update_times_s),
+                "fallbacks": sum(s != "ok" for s in run.statuses),
+                "deadline_misses": int(np.sum(run.update_times_s > 1.0 / rate)),
+                "seeds": [seed],
+            }
+        )
+    ekf = make_estimator("ekf", "lh+imu+we")
+    ekf.reset(0.0, start_state(result))
+    for sample in result.inputs:
+        ekf.add_input(sample)
+    per_measurement = []
+    for measurement in result.measurements:
+        start = time.perf_counter()
+        ekf.add_measurement(measurement)
+        ekf.process(measurement.stamp)
+        per_measurement.append(time.perf_counter() - start)
+    rows.append(
+        {
+            "benchmark": "speed",
+            "estimator": "ekf",
+            "sensors": "lh+imu+we",
+            "per": "measurement (predict to its stamp + update)",
+            "time_ms": time_summary(per_measurement),
+            "seeds": [seed],
+        }
+    )
+    return rows
+
+
+def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dict]:
+    """EKF and MHE over real recordings (LH + WE + yaw rate, as recorded).
+
+    The reference is the car's own on-line estimate ``x.npy``, not ground truth. Also reported:
+    the Lighthouse angle residuals of each estimate (recorded minus predicted sweep angles).
+    """
+    rows = []
+    for folder in folders:
+        dataset = Dataset.load(folder)
+        t0 = float(dataset.t[0])
+        shifted = Dataset(
+            t=dataset.t - t0, u=dataset.u, y=dataset.y, x=dataset.x, geometry=dataset.geometry
+        )
+        stream = shifted.sample_stream()
+        inputs = [InputSample(float(t), u) for t, u in zip(shifted.t, shifted.u, strict=True)]
+        model = CarModel().parameters.updated(
+            {n: p.value for n, p in dataset.geometry.parameters().items()}
+        )
+        reference = shifted.x
+        trajectories = {}
+        for kind in ("ekf", "mhe"):
+            estimator = (
+                ExtendedKalmanFilter(CarModel(parameters=model), "lh+we+gyro")
+                if kind == "ekf"
+                else MovingHorizonEstimator(
+                    CarModel(parameters=model), "lh+we+gyro", MheSettings(rate_hz=50.0)
+                )
+            )
+            estimator.reset(0.0, reference[0].copy())
+            for item in inputs:
+                estimator.add_input(item)
+            for item in stream:
+                estimator.add_measurement(item)
+            estimates, times = [], []
+            for t in shifted.t[1:]:
+                start = time.perf_counter()
+                estimates.append(estimator.estimate(float(t)).x)
+                times.append(time.perf_counter() - start)
+            estimate = np.array(estimates)
+            trajectories[kind] = estimate
+            difference = estimate - reference[1:]
+            residual = shifted.y[1:, :8] - predicted_samples(
+                Dataset(t=shifted.t[1:], u=shifted.u[1:], y=shifted.y[1:], x=estimate,
+                        geometry=dataset.geometry),
+                CarModel(parameters=model),
+            )[:, :8]  # fmt: skip
+            rows.append(
+                {
+                    "benchmark": "real",
+                    "estimator": kind,
+                    "sensors": "lh+we+gyro",
+                    "run": Path(folder).name,
+                    "rmse_vs_onboard_estimate": dict(
+                        zip(
+                            STATES,
+                            np.sqrt(np.mean(difference**2, 0)).round(6).tolist(),
+                            strict=True,
+                        )
+                    ),
+                    "lighthouse_residual_rad": {
+                        "median": float(np.median(np.abs(residual))),
+                        "p95": float(np.percentile(np.abs(residual), 95)),
+                    },
+                    "time_ms": time_summary(times),
+                    "note": "reference is the car's on-line estimate, not ground truth",
+                }
+            )
+        if plot_dir is not None:
+            _plot_real(Path(folder).name, reference, trajectories, plot_dir)
+    return rows
+
+
+def _plot_real(name: str, reference: np.ndarray, trajectories: dict, folder: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(8, 6))
+    ax.plot(reference[:, 0], reference[:, 1], "k", lw=1.5, label="on-board estimate (x.npy)")
+    for kind, estimate in trajectories.items():
+        ax.plot(estimate[:, 0], estimate[:, 1], lw=0.8, label=kind)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"{name}: EKF and MHE on the real recording (LH + WE + yaw rate)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(folder / f"real_{name}.png", dpi=110)
+    plt.close(fig)
+
+
+def run_all(
+    seeds: Sequence[int] = (0, 1, 2, 3, 4),
+    real_folders: Sequence[Path] = (),
+    plot_dir: Path | None = None,
+    peers: bool = True,
+) -> list[dict]:
+    """Every estimation benchmark, in the order of the issue: accuracy, blackout, speed, peers,
+    real data."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=2 * len(SENSOR_SETS) * len(seeds), desc="accuracy", leave=False)
+    rows = accuracy_rows(seeds, progress=lambda: bar.update())
+    bar.close()
+    rows += blackout_rows(seeds[:3])
+    rows += speed_rows()
+    if peers:
+        from sim.peers import peer_rows
+
+        rows += peer_rows(seeds[:2])
+    rows += real_rows(real_folders, plot_dir)
+    return rows
+
+
+def format_table(rows: list[dict]) -> str:
+    """Readable summary of the benchmark rows (mm, mrad, mm/s, ms)."""
+    lines = ["accuracy (simulation, mean ± std over seeds; paper Table I = real car):"]
+    lines.append(
+        f"{'est':4s} {'sensors':10s} {'x mm':>11s} {'y mm':>11s} {'yaw mrad':>11s} "
+        f"{'vx mm/s':>11s} {'vy mm/s':>11s} {'ω mrad/s':>11s}   paper x/y/yaw/vx/vy"
+    )
+    for row in rows:
+        if row["benchmark"] != "accuracy":
+            continue
+        cells = " ".join(
+            f"{row['rmse'][s] * 1e3:5.1f}±{row['rmse_std'][s] * 1e3:<5.1f}" for s in STATES
+        )
+        paper = PAPER_TABLE_I.get((row["estimator"], row["sensors"]), ())
+        lines.append(f"{row['estimator']:4s} {row['sensors']:10s} {cells}   {paper}")
+    for row in rows:
+        kind = row["benchmark"]
+        if kind == "blackout":
+            end, recover = row["position_error_at_end_m"], row["time_to_recover_s"]
+            lines.append(
+                f"blackout {row['estimator']}: LH off {row['blackout_s'][1]} s -> position error "
+                f"at its end {end['mean'] * 1e3:.1f} mm (max {end['max'] * 1e3:.1f}), recovered "
+                f"after {recover['mean']:.2f} s (max {recover['max']:.2f})"
+            )
+        elif kind in ("speed", "peer"):
+            t = row["time_ms"]
+            what = f"{row['estimator']} {row.get('rate_hz', '')} Hz".replace(" Hz", " Hz")
+            extra = ""
+            if kind == "peer":
+                extra = " rmse x/y/yaw " + "/".join(
+                    f"{row['rmse'][s] * 1e3:.1f}" for s in ("x", "y", "yaw")
+                )
+            lines.append(
+                f"{kind} {what}: median {t['median']:.3f} ms, p95 {t['p95']:.3f}, "
+                f"p99 {t['p99']:.3f}, max {t['max']:.3f}{extra}"
+            )
+        elif kind == "real":
+            r, lh = row["rmse_vs_onboard_estimate"], row["lighthouse_residual_rad"]
+            lines.append(
+                f"real {row['run']} {row['estimator']}: vs on-board estimate x {r['x'] * 1e3:.1f}"
+                f" mm, y {r['y'] * 1e3:.1f} mm, yaw {r['yaw'] * 1e3:.1f} mrad, vx"
+                f" {r['vx'] * 1e3:.0f} mm/s; LH residual median {lh['median'] * 1e3:.2f} mrad,"
+                f" p95 {lh['p95'] * 1e3:.2f} mrad"
+            )
+    return "\n".join(lines)
