@@ -13,8 +13,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-import numpy as np
-
 
 @dataclass(frozen=True)
 class SensorSpec:
@@ -140,14 +138,3 @@ class SensorSuite:
             {"sensor": b.sensor, "start": b.start, "duration": b.duration} for b in self.blackouts
         ]
         return out
-
-
-def sample_times(spec: SensorSpec, duration: float, phase: float, rng: np.random.Generator):
-    """Acquisition times in ``[0, duration)``: regular grid at ``rate_hz`` shifted by ``phase``,
-    plus jitter (kept ordered and non-negative)."""
-    period = 1.0 / spec.rate_hz
-    times = np.arange(phase, duration, period)
-    if spec.jitter_std_s > 0:
-        times = times + rng.normal(0.0, spec.jitter_std_s, times.size)
-        times = np.sort(np.clip(times, 0.0, None))
-    return times[times < duration]

@@ -2,10 +2,11 @@
 
 Truth is the :class:`~crs_core.model.CarModel` (optionally with effects) integrated exactly
 between events with RK4 substeps of at most :data:`~crs_core.model.MAX_SUBSTEP`. Events are
-controller ticks, application of delayed commands, and sensor acquisitions. The controller sees
-the true base state (the closed-loop runner with an estimator in the loop comes with the
-estimators). Everything random is drawn from generators seeded by ``(seed, sensor name)``, so a
-run is reproducible and changing one sensor's settings does not reshuffle another's noise.
+the application of (delayed) commands and sensor acquisitions. A :class:`SimulationSession`
+advances step by step (the real-time simulator node drives one); :meth:`Simulator.run` drives
+one with a controller that sees the true base state. Everything random is drawn from
+generators seeded by ``(seed, sensor name)``, so a run is reproducible and changing one
+sensor's settings does not reshuffle another's noise.
 """
 
 from __future__ import annotations
@@ -21,12 +22,12 @@ from tqdm import tqdm
 from crs_core.dataset import Y_CHANNELS, Dataset, Geometry
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
-from sim.sensors import SensorSuite, sample_times
+from sim.sensors import SensorSpec, SensorSuite
 
 Controller = Callable[[float, np.ndarray], np.ndarray]
 
 # event kinds, in the order they are handled at equal times
-_APPLY, _CONTROL, _SENSOR = 0, 1, 2
+_APPLY, _SENSOR = 0, 1
 
 
 #: Sweep angles beyond this (rad) are out of the base station's view; the host drops them.
@@ -156,25 +157,10 @@ class Simulator:
         self.model = model
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)
-        self._p = model.parameters.vector()
 
-    def _schedule(self, duration: float) -> list[tuple[float, str]]:
-        """Acquisition times of every sensor sample."""
-        events = []
-        for name in ("imu", "wheel_encoders", "pose"):
-            if name == "pose" and self.sensors.pose is None:
-                continue
-            spec = self.sensors.spec(name)
-            times = sample_times(spec, duration, 0.0, _rng(self.seed, name + "/time"))
-            events += [(t, name) for t in times]
-        spec = self.sensors.lighthouse
-        for station in range(self.model.n_base_stations):
-            for plane in (1, 2):
-                name = lighthouse_sensor(station, plane)
-                phase = (plane - 1) * 0.5 / spec.rate_hz + station * 0.13 / spec.rate_hz
-                times = sample_times(spec, duration, phase, _rng(self.seed, name + "/time"))
-                events += [(t, name) for t in times]
-        return events
+    def session(self, x0: np.ndarray) -> SimulationSession:
+        """A running simulation from base state ``x0`` (6,) at t = 0, advanced step by step."""
+        return SimulationSession(self, x0)
 
     def run(
         self,
@@ -191,72 +177,158 @@ class Simulator:
         """
         if not duration > 0:
             raise ValueError(f"duration: must be > 0, got {duration}")
-        numeric = self.model.numeric
-        delay = self.model.input_delay()
-        x = self.model.initial_state(x0)
-        u_active = np.zeros(2)
-        heap: list[tuple[float, int, int, object]] = []
-        counter = 0
-        schedule = self._schedule(duration)
-        for t, name in schedule:
-            heap.append((t, _SENSOR, counter, name))
-            counter += 1
-        for t in np.arange(0.0, duration, 1.0 / control_rate_hz):
-            heap.append((t, _CONTROL, counter, None))
-            counter += 1
-        heapq.heapify(heap)
-        rngs = {name: _rng(self.seed, name) for name in sorted({n for _, n in schedule})}
-        noise = {name: np.array(self.sensors.spec(name).noise_std) for name in rngs}
-        bias = {
-            name: np.array(self.sensors.spec(name).bias or np.zeros(noise[name].size))
-            for name in rngs
+        session = self.session(x0)
+        with tqdm(total=duration, unit="sim s", disable=not progress, leave=False) as bar:
+            for t in np.arange(0.0, duration, 1.0 / control_rate_hz):
+                session.advance(t)
+                session.command(controller(t, session.base_state))
+                bar.n = t
+                bar.refresh()
+            session.advance(duration)
+        return session.result()
+
+
+class _SensorClock:
+    """Acquisition times of one sensor: a regular grid plus jitter, generated as needed."""
+
+    def __init__(self, spec: SensorSpec, phase: float, rng: np.random.Generator) -> None:
+        self.period, self.phase, self.jitter, self.rng = (
+            1.0 / spec.rate_hz,
+            phase,
+            spec.jitter_std_s,
+            rng,
+        )
+        self.k = 0
+        self.last = -np.inf
+
+    def next(self) -> float:
+        t = self.phase + self.k * self.period
+        if self.jitter > 0:
+            t += self.rng.normal(0.0, self.jitter)
+        self.k += 1
+        self.last = max(t, self.last + 1e-9, 0.0)
+        return self.last
+
+
+class SimulationSession:
+    """A simulation in progress: issue commands, advance time, collect measurements.
+
+    Events between calls are handled in time order: application of (delayed) commands first,
+    then sensor acquisitions. A command takes effect at the time it is issued (plus the model's
+    input delay); a sensor sample at exactly that time already sees it.
+    """
+
+    def __init__(self, simulator: Simulator, x0: np.ndarray) -> None:
+        self.simulator = simulator
+        model, sensors, seed = simulator.model, simulator.sensors, simulator.seed
+        self._numeric = model.numeric
+        self._p = model.parameters.vector()
+        self._delay = model.input_delay()
+        self._x = model.initial_state(np.asarray(x0, dtype=float))
+        self._u = np.zeros(2)
+        self._now = 0.0
+        self._heap: list[tuple[float, int, int, object]] = []
+        self._counter = 0
+        names = ["imu", "wheel_encoders"] + (["pose"] if sensors.pose is not None else [])
+        phases = dict.fromkeys(names, 0.0)
+        rate = sensors.lighthouse.rate_hz
+        for station in range(model.n_base_stations):
+            for plane in (1, 2):
+                name = lighthouse_sensor(station, plane)
+                names.append(name)
+                phases[name] = (plane - 1) * 0.5 / rate + station * 0.13 / rate
+        self._clocks = {
+            n: _SensorClock(sensors.spec(n), phases[n], _rng(seed, n + "/time")) for n in names
         }
-        truth_t, truth_x = [0.0], [x[:6].copy()]
-        inputs: list[InputSample] = []
-        measurements: list[Measurement] = []
-        now = 0.0
-        bar = tqdm(total=duration, unit="sim s", disable=not progress, leave=False)
-        while heap:
-            t, kind, _, payload = heapq.heappop(heap)
-            if t >= duration:
-                continue
-            if t > now:
-                x = numeric.step(x, u_active, self._p, t - now)
-                bar.update(t - now)
-                now = t
-                truth_t.append(now)
-                truth_x.append(x[:6].copy())
-            if kind == _CONTROL:
-                u = np.asarray(controller(now, x[:6].copy()), dtype=float)
-                sample = InputSample(now, u)
-                inputs.append(sample)
-                if delay > 0:
-                    heapq.heappush(heap, (now + delay, _APPLY, counter, sample.u))
-                    counter += 1
-                else:
-                    u_active = sample.u
-            elif kind == _APPLY:
-                u_active = payload
+        self._rngs = {n: _rng(seed, n) for n in names}
+        self._noise = {n: np.array(sensors.spec(n).noise_std) for n in names}
+        self._bias = {
+            n: np.array(sensors.spec(n).bias or np.zeros(self._noise[n].size)) for n in names
+        }
+        for name, clock in self._clocks.items():
+            self._push(clock.next(), _SENSOR, name)
+        self.truth_t: list[float] = [0.0]
+        self.truth_x: list[np.ndarray] = [self._x[:6].copy()]
+        self.inputs: list[InputSample] = []
+        self.measurements: list[Measurement] = []
+
+    @property
+    def time(self) -> float:
+        """Current simulation time, s."""
+        return self._now
+
+    @property
+    def base_state(self) -> np.ndarray:
+        """True ``[x, y, yaw, vx, vy, omega]`` now."""
+        return self._x[:6].copy()
+
+    @property
+    def applied_command(self) -> np.ndarray:
+        """The command acting on the car now (after any input delay)."""
+        return self._u.copy()
+
+    def _push(self, t: float, kind: int, payload: object) -> None:
+        heapq.heappush(self._heap, (t, kind, self._counter, payload))
+        self._counter += 1
+
+    def command(self, u: np.ndarray) -> InputSample:
+        """Issue command ``[steer, torque]`` now (validated); returns the logged sample."""
+        sample = InputSample(self._now, np.asarray(u, dtype=float))
+        self.inputs.append(sample)
+        if self._delay > 0:
+            self._push(self._now + self._delay, _APPLY, sample.u)
+        else:
+            self._u = sample.u
+        return sample
+
+    def advance(self, t: float) -> list[Measurement]:
+        """Run every event before ``t`` and integrate to ``t``; returns the new measurements."""
+        if t < self._now:
+            raise ValueError(f"t: cannot go back in time ({t} < {self._now})")
+        new: list[Measurement] = []
+        while self._heap and self._heap[0][0] < t:
+            event_time, kind, _, payload = heapq.heappop(self._heap)
+            self._integrate_to(event_time)
+            if kind == _APPLY:
+                self._u = payload
             else:
-                name = payload
-                spec = self.sensors.spec(name)
-                rng = rngs[name]
-                # draw every sample's randomness, so drop-outs do not shift later noise
-                dropped = rng.random() < spec.dropout_probability
-                values = numeric.outputs(x, u_active, self._p)[name]
-                values = values + bias[name] + noise[name] * rng.standard_normal(values.size)
-                if dropped or self.sensors.blacked_out(name, now) or not _in_view(name, values):
-                    continue
-                measurements.append(Measurement(now + spec.latency_s, name, values))
-        bar.close()
-        measurements.sort(key=lambda m: (m.stamp, m.sensor))
+                measurement = self._acquire(payload)
+                self._push(self._clocks[payload].next(), _SENSOR, payload)
+                if measurement is not None:
+                    new.append(measurement)
+        self._integrate_to(t)
+        new.sort(key=lambda m: (m.stamp, m.sensor))
+        self.measurements.extend(new)
+        return new
+
+    def _integrate_to(self, t: float) -> None:
+        if t > self._now:
+            self._x = self._numeric.step(self._x, self._u, self._p, t - self._now)
+            self._now = t
+            self.truth_t.append(t)
+            self.truth_x.append(self._x[:6].copy())
+
+    def _acquire(self, name: str) -> Measurement | None:
+        """One sample of sensor ``name`` now, or None if it is lost."""
+        sensors = self.simulator.sensors
+        spec, rng = sensors.spec(name), self._rngs[name]
+        # draw every sample's randomness, so drop-outs do not shift later noise
+        dropped = rng.random() < spec.dropout_probability
+        values = self._numeric.outputs(self._x, self._u, self._p)[name]
+        values = values + self._bias[name] + self._noise[name] * rng.standard_normal(values.size)
+        if dropped or sensors.blacked_out(name, self._now) or not _in_view(name, values):
+            return None
+        return Measurement(self._now + spec.latency_s, name, values)
+
+    def result(self) -> SimulationResult:
+        """Everything so far as a :class:`SimulationResult` (duration = current time)."""
         return SimulationResult(
-            model=self.model,
-            sensors=self.sensors,
-            seed=self.seed,
-            duration=duration,
-            truth_t=np.array(truth_t),
-            truth_x=np.array(truth_x),
-            inputs=inputs,
-            measurements=measurements,
+            model=self.simulator.model,
+            sensors=self.simulator.sensors,
+            seed=self.simulator.seed,
+            duration=self._now,
+            truth_t=np.array(self.truth_t),
+            truth_x=np.array(self.truth_x),
+            inputs=list(self.inputs),
+            measurements=sorted(self.measurements, key=lambda m: (m.stamp, m.sensor)),
         )

@@ -132,7 +132,9 @@ def test_dropouts_and_other_sensors_settings_do_not_reshuffle_noise(
     for name in (lighthouse_sensor(0, 1), lighthouse_sensor(0, 2)):
         t_few, v_few = rest_run.measurements_of(name)
         t_all, v_all = other.measurements_of(name)
-        assert t_all.size == round(NOISY.lighthouse.rate_hz * REST_DURATION) > t_few.size
+        # jitter may move the sweep due at t = duration just inside the run
+        assert abs(t_all.size - round(NOISY.lighthouse.rate_hz * REST_DURATION)) <= 1
+        assert t_all.size > t_few.size
         keep = np.isin(t_all, t_few)
         np.testing.assert_array_equal(t_all[keep], t_few)
         np.testing.assert_array_equal(v_all[keep], v_few)
