@@ -6,6 +6,9 @@
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
 # The set-up installs requirements.lock with --no-deps, then this project in editable mode,
 # and is skipped when .venv/.crs-setup-stamp matches sha256(requirements.lock + pyproject.toml).
+# It then builds the ROS 2 interfaces in chronos_msgs/ (rosidl + ament_cmake from the wheels,
+# cmake/gcc of the machine) and installs them into .venv itself; skipped when
+# .venv/.chronos-msgs-stamp matches sha256(requirements.lock + the chronos_msgs/ files).
 set -euo pipefail
 
 cd "$(dirname "${BASH_SOURCE[0]}")"
@@ -13,6 +16,8 @@ ROOT="$PWD"
 
 VENV="$ROOT/.venv"
 STAMP="$VENV/.crs-setup-stamp"
+MSGS_STAMP="$VENV/.chronos-msgs-stamp"
+MSGS_BUILD="$VENV/build/chronos_msgs"
 LOG="$VENV/setup.log"
 
 # Never send DDS discovery traffic off this machine.
@@ -76,6 +81,7 @@ bootstrap() {
 
     if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$want" ]; then
         log ".venv is up to date (stamp matches requirements.lock + pyproject.toml)"
+        build_msgs
         return 0
     fi
 
@@ -113,7 +119,93 @@ bootstrap() {
     fi
 
     echo "$want" >"$STAMP"
+    build_msgs
     log "done in $((SECONDS - t0)) s"
+}
+
+msgs_hash() {
+    # The pinned wheels the build uses plus every file of the package, by name (not
+    # pyproject.toml: the project's own metadata does not change the interfaces).
+    { sha256sum requirements.lock; find chronos_msgs -type f ! -name '*.pyc' -print0 | LC_ALL=C sort -z |
+        xargs -0 sha256sum; } | sha256sum | cut -d' ' -f1
+}
+
+# The wheels' exported CMake files name the include directories of the interpreter they were
+# built with (/opt/python/cp311-cp311/...); point them at this venv's Python and numpy headers.
+# Idempotent: a path that is already right is left alone.
+repair_cmake_paths() {
+    "$VENV/bin/python" - "$VENV/share" <<'EOF'
+import pathlib, re, sys, sysconfig
+import numpy
+py_inc, np_inc = sysconfig.get_paths()["include"], numpy.get_include()
+subs = [
+    (re.compile(r'(?<=[";])[^";\s]*/include/python3\.11(?=[";])'), py_inc),
+    (re.compile(r'(?<=[";])[^";\s]*/numpy/_?core/include(?=[";])'), np_inc),
+]
+for path in pathlib.Path(sys.argv[1]).glob("*/cmake/*.cmake"):
+    text = path.read_text()
+    if "INTERFACE_INCLUDE_DIRECTORIES" not in text:
+        continue
+    new = text
+    for rx, repl in subs:
+        new = rx.sub(lambda _m, repl=repl: repl, new)
+    if new != text:
+        path.write_text(new)
+        print(f"repaired {path}")
+EOF
+}
+
+# Builds chronos_msgs/ with cmake and installs it into .venv (C/C++ libraries in .venv/lib, which
+# the wheels' .pth bootstrapper puts on LD_LIBRARY_PATH; the Python package in site-packages).
+build_msgs() {
+    [ -f chronos_msgs/package.xml ] || return 0
+    local want
+    want="$(msgs_hash)"
+    if [ -f "$MSGS_STAMP" ] && [ "$(cat "$MSGS_STAMP")" = "$want" ]; then
+        return 0
+    fi
+    rm -f "$MSGS_STAMP"
+    command -v cmake >/dev/null 2>&1 || die "cmake is needed to build chronos_msgs (apt-get install cmake)"
+    command -v g++ >/dev/null 2>&1 || die "a C++ compiler is needed to build chronos_msgs (apt-get install g++)"
+    "$VENV/bin/python" -c 'import os, sys, sysconfig
+sys.exit(0 if os.path.isfile(os.path.join(sysconfig.get_paths()["include"], "Python.h")) else 1)' ||
+        die "Python.h of $("$VENV/bin/python" --version) not found: install the Python 3.11" \
+            "development headers (Debian: apt-get install python3.11-dev) to build chronos_msgs"
+
+    local t0=$SECONDS
+    log "building chronos_msgs (ROS 2 interfaces, log: .venv/setup.log)"
+    {
+        echo "=== building chronos_msgs ($(date -u +%FT%TZ))"
+        # A build directory configured for another source tree cannot be reused.
+        if [ -f "$MSGS_BUILD/CMakeCache.txt" ] &&
+            ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$ROOT/chronos_msgs" "$MSGS_BUILD/CMakeCache.txt"; then
+            rm -rf "$MSGS_BUILD"
+        fi
+        repair_cmake_paths &&
+            AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" cmake -S chronos_msgs -B "$MSGS_BUILD" \
+                -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_BUILD_TYPE=Release -DBUILD_TESTING=OFF \
+                -DPython3_EXECUTABLE="$VENV/bin/python" &&
+            AMENT_PREFIX_PATH="$VENV" cmake --build "$MSGS_BUILD" -j "$(nproc 2>/dev/null || echo 2)" &&
+            {
+                # Remove what the previous build installed, so a deleted .msg leaves nothing behind.
+                [ ! -f "$MSGS_BUILD/install_manifest.txt" ] ||
+                    xargs -d '\n' rm -f <"$MSGS_BUILD/install_manifest.txt"
+            } &&
+            cmake --install "$MSGS_BUILD" &&
+            "$VENV/bin/python" -c '
+# Every generated message loads its C extension and typesupport libraries (from .venv/lib).
+import chronos_msgs.msg as m
+from rclpy.type_support import check_for_type_support
+for name in dir(m):
+    if name[:1].isupper():
+        check_for_type_support(getattr(m, name))
+'
+    } >>"$LOG" 2>&1 || {
+        tail -n 30 "$LOG" >&2
+        die "building chronos_msgs failed (full log: .venv/setup.log)"
+    }
+    echo "$want" >"$MSGS_STAMP"
+    log "chronos_msgs built in $((SECONDS - t0)) s"
 }
 
 cmd="${1:-demo}"

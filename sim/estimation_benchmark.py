@@ -185,8 +185,9 @@ def blackout_rows(seeds: Sequence[int], start: float = 9.0, duration: float = 1.
         for seed in seeds:
             clean = standard_drive(seed)
             dark = standard_drive(seed, blackouts=[Blackout("lighthouse", start, duration)])
-            reference = rmse(replay(make_estimator(kind, "lh+imu+we"), clean, 60.0,
-                                    start_state(clean)), clean)  # fmt: skip
+            reference = rmse(
+                replay(make_estimator(kind, "lh+imu+we"), clean, 60.0, start_state(clean)), clean
+            )
             nominal = float(np.hypot(reference["x"], reference["y"]))
             run = replay(make_estimator(kind, "lh+imu+we"), dark, 60.0, start_state(dark))
             error = errors(run, dark)
@@ -203,14 +204,16 @@ def blackout_rows(seeds: Sequence[int], start: float = 9.0, duration: float = 1.
                 "sensors": "lh+imu+we",
                 "blackout_s": [start, duration],
                 "position_error_at_end_m": {
-                    "mean": float(np.mean(end_errors)), "max": float(np.max(end_errors))
+                    "mean": float(np.mean(end_errors)),
+                    "max": float(np.max(end_errors)),
                 },
                 "time_to_recover_s": {
-                    "mean": float(np.mean(recover_times)), "max": float(np.max(recover_times))
+                    "mean": float(np.mean(recover_times)),
+                    "max": float(np.max(recover_times)),
                 },
                 "seeds": list(seeds),
             }
-        )  # fmt: skip
+        )
     return rows
 
 
@@ -312,11 +315,19 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
             estimate = np.array(estimates)
             trajectories[kind] = estimate
             difference = estimate - reference[1:]
-            residual = shifted.y[1:, :8] - predicted_samples(
-                Dataset(t=shifted.t[1:], u=shifted.u[1:], y=shifted.y[1:], x=estimate,
-                        geometry=dataset.geometry),
-                CarModel(parameters=model),
-            )[:, :8]  # fmt: skip
+            residual = (
+                shifted.y[1:, :8]
+                - predicted_samples(
+                    Dataset(
+                        t=shifted.t[1:],
+                        u=shifted.u[1:],
+                        y=shifted.y[1:],
+                        x=estimate,
+                        geometry=dataset.geometry,
+                    ),
+                    CarModel(parameters=model),
+                )[:, :8]
+            )
             rows.append(
                 {
                     "benchmark": "real",

@@ -409,9 +409,7 @@ class MovingHorizonEstimator(Estimator):
         self._usum[2 * g : 2 * g + 2, j] += command
         self.diagnostics.processed[sensor] += 1
 
-    def _plausible(
-        self, measurement: Measurement, j: int, tau: float, command: np.ndarray
-    ) -> bool:
+    def _plausible(self, measurement: Measurement, j: int, tau: float, command: np.ndarray) -> bool:
         """Outlier check of a Lighthouse sweep against the current trajectory."""
         predicted = self._outputs[measurement.sensor](self._X[:, j], command, self._p, tau)[0]
         deviation = np.max(np.abs(measurement.values - predicted) / self._std[measurement.sensor])
@@ -497,9 +495,13 @@ class MovingHorizonEstimator(Estimator):
         if not np.all(np.isfinite(step)):
             return self._fallback("non-finite step")
         self._last_blocks = (
-            D[:, :nx].copy(), upper[:, :nx].copy(), stage0_block, G[:, 0].copy(),
-            stage0_gradient, self._X[:, 1].copy(),
-        )  # fmt: skip
+            D[:, :nx].copy(),
+            upper[:, :nx].copy(),
+            stage0_block,
+            G[:, 0].copy(),
+            stage0_gradient,
+            self._X[:, 1].copy(),
+        )
         self._X += step
         self._covariance = 0.5 * (covariance + covariance.T)
         return "ok"

@@ -40,9 +40,13 @@ class EstimatorNoise:
 
     def __post_init__(self) -> None:
         values = [
-            *self.process_std, self.lighthouse_std, *self.imu_std, self.gyro_std,
-            self.wheel_std, *self.pose_std,
-        ]  # fmt: skip
+            *self.process_std,
+            self.lighthouse_std,
+            *self.imu_std,
+            self.gyro_std,
+            self.wheel_std,
+            *self.pose_std,
+        ]
         if not all(np.isfinite(v) and v > 0 for v in values):
             raise ValueError("noise: every standard deviation must be finite and > 0")
 

@@ -78,8 +78,9 @@ def test_round_trip_preserves_samples_and_geometry(saved: Path, simulated: Datas
         np.testing.assert_array_equal(getattr(loaded, name), getattr(simulated, name))
     assert np.isnan(loaded.y[3, 12])
     assert len(loaded.geometry.base_stations) == 1
-    for got, want in zip(loaded.geometry.base_stations, simulated.geometry.base_stations,
-                         strict=True):  # fmt: skip
+    for got, want in zip(
+        loaded.geometry.base_stations, simulated.geometry.base_stations, strict=True
+    ):
         np.testing.assert_allclose(got.angles, want.angles, rtol=0, atol=1e-12)
         assert got.position == want.position
         assert (got.dt1, got.dt2) == (want.dt1, want.dt2)
@@ -106,10 +107,12 @@ def test_round_trip_preserves_full_stream_inputs_and_truth(saved: Path, simulate
         assert (got.stamp, got.sensor) == (want.stamp, want.sensor)
         np.testing.assert_array_equal(got.values, want.values)
     assert loaded.inputs is not None and simulated.inputs is not None
-    np.testing.assert_array_equal([s.stamp for s in loaded.inputs],
-                                  [s.stamp for s in simulated.inputs])  # fmt: skip
-    np.testing.assert_array_equal(np.stack([s.u for s in loaded.inputs]),
-                                  np.stack([s.u for s in simulated.inputs]))  # fmt: skip
+    np.testing.assert_array_equal(
+        [s.stamp for s in loaded.inputs], [s.stamp for s in simulated.inputs]
+    )
+    np.testing.assert_array_equal(
+        np.stack([s.u for s in loaded.inputs]), np.stack([s.u for s in simulated.inputs])
+    )
     np.testing.assert_array_equal(loaded.truth_t, simulated.truth_t)
     np.testing.assert_array_equal(loaded.truth_x, simulated.truth_x)
 
@@ -169,8 +172,10 @@ def test_real_sample_stream_has_four_measurements_per_sample(name: str, samples:
     data = Dataset.load(real_run(name))
     stream = data.sample_stream()
     assert len(stream) == 4 * samples
-    counts = {s: sum(m.sensor == s for m in stream) for s in
-              ("lighthouse/0/1", "lighthouse/0/2", "wheel_encoders", "gyro")}  # fmt: skip
+    counts = {
+        s: sum(m.sensor == s for m in stream)
+        for s in ("lighthouse/0/1", "lighthouse/0/2", "wheel_encoders", "gyro")
+    }
     assert counts == dict.fromkeys(counts, samples)
     last = stream[-4:]
     assert all(m.stamp == data.t[-1] for m in last)
@@ -223,8 +228,7 @@ def test_non_increasing_stamps_are_rejected(corruptible: Path, kind: str):
         Dataset.load(corruptible)
 
 
-@pytest.mark.parametrize(("file", "row", "field"), [("x", 3, "x"), ("t", None, "t"),
-                                                   ("u", 1, "u")])  # fmt: skip
+@pytest.mark.parametrize(("file", "row", "field"), [("x", 3, "x"), ("t", None, "t"), ("u", 1, "u")])
 def test_nan_outside_y_is_rejected_naming_the_field(corruptible: Path, file, row, field):
     """NaN is allowed only in y (a missing channel): in x, t or u it is rejected by name."""
     array = np.load(corruptible / f"{file}.npy")
@@ -273,8 +277,12 @@ def test_two_station_geometry_round_trips(tmp_path: Path):
     model = CarModel(n_base_stations=2)
     geometry = Geometry.from_parameters(model.parameters, 2)
     n = 3
-    data = Dataset(t=np.arange(n) * 0.02, u=np.zeros((n, 2)),
-                   y=np.full((n, len(Y_CHANNELS)), np.nan), geometry=geometry)  # fmt: skip
+    data = Dataset(
+        t=np.arange(n) * 0.02,
+        u=np.zeros((n, 2)),
+        y=np.full((n, len(Y_CHANNELS)), np.nan),
+        geometry=geometry,
+    )
     loaded = Dataset.load(data.save(tmp_path / "two"))
     assert loaded.x is None and loaded.measurements is None
     assert len(loaded.geometry.base_stations) == 2
@@ -282,8 +290,9 @@ def test_two_station_geometry_round_trips(tmp_path: Path):
         np.testing.assert_allclose(got.rotation, want.rotation, rtol=0, atol=1e-12)
         np.testing.assert_allclose(got.position, want.position, rtol=0, atol=1e-15)
     second = loaded.geometry.base_stations[1].position
-    np.testing.assert_allclose(second[:2], -np.array(RECORDED_BASE_STATION.position[:2]),
-                               atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(
+        second[:2], -np.array(RECORDED_BASE_STATION.position[:2]), atol=1e-12
+    )
     np.testing.assert_allclose(
         loaded.geometry.parameters().vector(), geometry.parameters().vector(), atol=1e-12
     )

@@ -18,9 +18,16 @@ from crs_core.measurements import (
 
 @pytest.mark.parametrize(
     ("sensor", "size"),
-    [("imu", 3), ("gyro", 1), ("wheel_encoders", 4), ("pose", 3), ("lighthouse/0/1", 4),
-     ("lighthouse/3/2", 4), ("lighthouse/12/1", 4)],
-)  # fmt: skip
+    [
+        ("imu", 3),
+        ("gyro", 1),
+        ("wheel_encoders", 4),
+        ("pose", 3),
+        ("lighthouse/0/1", 4),
+        ("lighthouse/3/2", 4),
+        ("lighthouse/12/1", 4),
+    ],
+)
 def test_known_sensors_accept_values_of_their_size(sensor: str, size: int):
     """Every documented sensor name takes exactly its number of values, stored as float64."""
     assert sensor_size(sensor) == size
@@ -55,9 +62,15 @@ def test_non_finite_values_are_rejected_naming_values(bad: float):
 
 @pytest.mark.parametrize(
     ("sensor", "values"),
-    [("imu", [0.0, 0.0]), ("imu", [0.0] * 4), ("gyro", [[0.1]]), ("wheel_encoders", 1.0),
-     ("lighthouse/0/1", [0.0] * 8), ("pose", np.zeros((3, 1)))],
-)  # fmt: skip
+    [
+        ("imu", [0.0, 0.0]),
+        ("imu", [0.0] * 4),
+        ("gyro", [[0.1]]),
+        ("wheel_encoders", 1.0),
+        ("lighthouse/0/1", [0.0] * 8),
+        ("pose", np.zeros((3, 1))),
+    ],
+)
 def test_wrong_number_or_shape_of_values_is_rejected(sensor: str, values):
     """Values of the wrong size or dimension raise ValueError naming `values` and the shape."""
     size = sensor_size(sensor)
@@ -67,9 +80,20 @@ def test_wrong_number_or_shape_of_values_is_rejected(sensor: str, values):
 
 @pytest.mark.parametrize(
     "sensor",
-    ["IMU", "camera", "lighthouse", "lighthouse/0", "lighthouse/0/3", "lighthouse/0/0",
-     "lighthouse/a/1", "lighthouse/-1/1", "lighthouse/0/1/x", " imu", ""],
-)  # fmt: skip
+    [
+        "IMU",
+        "camera",
+        "lighthouse",
+        "lighthouse/0",
+        "lighthouse/0/3",
+        "lighthouse/0/0",
+        "lighthouse/a/1",
+        "lighthouse/-1/1",
+        "lighthouse/0/1/x",
+        " imu",
+        "",
+    ],
+)
 def test_unknown_sensor_names_are_rejected_naming_sensor(sensor: str):
     """Names outside the documented set raise ValueError whose message names `sensor`."""
     with pytest.raises(ValueError, match=r"^sensor: unknown name"):
@@ -120,9 +144,16 @@ def test_input_sample_converts_u_to_float_array():
 
 @pytest.mark.parametrize(
     ("stamp", "u"),
-    [(0.0, [0.1]), (0.0, [0.1, 0.2, 0.3]), (0.0, [[0.1, 0.2]]), (0.0, [np.nan, 0.2]),
-     (0.0, [0.1, np.inf]), (math.nan, [0.1, 0.2]), (math.inf, [0.1, 0.2])],
-)  # fmt: skip
+    [
+        (0.0, [0.1]),
+        (0.0, [0.1, 0.2, 0.3]),
+        (0.0, [[0.1, 0.2]]),
+        (0.0, [np.nan, 0.2]),
+        (0.0, [0.1, np.inf]),
+        (math.nan, [0.1, 0.2]),
+        (math.inf, [0.1, 0.2]),
+    ],
+)
 def test_input_sample_rejects_bad_shape_and_non_finite(stamp: float, u):
     """Wrong shape, NaN/inf in u, or a non-finite stamp raise ValueError naming the field."""
     field = "stamp" if not math.isfinite(stamp) else "u"

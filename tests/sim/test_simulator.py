@@ -170,8 +170,9 @@ def test_blackout_removes_exactly_its_window(rest_run: SimulationResult, base_mo
         np.testing.assert_array_equal(t_out, t_ref[~inside])
         np.testing.assert_array_equal(v_out, v_ref[~inside])
     for name in ("imu", "wheel_encoders", "pose"):
-        for ref, out in zip(rest_run.measurements_of(name), blacked.measurements_of(name),
-                            strict=True):  # fmt: skip
+        for ref, out in zip(
+            rest_run.measurements_of(name), blacked.measurements_of(name), strict=True
+        ):
             np.testing.assert_array_equal(out, ref)
 
 
@@ -357,8 +358,12 @@ def test_wheel_radius_error_scales_encoder_readings(base_model: CarModel):
     r = model.parameters.value("r")
     assert vx.max() > 1.0
     np.testing.assert_allclose(wheels, np.tile(vx[:, None] / (r + dr), 4), rtol=1e-12, atol=1e-12)
-    nominal = model_outputs(base_model, result.truth_x[truth_index(result, stamps)],
-                            np.array([0.0, 0.3]), "wheel_encoders")  # fmt: skip
+    nominal = model_outputs(
+        base_model,
+        result.truth_x[truth_index(result, stamps)],
+        np.array([0.0, 0.3]),
+        "wheel_encoders",
+    )
     np.testing.assert_allclose(wheels[-1], nominal[-1] * r / (r + dr), rtol=1e-12)
 
 

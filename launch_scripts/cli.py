@@ -1,4 +1,10 @@
-"""The ``crs`` command line: ``crs sim``, ``crs demo``, ``crs consistency``, ``crs bench model``."""
+"""The ``crs`` command line.
+
+``crs sim`` / ``crs demo`` (simulator, no ROS), ``crs consistency`` (sensor models vs the real
+recordings), ``crs bench model|estimation`` (JSON benchmarks), ``crs launch sim`` (the ROS 2
+stack in simulation) and ``crs ros topics|echo|hz`` (small stand-ins for the ``ros2`` CLI).
+ROS is imported only by the commands that need it.
+"""
 
 from __future__ import annotations
 
@@ -20,7 +26,7 @@ from sim.report import write_report
 from sim.sensors import Blackout, SensorSuite
 from sim.simulator import Simulator
 
-REAL_DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "chronos_real"
+REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
 
 
 def parse_effect(text: str) -> tuple[str, str | None, float | None]:
@@ -136,6 +142,29 @@ def bench(args: argparse.Namespace) -> None:
         print(f"JSON: {args.out}")
 
 
+def launch(args: argparse.Namespace) -> None:
+    """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
+    from launch_scripts.sim_stack import run_stack
+
+    report = run_stack(args.cars, args.estimator, args.duration, args.out, args.domain, args.seed)
+    print(json.dumps(report, indent=2))
+    print(f"report: {Path(args.out) / 'report.json'}")
+
+
+def ros_tool(args: argparse.Namespace) -> None:
+    """``crs ros topics|echo|hz``."""
+    from ros4crs import tools
+
+    if args.tool == "topics":
+        for name, msgtype in tools.list_topics(args.wait):
+            print(f"{name}  [{msgtype}]")
+    elif args.tool == "echo":
+        for message in tools.echo(args.topic, args.count, args.timeout):
+            print(message)
+    else:
+        print(json.dumps(tools.rate(args.topic, args.window, args.timeout)))
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="crs", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
@@ -174,6 +203,23 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument("--seeds", type=int, default=5, help="estimation: seeds per row")
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.set_defaults(handler=bench)
+    sub = commands.add_parser("launch", help="run the ROS 2 node suite")
+    sub.add_argument("scenario", choices=["sim"])
+    sub.add_argument("--cars", type=int, default=1)
+    sub.add_argument("--estimator", choices=["ekf", "mhe"], default="mhe")
+    sub.add_argument("--duration", type=float, default=40.0, help="wall-clock s")
+    sub.add_argument("--out", type=Path, required=True)
+    sub.add_argument("--domain", type=int, help="ROS_DOMAIN_ID (default: env or 42)")
+    sub.add_argument("--seed", type=int, default=0)
+    sub.set_defaults(handler=launch)
+    sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
+    sub.add_argument("tool", choices=["topics", "echo", "hz"])
+    sub.add_argument("topic", nargs="?")
+    sub.add_argument("--count", type=int, default=1)
+    sub.add_argument("--window", type=float, default=2.0, help="hz: seconds to listen")
+    sub.add_argument("--wait", type=float, default=1.0, help="topics: discovery time, s")
+    sub.add_argument("--timeout", type=float, default=5.0)
+    sub.set_defaults(handler=ros_tool)
     return parser
 
 
@@ -181,7 +227,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
     try:
         args.handler(args)
-    except (ValueError, KeyError, FileNotFoundError) as error:
+    except (ValueError, KeyError, FileNotFoundError, FileExistsError) as error:
         print(f"crs {args.command}: error: {error}", file=sys.stderr)
         return 2
     return 0

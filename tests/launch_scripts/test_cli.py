@@ -1,4 +1,4 @@
-"""Tests of the ``crs`` command line (sim.cli): simulate, save, report, argument validation."""
+"""Tests of the ``crs`` command line: simulate, save, report, argument validation."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from crs_core.dataset import Dataset
-from sim.cli import main, parse_blackout, parse_effect
+from launch_scripts.cli import main, parse_blackout, parse_effect
 from sim.sensors import Blackout
 
 DATASET_FILES = {"t.npy", "u.npy", "y.npy", "x.npy", "dataset.yaml", "stream.npz"}
@@ -20,8 +20,20 @@ DATASET_FILES = {"t.npy", "u.npy", "y.npy", "x.npy", "dataset.yaml", "stream.npz
 @pytest.fixture(scope="module")
 def lag_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[int, Path]:
     out = tmp_path_factory.mktemp("cli") / "d"
-    code = main(["sim", "--duration", "3", "--seed", "1", "--out", str(out),
-                 "--effect", "steering_lag=0.08", "--noise-free"])  # fmt: skip
+    code = main(
+        [
+            "sim",
+            "--duration",
+            "3",
+            "--seed",
+            "1",
+            "--out",
+            str(out),
+            "--effect",
+            "steering_lag=0.08",
+            "--noise-free",
+        ]
+    )
     return code, out
 
 
@@ -112,11 +124,13 @@ def test_unknown_effect_parameter_is_an_argparse_error(
 
 @pytest.mark.parametrize(
     ("text", "expected"),
-    [("gyro_bias", ("gyro_bias", None, None)),
-     ("steering_lag=0.08", ("steering_lag", "tau_steer", 0.08)),
-     ("steering_lag.tau_steer=0.1", ("steering_lag", "tau_steer", 0.1)),
-     ("input_delay=0", ("input_delay", "input_delay", 0.0))],
-)  # fmt: skip
+    [
+        ("gyro_bias", ("gyro_bias", None, None)),
+        ("steering_lag=0.08", ("steering_lag", "tau_steer", 0.08)),
+        ("steering_lag.tau_steer=0.1", ("steering_lag", "tau_steer", 0.1)),
+        ("input_delay=0", ("input_delay", "input_delay", 0.0)),
+    ],
+)
 def test_parse_effect_forms(text: str, expected: tuple):
     """NAME, NAME=VALUE and NAME.PARAM=VALUE parse to (effect, parameter, value)."""
     assert parse_effect(text) == expected

@@ -1,0 +1,183 @@
+"""Process launcher: node processes with parameters, namespaces and a ROS domain.
+
+Each node runs as ``python -m <module> --ros-args -r __ns:=<ns> -r __node:=<name>
+--params-file <yaml>`` with ``ROS_DOMAIN_ID`` set and ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``.
+The launcher watches the processes, reports any that dies (name, exit code, the end of its
+log), and stops everything cleanly: SIGINT, then SIGTERM, then SIGKILL after timeouts.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+@dataclass
+class NodeSpec:
+    """One node process.
+
+    Attributes
+    ----------
+    name : str
+        Node name (``__node`` remap) and log-file stem.
+    module : str
+        Python module with a ``main`` (``ros4crs.estimator_node``).
+    namespace : str
+        ROS namespace, e.g. ``/car1`` (``""`` for the root).
+    parameters : dict
+        ROS parameters, written to a params file under the node's full name.
+    """
+
+    name: str
+    module: str
+    namespace: str = ""
+    parameters: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def full_name(self) -> str:
+        return f"{self.namespace.rstrip('/')}/{self.name}"
+
+
+@dataclass
+class Exited:
+    """A node process that ended."""
+
+    node: str
+    returncode: int
+    log_tail: str
+
+
+class Launcher:
+    """Start, watch and stop a set of node processes.
+
+    Parameters
+    ----------
+    nodes : list of NodeSpec
+    domain_id : int
+        ``ROS_DOMAIN_ID`` for every process.
+    log_dir : Path
+        Where the params files and one log per node go.
+    """
+
+    def __init__(self, nodes: list[NodeSpec], domain_id: int, log_dir: Path) -> None:
+        names = [n.full_name for n in nodes]
+        if len(set(names)) != len(names):
+            raise ValueError(f"nodes: duplicate full names in {names}")
+        if not 0 <= domain_id <= 232:
+            raise ValueError(f"domain_id: must be in 0..232, got {domain_id}")
+        self.nodes, self.domain_id, self.log_dir = nodes, domain_id, Path(log_dir)
+        self.processes: dict[str, subprocess.Popen] = {}
+        self._logs: dict[str, Path] = {}
+        self.exited: list[Exited] = []
+
+    def environment(self) -> dict[str, str]:
+        env = dict(os.environ)
+        env["ROS_DOMAIN_ID"] = str(self.domain_id)
+        env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        env["PYTHONUNBUFFERED"] = "1"
+        return env
+
+    def start(self) -> None:
+        """Start every node (in list order)."""
+        self.log_dir.mkdir(parents=True, exist_ok=True)
+        env = self.environment()
+        for spec in self.nodes:
+            stem = spec.full_name.strip("/").replace("/", "_")
+            params = self.log_dir / f"{stem}.params.yaml"
+            params.write_text(
+                yaml.safe_dump({spec.full_name: {"ros__parameters": spec.parameters}})
+            )
+            log = self.log_dir / f"{stem}.log"
+            command = [
+                sys.executable,
+                "-m",
+                spec.module,
+                "--ros-args",
+                "-r",
+                f"__node:={spec.name}",
+                "--params-file",
+                str(params),
+            ]
+            if spec.namespace:
+                command[4:4] = ["-r", f"__ns:={spec.namespace}"]
+            with open(log, "w") as handle:
+                self.processes[spec.full_name] = subprocess.Popen(
+                    command,
+                    stdout=handle,
+                    stderr=subprocess.STDOUT,
+                    env=env,
+                    start_new_session=True,
+                )
+            self._logs[spec.full_name] = log
+
+    def poll(self) -> list[Exited]:
+        """Processes that ended since the last poll."""
+        new = []
+        for name, process in list(self.processes.items()):
+            code = process.poll()
+            if code is not None and all(e.node != name for e in self.exited):
+                tail = "\n".join(self._logs[name].read_text(errors="replace").splitlines()[-8:])
+                new.append(Exited(name, code, tail))
+        self.exited.extend(new)
+        return new
+
+    def cpu_seconds(self) -> dict[str, float]:
+        """User + system CPU time (s) used so far by each running process."""
+        ticks = os.sysconf("SC_CLK_TCK")
+        out = {}
+        for name, process in self.processes.items():
+            try:
+                fields = Path(f"/proc/{process.pid}/stat").read_text().rsplit(")", 1)[1].split()
+                out[name] = (int(fields[11]) + int(fields[12])) / ticks
+            except (OSError, IndexError, ValueError):
+                continue
+        return out
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """SIGINT every node, then SIGTERM, then SIGKILL whatever is still running."""
+        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+            running = [p for p in self.processes.values() if p.poll() is None]
+            if not running:
+                return
+            for process in running:
+                try:
+                    process.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline and any(p.poll() is None for p in running):
+                time.sleep(0.05)
+
+    def run(self, duration: float | None, on_exit=None, until=None) -> list[Exited]:
+        """Start, watch until ``duration`` s passed, ``until()`` is true or Ctrl-C, then stop.
+
+        ``on_exit(exited)`` is called for every node that dies while running. Returns all
+        processes that died before the stop.
+        """
+        self.start()
+        deaths: list[Exited] = []
+        started = time.monotonic()
+        try:
+            while duration is None or time.monotonic() - started < duration:
+                for exited in self.poll():
+                    deaths.append(exited)
+                    if on_exit:
+                        on_exit(exited)
+                if until is not None and until():
+                    break
+                time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.cpu_at_stop = self.cpu_seconds()
+            self.wall_at_stop = time.monotonic() - started
+            self.stop()
+        return deaths

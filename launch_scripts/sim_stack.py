@@ -1,0 +1,197 @@
+"""The whole stack in simulation: simulator, estimator and controller per car, plus a recorder.
+
+``crs launch sim`` runs it for a duration and writes ``report.json`` (per car: laps, lap times,
+estimation RMSE against the simulator's ground truth, estimator deadline misses, end-to-end
+latencies) and plots, from the recorded bag.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crs_core.track import LapCounter, load_demo_track
+from launch_scripts.launcher import Launcher, NodeSpec
+
+
+def stack_nodes(
+    cars: int, estimator: str, duration: float, bag: Path, seed: int = 0, record_all: bool = False
+) -> list[NodeSpec]:
+    """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder."""
+    if cars < 1:
+        raise ValueError("cars: must be >= 1")
+    if estimator not in ("ekf", "mhe"):
+        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
+    nodes, topics = [], []
+    for i in range(1, cars + 1):
+        ns = f"/car{i}"
+        nodes += [
+            NodeSpec("simulator", "ros4crs.simulator_node", ns, {"seed": seed + i}),
+            NodeSpec(
+                "estimator",
+                "ros4crs.estimator_node",
+                ns,
+                {"estimator": estimator, "rate_hz": 60.0 if estimator == "mhe" else 100.0},
+            ),
+            NodeSpec("controller", "ros4crs.controller_node", ns, {}),
+        ]
+        topics += (
+            [ns + "/"]
+            if record_all
+            else [
+                f"{ns}/ground_truth",
+                f"{ns}/estimate/state",
+                f"{ns}/estimate/diagnostics",
+                f"{ns}/input",
+                f"{ns}/sensors/",
+            ]
+        )
+    nodes.append(
+        NodeSpec(
+            "recorder",
+            "ros4crs.recorder_node",
+            "",
+            {"output": str(bag), "topics": ",".join(topics)},
+        )
+    )
+    return nodes
+
+
+def run_stack(
+    cars: int,
+    estimator: str,
+    duration: float,
+    out: Path,
+    domain_id: int | None = None,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "bag"
+    if bag.exists():
+        raise FileExistsError(f"{bag} exists; choose an empty --out")
+    domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    launcher = Launcher(stack_nodes(cars, estimator, duration, bag, seed), domain, out / "logs")
+
+    def report_death(exited) -> None:
+        print(
+            f"[launch] node {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}"
+        )
+
+    deaths = launcher.run(duration, on_exit=report_death)
+    report = analyse(bag, cars)
+    report["estimator"] = estimator
+    report["duration_s"] = duration
+    report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
+    wall = max(launcher.wall_at_stop, 1e-9)
+    report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    plot(bag, cars, out)
+    return report
+
+
+def analyse(bag: Path, cars: int) -> dict[str, Any]:
+    """Per car: laps, lap times, estimation RMSE, deadline misses, latencies."""
+    from ros4crs.bag_replay import read_car, read_receive_times
+
+    track = load_demo_track()
+    report: dict[str, Any] = {"cars": {}}
+    for i in range(1, cars + 1):
+        ns = f"/car{i}"
+        contents = read_car(bag, ns)
+        car: dict[str, Any] = {"laps_completed": 0, "lap_times_s": []}
+        if contents.truth:
+            stamps = np.array([t for t, _ in contents.truth])
+            states = np.array([x for _, x in contents.truth])
+            counter, hint = LapCounter(track.length), None
+            for t, x in zip(stamps, states, strict=True):
+                projection = track.project(x[0], x[1], hint)
+                hint = projection.s
+                counter.update(t, projection.s)
+            car["laps_completed"] = counter.laps_completed
+            car["lap_times_s"] = [round(v, 3) for v in counter.lap_times]
+            if contents.estimates:
+                est_t = np.array([t for t, _ in contents.estimates[1:]])
+                est_x = np.array([x for _, x in contents.estimates[1:]])
+                inside = (est_t >= stamps[0] + 2.0) & (est_t <= stamps[-1])
+                truth = np.stack([np.interp(est_t, stamps, states[:, k]) for k in range(6)], 1)
+                error = (est_x - truth)[inside]
+                error[:, 2] = np.arctan2(np.sin(error[:, 2]), np.cos(error[:, 2]))
+                rmse = np.sqrt(np.mean(error**2, axis=0)) if error.size else np.full(6, np.nan)
+                car["estimation_rmse"] = dict(
+                    zip(("x", "y", "yaw", "vx", "vy"), rmse[:5].round(5).tolist(), strict=True)
+                )
+        car["estimator_deadline_misses"] = contents.deadline_misses
+        car["estimator_updates"] = contents.updates
+        car["malformed_messages"] = contents.malformed
+        car["latency_ms"] = latencies(read_receive_times(bag, ns))
+        report["cars"][ns.strip("/")] = car
+    return report
+
+
+def latencies(times: dict[str, list[tuple[float, float]]]) -> dict[str, Any]:
+    """End-to-end latencies from (stamp, receive time) pairs per topic kind, ms.
+
+    ``sensor_to_estimate``: receive time of each estimate minus the stamp of the newest sensor
+    sample it could include (stamp <= estimate stamp). ``sensor_to_input``: receive time of each
+    car input minus the stamp of the newest sensor sample behind the estimate it used.
+    """
+    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
+    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
+    inputs = sorted(times.get("input", []), key=lambda p: p[1])
+    if sensors.size == 0 or not estimates:
+        return {}
+    est_stamp = np.array([s for s, _ in estimates])
+    est_recv = np.array([r for _, r in estimates])
+    newest = sensors[np.clip(np.searchsorted(sensors, est_stamp, side="right") - 1, 0, None)]
+    to_estimate = (est_recv - newest) * 1e3
+    out = {"sensor_to_estimate": _summary(to_estimate)}
+    if inputs:
+        in_recv = np.array([r for _, r in inputs])
+        used = np.searchsorted(est_recv, in_recv, side="right") - 1
+        valid = used >= 0
+        to_input = (in_recv[valid] - newest[used[valid]]) * 1e3
+        out["sensor_to_input"] = _summary(to_input)
+    return out
+
+
+def _summary(values: np.ndarray) -> dict[str, float]:
+    if values.size == 0:
+        return {}
+    return {
+        "median": round(float(np.median(values)), 2),
+        "p95": round(float(np.percentile(values, 95)), 2),
+    }
+
+
+def plot(bag: Path, cars: int, out: Path) -> None:
+    """``path.png``: truth and estimate of every car on the track."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ros4crs.bag_replay import read_car
+
+    track = load_demo_track()
+    fig, ax = plt.subplots(figsize=(8, 6))
+    ax.plot(track.x, track.y, "--", color="0.6", lw=0.8, label="centerline")
+    for i in range(1, cars + 1):
+        contents = read_car(bag, f"/car{i}")
+        if contents.truth:
+            truth = np.array([x for _, x in contents.truth])
+            ax.plot(truth[:, 0], truth[:, 1], lw=1.5, label=f"car{i} truth")
+        if contents.estimates:
+            est = np.array([x for _, x in contents.estimates])
+            ax.plot(est[:, 0], est[:, 1], lw=0.7, label=f"car{i} estimate")
+    ax.set_aspect("equal")
+    ax.legend(fontsize=8)
+    ax.set_title("ROS 2 stack in simulation")
+    fig.tight_layout()
+    fig.savefig(out / "path.png", dpi=110)
+    plt.close(fig)

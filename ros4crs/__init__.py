@@ -1,0 +1,1 @@
+"""Thin rclpy nodes around the crs_core objects (the ROS4CRS layer)."""

@@ -1,0 +1,82 @@
+"""Controller node: tracks the DEMO_TRACK with the ``crs_core`` path follower.
+
+Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz``. When the newest estimate
+is older than ``stale_timeout`` (or none arrived yet), it commands zero torque and straight
+wheels, so the car rolls to a stop, and says so once per episode. The MPCC replaces the path
+follower through this same node later.
+
+Parameters: ``rate_hz``, ``v_ref`` (m/s), ``stale_timeout`` (s).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from rclpy.node import Node
+
+from crs_core.control.path_following import PathFollower, PathFollowerSettings
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from ros4crs import conversions
+from ros4crs.node_support import STREAM_QOS, declare, run
+
+STOP = np.array([0.0, 0.0])
+
+
+class ControllerNode(Node):
+    """Path following on the latest estimate, safe stop when it goes stale."""
+
+    def __init__(self) -> None:
+        super().__init__("controller")
+        rate_hz = float(declare(self, "rate_hz", 50.0, "control rate, Hz"))
+        v_ref = float(declare(self, "v_ref", 1.0, "reference speed, m/s"))
+        self.stale_timeout = float(declare(self, "stale_timeout", 0.2, "s"))
+        parameters = CarModel().parameters
+        wheelbase = parameters.value("lf") + parameters.value("lr")
+        self.follower = PathFollower(
+            load_demo_track(), wheelbase, PathFollowerSettings(v_ref=v_ref)
+        )
+        from chronos_msgs.msg import CarInput, CarState
+
+        self._input_publisher = self.create_publisher(
+            CarInput, conversions.TOPICS["input"], STREAM_QOS
+        )
+        self.create_subscription(CarState, conversions.TOPICS["state"], self._on_state, 10)
+        self._latest: tuple[float, np.ndarray] | None = None
+        self._stale = True
+        self.stops = 0
+        self.malformed = 0
+        self.create_timer(1.0 / rate_hz, self._control)
+
+    def _on_state(self, msg) -> None:
+        try:
+            self._latest = conversions.state_from_msg(msg)
+        except ValueError as error:
+            self.malformed += 1
+            self.get_logger().warning(f"dropped malformed state: {error}")
+
+    def _control(self) -> None:
+        now = self.get_clock().now().nanoseconds * 1e-9
+        stale = self._latest is None or now - self._latest[0] > self.stale_timeout
+        if stale:
+            if not self._stale:
+                self.stops += 1
+                self.get_logger().warning("state estimate is stale: stopping the car")
+            self._stale = True
+            u = STOP
+        else:
+            if self._stale:
+                self.get_logger().info("state estimate is fresh: driving")
+                self.follower.reset()
+            self._stale = False
+            u = self.follower(now, self._latest[1])
+        self._input_publisher.publish(conversions.car_input_msg(u, now))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(ControllerNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

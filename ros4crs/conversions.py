@@ -1,0 +1,235 @@
+"""Conversions between ROS 2 messages and crs_core types, validated at the boundary.
+
+Every ``*_from_msg`` function raises ``ValueError`` with a message naming the field when the
+message is malformed (NaN, infinite, wrong-size arrays, bad enums); nodes catch it, log a
+warning and drop the message. The functions only read attributes, so they accept both rclpy
+messages and the rosbags dataclasses of the same types (bag replay uses the same code).
+
+Topic conventions (relative to a car's namespace, e.g. ``/car1``):
+
+====================  ===============================  =====================================
+topic                 type                             content
+====================  ===============================  =====================================
+sensors/imu           sensor_msgs/Imu                  a_x, a_y (body, m/s^2), yaw rate
+sensors/gyro          sensor_msgs/Imu                  yaw rate only (accel covariance -1)
+sensors/wheel_speeds  chronos_msgs/WheelSpeeds         rad/s
+sensors/lighthouse    chronos_msgs/LighthouseSweep     one plane of one base station
+sensors/pose          geometry_msgs/PoseStamped        motion capture
+input                 chronos_msgs/CarInput            steer (rad), torque (-)
+ground_truth          chronos_msgs/CarState            simulator truth
+estimate/state        chronos_msgs/CarState            estimate with covariance
+estimate/odometry     nav_msgs/Odometry                the same for any ROS tool
+estimate/diagnostics  chronos_msgs/EstimatorDiagnostics
+====================  ===============================  =====================================
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from crs_core.estimation.base import Estimate
+from crs_core.measurements import Measurement, lighthouse_sensor, parse_lighthouse
+
+TOPICS = {
+    "imu": "sensors/imu",
+    "gyro": "sensors/gyro",
+    "wheel_encoders": "sensors/wheel_speeds",
+    "lighthouse": "sensors/lighthouse",
+    "pose": "sensors/pose",
+    "input": "input",
+    "ground_truth": "ground_truth",
+    "state": "estimate/state",
+    "odometry": "estimate/odometry",
+    "diagnostics": "estimate/diagnostics",
+}
+
+
+# --- time ------------------------------------------------------------------------------------
+def seconds_from_stamp(stamp: Any) -> float:
+    """``builtin_interfaces/Time`` -> float seconds."""
+    return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
+
+
+def fill_stamp(stamp: Any, seconds: float) -> None:
+    """Write float seconds (>= 0) into a ``builtin_interfaces/Time``."""
+    if not math.isfinite(seconds) or seconds < 0:
+        raise ValueError(f"header.stamp: must be finite and >= 0, got {seconds}")
+    sec = math.floor(seconds)
+    nanosec = round((seconds - sec) * 1e9)
+    if nanosec >= 1_000_000_000:
+        sec, nanosec = sec + 1, nanosec - 1_000_000_000
+    stamp.sec, stamp.nanosec = int(sec), int(nanosec)
+
+
+def _finite(name: str, values: Any, size: int | None = None) -> np.ndarray:
+    array = np.asarray(values, dtype=float).ravel()
+    if size is not None and array.size != size:
+        raise ValueError(f"{name}: expected {size} values, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name}: contains NaN or inf ({array})")
+    return array
+
+
+# --- sensors ---------------------------------------------------------------------------------
+def measurement_to_msg(measurement: Measurement, frame_id: str = "base_link") -> Any:
+    """The ROS message of a measurement (type by sensor, see the module table)."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import Imu
+
+    from chronos_msgs.msg import LighthouseSweep, WheelSpeeds
+
+    sensor, v = measurement.sensor, measurement.values
+    if sensor in ("imu", "gyro"):
+        msg = Imu()
+        if sensor == "imu":
+            msg.linear_acceleration.x, msg.linear_acceleration.y = float(v[0]), float(v[1])
+            msg.angular_velocity.z = float(v[2])
+        else:
+            msg.linear_acceleration_covariance[0] = -1.0  # REP 145: not measured
+            msg.angular_velocity.z = float(v[0])
+        msg.orientation_covariance[0] = -1.0
+    elif sensor == "wheel_encoders":
+        msg = WheelSpeeds()
+        msg.front_left, msg.front_right, msg.rear_left, msg.rear_right = map(float, v)
+    elif sensor == "pose":
+        msg = PoseStamped()
+        msg.pose.position.x, msg.pose.position.y = float(v[0]), float(v[1])
+        msg.pose.orientation.z, msg.pose.orientation.w = math.sin(v[2] / 2), math.cos(v[2] / 2)
+        frame_id = "world"
+    else:
+        station, plane = parse_lighthouse(sensor)
+        msg = LighthouseSweep()
+        msg.base_station, msg.plane = station, plane
+        msg.angles = [float(a) for a in v]
+    msg.header.frame_id = frame_id
+    fill_stamp(msg.header.stamp, measurement.stamp)
+    return msg
+
+
+def imu_from_msg(msg: Any) -> Measurement:
+    """``sensor_msgs/Imu`` -> ``imu`` (or ``gyro`` when the acceleration is marked unused)."""
+    stamp = seconds_from_stamp(msg.header.stamp)
+    omega = _finite("angular_velocity.z", [msg.angular_velocity.z], 1)
+    if msg.linear_acceleration_covariance[0] == -1.0:
+        return Measurement(stamp, "gyro", omega)
+    acc = _finite("linear_acceleration", [msg.linear_acceleration.x, msg.linear_acceleration.y])
+    return Measurement(stamp, "imu", np.concatenate([acc, omega]))
+
+
+def wheel_speeds_from_msg(msg: Any) -> Measurement:
+    """``chronos_msgs/WheelSpeeds`` -> ``wheel_encoders``."""
+    values = [msg.front_left, msg.front_right, msg.rear_left, msg.rear_right]
+    return Measurement(
+        seconds_from_stamp(msg.header.stamp), "wheel_encoders", _finite("wheel speeds", values, 4)
+    )
+
+
+def lighthouse_from_msg(msg: Any) -> Measurement:
+    """``chronos_msgs/LighthouseSweep`` -> ``lighthouse/<station>/<plane>``."""
+    if msg.plane not in (1, 2):
+        raise ValueError(f"plane: must be 1 or 2, got {msg.plane}")
+    angles = _finite("angles", msg.angles, 4)
+    sensor = lighthouse_sensor(int(msg.base_station), int(msg.plane))
+    return Measurement(seconds_from_stamp(msg.header.stamp), sensor, angles)
+
+
+def pose_from_msg(msg: Any) -> Measurement:
+    """``geometry_msgs/PoseStamped`` -> ``pose`` (x, y, yaw from the quaternion)."""
+    q = _finite(
+        "pose.orientation",
+        [
+            msg.pose.orientation.x,
+            msg.pose.orientation.y,
+            msg.pose.orientation.z,
+            msg.pose.orientation.w,
+        ],
+        4,
+    )
+    norm = float(np.linalg.norm(q))
+    if not 0.5 < norm < 1.5:
+        raise ValueError(f"pose.orientation: not a unit quaternion (norm {norm:.3g})")
+    x, y, z, w = q / norm
+    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    position = _finite("pose.position", [msg.pose.position.x, msg.pose.position.y], 2)
+    return Measurement(seconds_from_stamp(msg.header.stamp), "pose", np.append(position, yaw))
+
+
+# --- inputs and states -----------------------------------------------------------------------
+def car_input_msg(u: np.ndarray, seconds: float) -> Any:
+    """``chronos_msgs/CarInput`` in torque mode from ``u = [steer, torque]``."""
+    from chronos_msgs.msg import CarInput
+
+    msg = CarInput()
+    msg.mode = CarInput.MODE_TORQUE
+    msg.steer, msg.torque = float(u[0]), float(u[1])
+    fill_stamp(msg.header.stamp, seconds)
+    return msg
+
+
+def input_from_msg(msg: Any) -> tuple[float, np.ndarray]:
+    """``chronos_msgs/CarInput`` (torque mode) -> (stamp, ``[steer, torque]``)."""
+    if msg.mode != 0:
+        raise ValueError(f"mode: only MODE_TORQUE (0) drives the model, got {msg.mode}")
+    u = _finite("steer/torque", [msg.steer, msg.torque], 2)
+    if abs(u[1]) > 1.0:
+        raise ValueError(f"torque: must be within [-1, 1], got {u[1]}")
+    return seconds_from_stamp(msg.header.stamp), u
+
+
+def car_state_msg(x: np.ndarray, seconds: float, covariance: np.ndarray | None = None) -> Any:
+    """``chronos_msgs/CarState`` from a base state (and its 6 x 6 covariance)."""
+    from chronos_msgs.msg import CarState
+
+    msg = CarState()
+    msg.header.frame_id = "world"
+    fill_stamp(msg.header.stamp, seconds)
+    msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega = map(float, x[:6])
+    if covariance is not None:
+        msg.covariance = [float(c) for c in np.asarray(covariance).ravel()]
+    return msg
+
+
+def state_from_msg(msg: Any) -> tuple[float, np.ndarray]:
+    """``chronos_msgs/CarState`` -> (stamp, state (6,))."""
+    x = _finite("state", [msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega], 6)
+    return seconds_from_stamp(msg.header.stamp), x
+
+
+def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
+    """``nav_msgs/Odometry``: pose in ``world``, twist in the body frame, covariances mapped."""
+    from nav_msgs.msg import Odometry
+
+    msg = Odometry()
+    msg.header.frame_id, msg.child_frame_id = "world", child_frame_id
+    fill_stamp(msg.header.stamp, estimate.stamp)
+    x = estimate.x
+    msg.pose.pose.position.x, msg.pose.pose.position.y = float(x[0]), float(x[1])
+    msg.pose.pose.orientation.z = math.sin(x[2] / 2)
+    msg.pose.pose.orientation.w = math.cos(x[2] / 2)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y = float(x[3]), float(x[4])
+    msg.twist.twist.angular.z = float(x[5])
+    P = estimate.covariance
+    pose_cov, twist_cov = np.zeros((6, 6)), np.zeros((6, 6))
+    pose_index, twist_index = [0, 1, 5], [0, 1, 5]  # x, y, yaw / vx, vy, wz in the 6x6 layouts
+    pose_cov[np.ix_(pose_index, pose_index)] = P[:3, :3]
+    twist_cov[np.ix_(twist_index, twist_index)] = P[3:, 3:]
+    msg.pose.covariance = pose_cov.ravel().tolist()
+    msg.twist.covariance = twist_cov.ravel().tolist()
+    return msg
+
+
+SENSOR_PARSERS = {
+    "imu": imu_from_msg,
+    "gyro": imu_from_msg,
+    "wheel_encoders": wheel_speeds_from_msg,
+    "lighthouse": lighthouse_from_msg,
+    "pose": pose_from_msg,
+}
+
+
+def topic_family(sensor: str) -> str:
+    """Topic key of a stream sensor: ``lighthouse/0/2`` -> ``lighthouse``."""
+    return "lighthouse" if parse_lighthouse(sensor) else sensor

@@ -1,0 +1,187 @@
+"""Estimator node: EKF or MHE from ``crs_core`` on whatever sensors publish.
+
+Subscribes to ``sensors/*`` and ``input``; every message is validated and converted at the
+boundary (a malformed one is logged and dropped). A timer at ``rate_hz`` asks the estimator for
+the state at ``now - lag`` (the lag lets messages in flight arrive first; it must exceed the
+transport latency) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
+(Odometry) and, once a second, ``estimate/diagnostics``. An update slower than the period
+counts as a deadline miss. A missing sensor never blocks: its terms are simply absent.
+
+Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
+``horizon`` (MHE), ``stations``, ``params_file`` (model parameter YAML, optional),
+``initial_state`` (6 floats; default the DEMO_TRACK start).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from rclpy.node import Node
+
+from crs_core.estimation import ExtendedKalmanFilter
+from crs_core.estimation.base import Estimator
+from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
+from crs_core.measurements import InputSample, Measurement
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from ros4crs import conversions
+from ros4crs.node_support import STREAM_QOS, declare, run
+
+
+def make_estimator(
+    kind: str, sensors: str, rate_hz: float, horizon: int, model: CarModel
+) -> Estimator:
+    """The core estimator a node wraps (also used by the offline bag replay)."""
+    if kind == "ekf":
+        return ExtendedKalmanFilter(model, sensors)
+    if kind == "mhe":
+        return MovingHorizonEstimator(model, sensors, MheSettings(horizon=horizon, rate_hz=rate_hz))
+    raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+
+
+class EstimatorNode(Node):
+    """Wraps an :class:`~crs_core.estimation.base.Estimator`."""
+
+    def __init__(self) -> None:
+        super().__init__("estimator")
+        track = load_demo_track()
+        kind = declare(self, "estimator", "mhe", "ekf or mhe")
+        sensors = declare(self, "sensors", "lh+imu+we", "sensor groups joined by +")
+        self.rate_hz = float(declare(self, "rate_hz", 60.0, "estimate rate, Hz"))
+        self.lag = float(declare(self, "lag", 0.02, "estimate this many s in the past"))
+        horizon = int(declare(self, "horizon", 40, "MHE horizon"))
+        stations = int(declare(self, "stations", 1, "Lighthouse base stations"))
+        params_file = declare(self, "params_file", "", "model parameter YAML")
+        start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
+        self.initial = np.asarray(declare(self, "initial_state", start, "initial estimate"))
+        model = CarModel(n_base_stations=stations)
+        if params_file:
+            model = CarModel(
+                n_base_stations=stations, parameters=model.parameters.updated_from_yaml(params_file)
+            )
+        self.estimator = make_estimator(kind, sensors, self.rate_hz, horizon, model)
+        self.kind = kind
+        from geometry_msgs.msg import PoseStamped
+        from nav_msgs.msg import Odometry
+        from sensor_msgs.msg import Imu
+
+        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, WheelSpeeds
+
+        for family, msg_type in (
+            ("imu", Imu),
+            ("gyro", Imu),
+            ("wheel_encoders", WheelSpeeds),
+            ("pose", PoseStamped),
+        ):
+            self._subscribe(family, msg_type)
+        from chronos_msgs.msg import LighthouseSweep
+
+        self._subscribe("lighthouse", LighthouseSweep)
+        self.create_subscription(CarInput, conversions.TOPICS["input"], self._on_input, STREAM_QOS)
+        self._state = self.create_publisher(CarState, conversions.TOPICS["state"], 10)
+        self._odometry = self.create_publisher(Odometry, conversions.TOPICS["odometry"], 10)
+        self._diagnostics = self.create_publisher(
+            EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
+        )
+        self.received: dict[str, int] = {}
+        self.malformed = 0
+        self.deadline_misses = 0
+        self.updates = 0
+        self._max_solve = 0.0
+        self._started = False
+        self._buffer: list[Measurement | InputSample] = []
+        self._last_query = -np.inf
+        self.create_timer(1.0 / self.rate_hz, self._update)
+        self.create_timer(1.0, self._publish_diagnostics)
+        self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
+
+    def _subscribe(self, family: str, msg_type: type) -> None:
+        parse = conversions.SENSOR_PARSERS[family]
+
+        def callback(msg) -> None:
+            try:
+                measurement = parse(msg)
+            except ValueError as error:
+                self.malformed += 1
+                self.get_logger().warning(f"dropped malformed {family} message: {error}")
+                return
+            self.received[measurement.sensor] = self.received.get(measurement.sensor, 0) + 1
+            self._deliver(measurement)
+
+        self.create_subscription(msg_type, conversions.TOPICS[family], callback, STREAM_QOS)
+
+    def _on_input(self, msg) -> None:
+        try:
+            stamp, u = conversions.input_from_msg(msg)
+        except ValueError as error:
+            self.malformed += 1
+            self.get_logger().warning(f"dropped malformed input: {error}")
+            return
+        self._deliver(InputSample(stamp, u))
+
+    def _deliver(self, item: Measurement | InputSample) -> None:
+        """Into the estimator, or a buffer until its first update (it starts at now - lag)."""
+        if not self._started:
+            self._buffer.append(item)
+        elif isinstance(item, InputSample):
+            self.estimator.add_input(item)
+        else:
+            self.estimator.add_measurement(item)
+
+    def _now(self) -> float:
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _update(self) -> None:
+        t = self._now() - self.lag
+        if not self._started:  # start at now - lag; what is older counts as late
+            self.estimator.reset(t, self.initial)
+            self._started = True
+            self._last_query = t
+            for item in self._buffer:
+                self._deliver(item)
+            self._buffer.clear()
+            covariance = np.diag(np.full(6, 1.0))
+            self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
+            return
+        if t <= self._last_query:
+            return
+        self._last_query = t
+        start = time.perf_counter()
+        estimate = self.estimator.estimate(t)
+        elapsed = time.perf_counter() - start
+        self.updates += 1
+        self._max_solve = max(self._max_solve, elapsed)
+        if elapsed > 1.0 / self.rate_hz:
+            self.deadline_misses += 1
+        self._state.publish(conversions.car_state_msg(estimate.x, t, estimate.covariance))
+        self._odometry.publish(conversions.odometry_msg(estimate))
+        if estimate.status != "ok":
+            self.get_logger().warning(f"estimator: {estimate.status}")
+
+    def _publish_diagnostics(self) -> None:
+        from chronos_msgs.msg import EstimatorDiagnostics
+
+        d = self.estimator.diagnostics
+        msg = EstimatorDiagnostics()
+        conversions.fill_stamp(msg.header.stamp, max(self._now(), 0.0))
+        msg.estimator, msg.status = self.kind, d.last_status
+        msg.solve_time, msg.max_solve_time = d.last_solve_time_s, self._max_solve
+        msg.updates, msg.deadline_misses = self.updates, self.deadline_misses
+        msg.rejected_measurements = sum(d.rejected.values())
+        msg.late_measurements = d.late
+        msg.ignored_measurements = sum(d.ignored.values()) + self.malformed
+        msg.fallbacks = d.fallbacks
+        msg.sensors = list(self.received)
+        msg.received = list(self.received.values())
+        self._diagnostics.publish(msg)
+        self._max_solve = 0.0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(EstimatorNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,97 @@
+"""Recorder node: chosen topics to a ROS 2 bag (MCAP by default) via rosbags.
+
+Subscribes raw (no deserialization) to every topic that matches ``topics`` (comma-separated
+names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
+up topics as they appear. Each message is written with its receive time. The bag is closed
+cleanly on shutdown.
+
+Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from rclpy.node import Node
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from ros4crs.interfaces import typestore
+from ros4crs.node_support import STREAM_QOS, declare, message_class, run
+
+
+class RecorderNode(Node):
+    """Writes raw CDR messages of matching topics into a bag."""
+
+    def __init__(self) -> None:
+        super().__init__("recorder")
+        output = Path(declare(self, "output", "bag", "bag directory to create"))
+        patterns = declare(self, "topics", "", "comma-separated topic names or prefixes")
+        storage = declare(self, "storage", "mcap", "mcap or sqlite3")
+        plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+        if storage not in plugins:
+            raise ValueError(f"storage: must be mcap or sqlite3, got {storage!r}")
+        self.patterns = [self._resolve(p.strip()) for p in patterns.split(",") if p.strip()]
+        self.writer = Writer(output, version=9, storage_plugin=plugins[storage])
+        self.writer.open()
+        self.connections: dict[str, object] = {}
+        self.counts: dict[str, int] = {}
+        self._store = typestore()
+        self.create_timer(0.2, self._discover)
+        self._discover()
+        self.get_logger().info(f"recording {self.patterns or ['everything']} to {output}")
+
+    def _resolve(self, name: str) -> str:
+        if name.startswith("/"):
+            return name
+        namespace = self.get_namespace().rstrip("/")
+        return f"{namespace}/{name}"
+
+    def _matches(self, topic: str) -> bool:
+        if topic in ("/rosout", "/parameter_events"):
+            return False
+        return not self.patterns or any(topic.startswith(p) for p in self.patterns)
+
+    def _discover(self) -> None:
+        for topic, types in self.get_topic_names_and_types():
+            if topic in self.connections or not self._matches(topic):
+                continue
+            msgtype = types[0]
+            try:
+                message_class(msgtype)
+                connection = self.writer.add_connection(topic, msgtype, typestore=self._store)
+            except (ImportError, AttributeError, KeyError) as error:
+                self.get_logger().warning(f"cannot record {topic} ({msgtype}): {error}")
+                self.connections[topic] = None
+                continue
+            self.connections[topic] = connection
+            self.counts[topic] = 0
+            self.create_subscription(
+                message_class(msgtype),
+                topic,
+                self._writer_for(topic, connection),
+                STREAM_QOS,
+                raw=True,
+            )
+
+    def _writer_for(self, topic: str, connection):
+        def write(data: bytes) -> None:
+            self.writer.write(connection, time.time_ns(), data)
+            self.counts[topic] += 1
+
+        return write
+
+    def destroy_node(self) -> None:
+        self.writer.close()
+        total = sum(self.counts.values())
+        self.get_logger().info(f"bag closed: {total} messages on {len(self.counts)} topics")
+        super().destroy_node()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(RecorderNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,149 @@
+"""Simulator node: the ``sim`` engine in real time (or faster, publishing ``/clock``).
+
+Publishes every sensor at its own rate with its own stamp (``sensors/*``), the ground truth
+(``ground_truth``), and applies each ``input`` command when it arrives. Stamps are
+``epoch + simulation time`` with ``epoch`` the wall time at start, so at ``rate_factor`` 1 they
+are wall-clock times; at any other factor the node publishes ``/clock`` and the other nodes run
+with ``use_sim_time``.
+
+Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
+("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
+``initial_state`` (6 floats; default the DEMO_TRACK start), ``duration`` (s, 0 = forever).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import rclpy
+from rclpy.node import Node
+
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from ros4crs import conversions
+from ros4crs.node_support import STREAM_QOS, declare, run
+from sim.sensors import Blackout, SensorSuite
+from sim.simulator import Simulator
+
+
+def parse_effects(text: str) -> dict[str, float | None]:
+    """``"steering_lag=0.05,gyro_bias"`` -> ``{"steering_lag": 0.05, "gyro_bias": None}``."""
+    effects: dict[str, float | None] = {}
+    for item in filter(None, (part.strip() for part in text.split(","))):
+        name, _, value = item.partition("=")
+        effects[name] = float(value) if value else None
+    return effects
+
+
+def parse_blackouts(text: str) -> tuple[Blackout, ...]:
+    """``"lighthouse:10:1.127;imu:3:0.5"`` -> blackouts."""
+    out = []
+    for item in filter(None, (part.strip() for part in text.split(";"))):
+        sensor, start, duration = item.split(":")
+        out.append(Blackout(sensor, float(start), float(duration)))
+    return tuple(out)
+
+
+class SimulatorNode(Node):
+    """Runs a :class:`sim.simulator.SimulationSession` against the wall clock."""
+
+    def __init__(self) -> None:
+        super().__init__("simulator")
+        track = load_demo_track()
+        seed = declare(self, "seed", 0, "seed of all noise")
+        noise_free = declare(self, "noise_free", False, "ideal sensors")
+        effects = parse_effects(declare(self, "effects", "", "hidden truth effects name=value,..."))
+        blackouts = parse_blackouts(declare(self, "blackouts", "", "sensor:start:duration;..."))
+        stations = declare(self, "stations", 1, "Lighthouse base stations")
+        self.rate_factor = float(declare(self, "rate_factor", 1.0, "simulated s per wall s"))
+        tick_hz = float(declare(self, "tick_hz", 500.0, "how often the engine advances"))
+        truth_hz = float(declare(self, "truth_rate_hz", 50.0, "ground-truth rate"))
+        start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
+        initial = declare(self, "initial_state", start, "x, y, yaw, vx, vy, omega")
+        self.duration = float(declare(self, "duration", 0.0, "stop after (s); 0 = never"))
+        if self.rate_factor <= 0 or tick_hz <= 0 or truth_hz <= 0:
+            raise ValueError("rate_factor, tick_hz and truth_rate_hz must be > 0")
+        sensors = SensorSuite(blackouts=blackouts)
+        model = CarModel(effects, n_base_stations=stations)
+        self.session = Simulator(model, sensors.ideal() if noise_free else sensors, seed).session(
+            np.asarray(initial, dtype=float)
+        )
+        self.epoch = time.time()
+        self._wall_start = time.monotonic()
+        self._sensor_publishers = {
+            family: self.create_publisher(msg_type, conversions.TOPICS[family], STREAM_QOS)
+            for family, msg_type in _sensor_types().items()
+        }
+        from chronos_msgs.msg import CarInput, CarState
+
+        self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
+        self.create_subscription(CarInput, conversions.TOPICS["input"], self._on_input, STREAM_QOS)
+        self._clock_publisher = None
+        if self.rate_factor != 1.0:
+            from rosgraph_msgs.msg import Clock
+
+            self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
+        self._next_truth = 0.0
+        self._truth_period = 1.0 / truth_hz
+        self.rejected_inputs = 0
+        self.create_timer(1.0 / tick_hz, self._tick)
+        self.get_logger().info(
+            f"simulating {model!r}, seed {seed}, rate x{self.rate_factor:g}, "
+            f"{'ideal' if noise_free else 'noisy'} sensors"
+        )
+
+    def _tick(self) -> None:
+        t = (time.monotonic() - self._wall_start) * self.rate_factor
+        if self.duration and t >= self.duration:
+            self.get_logger().info(f"simulated {self.duration:g} s; stopping")
+            rclpy.try_shutdown()
+            return
+        for measurement in self.session.advance(t):
+            stamped = type(measurement)(
+                self.epoch + measurement.stamp, measurement.sensor, measurement.values
+            )
+            family = conversions.topic_family(measurement.sensor)
+            self._sensor_publishers[family].publish(conversions.measurement_to_msg(stamped))
+        if self._clock_publisher is not None:
+            from rosgraph_msgs.msg import Clock
+
+            clock = Clock()
+            conversions.fill_stamp(clock.clock, self.epoch + t)
+            self._clock_publisher.publish(clock)
+        if t >= self._next_truth:
+            self._next_truth = t + self._truth_period
+            self._truth.publish(conversions.car_state_msg(self.session.base_state, self.epoch + t))
+
+    def _on_input(self, msg) -> None:
+        try:
+            _, u = conversions.input_from_msg(msg)
+        except ValueError as error:
+            self.rejected_inputs += 1
+            self.get_logger().warning(f"dropped malformed input: {error}")
+            return
+        self.session.command(u)
+
+
+def _sensor_types() -> dict[str, type]:
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import Imu
+
+    from chronos_msgs.msg import LighthouseSweep, WheelSpeeds
+
+    return {
+        "imu": Imu,
+        "gyro": Imu,
+        "wheel_encoders": WheelSpeeds,
+        "lighthouse": LighthouseSweep,
+        "pose": PoseStamped,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(SimulatorNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
