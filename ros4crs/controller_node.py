@@ -19,7 +19,7 @@ from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, run
+from ros4crs.node_support import STREAM_QOS, declare, run, subscribe_checked
 
 STOP = np.array([0.0, 0.0])
 
@@ -42,19 +42,21 @@ class ControllerNode(Node):
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_QOS
         )
-        self.create_subscription(CarState, conversions.TOPICS["state"], self._on_state, 10)
+        self.malformed = subscribe_checked(
+            self,
+            CarState,
+            conversions.TOPICS["state"],
+            conversions.state_from_msg,
+            self._on_state,
+            "state estimate",
+        )
         self._latest: tuple[float, np.ndarray] | None = None
         self._stale = True
         self.stops = 0
-        self.malformed = 0
         self.create_timer(1.0 / rate_hz, self._control)
 
-    def _on_state(self, msg) -> None:
-        try:
-            self._latest = conversions.state_from_msg(msg)
-        except ValueError as error:
-            self.malformed += 1
-            self.get_logger().warning(f"dropped malformed state: {error}")
+    def _on_state(self, value: tuple[float, np.ndarray]) -> None:
+        self._latest = value
 
     def _control(self) -> None:
         now = self.get_clock().now().nanoseconds * 1e-9

@@ -27,7 +27,7 @@ from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, run
+from ros4crs.node_support import declare, run, subscribe_checked
 
 
 def make_estimator(
@@ -69,6 +69,7 @@ class EstimatorNode(Node):
 
         from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, WheelSpeeds
 
+        self._drop_counters: list = []
         for family, msg_type in (
             ("imu", Imu),
             ("gyro", Imu),
@@ -79,14 +80,22 @@ class EstimatorNode(Node):
         from chronos_msgs.msg import LighthouseSweep
 
         self._subscribe("lighthouse", LighthouseSweep)
-        self.create_subscription(CarInput, conversions.TOPICS["input"], self._on_input, STREAM_QOS)
+        self._drop_counters.append(
+            subscribe_checked(
+                self,
+                CarInput,
+                conversions.TOPICS["input"],
+                conversions.input_from_msg,
+                self._on_input,
+                "input",
+            )
+        )
         self._state = self.create_publisher(CarState, conversions.TOPICS["state"], 10)
         self._odometry = self.create_publisher(Odometry, conversions.TOPICS["odometry"], 10)
         self._diagnostics = self.create_publisher(
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
         self.received: dict[str, int] = {}
-        self.malformed = 0
         self.deadline_misses = 0
         self.updates = 0
         self._max_solve = 0.0
@@ -98,37 +107,45 @@ class EstimatorNode(Node):
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
 
     def _subscribe(self, family: str, msg_type: type) -> None:
-        parse = conversions.SENSOR_PARSERS[family]
-
-        def callback(msg) -> None:
-            try:
-                measurement = parse(msg)
-            except ValueError as error:
-                self.malformed += 1
-                self.get_logger().warning(f"dropped malformed {family} message: {error}")
-                return
+        def handle(measurement: Measurement) -> None:
             self.received[measurement.sensor] = self.received.get(measurement.sensor, 0) + 1
             self._deliver(measurement)
 
-        self.create_subscription(msg_type, conversions.TOPICS[family], callback, STREAM_QOS)
+        self._drop_counters.append(
+            subscribe_checked(
+                self,
+                msg_type,
+                conversions.TOPICS[family],
+                conversions.SENSOR_PARSERS[family],
+                handle,
+                family,
+            )
+        )
 
-    def _on_input(self, msg) -> None:
-        try:
-            stamp, u = conversions.input_from_msg(msg)
-        except ValueError as error:
-            self.malformed += 1
-            self.get_logger().warning(f"dropped malformed input: {error}")
-            return
-        self._deliver(InputSample(stamp, u))
+    def _on_input(self, value: tuple[float, np.ndarray]) -> None:
+        self._deliver(InputSample(*value))
+
+    @property
+    def malformed(self) -> int:
+        """Messages dropped at the boundary so far."""
+        return sum(count() for count in self._drop_counters)
 
     def _deliver(self, item: Measurement | InputSample) -> None:
         """Into the estimator, or a buffer until its first update (it starts at now - lag)."""
         if not self._started:
             self._buffer.append(item)
-        elif isinstance(item, InputSample):
+            return
+        late_before = self.estimator.diagnostics.late
+        if isinstance(item, InputSample):
             self.estimator.add_input(item)
         else:
             self.estimator.add_measurement(item)
+        if self.estimator.diagnostics.late > late_before:
+            self.get_logger().warning(
+                f"dropped out-of-order data stamped {item.stamp:.3f} s: older than what the "
+                "estimator already processed",
+                throttle_duration_sec=1.0,
+            )
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

@@ -34,6 +34,40 @@ def message_class(msgtype: str) -> type:
     return getattr(importlib.import_module(f"{package}.{kind}"), name)
 
 
+def subscribe_checked(
+    node: Node,
+    msg_type: type,
+    topic: str,
+    parse: Callable[[Any], Any],
+    handle: Callable[[Any], None],
+    what: str,
+) -> Callable[[], int]:
+    """Subscribe raw and validate every message before ``handle`` sees it.
+
+    The CDR bytes are deserialized here (a message that does not deserialize, e.g. of another
+    type or truncated, is dropped instead of raising inside the executor), then ``parse``
+    converts and validates it (``ValueError`` drops it). Each drop logs a warning naming the
+    problem, throttled to one a second. Returns a function giving the number of drops.
+    """
+    from rclpy.serialization import deserialize_message
+
+    dropped = [0]
+
+    def callback(data: bytes) -> None:
+        try:
+            value = parse(deserialize_message(bytes(data), msg_type))
+        except Exception as error:
+            dropped[0] += 1
+            node.get_logger().warning(
+                f"dropped malformed {what} on {topic}: {error}", throttle_duration_sec=1.0
+            )
+            return
+        handle(value)
+
+    node.create_subscription(msg_type, topic, callback, STREAM_QOS, raw=True)
+    return lambda: dropped[0]
+
+
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:
     """Initialise rclpy, spin the node until Ctrl-C / SIGTERM / shutdown, clean up.
 

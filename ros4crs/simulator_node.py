@@ -23,7 +23,7 @@ from rclpy.node import Node
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, run
+from ros4crs.node_support import STREAM_QOS, declare, run, subscribe_checked
 from sim.sensors import Blackout, SensorSuite
 from sim.simulator import Simulator
 
@@ -58,7 +58,7 @@ class SimulatorNode(Node):
         blackouts = parse_blackouts(declare(self, "blackouts", "", "sensor:start:duration;..."))
         stations = declare(self, "stations", 1, "Lighthouse base stations")
         self.rate_factor = float(declare(self, "rate_factor", 1.0, "simulated s per wall s"))
-        tick_hz = float(declare(self, "tick_hz", 500.0, "how often the engine advances"))
+        tick_hz = float(declare(self, "tick_hz", 250.0, "how often the engine advances"))
         truth_hz = float(declare(self, "truth_rate_hz", 50.0, "ground-truth rate"))
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
         initial = declare(self, "initial_state", start, "x, y, yaw, vx, vy, omega")
@@ -79,7 +79,14 @@ class SimulatorNode(Node):
         from chronos_msgs.msg import CarInput, CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
-        self.create_subscription(CarInput, conversions.TOPICS["input"], self._on_input, STREAM_QOS)
+        self.malformed_inputs = subscribe_checked(
+            self,
+            CarInput,
+            conversions.TOPICS["input"],
+            conversions.input_from_msg,
+            self._on_input,
+            "input",
+        )
         self._clock_publisher = None
         if self.rate_factor != 1.0:
             from rosgraph_msgs.msg import Clock
@@ -87,7 +94,6 @@ class SimulatorNode(Node):
             self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
         self._next_truth = 0.0
         self._truth_period = 1.0 / truth_hz
-        self.rejected_inputs = 0
         self.create_timer(1.0 / tick_hz, self._tick)
         self.get_logger().info(
             f"simulating {model!r}, seed {seed}, rate x{self.rate_factor:g}, "
@@ -116,14 +122,8 @@ class SimulatorNode(Node):
             self._next_truth = t + self._truth_period
             self._truth.publish(conversions.car_state_msg(self.session.base_state, self.epoch + t))
 
-    def _on_input(self, msg) -> None:
-        try:
-            _, u = conversions.input_from_msg(msg)
-        except ValueError as error:
-            self.rejected_inputs += 1
-            self.get_logger().warning(f"dropped malformed input: {error}")
-            return
-        self.session.command(u)
+    def _on_input(self, value: tuple[float, np.ndarray]) -> None:
+        self.session.command(value[1])
 
 
 def _sensor_types() -> dict[str, type]:

@@ -4,7 +4,8 @@ An estimator consumes the measurement stream and the commanded inputs, in any in
 returns an :class:`Estimate` of the base state ``[x, y, yaw, vx, vy, omega]`` at a requested time.
 Events are processed in stamp order, ties broken by sensor name, so the same data delivered in a
 different order gives the same estimate. Anything older than what was already processed is
-rejected as late (counted in the diagnostics).
+rejected as late (counted in the diagnostics); the MHE accepts late data as long as its stamp
+is still inside the window.
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ class Estimator(ABC):
         return self._push(sample.stamp, 0, "", sample)
 
     def _push(self, stamp: float, kind: int, key: str, item: object) -> bool:
-        if stamp < self._processed_until:
+        if stamp < self.late_before():
             self.diagnostics.late += 1
             return False
         heapq.heappush(self._queue, (stamp, kind, key, self._sequence, item))
@@ -113,6 +114,10 @@ class Estimator(ABC):
             stamp, _, _, _, item = heapq.heappop(self._queue)
             self._processed_until = stamp
             yield item
+
+    def late_before(self) -> float:
+        """Data stamped before this are late and rejected (default: the last processed stamp)."""
+        return self._processed_until
 
     # --- to implement -----------------------------------------------------------------
     def accepts(self, sensor: str) -> bool:

@@ -34,6 +34,7 @@ a row.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections import Counter
@@ -310,6 +311,10 @@ class MovingHorizonEstimator(Estimator):
     def accepts(self, sensor: str) -> bool:
         return sensor in self._slot
 
+    def late_before(self) -> float:
+        """Late data are still used while they fall inside the window (nearest node)."""
+        return float(self._times[len(self._times) - self._active])
+
     # --- state of the window ------------------------------------------------------------
     def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
         x0 = np.asarray(x0, dtype=float)
@@ -429,9 +434,16 @@ class MovingHorizonEstimator(Estimator):
         """Add a node at ``t``, attach the data up to ``t``, run the Gauss-Newton step(s)."""
         start = time.perf_counter()
         events = list(self._events_until(t))
+        late_input = math.inf
         for item in events:
             if isinstance(item, InputSample):
-                self._input_history.append(item)
+                bisect.insort(self._input_history, item, key=lambda s: s.stamp)
+                if item.stamp < self._times[-1]:
+                    late_input = min(late_input, item.stamp)
+        if late_input < math.inf:  # a command arrived after stages it acts on were made
+            for j in range(len(self._times) - 1):
+                if self._times[j + 1] > late_input:
+                    self._U[:, j] = self._command_average(self._times[j], self._times[j + 1])
         if t > self._times[-1] + 1e-6:
             self._shift(t)
         for item in events:
