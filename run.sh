@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Chronos/CRS in Python: the one entry point.
-#   ./run.sh                  set up .venv (if needed) and run the demo (crs demo --out "${OUT:-out/demo}")
+#   ./run.sh                  set up .venv (if needed) and run the main job into ${OUT:-out/demo}:
+#                             the simulator report (crs demo) and the ROS 2 stack (crs launch sim)
 #   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...)
 #   ./run.sh setup            only set up .venv
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
@@ -27,7 +28,7 @@ export CRS_CACHE_DIR="${CRS_CACHE_DIR:-$ROOT/.cache/crs}"
 
 usage() {
     cat >&2 <<'EOF'
-usage: ./run.sh                  set up .venv and run the demo (writes a report to ${OUT:-out/demo})
+usage: ./run.sh                  set up .venv and run the main job (reports in ${OUT:-out/demo})
        ./run.sh test [ARGS...]   set up .venv and run the test suite (pytest -q ARGS...)
        ./run.sh setup            only set up .venv
        ./run.sh crs ARGS...      set up .venv and run the crs command line
@@ -214,7 +215,10 @@ case "$cmd" in
         [ $# -le 1 ] || { usage; exit 2; }
         bootstrap
         mkdir -p "$CRS_CACHE_DIR"
-        exec "$VENV/bin/crs" demo --out "${OUT:-out/demo}"
+        out="${OUT:-out/demo}"
+        rm -rf "$out"  # the main job always writes a fresh report
+        "$VENV/bin/crs" demo --out "$out/simulation"
+        exec "$VENV/bin/crs" launch sim --cars 1 --estimator mhe --duration 45 --out "$out/stack"
         ;;
     test)
         shift

@@ -40,6 +40,14 @@ def parse_sensor_set(text: str) -> frozenset[str]:
     return groups
 
 
+def checked_initial_state(x0: np.ndarray) -> np.ndarray:
+    """``x0`` as 6 finite floats, else ``ValueError`` naming it."""
+    x0 = np.asarray(x0, dtype=float)
+    if x0.shape != (6,) or not np.all(np.isfinite(x0)):
+        raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+    return x0
+
+
 @dataclass(frozen=True)
 class Estimate:
     """State estimate at ``stamp`` (s): base state (6,), its covariance (6, 6), a status word."""

@@ -22,7 +22,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, sensor_group
+from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
@@ -123,9 +123,7 @@ class ExtendedKalmanFilter(Estimator):
         return sensor in self.model.output_expressions
 
     def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (6,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+        x0 = checked_initial_state(x0)
         self._t = float(t0)
         self._x = self.model.initial_state(x0)
         if covariance is None:

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, sensor_group
+from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
@@ -317,9 +317,7 @@ class MovingHorizonEstimator(Estimator):
 
     # --- state of the window ------------------------------------------------------------
     def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (6,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+        x0 = checked_initial_state(x0)
         M, ny = self.settings.horizon, self._slot[self.groups[-1]].stop
         ng = len(self.groups)
         self._times = np.full(M + 1, float(t0))
