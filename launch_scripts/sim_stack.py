@@ -97,8 +97,11 @@ def analyse(bag: Path, cars: int) -> dict[str, Any]:
         if contents.truth:
             stamps = np.array([t for t, _ in contents.truth])
             states = np.array([x for _, x in contents.truth])
-            counter, hint = LapCounter(track.length), None
-            for t, x in zip(stamps, states, strict=True):
+            # laps are timed from when the car starts moving (it waits on the start line until
+            # the estimator is up), a start within 5 cm of the line counting as on it
+            moving = int(np.argmax(states[:, 3] > 0.05)) if np.any(states[:, 3] > 0.05) else 0
+            counter, hint = LapCounter(track.length, line_tolerance=0.05), None
+            for t, x in zip(stamps[moving:], states[moving:], strict=True):
                 projection = track.project(x[0], x[1], hint)
                 hint = projection.s
                 counter.update(t, projection.s)
