@@ -375,6 +375,56 @@ def _plot_real(name: str, reference: np.ndarray, trajectories: dict, folder: Pat
     plt.close(fig)
 
 
+def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
+    """filterpy's EKF and do-mpc's MHE beside ours: same model, noise settings and data.
+
+    do-mpc averages the samples of an interval like our MHE (``combine="mean"``). Each peer row
+    carries ``ratio_to_ours``: its RMSE and median time divided by ours (time > 1: slower).
+    """
+    from sim.peers import DoMpcMhe, FilterpyEkf
+
+    drives = [standard_drive(seed) for seed in seeds]
+    makers = {
+        "ekf": lambda: make_estimator("ekf", sensors),
+        "mhe": lambda: make_estimator("mhe", sensors),
+        "filterpy-ekf": lambda: FilterpyEkf(CarModel(), sensors),
+        "do-mpc-mhe": lambda: DoMpcMhe(CarModel(), sensors, MheSettings(), combine="mean"),
+    }
+    measured = {}
+    for name, make in makers.items():
+        values, times = [], []
+        for result in drives:
+            run = replay(make(), result, 60.0, start_state(result))
+            values.append([rmse(run, result)[s] for s in STATES])
+            times.extend(run.update_times_s)
+        measured[name] = (np.mean(values, axis=0), time_summary(times))
+    rows = []
+    for peer, ours in (("filterpy-ekf", "ekf"), ("do-mpc-mhe", "mhe")):
+        values, timing = measured[peer]
+        our_values, our_timing = measured[ours]
+        rows.append(
+            {
+                "benchmark": "peer",
+                "estimator": peer,
+                "sensors": sensors,
+                "rate_hz": 60.0,
+                "rmse": dict(zip(STATES, values.round(6).tolist(), strict=True)),
+                "time_ms": timing,
+                "compared_with": ours,
+                "ours": {
+                    "rmse": dict(zip(STATES, our_values.round(6).tolist(), strict=True)),
+                    "time_ms": our_timing,
+                },
+                "ratio_to_ours": {
+                    "rmse": dict(zip(STATES, (values / our_values).round(3).tolist(), strict=True)),
+                    "time_median": round(timing["median"] / our_timing["median"], 2),
+                },
+                "seeds": list(seeds),
+            }
+        )
+    return rows
+
+
 def run_all(
     seeds: Sequence[int] = (0, 1, 2, 3, 4),
     real_folders: Sequence[Path] = (),
@@ -391,8 +441,6 @@ def run_all(
     rows += blackout_rows(seeds[:3])
     rows += speed_rows()
     if peers:
-        from sim.peers import peer_rows
-
         rows += peer_rows(seeds[:2])
     rows += real_rows(real_folders, plot_dir)
     return rows
@@ -427,8 +475,12 @@ def format_table(rows: list[dict]) -> str:
             what = f"{row['estimator']} {row.get('rate_hz', '')} Hz".replace(" Hz", " Hz")
             extra = ""
             if kind == "peer":
-                extra = " rmse x/y/yaw " + "/".join(
-                    f"{row['rmse'][s] * 1e3:.1f}" for s in ("x", "y", "yaw")
+                ratio = row["ratio_to_ours"]
+                errors_mm = "/".join(f"{row['rmse'][s] * 1e3:.1f}" for s in STATES[:5])
+                ratios = "/".join(f"{ratio['rmse'][s]:.2f}" for s in STATES[:5])
+                extra = (
+                    f"; rmse x/y/yaw/vx/vy {errors_mm}; vs {row['compared_with']}: time "
+                    f"x{ratio['time_median']:g}, rmse ratios {ratios}"
                 )
             lines.append(
                 f"{kind} {what}: median {t['median']:.3f} ms, p95 {t['p95']:.3f}, "
