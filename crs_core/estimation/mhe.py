@@ -14,13 +14,14 @@ least-squares problem in the nodes alone,
       + \text{soft bounds},
 
 with :math:`M_t = \min(t, M)` nodes in use at start-up. Measurements arrive on their own
-clocks: each is attached to the nearest node; same-sensor samples at a node are averaged
-(:math:`n_{j,s}` of them, mean stamp offset :math:`\tau_{j,s}`), and the node state is moved to
-that offset by :math:`\phi` (constant body velocity, a few tenths of a millimetre at these
-rates) before the sensor model is applied. Sensors that did not report at a node contribute
-nothing; a Lighthouse blackout simply leaves those terms out. The inputs of a stage are the
-time average of the commands over it. Bounds on states and on :math:`w` are squared-hinge
-penalties (soft constraints), so the Gauss-Newton Hessian stays block tridiagonal.
+clocks: each is attached to the node closing its interval; same-sensor samples at a node are
+averaged (:math:`n_{j,s}` of them, mean stamp offset :math:`\tau_{j,s} \le 0`), and the node state
+is moved to that offset by :math:`\phi`, one Euler step of the model, before the sensor model is
+applied (each sensor with the mean of the commands active at its samples). Sensors that did
+not report at a node contribute nothing; a Lighthouse blackout simply leaves those terms out.
+The inputs of a stage are the time average of the commands over it. Bounds on states and on
+:math:`w` are squared-hinge penalties (soft constraints), so the Gauss-Newton Hessian stays
+block tridiagonal.
 
 Each call shifts the horizon (warm start by prediction), runs one Gauss-Newton step (the
 real-time iteration of the acados-based original; more with ``iterations``) and solves the
@@ -389,13 +390,17 @@ class MovingHorizonEstimator(Estimator):
             first.pop(0)
 
     def _attach(self, measurement: Measurement) -> None:
-        """Add a measurement to its nearest node (ties to the later one)."""
+        """Add a measurement to the node that closes its interval ``(t_{j-1}, t_j]``.
+
+        (Nearest-node attachment was tried: it leaves the newest node, whose estimate is
+        published, only half an interval of data, and velocities came out about 30 % worse.)
+        """
         times = self._times
         last = len(times) - 1
         j = last
         while j > 0 and measurement.stamp < times[j]:  # new data sits near the end
             j -= 1
-        if j < last and times[j + 1] - measurement.stamp <= measurement.stamp - times[j]:
+        if j < last and measurement.stamp > times[j]:
             j += 1
         if j < len(times) - self._active:
             self.diagnostics.late += 1
