@@ -472,7 +472,11 @@ def format_table(rows: list[dict]) -> str:
             )
         elif kind in ("speed", "peer"):
             t = row["time_ms"]
-            what = f"{row['estimator']} {row.get('rate_hz', '')} Hz".replace(" Hz", " Hz")
+            what = (
+                f"{row['estimator']} at {row['rate_hz']:g} Hz"
+                if "rate_hz" in row
+                else f"{row['estimator']} per measurement"
+            )
             extra = ""
             if kind == "peer":
                 ratio = row["ratio_to_ours"]
