@@ -27,7 +27,7 @@ from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import declare, run, subscribe_checked
+from ros4crs.node_support import declare, run, subscribe_checked, throttled_warning
 
 
 def make_estimator(
@@ -70,6 +70,7 @@ class EstimatorNode(Node):
         from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, WheelSpeeds
 
         self._drop_counters: list = []
+        self._warn_late = throttled_warning(self)
         for family, msg_type in (
             ("imu", Imu),
             ("gyro", Imu),
@@ -141,10 +142,9 @@ class EstimatorNode(Node):
         else:
             self.estimator.add_measurement(item)
         if self.estimator.diagnostics.late > late_before:
-            self.get_logger().warning(
+            self._warn_late(
                 f"dropped out-of-order data stamped {item.stamp:.3f} s: older than what the "
-                "estimator already processed",
-                throttle_duration_sec=1.0,
+                "estimator already processed"
             )
 
     def _now(self) -> float:

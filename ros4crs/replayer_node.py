@@ -5,7 +5,18 @@ remapped into this node's namespace with ``strip_prefix``), spaced as recorded d
 ``rate``. ``loop`` starts over at the end; ``topics`` (comma-separated prefixes) filters.
 Without ``loop`` the node shuts down after the last message.
 
-Parameters: ``bag``, ``rate``, ``loop``, ``topics``, ``start_delay`` (s, lets subscribers connect).
+With ``clock`` the node also publishes ``/clock`` (like ``ros2 bag play --clock``): the playback
+time on the bag's recorded time axis (the recorder's receive times), frozen at the first
+recorded time until the replay starts, then advancing with the replay, each tick after the
+messages due by then (a loop makes it jump back). Nodes run with ``use_sim_time`` then live on
+the recording's timeline, so a node that works at "now" (e.g. the estimator, which queries at
+``now - lag``) treats the replayed data, which keep their original stamps, as it treated them
+live. With ``min_subscribers`` > 0 the replay (and the ``start_delay``) starts only once every
+replay publisher (``/clock`` included) has that many matched subscriptions, so a node still
+starting up misses nothing.
+
+Parameters: ``bag``, ``rate``, ``loop``, ``topics``, ``start_delay`` (s, lets subscribers connect),
+``clock``, ``min_subscribers``.
 """
 
 from __future__ import annotations
@@ -31,6 +42,10 @@ class ReplayerNode(Node):
         prefixes = [p.strip() for p in declare(self, "topics", "", "prefixes").split(",")]
         self.prefixes = [p for p in prefixes if p]
         self.start_delay = float(declare(self, "start_delay", 0.5, "s before the first message"))
+        clock = bool(declare(self, "clock", False, "publish /clock from the recorded times"))
+        self.min_subscribers = int(
+            declare(self, "min_subscribers", 0, "start once every publisher has this many")
+        )
         if self.rate <= 0:
             raise ValueError(f"rate: must be > 0, got {self.rate}")
         self.published = 0
@@ -45,24 +60,52 @@ class ReplayerNode(Node):
             self.messages = [(c.topic, t, bytes(d)) for c, t, d in reader.messages(chosen)]
         if not self.messages:
             raise ValueError(f"bag: no messages on {self.prefixes or 'any topic'} in {self.bag}")
+        self._clock_publisher = None
+        if clock:
+            from rosgraph_msgs.msg import Clock
+
+            self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
         self.get_logger().info(f"replaying {len(self.messages)} messages x{self.rate:g}")
         self._index = 0
         self._t0_bag = self.messages[0][1]
-        self._t0_wall = time.monotonic() + self.start_delay
+        self._t0_wall: float | None = None  # set once the subscribers are there
         self.create_timer(0.001, self._tick)
+
+    def _subscribers_ready(self) -> bool:
+        publishers = list(self._topic_publishers.values())
+        if self._clock_publisher is not None:
+            publishers.append(self._clock_publisher)
+        return all(p.get_subscription_count() >= self.min_subscribers for p in publishers)
+
+    def _publish_clock(self, nanoseconds: int) -> None:
+        from rosgraph_msgs.msg import Clock
+
+        msg = Clock()
+        msg.clock.sec, msg.clock.nanosec = divmod(nanoseconds, 1_000_000_000)
+        self._clock_publisher.publish(msg)
 
     def _wanted(self, topic: str) -> bool:
         return not self.prefixes or any(topic.startswith(p) for p in self.prefixes)
 
     def _tick(self) -> None:
+        if self._t0_wall is None and self._subscribers_ready():
+            self._t0_wall = time.monotonic() + self.start_delay
+        if self._t0_wall is None or time.monotonic() < self._t0_wall:
+            if self._clock_publisher is not None:
+                self._publish_clock(self._t0_bag)
+            return
         elapsed = (time.monotonic() - self._t0_wall) * self.rate * 1e9
         while self._index < len(self.messages):
             topic, stamp, data = self.messages[self._index]
             if stamp - self._t0_bag > elapsed:
-                return
+                break
             self._topic_publishers[topic].publish(data)
             self.published += 1
             self._index += 1
+        if self._clock_publisher is not None:
+            self._publish_clock(self._t0_bag + int(elapsed))
+        if self._index < len(self.messages):
+            return
         if self.loop:
             self._index = 0
             self._t0_wall = time.monotonic()

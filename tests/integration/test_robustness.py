@@ -1,0 +1,198 @@
+"""Nodes survive bad input, and the launcher reports a node that dies.
+
+One simulator and one EKF estimator run for the whole module (domain 104); the tests publish
+to them from a probe node. The kill test runs last: it kills the simulator.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import signal
+import time
+
+import numpy as np
+import pytest
+from rclpy.serialization import serialize_message
+from stack_probe import Probe, log_text, wait_for
+
+from launch_scripts.launcher import Launcher, NodeSpec
+from ros4crs import conversions
+
+pytestmark = pytest.mark.integration
+
+DOMAIN = 104
+#: The estimator's lag: large enough that no sensor data of a busy machine arrive late, so the
+#: only late data are the ones the test sends.
+LAG_S = 0.2
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory, warm_codegen):
+    """A running simulator and EKF estimator in ``/car1``, a probe collecting the estimates and
+    diagnostics: ``(launcher, probe, estimates, diagnostics)``."""
+    from chronos_msgs.msg import CarState, EstimatorDiagnostics
+
+    log_dir = tmp_path_factory.mktemp("robustness") / "logs"
+    launcher = Launcher(
+        [
+            NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 5}),
+            NodeSpec(
+                "estimator", "ros4crs.estimator_node", "/car1", {"estimator": "ekf", "lag": LAG_S}
+            ),
+        ],
+        DOMAIN,
+        log_dir,
+    )
+    probe = Probe(DOMAIN)
+    estimates = probe.collect(CarState, "/car1/estimate/state")
+    diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
+    try:
+        launcher.start()
+        wait_for(lambda: len(estimates) >= 10, 90.0, "the first estimates")
+        wait_for(lambda: diagnostics, 30.0, "the first diagnostics")
+        yield launcher, probe, estimates, diagnostics
+    finally:
+        launcher.stop()
+        probe.close()
+
+
+def _stamp(msg) -> float:
+    return conversions.seconds_from_stamp(msg.header.stamp)
+
+
+def _last_warning(log_dir, text: str) -> float:
+    """Wall time of the estimator's last log line containing ``text`` (-inf if none)."""
+    times = [
+        float(match.group(1))
+        for line in log_text(log_dir, "/car1/estimator").splitlines()
+        if text in line and (match := re.match(r"\[\w+\] \[(\d+\.\d+)\]", line))
+    ]
+    return max(times, default=-math.inf)
+
+
+def _after(received: list, wall_time: float) -> list:
+    return [msg for t, msg in received if t > wall_time]
+
+
+def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
+    """The estimator node drops each malformed or late message with a warning naming the
+    problem, counts it in its diagnostics and keeps running.
+
+    Sent, within a fraction of a second (each topic's warning is throttled on its own):
+    (a) a LighthouseSweep with a NaN angle, (b) an Imu with an infinite acceleration, (c) a
+    CarInput with a NaN steer (the simulator drops it too), (d) raw CDR bytes on the
+    WheelSpeeds topic that do not deserialize (truncated, and a string length past the end),
+    (e) a valid WheelSpeeds stamped 0.5 s before one the estimator already processed.
+    Afterwards the node is alive, publishes finite estimates, its log names each problem
+    ("dropped malformed lighthouse on sensors/lighthouse: angles: contains NaN ..."), and its
+    diagnostics count the five malformed messages as ignored (nothing else is ignored: the
+    simulator publishes only sensors the estimator uses) and the out-of-order one as late.
+    """
+    from sensor_msgs.msg import Imu
+
+    from chronos_msgs.msg import CarInput, LighthouseSweep, WheelSpeeds
+
+    launcher, probe, estimates, diagnostics = stack
+    assert launcher.poll() == [], "a node died before the test (the kill test runs last)"
+    log_dir = launcher.log_dir
+    lighthouse = probe.publisher(LighthouseSweep, "/car1/sensors/lighthouse")
+    imu = probe.publisher(Imu, "/car1/sensors/imu")
+    command = probe.publisher(CarInput, "/car1/input", subscribers=2)
+    wheels = probe.publisher(WheelSpeeds, "/car1/sensors/wheel_speeds")
+    late_before = diagnostics[-1][1].late_measurements
+    assert diagnostics[-1][1].ignored_measurements == 0
+
+    now = time.time()
+    sweep = LighthouseSweep(base_station=0, plane=1, angles=[math.nan, 0.1, 0.2, 0.3])
+    conversions.fill_stamp(sweep.header.stamp, now)
+    lighthouse.publish(sweep)
+    bad_imu = Imu()
+    bad_imu.linear_acceleration.x = math.inf
+    conversions.fill_stamp(bad_imu.header.stamp, now)
+    imu.publish(bad_imu)
+    command.publish(conversions.car_input_msg(np.array([math.nan, 0.0]), now))
+    valid = WheelSpeeds(front_left=1.0, front_right=1.0, rear_left=1.0, rear_right=1.0)
+    valid.header.frame_id = "base_link"
+    conversions.fill_stamp(valid.header.stamp, now)
+    cdr = serialize_message(valid)
+    wheels.publish(cdr[:20])  # truncated
+    wheels.publish(cdr[:12] + b"\xf0\xff\xff\x7f" + cdr[16:])  # frame_id length past the end
+    sent = time.time()
+
+    # (e) out of order: once an estimate past ``now`` is out, data stamped before it are late
+    wheels.publish(valid)
+    wait_for(
+        lambda: any(_stamp(m) > now + 0.05 for m in _after(estimates, sent)),
+        10.0,
+        "an estimate past the valid wheel speeds",
+    )
+    # the late warning is throttled to one a second: let one pass since any natural one
+    wait_for(
+        lambda: time.time() > _last_warning(log_dir, "out-of-order") + 1.1,
+        5.0,
+        "the late-data warning throttle",
+    )
+    old = WheelSpeeds(front_left=1.0, front_right=1.0, rear_left=1.0, rear_right=1.0)
+    late_stamp = math.floor((now - 0.5) * 100) / 100  # prints the same with 3 decimals
+    conversions.fill_stamp(old.header.stamp, late_stamp)
+    wheels.publish(old)
+
+    # diagnostics come once a second
+    checked = time.time()
+
+    def counted():
+        fresh = _after(diagnostics, checked)
+        return next(
+            (m for m in fresh if m.ignored_measurements >= 5 and m.late_measurements > late_before),
+            None,
+        )
+
+    report = wait_for(
+        counted,
+        10.0,
+        lambda: f"diagnostics counting the drops (late before {late_before}): {diagnostics[-1]}",
+    )
+    assert report.ignored_measurements == 5, report
+
+    expected = {
+        "/car1/estimator": [
+            "dropped malformed lighthouse on sensors/lighthouse: angles: contains NaN",
+            "dropped malformed imu on sensors/imu: linear_acceleration: contains NaN or inf",
+            "dropped malformed input on input: steer/torque: contains NaN",
+            "dropped malformed wheel_encoders on sensors/wheel_speeds: failed to deserialize",
+            f"dropped out-of-order data stamped {late_stamp:.3f} s",
+        ],
+        "/car1/simulator": ["dropped malformed input on input: steer/torque: contains NaN"],
+    }
+    for node, lines in expected.items():
+        wait_for(
+            lambda node=node, lines=lines: all(line in log_text(log_dir, node) for line in lines),
+            10.0,
+            f"the warnings in the log of {node}",
+        )
+
+    # still running and estimating: a second of finite estimates after all that
+    resumed = time.time()
+    wait_for(lambda: len(_after(estimates, resumed)) >= 30, 10.0, "estimates after the drops")
+    states = np.array([[m.x, m.y, m.yaw, m.vx, m.vy, m.omega] for m in _after(estimates, sent)])
+    assert np.all(np.isfinite(states))
+    assert launcher.poll() == []
+
+
+def test_launcher_reports_a_killed_node_and_the_others_keep_running(stack):
+    """``kill -9`` of one node process (the simulator) is reported by ``Launcher.poll()`` once,
+    with the node's full name and return code -9 (and the end of its log); the estimator
+    process keeps running and publishing estimates."""
+    launcher, _, estimates, _ = stack
+    simulator = launcher.processes["/car1/simulator"]
+    os.kill(simulator.pid, signal.SIGKILL)
+    exited = wait_for(launcher.poll, 10.0, "the launcher to notice the killed simulator")
+    assert [(e.node, e.returncode) for e in exited] == [("/car1/simulator", -signal.SIGKILL)]
+    assert isinstance(exited[0].log_tail, str)
+
+    killed = time.time()
+    wait_for(lambda: len(_after(estimates, killed)) >= 30, 10.0, "estimates after the kill")
+    assert launcher.processes["/car1/estimator"].poll() is None
+    assert launcher.poll() == []  # reported once, and nothing else died
