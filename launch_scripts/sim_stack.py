@@ -30,7 +30,13 @@ def stack_nodes(
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
-            NodeSpec("simulator", "ros4crs.simulator_node", ns, {"seed": seed + i}),
+            # waits for the estimator and the recorder before its clock starts
+            NodeSpec(
+                "simulator",
+                "ros4crs.simulator_node",
+                ns,
+                {"seed": seed + i, "wait_for_subscribers": 2},
+            ),
             NodeSpec("estimator", "ros4crs.estimator_node", ns, {"estimator": estimator}),
             NodeSpec("controller", "ros4crs.controller_node", ns, {}),
         ]

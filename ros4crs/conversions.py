@@ -49,7 +49,9 @@ TOPICS = {
 
 # --- time ------------------------------------------------------------------------------------
 def seconds_from_stamp(stamp: Any) -> float:
-    """``builtin_interfaces/Time`` -> float seconds."""
+    """``builtin_interfaces/Time`` -> float seconds (``nanosec`` must be below 1e9)."""
+    if not 0 <= stamp.nanosec < 1_000_000_000:
+        raise ValueError(f"header.stamp.nanosec: must be in [0, 1e9), got {stamp.nanosec}")
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
 
 

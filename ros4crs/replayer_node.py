@@ -1,9 +1,8 @@
 """Replayer node: publish a bag with its original timing.
 
-Messages go out as the raw CDR bytes stored in the bag, on their original topics (optionally
-remapped into this node's namespace with ``strip_prefix``), spaced as recorded divided by
-``rate``. ``loop`` starts over at the end; ``topics`` (comma-separated prefixes) filters.
-Without ``loop`` the node shuts down after the last message.
+Messages go out as the raw CDR bytes stored in the bag, on their original topics, spaced as
+recorded divided by ``rate``. ``loop`` starts over at the end; ``topics`` (comma-separated
+prefixes) filters. Without ``loop`` the node shuts down after the last message.
 
 With ``clock`` the node also publishes ``/clock`` (like ``ros2 bag play --clock``): the playback
 time on the bag's recorded time axis (the recorder's receive times), frozen at the first

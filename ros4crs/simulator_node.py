@@ -8,7 +8,9 @@ with ``use_sim_time``.
 
 Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
 ("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
-``initial_state`` (6 floats; default the DEMO_TRACK start), ``duration`` (s, 0 = forever).
+``initial_state`` (6 floats; default the DEMO_TRACK start), ``duration`` (s, 0 = forever),
+``wait_for_subscribers`` (simulated time starts once this many nodes subscribe to the
+Lighthouse topic, so a launched stack misses nothing at the start; 0 = start at once).
 """
 
 from __future__ import annotations
@@ -63,6 +65,10 @@ class SimulatorNode(Node):
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
         initial = declare(self, "initial_state", start, "x, y, yaw, vx, vy, omega")
         self.duration = float(declare(self, "duration", 0.0, "stop after (s); 0 = never"))
+        self.wait_for_subscribers = int(
+            declare(self, "wait_for_subscribers", 0, "hold t = 0 until this many sensor listeners")
+        )
+        self._waiting = self.wait_for_subscribers > 0
         if self.rate_factor <= 0 or tick_hz <= 0 or truth_hz <= 0:
             raise ValueError("rate_factor, tick_hz and truth_rate_hz must be > 0")
         sensors = SensorSuite(blackouts=blackouts)
@@ -101,6 +107,13 @@ class SimulatorNode(Node):
         )
 
     def _tick(self) -> None:
+        if self._waiting:
+            listeners = self._sensor_publishers["lighthouse"].get_subscription_count()
+            if listeners < self.wait_for_subscribers:
+                return
+            self._waiting = False  # the clock starts when the stack is listening
+            self.epoch, self._wall_start = time.time(), time.monotonic()
+            self.get_logger().info(f"{listeners} subscribers to the sensors: starting")
         t = (time.monotonic() - self._wall_start) * self.rate_factor
         if self.duration and t >= self.duration:
             self.get_logger().info(f"simulated {self.duration:g} s; stopping")
