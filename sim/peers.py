@@ -30,7 +30,7 @@ import casadi as ca
 import numpy as np
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, sensor_group
+from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
 from crs_core.estimation.ekf import EkfSettings
 from crs_core.estimation.mhe import MheSettings, measurement_groups
 from crs_core.integrators import rk4
@@ -153,9 +153,7 @@ class FilterpyEkf(Estimator):
         return sensor in self.model.output_expressions
 
     def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (6,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+        x0 = checked_initial_state(x0)
         if covariance is None:
             std = np.concatenate([self.settings.initial_std, np.full(self.model.nx - 6, 0.05)])
             covariance = np.diag(std**2)
@@ -380,9 +378,7 @@ class DoMpcMhe(Estimator):
         return sensor in self._slot
 
     def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (6,) or not np.all(np.isfinite(x0)):
-            raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+        x0 = checked_initial_state(x0)
         N = self.settings.horizon
         self._initial_weight = self._default_initial_weight.copy()
         if covariance is not None:
