@@ -1,0 +1,62 @@
+"""The controller node drives on fresh estimates and stops the car when they go stale."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from stack_probe import Probe, log_text, wait_for
+
+from crs_core.track import load_demo_track
+from launch_scripts.launcher import Launcher, NodeSpec
+from ros4crs import conversions
+
+pytestmark = pytest.mark.integration
+
+DOMAIN = 107
+
+
+def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
+    """While estimates arrive (stamped now, the car at the start pose at 1 m/s) the controller
+    commands torque; 0.2 s after they stop (its ``stale_timeout``) it commands zero torque and
+    straight wheels, and says so in its log; when estimates return it drives again."""
+    from chronos_msgs.msg import CarInput, CarState
+
+    track = load_demo_track()
+    state = np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
+    launcher = Launcher(
+        [NodeSpec("controller", "ros4crs.controller_node", "/car1", {"stale_timeout": 0.2})],
+        DOMAIN,
+        tmp_path / "logs",
+    )
+    probe = Probe(DOMAIN)
+    inputs = probe.collect(CarInput, "/car1/input")
+    try:
+        launcher.start()
+        publisher = probe.publisher(CarState, "/car1/estimate/state")
+
+        def publish_for(seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                publisher.publish(conversions.car_state_msg(state, time.time()))
+                time.sleep(0.01)
+
+        def torques_since(t0: float) -> list[float]:
+            return [msg.torque for received, msg in inputs if received > t0]
+
+        publish_for(1.0)
+        driving = wait_for(lambda: torques_since(time.time() - 0.5), 5.0, "inputs while fresh")
+        assert max(driving) > 0.05
+        stopped_at = time.time()
+        time.sleep(0.6)  # estimates stop: stale after 0.2 s
+        late = [(m.steer, m.torque) for received, m in inputs if received > stopped_at + 0.35]
+        assert late and all(steer == 0.0 and torque == 0.0 for steer, torque in late)
+        assert "stale: stopping the car" in log_text(tmp_path / "logs", "/car1/controller")
+        resumed = time.time()
+        publish_for(0.5)
+        assert max(torques_since(resumed + 0.2)) > 0.05
+        assert launcher.poll() == []
+    finally:
+        launcher.stop()
+        probe.close()
