@@ -103,6 +103,10 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        if rclpy.ok():
+            raise  # a real failure while running
+        # the context was shut down (Ctrl-C, SIGTERM) under a running callback, e.g. mid-publish
     finally:
         if node is not None:
             node.destroy_node()
