@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import Counter
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -22,7 +21,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
+from crs_core.estimation.base import (
+    Estimate,
+    Estimator,
+    RejectionCap,
+    checked_initial_state,
+)
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
@@ -84,7 +88,7 @@ def build_ekf_functions(model: CarModel) -> list[ca.Function]:
             ca.Function(
                 "ekf_update_" + sensor.replace("/", "_"),
                 [x, P, u, p, y, r],
-                [x + K @ innovation, P_new, d2],
+                [x + K @ innovation, P_new, d2, innovation],
                 SX_OPTIONS,
             )
         )
@@ -116,7 +120,7 @@ class ExtendedKalmanFilter(Estimator):
         )
         self._q = self.settings.noise.process_std_for(model.nx)
         self._gates = {m: chi2.ppf(self.settings.gate_probability, m) for m in range(1, 9)}
-        self._consecutive: Counter = Counter()
+        self._cap = RejectionCap(self.settings.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
     def accepts(self, sensor: str) -> bool:
@@ -133,7 +137,7 @@ class ExtendedKalmanFilter(Estimator):
         self._u = np.zeros(2)
         self._queue.clear()
         self._processed_until = t0
-        self._consecutive.clear()
+        self._cap.clear()
 
     # --- propagation and update -------------------------------------------------------
     def _predict(self, x: np.ndarray, P: np.ndarray, dt: float):
@@ -148,18 +152,20 @@ class ExtendedKalmanFilter(Estimator):
     def _update(self, measurement: Measurement) -> None:
         function = self._functions["ekf_update_" + measurement.sensor.replace("/", "_")]
         std = self.settings.noise.measurement_std(measurement.sensor)
-        x_new, P_new, d2 = function(self._x, self._P, self._u, self._p, measurement.values, std)
-        key = sensor_group(measurement.sensor)
-        gate = self._gates[measurement.values.size]
-        if d2[0] > gate and self._consecutive[key] < self.settings.max_consecutive_rejections:
-            self._consecutive[key] += 1
-            self.diagnostics.rejected[measurement.sensor] += 1
+        x_new, P_new, d2, innovation = function(
+            self._x, self._P, self._u, self._p, measurement.values, std
+        )
+        sensor = measurement.sensor
+        if d2[0] > self._gates[measurement.values.size] and not self._cap.override(
+            sensor, innovation / std
+        ):
+            self.diagnostics.rejected[sensor] += 1
             return
         if not (np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))):
             self.diagnostics.rejected[measurement.sensor] += 1
             self.diagnostics.last_status = "update produced non-finite values; skipped"
             return
-        self._consecutive[key] = 0
+        self._cap.accepted(sensor)
         self._x, self._P = x_new, 0.5 * (P_new + P_new.T)
         self.diagnostics.processed[measurement.sensor] += 1
 

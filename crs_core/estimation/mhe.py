@@ -38,7 +38,6 @@ from __future__ import annotations
 import bisect
 import math
 import time
-from collections import Counter
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -46,7 +45,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
+from crs_core.estimation.base import Estimate, Estimator, RejectionCap, checked_initial_state
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
@@ -306,7 +305,7 @@ class MovingHorizonEstimator(Estimator):
         self._q = s.noise.process_std_for(nx)
         extra = np.full(nx - 6, 0.05)
         self._default_initial_weight = 1.0 / np.concatenate([s.initial_std, extra]) ** 2
-        self._rejections: Counter = Counter()
+        self._cap = RejectionCap(s.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
     def accepts(self, sensor: str) -> bool:
@@ -344,7 +343,7 @@ class MovingHorizonEstimator(Estimator):
         self._queue.clear()
         self._processed_until = t0
         self._covariance = np.diag(1.0 / self._initial_weight)[:6, :6]
-        self._rejections.clear()
+        self._cap.clear()
 
     def _command_average(self, t0: float, t1: float) -> np.ndarray:
         """Time average of the commanded input over ``[t0, t1]`` (zero-order hold)."""
@@ -420,16 +419,14 @@ class MovingHorizonEstimator(Estimator):
     def _plausible(self, measurement: Measurement, j: int, tau: float, command: np.ndarray) -> bool:
         """Outlier check of a Lighthouse sweep against the current trajectory."""
         predicted = self._outputs[measurement.sensor](self._X[:, j], command, self._p, tau)[0]
-        deviation = np.max(np.abs(measurement.values - predicted) / self._std[measurement.sensor])
-        key = sensor_group(measurement.sensor)
-        if (
-            deviation > self.settings.outlier_sigma
-            and self._rejections[key] < self.settings.max_consecutive_rejections
+        sensor = measurement.sensor
+        normalised = (measurement.values - predicted) / self._std[sensor]
+        if np.max(np.abs(normalised)) > self.settings.outlier_sigma and not self._cap.override(
+            sensor, normalised
         ):
-            self._rejections[key] += 1
-            self.diagnostics.rejected[measurement.sensor] += 1
+            self.diagnostics.rejected[sensor] += 1
             return False
-        self._rejections[key] = 0
+        self._cap.accepted(sensor)
         return True
 
     # --- one estimate -------------------------------------------------------------------
