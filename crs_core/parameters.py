@@ -130,10 +130,6 @@ class ParameterSet(Mapping[str, Parameter]):
         """Union of two sets with disjoint names (order: self, then other)."""
         return ParameterSet(list(self._items.values()) + list(other.values()))
 
-    def subset(self, group_prefix: str) -> ParameterSet:
-        """Parameters whose group starts with ``group_prefix``."""
-        return ParameterSet([p for p in self._items.values() if p.group.startswith(group_prefix)])
-
     # --- YAML ---------------------------------------------------------------------------
     def to_dict(self) -> dict[str, dict[str, Any]]:
         return {

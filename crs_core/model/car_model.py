@@ -159,7 +159,6 @@ class CarModel:
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
         self.xdot_expression = xdot
         self.applied_input_expression = applied
-        self._P = P
 
     def _rhs(self, x: ca.SX, u: ca.SX, P) -> tuple[ca.SX, ca.SX]:
         """State derivative and applied input for augmented state ``x`` and command ``u``."""
@@ -173,10 +172,6 @@ class CarModel:
             derivatives.append(zdot)
             offset += len(effect.states)
         return ca.vertcat(state_derivative(x[: len(STATE_NAMES)], u, P), *derivatives), u
-
-    def rhs(self, x: ca.SX, u: ca.SX, p: ca.SX) -> ca.SX:
-        """Continuous dynamics for arbitrary symbols (for building OCPs and estimators)."""
-        return self.dynamics_function(x, u, p)
 
     @cached_property
     def dynamics_function(self) -> ca.Function:
