@@ -65,7 +65,8 @@ def echo(topic: str, count: int = 1, timeout: float = 5.0) -> list[object]:
 
 
 def rate(topic: str, window: float = 2.0, timeout: float = 5.0) -> dict[str, float]:
-    """Receive rate (Hz) and inter-arrival statistics (ms) on ``topic`` over ``window`` s."""
+    """Receive rate (Hz) and inter-arrival statistics (ms) on ``topic`` over ``window`` s,
+    after half a second of settling."""
 
     def work(node, executor):
         msg_type = message_class(_topic_type(node, executor, topic, timeout))
@@ -73,6 +74,10 @@ def rate(topic: str, window: float = 2.0, timeout: float = 5.0) -> dict[str, flo
         node.create_subscription(
             msg_type, topic, lambda _: arrivals.append(time.monotonic()), STREAM_QOS, raw=True
         )
+        settle = time.monotonic() + 0.5  # the first arrivals after matching come in a burst
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.01)
+        arrivals.clear()
         end = time.monotonic() + window
         while time.monotonic() < end:
             executor.spin_once(timeout_sec=0.01)
