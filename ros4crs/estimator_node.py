@@ -5,7 +5,9 @@ boundary (a malformed one is logged and dropped). A timer at ``rate_hz`` asks th
 the state at ``now - lag`` (the lag lets messages in flight arrive first; it must exceed the
 transport latency) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
 (Odometry) and, once a second, ``estimate/diagnostics``. An update slower than the period
-counts as a deadline miss. A missing sensor never blocks: its terms are simply absent.
+counts as a deadline miss. A missing sensor never blocks: its terms are simply absent. The
+estimator starts (and publishes its initial state) at the first update after the first
+measurement arrived, so no controller drives on a guess with no data behind it.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
 ``horizon`` (MHE), ``stations``, ``params_file`` (model parameter YAML, optional),
@@ -152,6 +154,8 @@ class EstimatorNode(Node):
 
     def _update(self) -> None:
         t = self._now() - self.lag
+        if not self._started and not any(isinstance(i, Measurement) for i in self._buffer):
+            return  # no data yet: publishing the initial guess would let the car drive blind
         if not self._started:  # start at now - lag; what is older counts as late
             self.estimator.reset(t, self.initial)
             self._started = True

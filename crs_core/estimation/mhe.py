@@ -476,11 +476,16 @@ class MovingHorizonEstimator(Estimator):
         M, nx = self.settings.horizon, self.model.nx
         first = M + 1 - self._active
         wp, wy, y, tau, ug = self._weights()
-        D, upper, G, cost, _, stage0_block, stage0_gradient = self._solve_blocks(
+        D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
             self._X, self._U, self._DT, wp, y, wy, tau, ug, self._p, self._bounds
         )
+        if not np.isfinite(cost[0]) and self._drop_undefined(residuals):
+            wp, wy, y, tau, ug = self._weights()
+            D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
+                self._X, self._U, self._DT, wp, y, wy, tau, ug, self._p, self._bounds
+            )
         if not np.isfinite(cost[0]):
-            return self._fallback("non-finite cost")
+            return self._restart("non-finite cost")
         if self._arrival_information is None:  # start-up: the initial guess, discounted
             weight = self.settings.discount ** (self._active - 1) * self._initial_weight
             information = np.diag(weight)
@@ -505,7 +510,7 @@ class MovingHorizonEstimator(Estimator):
         step = solution[:, 0].reshape((nx, M + 1), order="F")
         covariance = solution[M * nx : M * nx + 6, 1:]
         if not np.all(np.isfinite(step)):
-            return self._fallback("non-finite step")
+            return self._restart("non-finite step")
         self._last_blocks = (
             D[:, :nx].copy(),
             upper[:, :nx].copy(),
@@ -545,3 +550,38 @@ class MovingHorizonEstimator(Estimator):
         """Keep the predicted trajectory (already in place from the shift) and say why."""
         self.diagnostics.fallbacks += 1
         return f"fallback: {reason}; estimate is the model prediction"
+
+    def _drop_undefined(self, residuals: np.ndarray) -> bool:
+        """Drop measurements whose model output is undefined at the current trajectory.
+
+        A trajectory far from the truth can put a photodiode outside a sweep's reach (the
+        Lighthouse model's arcsin is undefined there). Those samples are removed from their
+        nodes and counted as rejected. Returns whether anything was dropped.
+        """
+        bad = ~np.isfinite(residuals)
+        if not bad.any():
+            return False
+        for g, group in enumerate(self.groups):
+            nodes = np.nonzero(bad[self._slot[group]].any(axis=0))[0]
+            if nodes.size:
+                self.diagnostics.rejected[group] += int(self._count[g, nodes].sum())
+                self._ysum[self._slot[group], nodes] = 0.0
+                self._count[g, nodes] = 0.0
+                self._tausum[g, nodes] = 0.0
+                self._usum[2 * g : 2 * g + 2, nodes] = 0.0
+        return True
+
+    def _restart(self, reason: str) -> str:
+        """The window cannot be solved: start over from its newest finite state, loosely.
+
+        Keeps the commands and the data not yet attached; the newest node becomes the initial
+        guess with the initial standard deviations, so new data pull the estimate back.
+        """
+        finite = np.nonzero(np.all(np.isfinite(self._X[:6]), axis=0))[0]
+        x0 = self._X[:6, finite[-1]].copy() if finite.size else self._arrival[:6].copy()
+        t0 = float(self._times[-1])
+        history, queue = list(self._input_history), list(self._queue)
+        self.reset(t0, x0)
+        self._input_history, self._queue = history, queue
+        self.diagnostics.fallbacks += 1
+        return f"fallback: {reason}; restarted from the last finite estimate"
