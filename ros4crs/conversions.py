@@ -223,6 +223,23 @@ def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     return msg
 
 
+def sensor_message_types() -> dict[str, type]:
+    """Message type of each sensor topic family (imported on first use: ROS-free callers of
+    this module never load the message packages)."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import Imu
+
+    from chronos_msgs.msg import LighthouseSweep, WheelSpeeds
+
+    return {
+        "imu": Imu,
+        "gyro": Imu,
+        "wheel_encoders": WheelSpeeds,
+        "lighthouse": LighthouseSweep,
+        "pose": PoseStamped,
+    }
+
+
 SENSOR_PARSERS = {
     "imu": imu_from_msg,
     "gyro": imu_from_msg,

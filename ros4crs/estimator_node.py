@@ -22,25 +22,12 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
-from crs_core.estimation import ExtendedKalmanFilter
-from crs_core.estimation.base import Estimator
-from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
+from crs_core.estimation import make_estimator
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
 from ros4crs.node_support import declare, run, subscribe_checked, throttled_warning
-
-
-def make_estimator(
-    kind: str, sensors: str, rate_hz: float, horizon: int, model: CarModel
-) -> Estimator:
-    """The core estimator a node wraps (also used by the offline bag replay)."""
-    if kind == "ekf":
-        return ExtendedKalmanFilter(model, sensors)
-    if kind == "mhe":
-        return MovingHorizonEstimator(model, sensors, MheSettings(horizon=horizon, rate_hz=rate_hz))
-    raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
 
 
 class EstimatorNode(Node):
@@ -63,26 +50,16 @@ class EstimatorNode(Node):
             model = CarModel(
                 n_base_stations=stations, parameters=model.parameters.updated_from_yaml(params_file)
             )
-        self.estimator = make_estimator(kind, sensors, self.rate_hz, horizon, model)
+        self.estimator = make_estimator(kind, sensors, model, self.rate_hz, horizon)
         self.kind = kind
-        from geometry_msgs.msg import PoseStamped
         from nav_msgs.msg import Odometry
-        from sensor_msgs.msg import Imu
 
-        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, WheelSpeeds
+        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics
 
         self._drop_counters: list = []
         self._warn_late = throttled_warning(self)
-        for family, msg_type in (
-            ("imu", Imu),
-            ("gyro", Imu),
-            ("wheel_encoders", WheelSpeeds),
-            ("pose", PoseStamped),
-        ):
+        for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
-        from chronos_msgs.msg import LighthouseSweep
-
-        self._subscribe("lighthouse", LighthouseSweep)
         self._drop_counters.append(
             subscribe_checked(
                 self,

@@ -80,7 +80,7 @@ class SimulatorNode(Node):
         self._wall_start = time.monotonic()
         self._sensor_publishers = {
             family: self.create_publisher(msg_type, conversions.TOPICS[family], STREAM_QOS)
-            for family, msg_type in _sensor_types().items()
+            for family, msg_type in conversions.sensor_message_types().items()
         }
         from chronos_msgs.msg import CarInput, CarState
 
@@ -137,21 +137,6 @@ class SimulatorNode(Node):
 
     def _on_input(self, value: tuple[float, np.ndarray]) -> None:
         self.session.command(value[1])
-
-
-def _sensor_types() -> dict[str, type]:
-    from geometry_msgs.msg import PoseStamped
-    from sensor_msgs.msg import Imu
-
-    from chronos_msgs.msg import LighthouseSweep, WheelSpeeds
-
-    return {
-        "imu": Imu,
-        "gyro": Imu,
-        "wheel_encoders": WheelSpeeds,
-        "lighthouse": LighthouseSweep,
-        "pose": PoseStamped,
-    }
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -15,9 +15,9 @@ import numpy as np
 
 from crs_core.analysis.consistency import predicted_samples
 from crs_core.dataset import Dataset
-from crs_core.estimation import ExtendedKalmanFilter
+from crs_core.estimation import make_estimator
 from crs_core.estimation.base import Estimator
-from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
+from crs_core.estimation.mhe import MheSettings
 from crs_core.measurements import InputSample
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
@@ -41,15 +41,6 @@ def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> Simulatio
     x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
     simulator = Simulator(model, SensorSuite(blackouts=tuple(blackouts)), seed=seed)
     return simulator.run(JoystickDriver(track, wheelbase, seed), duration, x0)
-
-
-def make_estimator(kind: str, sensors: str, rate_hz: float = 60.0) -> Estimator:
-    """``ekf`` or ``mhe`` on the Chronos model (M = 40)."""
-    if kind == "ekf":
-        return ExtendedKalmanFilter(CarModel(), sensors)
-    if kind == "mhe":
-        return MovingHorizonEstimator(CarModel(), sensors, MheSettings(rate_hz=rate_hz))
-    raise ValueError(f"estimator: unknown kind {kind!r} (ekf, mhe)")
 
 
 @dataclass
@@ -237,7 +228,9 @@ def speed_rows(seed: int = 0) -> list[dict]:
     result = standard_drive(seed)
     rows = []
     for rate in (60.0, 250.0):
-        run = replay(make_estimator("mhe", "lh+imu+we", rate), result, rate, start_state(result))
+        run = replay(
+            make_estimator("mhe", "lh+imu+we", rate_hz=rate), result, rate, start_state(result)
+        )
         rows.append(
             {
                 "benchmark": "speed",
@@ -295,13 +288,7 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
         reference = shifted.x
         trajectories = {}
         for kind in ("ekf", "mhe"):
-            estimator = (
-                ExtendedKalmanFilter(CarModel(parameters=model), "lh+we+gyro")
-                if kind == "ekf"
-                else MovingHorizonEstimator(
-                    CarModel(parameters=model), "lh+we+gyro", MheSettings(rate_hz=50.0)
-                )
-            )
+            estimator = make_estimator(kind, "lh+we+gyro", CarModel(parameters=model), 50.0)
             estimator.reset(0.0, reference[0].copy())
             for item in inputs:
                 estimator.add_input(item)

@@ -2,6 +2,7 @@
 
 from crs_core.estimation.base import Estimate, Estimator, parse_sensor_set
 from crs_core.estimation.ekf import EkfSettings, ExtendedKalmanFilter
+from crs_core.estimation.factory import make_estimator
 from crs_core.estimation.noise import EstimatorNoise
 
 __all__ = [
@@ -10,5 +11,6 @@ __all__ = [
     "Estimator",
     "EstimatorNoise",
     "ExtendedKalmanFilter",
+    "make_estimator",
     "parse_sensor_set",
 ]

@@ -312,7 +312,7 @@ class MovingHorizonEstimator(Estimator):
         return sensor in self._slot
 
     def late_before(self) -> float:
-        """Late data are still used while they fall inside the window (nearest node)."""
+        """Late data are still used while they fall inside the window."""
         return float(self._times[len(self._times) - self._active])
 
     # --- state of the window ------------------------------------------------------------
@@ -339,7 +339,6 @@ class MovingHorizonEstimator(Estimator):
                 raise ValueError("covariance: needs a finite 6 x 6 matrix")
             self._initial_weight[:6] = 1.0 / np.clip(np.diag(cov), 1e-12, None)
         self._input_history: list[InputSample] = [InputSample(float(t0), np.zeros(2))]
-        self._pending: list[Measurement] = []
         self._queue.clear()
         self._processed_until = t0
         self._covariance = np.diag(1.0 / self._initial_weight)[:6, :6]
@@ -369,14 +368,19 @@ class MovingHorizonEstimator(Estimator):
         M = self.settings.horizon
         if self._active == M + 1:
             self._marginalize_first_node()
-        for array in (self._X, self._ysum, self._count, self._tausum, self._usum, self._times):
+        for array in (
+            self._X,
+            self._times,
+            self._U,
+            self._DT,
+            self._ysum,
+            self._count,
+            self._tausum,
+            self._usum,
+        ):
             array[..., :-1] = array[..., 1:]
-        for array in (self._U, self._DT):
-            array[..., :-1] = array[..., 1:]
-        self._ysum[:, -1] = 0
-        self._usum[:, -1] = 0
-        self._count[:, -1] = 0
-        self._tausum[:, -1] = 0
+        for array in (self._ysum, self._count, self._tausum, self._usum):
+            array[:, -1] = 0.0
         t_prev = self._times[-2]
         dt = t - t_prev
         self._times[-1] = t
@@ -384,9 +388,9 @@ class MovingHorizonEstimator(Estimator):
         self._U[:, -1] = self._command_average(t_prev, t)
         self._X[:, -1] = self._predict(self._X[:, -2], self._U[:, -1], self._p, dt)[0]
         self._active = min(self._active + 1, M + 1)
-        first = self._input_history
-        while len(first) > 1 and first[1].stamp <= self._times[M + 1 - self._active]:
-            first.pop(0)
+        history = self._input_history  # keep the command active at the oldest node
+        while len(history) > 1 and history[1].stamp <= self._times[M + 1 - self._active]:
+            history.pop(0)
 
     def _attach(self, measurement: Measurement) -> None:
         """Add a measurement to the node that closes its interval ``(t_{j-1}, t_j]``.

@@ -9,9 +9,9 @@ import pytest
 def warm_codegen() -> None:
     """Compile (or load from ``$CRS_CACHE_DIR``) the model, EKF and MHE code once, before any
     node starts: a cold cache costs each starting node ~10 s and makes them compile at once."""
+    from crs_core.estimation import make_estimator
     from crs_core.model import CarModel
-    from ros4crs.estimator_node import make_estimator
 
     model = CarModel()
     for kind in ("ekf", "mhe"):
-        make_estimator(kind, "lh+imu+we", 60.0, 40, model)
+        make_estimator(kind, "lh+imu+we", model, 60.0, 40)

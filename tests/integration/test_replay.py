@@ -7,11 +7,11 @@ import pytest
 from rosbags.rosbag2 import Reader
 from stack_probe import Probe, wait_for
 
+from crs_core.estimation import make_estimator
 from crs_core.model import CarModel
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import stack_nodes
 from ros4crs.bag_replay import read_car, replay_estimator
-from ros4crs.estimator_node import make_estimator
 from ros4crs.interfaces import typestore
 
 pytestmark = pytest.mark.integration
@@ -161,7 +161,7 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
     start_offset = t0 - (first_received - REPLAY_LAG_S)
     assert -1e-6 < start_offset < 2.0 / RATE_HZ + 0.01, (t0, first_received)
 
-    estimator = make_estimator("ekf", "lh+imu+we", RATE_HZ, 40, CarModel())
+    estimator = make_estimator("ekf", "lh+imu+we", CarModel(), RATE_HZ, 40)
     offline = replay_estimator(recorded, estimator, stamps, x0, t0)
     error = np.abs(offline - node).max(axis=1)
     exact = int(np.sum(error == 0.0))
