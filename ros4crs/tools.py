@@ -66,7 +66,7 @@ def echo(topic: str, count: int = 1, timeout: float = 5.0) -> list[object]:
 
 def rate(topic: str, window: float = 2.0, timeout: float = 5.0) -> dict[str, float]:
     """Receive rate (Hz) and inter-arrival statistics (ms) on ``topic`` over ``window`` s,
-    after half a second of settling."""
+    measured from half a second after the first message (waited for up to ``timeout`` s)."""
 
     def work(node, executor):
         msg_type = message_class(_topic_type(node, executor, topic, timeout))
@@ -74,6 +74,9 @@ def rate(topic: str, window: float = 2.0, timeout: float = 5.0) -> dict[str, flo
         node.create_subscription(
             msg_type, topic, lambda _: arrivals.append(time.monotonic()), STREAM_QOS, raw=True
         )
+        deadline = time.monotonic() + timeout  # discovery may take a while on a busy machine
+        while not arrivals and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.01)
         settle = time.monotonic() + 0.5  # the first arrivals after matching come in a burst
         while time.monotonic() < settle:
             executor.spin_once(timeout_sec=0.01)
