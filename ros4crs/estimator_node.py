@@ -7,11 +7,15 @@ transport latency) and publishes ``estimate/state`` (CarState), ``estimate/odome
 (Odometry) and, once a second, ``estimate/diagnostics``. An update slower than the period
 counts as a deadline miss. A missing sensor never blocks: its terms are simply absent. The
 estimator starts (and publishes its initial state) at the first update after the first
-measurement arrived, so no controller drives on a guess with no data behind it.
+measurement arrived, so no controller drives on a guess with no data behind it. While the
+estimate is ``lost`` (a blind start waiting for its Lighthouse fix, or a re-initialisation)
+nothing is published on ``estimate/state`` and ``estimate/odometry``: a controller sees a
+stale estimate and stops the car; the diagnostics say why.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
-``horizon`` (MHE), ``stations``, ``params_file`` (model parameter YAML, optional),
-``initial_state`` (6 floats; default the DEMO_TRACK start).
+``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
+(model parameter YAML, optional), ``initial_state`` (6 floats; default the DEMO_TRACK start),
+``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse).
 """
 
 from __future__ import annotations
@@ -22,7 +26,7 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
-from crs_core.estimation import make_estimator
+from crs_core.estimation import EkfSettings, MheSettings, make_estimator
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
@@ -41,6 +45,8 @@ class EstimatorNode(Node):
         self.rate_hz = float(declare(self, "rate_hz", 60.0, "estimate rate, Hz"))
         self.lag = float(declare(self, "lag", 0.02, "estimate this many s in the past"))
         horizon = int(declare(self, "horizon", 40, "MHE horizon"))
+        inputs = declare(self, "inputs", "auto", "auto, commanded or estimated")
+        self.blind_start = bool(declare(self, "blind_start", False, "start from the Lighthouse"))
         stations = int(declare(self, "stations", 1, "Lighthouse base stations"))
         params_file = declare(self, "params_file", "", "model parameter YAML")
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
@@ -50,7 +56,11 @@ class EstimatorNode(Node):
             model = CarModel(
                 n_base_stations=stations, parameters=model.parameters.updated_from_yaml(params_file)
             )
-        self.estimator = make_estimator(kind, sensors, model, self.rate_hz, horizon)
+        settings = (
+            MheSettings(horizon=horizon, rate_hz=self.rate_hz) if kind == "mhe" else EkfSettings()
+        )
+        self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
+        self._warn_status = throttled_warning(self)
         self.kind = kind
         from nav_msgs.msg import Odometry
 
@@ -119,7 +129,11 @@ class EstimatorNode(Node):
         if isinstance(item, InputSample):
             self.estimator.add_input(item)
         else:
-            self.estimator.add_measurement(item)
+            try:
+                self.estimator.add_measurement(item)
+            except ValueError as error:  # a sensor the model does not have
+                self._warn_late(f"dropped: {error}")
+                return
         if self.estimator.diagnostics.late > late_before:
             self._warn_late(
                 f"dropped out-of-order data stamped {item.stamp:.3f} s: older than what the "
@@ -134,14 +148,15 @@ class EstimatorNode(Node):
         if not self._started and not any(isinstance(i, Measurement) for i in self._buffer):
             return  # no data yet: publishing the initial guess would let the car drive blind
         if not self._started:  # start at now - lag; what is older counts as late
-            self.estimator.reset(t, self.initial)
+            self.estimator.reset(t, None if self.blind_start else self.initial)
             self._started = True
             self._last_query = t
             for item in self._buffer:
                 self._deliver(item)
             self._buffer.clear()
-            covariance = np.diag(np.full(6, 1.0))
-            self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
+            if not self.blind_start:
+                covariance = np.diag(np.full(6, 1.0))
+                self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
             return
         if t <= self._last_query:
             return
@@ -153,10 +168,12 @@ class EstimatorNode(Node):
         self._max_solve = max(self._max_solve, elapsed)
         if elapsed > 1.0 / self.rate_hz:
             self.deadline_misses += 1
+        if estimate.status != "ok":
+            self._warn_status(f"estimate {estimate.summary}")
+        if estimate.status == "lost":
+            return
         self._state.publish(conversions.car_state_msg(estimate.x, t, estimate.covariance))
         self._odometry.publish(conversions.odometry_msg(estimate))
-        if estimate.status != "ok":
-            self.get_logger().warning(f"estimator: {estimate.status}")
 
     def _publish_diagnostics(self) -> None:
         from chronos_msgs.msg import EstimatorDiagnostics

@@ -229,7 +229,12 @@ def speed_rows(seed: int = 0) -> list[dict]:
     rows = []
     for rate in (60.0, 250.0):
         run = replay(
-            make_estimator("mhe", "lh+imu+we", rate_hz=rate), result, rate, start_state(result)
+            make_estimator(
+                "mhe", "lh+imu+we", settings=MheSettings(rate_hz=rate), inputs="commanded"
+            ),
+            result,
+            rate,
+            start_state(result),
         )
         rows.append(
             {
@@ -288,7 +293,10 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
         reference = shifted.x
         trajectories = {}
         for kind in ("ekf", "mhe"):
-            estimator = make_estimator(kind, "lh+we+gyro", CarModel(parameters=model), 50.0)
+            settings = MheSettings(rate_hz=50.0) if kind == "mhe" else None
+            estimator = make_estimator(
+                kind, "lh+we+gyro", CarModel(parameters=model), settings, inputs="commanded"
+            )
             estimator.reset(0.0, reference[0].copy())
             for item in inputs:
                 estimator.add_input(item)

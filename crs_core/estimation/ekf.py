@@ -5,54 +5,53 @@ Between events the state is propagated with the model's RK4 step (substeps of at
 :math:`P^+ = A P A^\top + \operatorname{diag}(q)^2 h`. Each measurement updates with its own
 sensor model (Joseph form). Innovations whose Mahalanobis distance :math:`\nu^\top S^{-1}\nu`
 exceeds the :math:`\chi^2` quantile ``gate_probability`` are rejected, unless
-``max_consecutive_rejections`` of that sensor were rejected in a row: then the next one is
-accepted, so the filter recovers after an outage has let it drift. All prediction and update
-maths is generated from the model and compiled (see :mod:`crs_core.codegen`).
+``max_consecutive_rejections`` of that sensor were rejected in a row and the rejected
+innovations agree (:class:`~crs_core.estimation.base.RejectionCap`), so the filter recovers after
+an outage has let it drift. An update that would leave the measurement further from the model
+output than the prediction did (possible when the sensor model is strongly nonlinear, far from
+the truth) is skipped, so an update never moves the estimate away from its data. All prediction
+and update maths is generated from the model and compiled (see :mod:`crs_core.codegen`).
 """
 
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 from scipy.stats import chi2
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import (
-    Estimate,
-    Estimator,
-    RejectionCap,
-    checked_initial_state,
-)
-from crs_core.estimation.noise import EstimatorNoise
+from crs_core.estimation.base import Estimator, EstimatorSettings, RejectionCap
+from crs_core.estimation.noise import initial_std_for
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel
 
 
 @dataclass(frozen=True)
-class EkfSettings:
-    """Tuning of :class:`ExtendedKalmanFilter`.
+class EkfSettings(EstimatorSettings):
+    """Tuning of :class:`ExtendedKalmanFilter` (plus :class:`EstimatorSettings`).
 
     Attributes
     ----------
-    noise : EstimatorNoise
-        Assumed process and measurement noise.
     gate_probability : float
         Innovations beyond this :math:`\\chi^2` quantile are rejected.
     max_consecutive_rejections : int
-        After this many rejections of one sensor in a row, its next measurement is accepted.
-    initial_std : tuple of float
-        Initial standard deviation of ``[x, y, yaw, vx, vy, omega]`` when ``reset`` gets none.
+        After this many rejections of one sensor in a row, a measurement whose innovation agrees
+        with the previous rejected ones is accepted.
     """
 
-    noise: EstimatorNoise = field(default_factory=EstimatorNoise)
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 25
-    initial_std: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0, 0.5, 2.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 0 < self.gate_probability < 1:
+            raise ValueError("gate_probability: must be in (0, 1)")
+        if self.max_consecutive_rejections < 1:
+            raise ValueError("max_consecutive_rejections: must be >= 1")
 
 
 def _wrap(angle: ca.SX) -> ca.SX:
@@ -84,11 +83,15 @@ def build_ekf_functions(model: CarModel) -> list[ca.Function]:
         I_KH = ca.DM.eye(nx) - K @ H
         P_new = I_KH @ P @ I_KH.T + K @ ca.diag(r**2) @ K.T
         d2 = innovation.T @ S_inv @ innovation
+        x_new = x + K @ innovation
+        after = y - ca.substitute(expression, x, x_new)
+        if sensor == "pose":
+            after = ca.vertcat(after[0], after[1], _wrap(after[2]))
         functions.append(
             ca.Function(
                 "ekf_update_" + sensor.replace("/", "_"),
                 [x, P, u, p, y, r],
-                [x + K @ innovation, P_new, d2, innovation],
+                [x_new, P_new, d2, innovation, ca.sumsqr(innovation / r), ca.sumsqr(after / r)],
                 SX_OPTIONS,
             )
         )
@@ -110,34 +113,36 @@ class ExtendedKalmanFilter(Estimator):
     def __init__(
         self, model: CarModel, sensors: frozenset[str] | str, settings: EkfSettings | None = None
     ) -> None:
-        super().__init__(sensors)
-        self.model = model
-        self.settings = settings or EkfSettings()
+        settings = settings or EkfSettings()
+        super().__init__(sensors, model, settings)
+        self.settings: EkfSettings = settings
         self._p = model.parameters.vector()
-        tag = "_".join(e.name for e in model.effects) or "base"
         self._functions = compile_functions(
-            build_ekf_functions(model), f"ekf_{tag}_{model.n_base_stations}bs"
+            build_ekf_functions(model), f"ekf_{model.tag}_{model.n_base_stations}bs"
         )
-        self._q = self.settings.noise.process_std_for(model.nx)
-        self._gates = {m: chi2.ppf(self.settings.gate_probability, m) for m in range(1, 9)}
-        self._cap = RejectionCap(self.settings.max_consecutive_rejections)
+        self._q = settings.noise.process_std_for(model.state_names)
+        self._initial_std = initial_std_for(settings.initial_std, model.state_names)
+        self._gates = {m: chi2.ppf(settings.gate_probability, m) for m in range(1, 9)}
+        self._cap = RejectionCap(settings.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
     def accepts(self, sensor: str) -> bool:
         return sensor in self.model.output_expressions
 
-    def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = checked_initial_state(x0)
-        self._t = float(t0)
-        self._x = self.model.initial_state(x0)
-        if covariance is None:
-            std = np.concatenate([self.settings.initial_std, np.full(self.model.nx - 6, 0.05)])
-            covariance = np.diag(std**2)
-        self._P = np.array(covariance, dtype=float)
-        self._u = np.zeros(2)
-        self._queue.clear()
-        self._processed_until = t0
+    def model_sensors(self) -> list[str]:
+        return list(self.model.output_expressions)
+
+    def _reset_state(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None) -> None:
+        self._t = t0
+        self._x = self.model.initial_state(x0, self._last_input)
+        self._P = np.diag(self._initial_std**2)
+        if covariance is not None:
+            self._P[:6, :6] = covariance
+        self._u = np.array(self._last_input, dtype=float)
         self._cap.clear()
+
+    def current_state(self) -> np.ndarray:
+        return self._x[:6].copy()
 
     # --- propagation and update -------------------------------------------------------
     def _predict(self, x: np.ndarray, P: np.ndarray, dt: float):
@@ -150,24 +155,31 @@ class ExtendedKalmanFilter(Estimator):
         return x, P
 
     def _update(self, measurement: Measurement) -> None:
-        function = self._functions["ekf_update_" + measurement.sensor.replace("/", "_")]
-        std = self.settings.noise.measurement_std(measurement.sensor)
-        x_new, P_new, d2, innovation = function(
+        sensor, stamp = measurement.sensor, measurement.stamp
+        function = self._functions["ekf_update_" + sensor.replace("/", "_")]
+        std = self.settings.noise.measurement_std(sensor)
+        x_new, P_new, d2, innovation, before, after = function(
             self._x, self._P, self._u, self._p, measurement.values, std
         )
-        sensor = measurement.sensor
+        if not np.isfinite(d2[0]):  # the model output is undefined at the prediction
+            self._reject(sensor, stamp)
+            return
         if d2[0] > self._gates[measurement.values.size] and not self._cap.override(
             sensor, innovation / std
         ):
-            self.diagnostics.rejected[sensor] += 1
+            self._reject(sensor, stamp)
             return
         if not (np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))):
-            self.diagnostics.rejected[measurement.sensor] += 1
-            self.diagnostics.last_status = "update produced non-finite values; skipped"
+            self._reject(sensor, stamp)
+            self._fallback_event(stamp, "update produced non-finite values; skipped")
+            return
+        if not after[0] <= before[0] * (1 + 1e-9) + 1e-12:
+            self._reject(sensor, stamp)
+            self._fallback_event(stamp, f"{sensor} update moved away from the data; skipped")
             return
         self._cap.accepted(sensor)
         self._x, self._P = x_new, 0.5 * (P_new + P_new.T)
-        self.diagnostics.processed[measurement.sensor] += 1
+        self._accept(sensor, stamp)
 
     def process(self, t: float) -> None:
         """Apply every queued event stamped up to ``t``."""
@@ -180,10 +192,8 @@ class ExtendedKalmanFilter(Estimator):
             else:
                 self._update(item)
 
-    def estimate(self, t: float) -> Estimate:
-        """Estimate at ``t``: all events up to ``t`` applied, then predicted to ``t``."""
-        start = time.perf_counter()
+    def _estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """All events up to ``t`` applied, then predicted to ``t``."""
         self.process(t)
         x, P = self._predict(self._x, self._P, t - self._t)
-        self.diagnostics.last_solve_time_s = time.perf_counter() - start
-        return Estimate(float(t), x[:6].copy(), P[:6, :6].copy(), "ok")
+        return x[:6].copy(), P[:6, :6].copy()

@@ -1,28 +1,75 @@
-"""One place that builds an estimator by name (nodes, benchmarks and bag replay use it)."""
+"""One call that builds an estimator with its settings (nodes, benchmarks, bag replay, CLI)."""
 
 from __future__ import annotations
 
-from crs_core.estimation.base import Estimator
-from crs_core.estimation.ekf import ExtendedKalmanFilter
+from crs_core.estimation.base import Estimator, EstimatorSettings
+from crs_core.estimation.ekf import EkfSettings, ExtendedKalmanFilter
+from crs_core.estimation.inputs import InputModeEstimator
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
 from crs_core.model import CarModel
+from crs_core.model.car_model import COMMAND_EFFECTS
+
+#: Estimator kinds :func:`make_estimator` builds.
+KINDS = ("ekf", "mhe")
+#: How an estimator treats the commanded inputs.
+INPUT_MODES = ("auto", "commanded", "estimated")
 
 
 def make_estimator(
     kind: str,
-    sensors: str,
+    sensors: str | frozenset[str] = "lh+imu+we",
     model: CarModel | None = None,
-    rate_hz: float = 60.0,
-    horizon: int = 40,
+    settings: EstimatorSettings | None = None,
+    *,
+    inputs: str = "auto",
 ) -> Estimator:
-    """``ekf`` or ``mhe`` on ``model`` (default: the Chronos model) with default tuning.
+    """An EKF or MHE on ``model`` (default: the Chronos model) with ``settings``.
 
-    ``rate_hz`` and ``horizon`` configure the MHE (the rate at which :meth:`estimate` will be
-    called, and M); the event-driven EKF ignores them.
+    Parameters
+    ----------
+    kind : {"ekf", "mhe"}
+    sensors : str or set
+        Sensor groups, e.g. ``"lh+imu+we"``.
+    model : CarModel, optional
+        The estimation model with commanded inputs (its parameters, effects, stations).
+    settings : EkfSettings or MheSettings, optional
+        Defaults: ``EkfSettings()`` / ``MheSettings()`` (60 Hz grid, M = 40).
+    inputs : {"auto", "commanded", "estimated"}
+        ``commanded``: the model driven by the ``input`` stream. ``estimated``: the input-free
+        model (``CarModel(estimated_inputs=True)``): steering and torque are random-walk states
+        estimated from the sensors; commands are ignored. ``auto``: estimated until the first
+        command arrives, then commanded (:class:`~crs_core.estimation.inputs.InputModeEstimator`).
+
+    Returns
+    -------
+    Estimator
+        Call ``reset(t0, x0)``, or ``reset(t0)`` for a blind start from the Lighthouse.
     """
+    if kind not in KINDS:
+        raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+    if inputs not in INPUT_MODES:
+        raise ValueError(f"inputs: must be one of {', '.join(INPUT_MODES)}, got {inputs!r}")
+    settings_type = EkfSettings if kind == "ekf" else MheSettings
+    if settings is None:
+        settings = settings_type()
+    elif not isinstance(settings, settings_type):
+        raise TypeError(f"settings: a {kind} needs {settings_type.__name__}, got {settings!r}")
     model = model or CarModel()
-    if kind == "ekf":
-        return ExtendedKalmanFilter(model, sensors)
-    if kind == "mhe":
-        return MovingHorizonEstimator(model, sensors, MheSettings(horizon=horizon, rate_hz=rate_hz))
-    raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+    if model.estimated_inputs:
+        raise ValueError("model: give the commanded model; inputs='estimated' builds the other")
+    estimator_type = ExtendedKalmanFilter if kind == "ekf" else MovingHorizonEstimator
+
+    if inputs == "commanded":
+        return estimator_type(model, sensors, settings)
+    estimated = estimator_type(input_free_model(model), sensors, settings)
+    if inputs == "estimated":
+        return estimated
+    return InputModeEstimator(estimated, estimator_type(model, sensors, settings))
+
+
+def input_free_model(model: CarModel) -> CarModel:
+    """The input-free twin of ``model``: same parameters, stations and sensor effects."""
+    effects = [e.name for e in model.effects if e.name not in COMMAND_EFFECTS]
+    return CarModel(
+        effects, model.n_base_stations, parameters=model.parameters, estimated_inputs=True
+    )

@@ -1,14 +1,15 @@
 r"""Moving horizon estimation (paper Sec. V) as a real-time Gauss-Newton iteration.
 
-Nodes :math:`x_0, \dots, x_M` sit at the times of the last :math:`M+1` calls of
-:meth:`MovingHorizonEstimator.estimate`. The process noise is eliminated,
-:math:`w_j = x_{j+1} - f(x_j, \bar u_j, \Delta_j)`, so the paper's NLP becomes a nonlinear
+Nodes :math:`x_0, \dots, x_M` sit on a fixed time grid of spacing :math:`\Delta = 1/`
+``rate_hz``, anchored at the reset time; the grid, not the callers, sets the discretisation and
+the horizon. The process noise is eliminated,
+:math:`w_j = x_{j+1} - f(x_j, \bar u_j, \Delta)`, so the paper's NLP becomes a nonlinear
 least-squares problem in the nodes alone,
 
 .. math::
 
     \min_{x_0..x_M}\ \eta^{M_t}\|x_0 - \bar x_0\|^2_{P^{-1}}
-      + \sum_j \eta^{M-1-j}\|x_{j+1} - f(x_j, \bar u_j, \Delta_j)\|^2_{(Q\Delta_j)^{-1}}
+      + \sum_j \eta^{M-1-j}\|x_{j+1} - f(x_j, \bar u_j, \Delta)\|^2_{(Q\Delta)^{-1}}
       + \sum_j \eta^{M-j} \sum_{s} n_{j,s}\,
         \|\bar y_{j,s} - h_s(\phi(x_j, \tau_{j,s}))\|^2_{R_s^{-1}}
       + \text{soft bounds},
@@ -23,236 +24,126 @@ The inputs of a stage are the time average of the commands over it. Bounds on st
 :math:`w` are squared-hinge penalties (soft constraints), so the Gauss-Newton Hessian stays
 block tridiagonal.
 
-Each call shifts the horizon (warm start by prediction), runs one Gauss-Newton step (the
-real-time iteration of the acados-based original; more with ``iterations``) and solves the
-banded normal equations with LAPACK. Stage and node residuals, their Jacobians and the Hessian
-blocks come from one generated and compiled function of the car model. If the cost or the step
-is not finite, or the normal equations are not positive definite, the estimate falls back to
-the model prediction (the warm start) and the status says so. A Lighthouse sample far from the
-prediction (``outlier_sigma``) is dropped, unless ``max_consecutive_rejections`` were dropped in
-a row.
+:meth:`~crs_core.estimation.base.Estimator.estimate` at time ``t`` creates every grid node due
+by ``t``; each new node is a warm start by prediction followed by one Gauss-Newton step (the
+real-time iteration; more with ``iterations``), so the result does not depend on how often or
+when the estimate is queried. The estimate at ``t`` is the newest node predicted forward to
+``t`` (less than one grid step). A step is taken only if it lowers the cost (backtracking by
+halving, :data:`STEP_FRACTIONS`; else the warm start is kept): the estimate never moves further
+from the data than the prediction. If the cost is not finite, or the normal equations are not
+positive definite, the window restarts from its newest finite state (or keeps the prediction);
+when more than ``max_catch_up`` nodes are due at
+once (a stalled process), the estimator skips ahead to the newest data instead of working
+through the backlog. Every such event is counted and makes the status ``degraded``.
+
+Why the grid: with node times taken from the callers, a late call made a long stage that the
+fixed number of RK4 substeps (chosen for the nominal rate) integrated with steps far beyond
+RK4's stability limit (6.8 ms at low speed, :mod:`crs_core.model.stability`): the estimate ran
+away to hundreds of metres in loaded multi-car stacks.
 """
 
 from __future__ import annotations
 
 import bisect
 import math
-import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-import casadi as ca
 import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
-from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimate, Estimator, RejectionCap, checked_initial_state
-from crs_core.estimation.noise import EstimatorNoise
-from crs_core.integrators import rk4
-from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
+from crs_core.codegen import compile_functions
+from crs_core.estimation.base import Estimator, EstimatorSettings, RejectionCap
+from crs_core.estimation.mhe_problem import (
+    Band,
+    build_mhe_function,
+    measurement_groups,
+    offset_output_functions,
+)
+from crs_core.estimation.noise import initial_std_for
+from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel
+
+#: Soft bounds of effect states by name (lower, upper); other effect states are unbounded.
+EXTRA_STATE_BOUNDS: dict[str, tuple[float, float]] = {
+    "steer_estimated": (-0.5, 0.5),
+    "torque_estimated": (-1.5, 1.5),
+}
+_UNBOUNDED = 1e6
+#: Backtracking of the Gauss-Newton step: the first fraction that lowers the cost is taken.
+STEP_FRACTIONS = (1.0, 0.5, 0.25, 0.125, 0.0625, 0.03125)
 
 
 @dataclass(frozen=True)
-class MheSettings:
-    """Tuning of :class:`MovingHorizonEstimator`.
+class MheSettings(EstimatorSettings):
+    """Tuning of :class:`MovingHorizonEstimator` (plus :class:`EstimatorSettings`).
 
     Attributes
     ----------
     horizon : int
         :math:`M`, number of stages.
     rate_hz : float
-        Nominal call rate; sets the RK4 substeps of a stage (longer stages are integrated with
-        proportionally longer substeps).
+        Grid rate: nodes are ``1 / rate_hz`` s apart, whatever the query times.
     discount : float
         :math:`\\eta \\in (0, 1]`.
-    noise : EstimatorNoise
-        Process noise :math:`Q` (per second) and measurement noise :math:`R`.
-    initial_std : tuple of float
-        Standard deviations of the initial guess: the arrival cost until the first node leaves
-        the window (``reset`` may pass a covariance instead). From then on the arrival cost is
-        the marginal of what leaves the window (see the module docstring).
     arrival_floor_std : float
         The arrival information is floored at ``1 / arrival_floor_std^2`` per state, so
         directions the dropped data did not observe stay well posed.
     state_lower, state_upper : tuple of float
         Soft bounds on ``vx, vy, omega`` (m/s, m/s, rad/s).
+    extra_state_bounds : mapping of str to (float, float)
+        Soft bounds of effect states by name, overriding :data:`EXTRA_STATE_BOUNDS`.
     process_bound : tuple of float
-        Soft bound on :math:`|w|` per base state per stage.
+        Soft bound on :math:`|w|` per base state per stage (6 values).
     bound_weight : float
         Weight (1/unit) of a bound violation.
     iterations : int
-        Gauss-Newton iterations per call (1 = real-time iteration).
+        Gauss-Newton iterations per new node (1 = real-time iteration).
     outlier_sigma : float
         A Lighthouse sample whose channel deviates from the prediction by more than this many
         standard deviations is dropped.
     max_consecutive_rejections : int
-        After this many Lighthouse samples dropped in a row, the next one is taken.
+        After this many Lighthouse samples dropped in a row, one whose deviation agrees with
+        the previous dropped ones is taken.
+    max_catch_up : int or None
+        Most nodes processed in one call; when more are due (a stalled process), the window
+        restarts this many nodes before the newest data (default: the horizon).
     """
 
     horizon: int = 40
     rate_hz: float = 60.0
     discount: float = 0.95
-    noise: EstimatorNoise = field(default_factory=EstimatorNoise)
-    initial_std: tuple[float, ...] = (0.5, 0.5, 0.5, 1.0, 0.5, 2.0)
     arrival_floor_std: float = 10.0
     state_lower: tuple[float, float, float] = (-1.0, -2.0, -12.0)
     state_upper: tuple[float, float, float] = (5.0, 2.0, 12.0)
+    extra_state_bounds: Mapping[str, tuple[float, float]] = field(default_factory=dict)
     process_bound: tuple[float, ...] = (0.05, 0.05, 0.1, 0.5, 0.5, 3.0)
     bound_weight: float = 1e3
     iterations: int = 1
     outlier_sigma: float = 30.0
     max_consecutive_rejections: int = 25
+    max_catch_up: int | None = None
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if self.horizon < 1:
             raise ValueError("horizon: must be >= 1")
         if not 0 < self.discount <= 1:
             raise ValueError("discount: must be in (0, 1]")
-        if not self.rate_hz > 0:
-            raise ValueError("rate_hz: must be > 0")
+        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
+            raise ValueError("rate_hz: must be finite and > 0")
         if self.iterations < 1:
             raise ValueError("iterations: must be >= 1")
-
-
-def measurement_groups(model: CarModel) -> list[str]:
-    """Sensors an MHE node can hold, in slot order."""
-    groups = ["imu", "gyro", "wheel_encoders", "pose"]
-    for station in range(model.n_base_stations):
-        groups += [lighthouse_sensor(station, 1), lighthouse_sensor(station, 2)]
-    return groups
-
-
-def offset_output_functions(model: CarModel, groups: list[str]) -> list[ca.Function]:
-    """Per sensor ``y(x, u, p, tau) = h(x + tau f(x, u), u, p)``: the output ``tau`` s after
-    the node, the state moved by one Euler step (exact to first order in ``tau``)."""
-    x, u, p, tau = model.x_sym, model.u_sym, model.p_sym, ca.SX.sym("tau")
-    moved = x + tau * model.dynamics_function(x, u, p)
-    return [
-        ca.Function(
-            "offset_" + group.replace("/", "_"),
-            [x, u, p, tau],
-            [model.output_function(group)(moved, u, p)],
-            SX_OPTIONS,
-        )
-        for group in groups
-    ]
-
-
-def _hinge(value: ca.SX, lower: ca.SX, upper: ca.SX) -> ca.SX:
-    return ca.fmax(value - upper, 0) + ca.fmin(value - lower, 0)
-
-
-def build_mhe_function(model: CarModel, horizon: int, substeps: int, groups: list[str]):
-    """One function returning the Gauss-Newton blocks of the whole horizon.
-
-    Inputs: ``X`` (nx, M+1), ``U`` (2, M), ``DT`` (1, M), ``WP`` (nx, M) process weights,
-    ``Y`` (ny, M+1), ``WY`` (ny, M+1) measurement weights, ``TAU`` (ng, M+1) offsets, ``UG``
-    (2, M+1) node inputs, ``p``, ``BND`` bound data. Outputs: diagonal blocks ``D``
-    (nx, nx (M+1)), upper blocks ``O`` (nx, nx M), gradient ``G`` (nx, M+1), cost, and the
-    weighted measurement residuals ``RY`` (ny, M+1), and stage 0's contributions to node 1
-    (``S0`` block and ``g0b`` gradient) for the marginalization of node 0.
-    """
-    nx, p = model.nx, model.p_sym
-    xa, xb = ca.SX.sym("xa", nx), ca.SX.sym("xb", nx)
-    u, dt = ca.SX.sym("u", 2), ca.SX.sym("dt")
-    wp = ca.SX.sym("wp", nx)
-    wbound = ca.SX.sym("wbound", nx + 1)  # per-state |w| bound, then weight
-    predicted = rk4(lambda xx, uu: model.dynamics_function(xx, uu, p), xa, u, dt, substeps)
-    w = xb - predicted
-    r_stage = ca.vertcat(wp * w, wbound[nx] * _hinge(w, -wbound[:nx], wbound[:nx]))
-    Ja, Jb = ca.jacobian(r_stage, xa), ca.jacobian(r_stage, xb)
-    stage = ca.Function(
-        "stage",
-        [xa, xb, u, dt, wp, wbound, p],
-        [Ja.T @ Ja, Ja.T @ Jb, Jb.T @ Jb, Ja.T @ r_stage, Jb.T @ r_stage, ca.sumsqr(r_stage)],
-        SX_OPTIONS,
-    )
-    sizes = [model.output_expressions[g].numel() for g in groups]
-    ny = sum(sizes)
-    y, wy = ca.SX.sym("y", ny), ca.SX.sym("wy", ny)
-    ng = len(groups)
-    tau, ug = ca.SX.sym("tau", ng), ca.SX.sym("ug", 2 * ng)
-    xstate_bounds = ca.SX.sym("xbnd", 7)  # vx, vy, omega lower; upper; weight
-    predicted_y = [
-        h(xa, ug[2 * g : 2 * g + 2], p, tau[g])
-        for g, h in enumerate(offset_output_functions(model, groups))
-    ]
-    r_y = wy * (y - ca.vertcat(*predicted_y))
-    r_bounds = xstate_bounds[6] * _hinge(xa[3:6], xstate_bounds[0:3], xstate_bounds[3:6])
-    r_node = ca.vertcat(r_y, r_bounds)
-    Jn = ca.jacobian(r_node, xa)
-    node = ca.Function(
-        "node",
-        [xa, ug, y, wy, tau, xstate_bounds, p],
-        [Jn.T @ Jn, Jn.T @ r_node, ca.sumsqr(r_node), r_y],
-        SX_OPTIONS,
-    )
-    # the horizon is assembled in MX so the generated code loops over the (SX) stage and node
-    # functions instead of inlining M copies of them
-    M = horizon
-    X, P = ca.MX.sym("X", nx, M + 1), ca.MX.sym("p", p.numel())
-    U, DT, WP = ca.MX.sym("U", 2, M), ca.MX.sym("DT", 1, M), ca.MX.sym("WP", nx, M)
-    Y, WY = ca.MX.sym("Y", ny, M + 1), ca.MX.sym("WY", ny, M + 1)
-    TAU, UG = ca.MX.sym("TAU", ng, M + 1), ca.MX.sym("UG", 2 * ng, M + 1)
-    BND = ca.MX.sym("BND", nx + 1 + 7)
-    # serial on purpose: OpenMP gained ~10 % alone but stalled to >10 ms per call when other
-    # processes (simulator, controller) shared the two cores
-    stage_map, node_map = stage.map(M, "serial"), node.map(M + 1, "serial")
-    s_aa, s_ab, s_bb, s_ga, s_gb, s_cost = stage_map(
-        X[:, :M], X[:, 1:], U, DT, WP, ca.repmat(BND[: nx + 1], 1, M), ca.repmat(P, 1, M)
-    )
-    n_h, n_g, n_cost, n_ry = node_map(
-        X, UG, Y, WY, TAU, ca.repmat(BND[nx + 1 :], 1, M + 1), ca.repmat(P, 1, M + 1)
-    )
-    zero_block = ca.MX.zeros(nx, nx)
-    zero_col = ca.MX.zeros(nx, 1)
-    D = n_h + ca.horzcat(s_aa, zero_block) + ca.horzcat(zero_block, s_bb)
-    G = n_g + ca.horzcat(s_ga, zero_col) + ca.horzcat(zero_col, s_gb)
-    cost = ca.sum2(s_cost) + ca.sum2(n_cost)
-    return ca.Function(
-        "mhe_gn",
-        [X, U, DT, WP, Y, WY, TAU, UG, P, BND],
-        [ca.densify(v) for v in (D, s_ab, G, cost, n_ry, s_bb[:, :nx], s_gb[:, 0])],
-        ["X", "U", "DT", "WP", "Y", "WY", "TAU", "UG", "p", "BND"],
-        ["D", "O", "G", "cost", "RY", "S0", "g0b"],
-    ), sizes
-
-
-class _Band:
-    """Index maps from block-tridiagonal blocks into LAPACK upper banded storage."""
-
-    def __init__(self, nx: int, nodes: int) -> None:
-        self.nx, self.n = nx, nx * nodes
-        self.u = 2 * nx - 1
-        a, b = np.meshgrid(np.arange(nx), np.arange(nx), indexing="ij")
-        upper = a <= b
-        rows_d, cols_d, src_d = [], [], []
-        for j in range(nodes):
-            i, k = j * nx + a[upper], j * nx + b[upper]
-            rows_d.append(self.u + i - k)
-            cols_d.append(k)
-            src_d.append(j * nx * nx + (b[upper] * nx + a[upper]))  # column-major block entry
-        self.diag_rows, self.diag_cols = np.concatenate(rows_d), np.concatenate(cols_d)
-        self.diag_src = np.concatenate(src_d)
-        rows_o, cols_o, src_o = [], [], []
-        for j in range(nodes - 1):
-            i, k = j * nx + a.ravel(), (j + 1) * nx + b.ravel()
-            rows_o.append(self.u + i - k)
-            cols_o.append(k)
-            src_o.append(j * nx * nx + (b.ravel() * nx + a.ravel()))
-        self.off_rows, self.off_cols = np.concatenate(rows_o), np.concatenate(cols_o)
-        self.off_src = np.concatenate(src_o)
-
-    def matrix(self, diag_blocks: np.ndarray, off_blocks: np.ndarray) -> np.ndarray:
-        """Banded storage from ``D`` (nx, nx*nodes) and ``O`` (nx, nx*(nodes-1)), column-major."""
-        ab = np.zeros((self.u + 1, self.n))
-        ab[self.diag_rows, self.diag_cols] = diag_blocks.ravel(order="F")[self.diag_src]
-        ab[self.off_rows, self.off_cols] = off_blocks.ravel(order="F")[self.off_src]
-        return ab
+        if len(self.process_bound) != 6 or not all(b > 0 for b in self.process_bound):
+            raise ValueError("process_bound: needs 6 values > 0 (x, y, yaw, vx, vy, omega)")
+        if len(self.state_lower) != 3 or len(self.state_upper) != 3:
+            raise ValueError("state_lower, state_upper: need 3 values (vx, vy, omega)")
+        if self.max_catch_up is not None and self.max_catch_up < 1:
+            raise ValueError("max_catch_up: must be >= 1")
 
 
 class MovingHorizonEstimator(Estimator):
-    """MHE over any subset of the car's sensors; call :meth:`estimate` at the MHE rate.
+    """MHE over any subset of the car's sensors on a fixed time grid.
 
     Parameters
     ----------
@@ -266,20 +157,20 @@ class MovingHorizonEstimator(Estimator):
     def __init__(
         self, model: CarModel, sensors: frozenset[str] | str, settings: MheSettings | None = None
     ) -> None:
-        super().__init__(sensors)
-        self.model = model
-        self.settings = s = settings or MheSettings()
+        s = settings or MheSettings()
+        super().__init__(sensors, model, s)
+        self.settings: MheSettings = s
         self._p = model.parameters.vector()
         self.groups = measurement_groups(model)
-        self._substeps = max(1, math.ceil(1.0 / s.rate_hz / MAX_SUBSTEP - 1e-9))
-        function, sizes = build_mhe_function(model, s.horizon, self._substeps, self.groups)
-        tag = "_".join(e.name for e in model.effects) or "base"
+        self._dt = 1.0 / s.rate_hz
+        self._substeps = max(1, math.ceil(self._dt / MAX_SUBSTEP - 1e-9))
+        blocks, cost, sizes = build_mhe_function(model, s.horizon, self._substeps, self.groups)
         offset_outputs = offset_output_functions(model, self.groups)
         compiled = compile_functions(
-            [function, model.step_function(self._substeps, "mhe_predict"), *offset_outputs],
-            f"mhe_{tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
+            [blocks, cost, model.step_function(self._substeps, "mhe_predict"), *offset_outputs],
+            f"mhe_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
         )
-        self._solve_blocks = compiled["mhe_gn"]
+        self._solve_blocks, self._cost = compiled["mhe_gn"], compiled["mhe_cost"]
         self._predict = compiled["mhe_predict"]
         self._outputs = {
             g: compiled[f.name()] for g, f in zip(self.groups, offset_outputs, strict=True)
@@ -291,57 +182,77 @@ class MovingHorizonEstimator(Estimator):
         # per measurement row: its group and 1 / std, for vectorised weights
         self._row_group = np.concatenate([np.full(n, i) for i, n in enumerate(sizes)])
         self._row_inverse_std = 1.0 / np.concatenate([self._std[g] for g in self.groups])
-        self._band = _Band(model.nx, s.horizon + 1)
-        nx = model.nx
-        self._bounds = np.concatenate(
-            [
-                np.resize(s.process_bound, nx),
-                [s.bound_weight],
-                s.state_lower,
-                s.state_upper,
-                [s.bound_weight],
-            ]
-        )
-        self._q = s.noise.process_std_for(nx)
-        extra = np.full(nx - 6, 0.05)
-        self._default_initial_weight = 1.0 / np.concatenate([s.initial_std, extra]) ** 2
+        self._band = Band(model.nx, s.horizon + 1)
+        self._bounds = self._bound_data(model, s)
+        self._q = s.noise.process_std_for(model.state_names)
+        self._default_initial_weight = 1.0 / initial_std_for(s.initial_std, model.state_names) ** 2
+        self._max_catch_up = s.max_catch_up or s.horizon
         self._cap = RejectionCap(s.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
+    @staticmethod
+    def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
+        names = model.state_names[6:]
+        unknown = set(s.extra_state_bounds) - set(names)
+        if unknown:
+            raise ValueError(f"extra_state_bounds: {sorted(unknown)} are not effect states")
+        table = {**EXTRA_STATE_BOUNDS, **s.extra_state_bounds}
+        extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]
+        return np.concatenate(
+            [
+                s.process_bound,
+                np.full(model.nx - 6, _UNBOUNDED),
+                [s.bound_weight],
+                s.state_lower,
+                [lo for lo, _ in extra],
+                s.state_upper,
+                [hi for _, hi in extra],
+                [s.bound_weight],
+            ]
+        )
+
     def accepts(self, sensor: str) -> bool:
         return sensor in self._slot
+
+    def model_sensors(self) -> list[str]:
+        return list(self.groups)
 
     def late_before(self) -> float:
         """Late data are still used while they fall inside the window."""
         return float(self._times[len(self._times) - self._active])
 
+    def current_state(self) -> np.ndarray:
+        return self._X[:6, -1].copy()
+
     # --- state of the window ------------------------------------------------------------
-    def reset(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None = None) -> None:
-        x0 = checked_initial_state(x0)
+    def _reset_state(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None) -> None:
+        x = self.model.initial_state(x0, self._last_input)
+        weight = self._default_initial_weight.copy()
+        if covariance is not None:
+            weight[:6] = 1.0 / np.clip(np.diag(covariance), 1e-12, None)
+        self._input_history: list[InputSample] = [InputSample(t0, self._last_input)]
+        self._pending: list[tuple[float, str, int, Measurement]] = []
+        self._restart_window(t0, x, weight)
+
+    def _restart_window(self, t0: float, x: np.ndarray, weight: np.ndarray) -> None:
+        """A window of one node at ``t0`` (the grid anchor) holding ``x`` with prior ``weight``."""
         M, ny = self.settings.horizon, self._slot[self.groups[-1]].stop
         ng = len(self.groups)
-        self._times = np.full(M + 1, float(t0))
-        self._X = np.tile(self.model.initial_state(x0)[:, None], (1, M + 1))
+        self._anchor, self._newest = t0, 0  # node times are anchor + k / rate_hz
+        self._times = np.full(M + 1, t0)
+        self._X = np.tile(x[:, None], (1, M + 1))
         self._active = 1  # nodes in use, at the end of the arrays
         self._ysum = np.zeros((ny, M + 1))
         self._count = np.zeros((ng, M + 1))
         self._tausum = np.zeros((ng, M + 1))
         self._U = np.zeros((2, M))
         self._usum = np.zeros((2 * ng, M + 1))  # commands at the stamps, per group
-        self._DT = np.full((1, M), 1.0 / self.settings.rate_hz)
-        self._arrival = self._X[:, 0].copy()
-        self._initial_weight = self._default_initial_weight.copy()
+        self._DT = np.full((1, M), self._dt)
+        self._arrival = x.copy()
+        self._initial_weight = weight
         self._arrival_information: np.ndarray | None = None  # set once node 0 is marginalized
         self._last_blocks: tuple | None = None
-        if covariance is not None:
-            cov = np.asarray(covariance, dtype=float)
-            if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-                raise ValueError("covariance: needs a finite 6 x 6 matrix")
-            self._initial_weight[:6] = 1.0 / np.clip(np.diag(cov), 1e-12, None)
-        self._input_history: list[InputSample] = [InputSample(float(t0), np.zeros(2))]
-        self._queue.clear()
-        self._processed_until = t0
-        self._covariance = np.diag(1.0 / self._initial_weight)[:6, :6]
+        self._covariance = np.diag(1.0 / weight)[:6, :6]
         self._cap.clear()
 
     def _command_average(self, t0: float, t1: float) -> np.ndarray:
@@ -363,8 +274,8 @@ class MovingHorizonEstimator(Estimator):
                 return sample.u
         return self._input_history[0].u
 
-    def _shift(self, t: float) -> None:
-        """Append a node at ``t``; drop the oldest when the horizon is full."""
+    def _shift(self) -> None:
+        """Append the next grid node; drop the oldest when the horizon is full."""
         M = self.settings.horizon
         if self._active == M + 1:
             self._marginalize_first_node()
@@ -372,7 +283,6 @@ class MovingHorizonEstimator(Estimator):
             self._X,
             self._times,
             self._U,
-            self._DT,
             self._ysum,
             self._count,
             self._tausum,
@@ -381,12 +291,11 @@ class MovingHorizonEstimator(Estimator):
             array[..., :-1] = array[..., 1:]
         for array in (self._ysum, self._count, self._tausum, self._usum):
             array[:, -1] = 0.0
-        t_prev = self._times[-2]
-        dt = t - t_prev
+        self._newest += 1
+        t_prev, t = self._times[-2], self._anchor + self._newest * self._dt
         self._times[-1] = t
-        self._DT[0, -1] = dt
         self._U[:, -1] = self._command_average(t_prev, t)
-        self._X[:, -1] = self._predict(self._X[:, -2], self._U[:, -1], self._p, dt)[0]
+        self._X[:, -1] = self._predict(self._X[:, -2], self._U[:, -1], self._p, t - t_prev)[0]
         self._active = min(self._active + 1, M + 1)
         history = self._input_history  # keep the command active at the oldest node
         while len(history) > 1 and history[1].stamp <= self._times[M + 1 - self._active]:
@@ -418,51 +327,89 @@ class MovingHorizonEstimator(Estimator):
         self._count[g, j] += 1
         self._tausum[g, j] += tau
         self._usum[2 * g : 2 * g + 2, j] += command
-        self.diagnostics.processed[sensor] += 1
+        self._accept(sensor, measurement.stamp)
 
     def _plausible(self, measurement: Measurement, j: int, tau: float, command: np.ndarray) -> bool:
         """Outlier check of a Lighthouse sweep against the current trajectory."""
         predicted = self._outputs[measurement.sensor](self._X[:, j], command, self._p, tau)[0]
         sensor = measurement.sensor
         normalised = (measurement.values - predicted) / self._std[sensor]
+        if not np.all(np.isfinite(normalised)):  # the sweep cannot reach the photodiodes
+            self._reject(sensor, measurement.stamp)
+            return False
         if np.max(np.abs(normalised)) > self.settings.outlier_sigma and not self._cap.override(
             sensor, normalised
         ):
-            self.diagnostics.rejected[sensor] += 1
+            self._reject(sensor, measurement.stamp)
             return False
         self._cap.accepted(sensor)
         return True
 
     # --- one estimate -------------------------------------------------------------------
-    def estimate(self, t: float) -> Estimate:
-        """Add a node at ``t``, attach the data up to ``t``, run the Gauss-Newton step(s)."""
-        start = time.perf_counter()
-        events = list(self._events_until(t))
+    def _estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Take the data up to ``t``, create the grid nodes due by ``t``, read out at ``t``."""
         late_input = math.inf
-        for item in events:
+        for item in self._events_until(t):
             if isinstance(item, InputSample):
                 bisect.insort(self._input_history, item, key=lambda s: s.stamp)
                 if item.stamp < self._times[-1]:
                     late_input = min(late_input, item.stamp)
+            elif item.stamp <= self._times[-1]:
+                self._attach(item)  # late, but inside the window
+            else:
+                bisect.insort(self._pending, (item.stamp, item.sensor, id(item), item))
         if late_input < math.inf:  # a command arrived after stages it acts on were made
             for j in range(len(self._times) - 1):
                 if self._times[j + 1] > late_input:
                     self._U[:, j] = self._command_average(self._times[j], self._times[j + 1])
-        if t > self._times[-1] + 1e-6:
-            self._shift(t)
-        for item in events:
-            if isinstance(item, Measurement):
-                self._attach(item)
-        status = "ok"
-        for _ in range(self.settings.iterations):
-            status = self._gauss_newton_step()
-        self.diagnostics.last_status = status
-        self.diagnostics.last_solve_time_s = time.perf_counter() - start
-        return Estimate(float(t), self._X[:6, -1].copy(), self._covariance.copy(), status)
+        due = math.floor((t - self._anchor) / self._dt + 1e-9) - self._newest
+        if due > self._max_catch_up:
+            self._skip_ahead(t, due)
+            due = self._max_catch_up
+        for _ in range(max(0, due)):
+            self._shift()
+            newest = self._times[-1]
+            while self._pending and self._pending[0][0] <= newest:
+                self._attach(self._pending.pop(0)[3])
+            for _ in range(self.settings.iterations):
+                self._gauss_newton_step()
+        return self._read_out(t), self._covariance.copy()
+
+    def _read_out(self, t: float) -> np.ndarray:
+        """The base state at ``t``: the node at or before ``t`` predicted forward."""
+        first = len(self._times) - self._active
+        j = max(first, int(np.searchsorted(self._times[first:], t, side="right")) + first - 1)
+        dt = t - self._times[j]
+        if dt <= 1e-12:
+            return self._X[:6, j].copy()
+        u = self._command_average(self._times[j], t)
+        x = self._predict(self._X[:, j], u, self._p, min(dt, self._dt))[0]
+        return x[:6].copy()
+
+    def _skip_ahead(self, t: float, due: int) -> None:
+        """Too many nodes due (a stalled process): restart the window ``max_catch_up`` nodes
+        before ``t`` from the prediction, loosely, and drop the data before it."""
+        k_start = self._newest + due - self._max_catch_up
+        t_start = self._anchor + k_start * self._dt
+        skipped = t_start - self._times[-1]
+        u = self._command_average(self._times[-1], t_start)
+        x = self.model.numeric.step(self._X[:, -1], u, self._p, skipped)
+        if not np.all(np.isfinite(x)):
+            x = self._X[:, -1].copy()
+        dropped = 0
+        while self._pending and self._pending[0][0] <= t_start:
+            self._pending.pop(0)
+            dropped += 1
+        self.diagnostics.late += dropped
+        self.diagnostics.skipped_s += skipped
+        anchor, newest = self._anchor, k_start
+        self._restart_window(t_start, x, self._default_initial_weight.copy())
+        self._anchor, self._newest = anchor, newest
+        self._fallback_event(t, f"skipped {skipped:.2f} s of data after a stall")
 
     def _weights(self) -> tuple[np.ndarray, ...]:
-        """Process and measurement weights; per node and sensor the mean value, stamp offset
-        and command."""
+        """``WP, Y, WY, TAU, UG`` of the generated functions: process weights, per node and
+        sensor the mean value, measurement weights, mean stamp offset and mean command."""
         s, M = self.settings, self.settings.horizon
         first = M + 1 - self._active
         ages = np.arange(M, -1, -1, dtype=float)  # node j has age M - j
@@ -474,27 +421,38 @@ class MovingHorizonEstimator(Estimator):
         y = self._ysum / count[self._row_group]
         wy = np.sqrt(row_count * node_discount) * self._row_inverse_std[:, None]
         wy[:, :first] = 0.0
-        return wp, wy, y, self._tausum / count, self._usum / np.repeat(count, 2, axis=0)
+        return wp, y, wy, self._tausum / count, self._usum / np.repeat(count, 2, axis=0)
 
-    def _gauss_newton_step(self) -> str:
-        M, nx = self.settings.horizon, self.model.nx
-        first = M + 1 - self._active
-        wp, wy, y, tau, ug = self._weights()
-        D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
-            self._X, self._U, self._DT, wp, y, wy, tau, ug, self._p, self._bounds
-        )
-        if not np.isfinite(cost[0]) and self._drop_undefined(residuals):
-            wp, wy, y, tau, ug = self._weights()
-            D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
-                self._X, self._U, self._DT, wp, y, wy, tau, ug, self._p, self._bounds
-            )
-        if not np.isfinite(cost[0]):
-            return self._restart("non-finite cost")
+    def _arrival_terms(self) -> tuple[int, np.ndarray]:
+        """Index of the first node in use and the information of its prior."""
+        first = self.settings.horizon + 1 - self._active
         if self._arrival_information is None:  # start-up: the initial guess, discounted
             weight = self.settings.discount ** (self._active - 1) * self._initial_weight
-            information = np.diag(weight)
-        else:
-            information = self._arrival_information
+            return first, np.diag(weight)
+        return first, self._arrival_information
+
+    def _total_cost(self, X: np.ndarray, data: tuple[np.ndarray, ...]) -> float:
+        first, information = self._arrival_terms()
+        cost = self._cost(X, self._U, self._DT, *data, self._p, self._bounds)[0]
+        d = X[:, first] - self._arrival
+        return float(np.asarray(cost).ravel()[0] + d @ information @ d)
+
+    def _gauss_newton_step(self) -> None:
+        M, nx = self.settings.horizon, self.model.nx
+        stamp = float(self._times[-1])
+        data = self._weights()
+        D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
+            self._X, self._U, self._DT, *data, self._p, self._bounds
+        )
+        if not np.isfinite(cost[0]) and self._drop_undefined(residuals):
+            data = self._weights()
+            D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
+                self._X, self._U, self._DT, *data, self._p, self._bounds
+            )
+        if not np.isfinite(cost[0]):
+            self._restart(stamp, "non-finite cost")
+            return
+        first, information = self._arrival_terms()
         D[:, first * nx : (first + 1) * nx] += information
         G[:, first] += information @ (self._X[:, first] - self._arrival)
         for j in range(first):  # unused nodes: keep them where they are
@@ -506,15 +464,16 @@ class MovingHorizonEstimator(Estimator):
         ab[-1] += 1e-9  # Levenberg-Marquardt floor against rank deficiency
         factor, info = dpbtrf(ab)
         if info != 0:
-            return self._fallback("normal equations not positive definite")
+            self._fallback_event(stamp, "normal equations not positive definite")
+            return
         rhs = np.zeros((ab.shape[1], 7))
         rhs[:, 0] = -G.ravel(order="F")
         rhs[M * nx + np.arange(6), 1 + np.arange(6)] = 1.0  # unit vectors of the newest node
         solution, info = dpbtrs(factor, rhs)
         step = solution[:, 0].reshape((nx, M + 1), order="F")
-        covariance = solution[M * nx : M * nx + 6, 1:]
         if not np.all(np.isfinite(step)):
-            return self._restart("non-finite step")
+            self._restart(stamp, "non-finite step")
+            return
         self._last_blocks = (
             D[:, :nx].copy(),
             upper[:, :nx].copy(),
@@ -523,9 +482,16 @@ class MovingHorizonEstimator(Estimator):
             stage0_gradient,
             self._X[:, 1].copy(),
         )
-        self._X += step
-        self._covariance = 0.5 * (covariance + covariance.T)
-        return "ok"
+        before = self._total_cost(self._X, data)
+        for fraction in STEP_FRACTIONS:
+            candidate = self._X + fraction * step
+            after = self._total_cost(candidate, data)
+            if math.isfinite(after) and after <= before * (1 + 1e-9) + 1e-12:
+                self._X = candidate
+                covariance = solution[M * nx : M * nx + 6, 1:]
+                self._covariance = 0.5 * (covariance + covariance.T)
+                return
+        self._fallback_event(stamp, "Gauss-Newton step raised the cost; kept the prediction")
 
     def _marginalize_first_node(self) -> None:
         """Fold node 0 (its arrival cost, measurements and first stage) into a prior on node 1.
@@ -550,11 +516,6 @@ class MovingHorizonEstimator(Estimator):
         self._arrival_information = self.settings.discount * information
         self._last_blocks = None
 
-    def _fallback(self, reason: str) -> str:
-        """Keep the predicted trajectory (already in place from the shift) and say why."""
-        self.diagnostics.fallbacks += 1
-        return f"fallback: {reason}; estimate is the model prediction"
-
     def _drop_undefined(self, residuals: np.ndarray) -> bool:
         """Drop measurements whose model output is undefined at the current trajectory.
 
@@ -567,25 +528,24 @@ class MovingHorizonEstimator(Estimator):
             return False
         for g, group in enumerate(self.groups):
             nodes = np.nonzero(bad[self._slot[group]].any(axis=0))[0]
+            for j in nodes:
+                self._reject(group, float(self._times[j]), int(self._count[g, j]))
             if nodes.size:
-                self.diagnostics.rejected[group] += int(self._count[g, nodes].sum())
                 self._ysum[self._slot[group], nodes] = 0.0
                 self._count[g, nodes] = 0.0
                 self._tausum[g, nodes] = 0.0
                 self._usum[2 * g : 2 * g + 2, nodes] = 0.0
         return True
 
-    def _restart(self, reason: str) -> str:
+    def _restart(self, stamp: float, reason: str) -> None:
         """The window cannot be solved: start over from its newest finite state, loosely.
 
         Keeps the commands and the data not yet attached; the newest node becomes the initial
         guess with the initial standard deviations, so new data pull the estimate back.
         """
-        finite = np.nonzero(np.all(np.isfinite(self._X[:6]), axis=0))[0]
-        x0 = self._X[:6, finite[-1]].copy() if finite.size else self._arrival[:6].copy()
-        t0 = float(self._times[-1])
-        history, queue = list(self._input_history), list(self._queue)
-        self.reset(t0, x0)
-        self._input_history, self._queue = history, queue
-        self.diagnostics.fallbacks += 1
-        return f"fallback: {reason}; restarted from the last finite estimate"
+        finite = np.nonzero(np.all(np.isfinite(self._X), axis=0))[0]
+        x = self._X[:, finite[-1]].copy() if finite.size else self._arrival.copy()
+        anchor, newest = self._anchor, self._newest
+        self._restart_window(float(self._times[-1]), x, self._default_initial_weight.copy())
+        self._anchor, self._newest = anchor, newest
+        self._fallback_event(stamp, f"{reason}; restarted from the last finite estimate")

@@ -2,11 +2,25 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from crs_core.measurements import parse_lighthouse
+
+#: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
+#: initial standard deviation. Actuator lags follow their command closely (small noise); the
+#: estimated inputs of an input-free model are random walks that must follow the driver.
+EXTRA_STATE_DEFAULTS: dict[str, tuple[float, float]] = {
+    "steer_applied": (1e-3, 0.05),
+    "torque_applied": (1e-3, 0.05),
+    "steer_estimated": (1.0, 0.2),
+    "torque_estimated": (3.0, 0.5),
+}
+#: Process noise and initial standard deviation of an extra state not in the table.
+EXTRA_STATE_FALLBACK = (1e-3, 0.05)
 
 
 @dataclass(frozen=True)
@@ -18,7 +32,10 @@ class EstimatorNoise:
     process_std : tuple of float
         Continuous-time white process noise on ``[x, y, yaw, vx, vy, omega]`` (per sqrt(s)):
         the covariance added over ``dt`` is ``diag(process_std)^2 * dt``. Velocities carry most
-        of it: they absorb model error in the tire and drive forces.
+        of it: they absorb model error in the tire and drive forces. Exactly 6 values.
+    extra_process_std : mapping of str to float
+        Process noise of the states effects add, by state name (``steer_applied``,
+        ``torque_estimated``, ...), overriding :data:`EXTRA_STATE_DEFAULTS`.
     lighthouse_std : float
         Sweep angle, rad.
     imu_std : tuple of float
@@ -32,6 +49,7 @@ class EstimatorNoise:
     """
 
     process_std: tuple[float, ...] = (0.02, 0.02, 0.02, 1.0, 1.0, 6.0)
+    extra_process_std: Mapping[str, float] = field(default_factory=dict)
     lighthouse_std: float = 2e-3
     imu_std: tuple[float, float, float] = (1.0, 1.0, 0.06)
     gyro_std: float = 0.06
@@ -39,16 +57,25 @@ class EstimatorNoise:
     pose_std: tuple[float, float, float] = (0.003, 0.003, 0.01)
 
     def __post_init__(self) -> None:
-        values = [
-            *self.process_std,
-            self.lighthouse_std,
-            *self.imu_std,
-            self.gyro_std,
-            self.wheel_std,
-            *self.pose_std,
-        ]
-        if not all(np.isfinite(v) and v > 0 for v in values):
-            raise ValueError("noise: every standard deviation must be finite and > 0")
+        if len(self.process_std) != 6:
+            raise ValueError(
+                f"noise.process_std: needs 6 values (x, y, yaw, vx, vy, omega), got "
+                f"{len(self.process_std)}; effect states go in extra_process_std by name"
+            )
+        if len(self.imu_std) != 3 or len(self.pose_std) != 3:
+            raise ValueError("noise.imu_std and noise.pose_std: need 3 values each")
+        values = {
+            "process_std": self.process_std,
+            "extra_process_std": tuple(self.extra_process_std.values()),
+            "lighthouse_std": (self.lighthouse_std,),
+            "imu_std": self.imu_std,
+            "gyro_std": (self.gyro_std,),
+            "wheel_std": (self.wheel_std,),
+            "pose_std": self.pose_std,
+        }
+        for name, entries in values.items():
+            if not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in entries):
+                raise ValueError(f"noise.{name}: every standard deviation must be finite and > 0")
 
     def measurement_std(self, sensor: str) -> np.ndarray:
         """Per-channel standard deviation of a stream sensor."""
@@ -62,7 +89,24 @@ class EstimatorNoise:
         }
         return np.array(table[sensor], dtype=float)
 
-    def process_std_for(self, nx: int) -> np.ndarray:
-        """Process noise for an ``nx``-state model: extra (effect) states get 1e-3 per sqrt(s)."""
-        base = np.array(self.process_std[:nx], dtype=float)
-        return np.concatenate([base, np.full(max(0, nx - base.size), 1e-3)])
+    def process_std_for(self, state_names: tuple[str, ...]) -> np.ndarray:
+        """Process noise per state of a model with these state names (base six first)."""
+        unknown = set(self.extra_process_std) - set(state_names[6:])
+        if unknown:
+            raise ValueError(
+                f"noise.extra_process_std: {sorted(unknown)} are not effect states of the model "
+                f"({', '.join(state_names[6:]) or 'it has none'})"
+            )
+        extra = [
+            self.extra_process_std.get(
+                name, EXTRA_STATE_DEFAULTS.get(name, EXTRA_STATE_FALLBACK)[0]
+            )
+            for name in state_names[6:]
+        ]
+        return np.array([*self.process_std, *extra], dtype=float)
+
+
+def initial_std_for(base_std: tuple[float, ...], state_names: tuple[str, ...]) -> np.ndarray:
+    """Initial standard deviation per state: ``base_std`` for the six, defaults for the rest."""
+    extra = [EXTRA_STATE_DEFAULTS.get(n, EXTRA_STATE_FALLBACK)[1] for n in state_names[6:]]
+    return np.array([*base_std, *extra], dtype=float)

@@ -34,6 +34,11 @@ from crs_core.parameters import ParameterSet
 #: substep per 250 Hz sensor sample). One 1/30 s step is stable only above about 0.8 m/s.
 MAX_SUBSTEP = 0.004
 
+#: States of the input-free model (``estimated_inputs=True``): name, unit.
+ESTIMATED_INPUT_STATES = (("steer_estimated", "rad"), ("torque_estimated", "-"))
+#: Effects that act on the command or the actuators (undefined without commands).
+COMMAND_EFFECTS = ("steering_offset", "input_delay", "steering_lag", "motor_lag")
+
 
 def effect_names_and_values(
     effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None],
@@ -89,6 +94,13 @@ class CarModel:
         Values for all model parameters; by default the Chronos identified values, the recorded
         Lighthouse geometry and each effect's default. Effect values given in ``effects`` are
         applied on top.
+    estimated_inputs : bool
+        The input-free variant for recordings without commands: the applied steering angle
+        (rad) and torque (-) are two more states, ``steer_estimated`` and
+        ``torque_estimated``, with zero derivative (an estimator models them as random walks),
+        and the command ``u`` is ignored. Effects on the command or the actuators
+        (``steering_offset``, ``input_delay``, ``steering_lag``, ``motor_lag``) cannot be
+        combined with it: without commands they are not defined.
 
     Attributes
     ----------
@@ -107,11 +119,20 @@ class CarModel:
         effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None] = (),
         n_base_stations: int = 1,
         parameters: ParameterSet | None = None,
+        estimated_inputs: bool = False,
     ) -> None:
         if n_base_stations < 0:
             raise ValueError("n_base_stations must be >= 0")
         names, effect_values = effect_names_and_values(effects)
         self.effects: tuple[Effect, ...] = tuple(EFFECTS[n] for n in names)
+        self.estimated_inputs = bool(estimated_inputs)
+        if self.estimated_inputs:
+            clash = [n for n in names if n in COMMAND_EFFECTS]
+            if clash:
+                raise ValueError(
+                    f"estimated_inputs: cannot be combined with {', '.join(clash)} (effects on "
+                    "the command need commands)"
+                )
         self.n_base_stations = n_base_stations
         defaults = (
             dynamics_parameters()
@@ -126,8 +147,11 @@ class CarModel:
                 raise KeyError(f"parameters lack {sorted(missing)}")
             defaults = defaults.updated({n: parameters.value(n) for n in defaults.names})
         self.parameters = defaults.updated(effect_values)
-        self.state_names = STATE_NAMES + tuple(s for e in self.effects for s, _ in e.states)
-        self.state_units = STATE_UNITS + tuple(u for e in self.effects for _, u in e.states)
+        extra_states = tuple(st for e in self.effects for st in e.states)
+        if self.estimated_inputs:
+            extra_states += ESTIMATED_INPUT_STATES
+        self.state_names = STATE_NAMES + tuple(name for name, _ in extra_states)
+        self.state_units = STATE_UNITS + tuple(unit for _, unit in extra_states)
         self.nx, self.nu, self.np = len(self.state_names), 2, len(self.parameters)
         self._build_symbolic()
 
@@ -171,6 +195,9 @@ class CarModel:
             u, zdot = effect.actuator(z, u, P)
             derivatives.append(zdot)
             offset += len(effect.states)
+        if self.estimated_inputs:
+            u = x[offset : offset + 2]
+            derivatives.append(ca.SX.zeros(2))
         return ca.vertcat(state_derivative(x[: len(STATE_NAMES)], u, P), *derivatives), u
 
     @cached_property
@@ -230,7 +257,15 @@ class CarModel:
             raise ValueError(f"expected {len(STATE_NAMES)} base states, got {len(base)}")
         command = [float(v) for v in u]
         extra = [value for e in self.effects for value in e.initial_states(command)]
+        if self.estimated_inputs:
+            extra += command
         return np.array(base + extra)
+
+    @property
+    def tag(self) -> str:
+        """Short identifier of the model structure (effects, input mode) for generated code."""
+        parts = [e.name for e in self.effects] + (["estinputs"] if self.estimated_inputs else [])
+        return "_".join(parts) or "base"
 
     @cached_property
     def numeric(self) -> NumericModel:
@@ -239,7 +274,8 @@ class CarModel:
 
     def __repr__(self) -> str:
         names = ", ".join(e.name for e in self.effects) or "none"
-        return f"CarModel(effects: {names}; stations: {self.n_base_stations})"
+        inputs = "; inputs estimated" if self.estimated_inputs else ""
+        return f"CarModel(effects: {names}; stations: {self.n_base_stations}{inputs})"
 
 
 class NumericModel:
@@ -271,9 +307,8 @@ class NumericModel:
                 SX_OPTIONS,
             ),
         ]
-        tag = "_".join(e.name for e in model.effects) or "base"
         self.functions: dict[str, NumericFunction] = compile_functions(
-            functions, _c_name(f"chronos_{tag}_{model.n_base_stations}bs"), backend
+            functions, _c_name(f"chronos_{model.tag}_{model.n_base_stations}bs"), backend
         )
         self.backend = self.functions["f"].backend
         self._slices = {}

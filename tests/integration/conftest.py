@@ -14,4 +14,4 @@ def warm_codegen() -> None:
 
     model = CarModel()
     for kind in ("ekf", "mhe"):
-        make_estimator(kind, "lh+imu+we", model, 60.0, 40)
+        make_estimator(kind, "lh+imu+we", model)  # auto: both input modes

@@ -161,7 +161,7 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
     start_offset = t0 - (first_received - REPLAY_LAG_S)
     assert -1e-6 < start_offset < 2.0 / RATE_HZ + 0.01, (t0, first_received)
 
-    estimator = make_estimator("ekf", "lh+imu+we", CarModel(), RATE_HZ, 40)
+    estimator = make_estimator("ekf", "lh+imu+we", CarModel())
     offline = replay_estimator(recorded, estimator, stamps, x0, t0)
     error = np.abs(offline - node).max(axis=1)
     exact = int(np.sum(error == 0.0))
