@@ -38,6 +38,11 @@ class Parameter:
     group : str
         Family in the paper's notation: ``tire``, ``car``, ``friction``, ``motor``, ``encoder``,
         ``lighthouse`` or ``effect:<name>``.
+    period : float or None
+        For an angle whose every value is physically valid (a base-station rotation angle):
+        its period (``2 pi``). Values are wrapped into ``[-period/2, period/2)`` when set
+        (:meth:`ParameterSet.updated`, YAML), and the bounds are ``+-period``, so a bound is
+        about the physics, never about where the Euler chart happens to be.
     """
 
     name: str
@@ -48,8 +53,13 @@ class Parameter:
     prior_std: float
     description: str
     group: str
+    period: float | None = None
 
     def __post_init__(self) -> None:
+        if self.period is not None:
+            if not (math.isfinite(self.period) and self.period > 0):
+                raise ValueError(f"parameter {self.name!r}: period must be finite and > 0")
+            object.__setattr__(self, "value", wrap_periodic(self.value, self.period))
         for field in ("value", "lower", "upper", "prior_std"):
             if not math.isfinite(getattr(self, field)):
                 raise ValueError(f"parameter {self.name!r}: {field} must be finite")
@@ -180,6 +190,13 @@ class ParameterSet(Mapping[str, Parameter]):
             where = f"{source}: " if source else ""
             raise KeyError(f"{where}unknown parameter(s) {sorted(unknown)}")
         return ParameterSet(out)
+
+
+def wrap_periodic(value: float, period: float) -> float:
+    """``value`` moved by whole periods into ``[-period/2, period/2)``."""
+    if not math.isfinite(value):
+        return value
+    return (value + 0.5 * period) % period - 0.5 * period
 
 
 def _as_float(value: Any, field: str, source: str = "") -> float:

@@ -116,7 +116,8 @@ class EstimatorSettings:
         Per sensor (``"lighthouse/0/1"``) or sensor group (``"lh"``, ``"imu"``, ``"we"``,
         ``"gyro"``, ``"pose"``) the delay ``d`` (s) of its stamps: a value stamped ``t``
         refers to the car at ``t - d`` (the simulator's ``latency_s``). A sensor's own entry
-        wins over its group's.
+        wins over its group's. Query estimates at least ``d`` behind the newest data (the
+        estimator node's ``lag``): the EKF drops data stamped before what it processed.
     health : HealthSettings
         Thresholds of the status words and of re-initialisation.
     initialization : InitializationSettings

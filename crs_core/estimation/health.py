@@ -10,7 +10,7 @@ describes it:
     It is still usable but less trustworthy: within the last ``window_s`` seconds more than
     ``rejected_fraction`` of a sensor's samples were rejected, or a solver fallback happened, or
     the Lighthouse (the only absolute position reference) has not been accepted for
-    ``dead_reckoning_after_s`` (the pose is dead-reckoned).
+    ``dead_reckoning_after_s`` (the pose is dead-reckoned) or not at all since the start.
 ``lost``
     The estimator does not know where the car is: it is waiting for its first Lighthouse (or
     motion-capture) fix, or it is re-initialising after the Lighthouse disagreed with it for
@@ -140,6 +140,8 @@ class HealthMonitor:
                     f"{s.window_s:g} s"
                 )
         last = self._last_lighthouse_accepted
-        if self.lighthouse_in_use and last is not None and t - last > s.dead_reckoning_after_s:
+        if self.lighthouse_in_use and last is None:
+            reasons.append("no Lighthouse sample accepted yet (the start state is unconfirmed)")
+        elif self.lighthouse_in_use and t - last > s.dead_reckoning_after_s:
             reasons.append(f"no Lighthouse sample accepted for {t - last:.2f} s (dead reckoning)")
         return ("degraded", "; ".join(reasons)) if reasons else ("ok", "")

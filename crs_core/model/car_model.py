@@ -8,7 +8,7 @@ versions. The simulator, estimators, controllers and identification all use this
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -26,6 +26,7 @@ from crs_core.model.chronos import (
     photodiode_parameters,
 )
 from crs_core.model.effects import EFFECTS, Effect
+from crs_core.model.lighthouse import BaseStation
 from crs_core.parameters import ParameterSet
 
 #: Largest RK4 substep (s). Measured with :func:`crs_core.model.stability.largest_stable_step`
@@ -90,6 +91,9 @@ class CarModel:
         Effects to compose onto the base model (see :func:`effect_names_and_values`).
     n_base_stations : int
         Number of Lighthouse base stations with sensor outputs.
+    base_stations : sequence of BaseStation, optional
+        Their geometry (any valid rotation, e.g. ``BaseStation.from_rotation(R, p, dt1, dt2)``);
+        sets ``n_base_stations``. Default: the recorded station and turned copies of it.
     parameters : ParameterSet, optional
         Values for all model parameters; by default the Chronos identified values, the recorded
         Lighthouse geometry and each effect's default. Effect values given in ``effects`` are
@@ -120,7 +124,10 @@ class CarModel:
         n_base_stations: int = 1,
         parameters: ParameterSet | None = None,
         estimated_inputs: bool = False,
+        base_stations: Sequence[BaseStation] | None = None,
     ) -> None:
+        if base_stations is not None:
+            n_base_stations = len(base_stations)
         if n_base_stations < 0:
             raise ValueError("n_base_stations must be >= 0")
         names, effect_values = effect_names_and_values(effects)
@@ -137,7 +144,13 @@ class CarModel:
         defaults = (
             dynamics_parameters()
             .merged(photodiode_parameters())
-            .merged(base_station_parameters(default_base_stations(n_base_stations)))
+            .merged(
+                base_station_parameters(
+                    tuple(base_stations)
+                    if base_stations is not None
+                    else default_base_stations(n_base_stations)
+                )
+            )
         )
         for effect in self.effects:
             defaults = defaults.merged(ParameterSet(list(effect.parameters)))

@@ -122,11 +122,12 @@ def base_station_parameters(stations: tuple[BaseStation, ...]) -> ParameterSet:
                     f"{prefix}phi{k}",
                     angle,
                     "rad",
-                    angle - math.pi,
-                    angle + math.pi,
+                    -2.0 * math.pi,
+                    2.0 * math.pi,
                     0.05,
                     f"station {i} rotation angle phi{k} (R = Rz(phi3) Ry(phi2) Rx(phi1))",
                     "lighthouse",
+                    period=2.0 * math.pi,
                 )
             )
         for axis, value in zip("xyz", station.position, strict=True):

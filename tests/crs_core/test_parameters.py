@@ -1,5 +1,8 @@
 """Named parameters: Chronos defaults, validation at the boundary, YAML round trip."""
 
+import math
+
+import numpy as np
 import pytest
 import yaml
 
@@ -69,3 +72,22 @@ def test_duplicate_and_inconsistent_parameters_rejected():
         ParameterSet([a, a])
     with pytest.raises(ValueError, match="lower bound"):
         Parameter("k", 1.0, "-", 3.0, 2.0, 0.1, "a gain", "car")
+
+
+def test_base_station_angles_accept_any_rotation():
+    """A station looking straight down with phi3 = 2.498 rad (outside the old chart-centred
+    bounds) is accepted; angles are wrapped by whole turns, never refused."""
+    from crs_core.model.lighthouse import BaseStation, rotation_from_angles
+
+    params = CarModel().parameters.updated({"bs0_phi3": 2.498, "bs0_phi1": 7.0})
+    assert params.value("bs0_phi3") == 2.498
+    assert math.isclose(params.value("bs0_phi1"), 7.0 - 2 * math.pi)
+    assert params["bs0_phi2"].lower == -2 * math.pi and params["bs0_phi2"].upper == 2 * math.pi
+    down = rotation_from_angles(math.pi, 0.0, 2.498)  # station z axis pointing at the floor
+    station = BaseStation.from_rotation(down, (0.0, 0.0, 2.0), 0.0, 0.0)
+    model = CarModel(base_stations=[station])
+    np.testing.assert_allclose(
+        rotation_from_angles(*(model.parameters.value(f"bs0_phi{k}") for k in (1, 2, 3))),
+        down,
+        atol=1e-12,
+    )

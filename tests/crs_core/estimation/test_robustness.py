@@ -1,0 +1,311 @@
+"""Estimation that never runs away: pathological timing, blind start, no inputs, honest status."""
+
+import math
+
+import numpy as np
+import pytest
+
+from crs_core.estimation import (
+    EkfSettings,
+    EstimatorNoise,
+    MheSettings,
+    make_estimator,
+)
+from crs_core.measurements import InputSample, Measurement
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from sim.estimation_benchmark import standard_drive, start_state
+from sim.scenarios import JoystickDriver
+from sim.sensors import Blackout, SensorSpec, SensorSuite
+from sim.simulator import Simulator
+
+KINDS = ["ekf", "mhe"]
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return standard_drive(seed=3, duration=8.0)
+
+
+def _events(result, with_inputs=True):
+    events = [(m.stamp, 1, m) for m in result.measurements]
+    if with_inputs:
+        events += [(s.stamp, 0, s) for s in result.inputs]
+    return sorted(events, key=lambda e: (e[0], e[1]))
+
+
+def _deliver(estimator, item):
+    if isinstance(item, InputSample):
+        estimator.add_input(item)
+    else:
+        estimator.add_measurement(item)
+
+
+def _run(estimator, result, queries, with_inputs=True, x0="truth", lag=0.0):
+    """Deliver data up to each query time + ``lag``, then query; estimates (n, 6), statuses."""
+    if x0 == "truth":
+        estimator.reset(0.0, start_state(result))
+    else:
+        estimator.reset(0.0, x0)
+    events, k, xs, statuses = _events(result, with_inputs), 0, [], []
+    for t in queries:
+        while k < len(events) and events[k][0] <= t + lag:
+            _deliver(estimator, events[k][2])
+            k += 1
+        estimate = estimator.estimate(t)
+        xs.append(estimate.x)
+        statuses.append(estimate.status)
+    return np.array(xs), statuses
+
+
+def _position_error(result, queries, xs):
+    truth = result.truth_at(np.asarray(queries))
+    return np.hypot(*(xs[:, :2] - truth[:, :2]).T)
+
+
+def _yaw_error(result, queries, xs):
+    d = xs[:, 2] - result.truth_at(np.asarray(queries))[:, 2]
+    return np.abs(np.arctan2(np.sin(d), np.cos(d)))
+
+
+# --- 1. bounded under any timing ---------------------------------------------------------
+
+
+def _late_ticks(rng, end, late_s):
+    """60 Hz queries of which 5 % come ``late_s`` late (the ones in between are skipped)."""
+    out, t = [], 0.0
+    while True:
+        t += late_s if rng.random() < 0.05 else 1 / 60
+        if t > end:
+            return out
+        out.append(t)
+
+
+@pytest.mark.parametrize("late_s", [0.3, 1.0])
+@pytest.mark.parametrize("kind", KINDS)
+def test_late_updates_stay_bounded(drive, kind, late_s):
+    """Updates late by up to 1 s (the MHE run-away of loaded stacks): finite and on track.
+
+    Before the fixed grid the MHE integrated a 0.5 s stage with the 5 substeps meant for
+    1/60 s and ran away to a kilometre."""
+    queries = _late_ticks(np.random.default_rng(7), drive.duration - 0.5, late_s)
+    xs, _ = _run(make_estimator(kind, "lh+imu+we"), drive, queries)
+    assert np.all(np.isfinite(xs))
+    error = _position_error(drive, queries, xs)
+    settled = np.asarray(queries) > 2.0
+    assert error[settled].max() < 0.02, error[settled].max()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_stall_and_resume(drive, kind):
+    """No query and no data for 2.5 s, then everything at once: the estimator skips to the
+    newest data (MHE) or predicts across (EKF) and is back on track within a second."""
+    queries = [*np.arange(1 / 60, 3.0, 1 / 60), *np.arange(5.5, 7.5, 1 / 60)]
+    estimator = make_estimator(kind, "lh+imu+we")
+    xs, statuses = _run(estimator, drive, queries)
+    assert np.all(np.isfinite(xs))
+    error = _position_error(drive, queries, xs)
+    after = np.asarray(queries) > 6.5
+    assert error[after].max() < 0.01
+    if kind == "mhe":
+        assert estimator.diagnostics.skipped_s > 1.0
+        assert "degraded" in statuses  # the skip is reported
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_out_of_order_bursts_and_duplicate_stamps(drive, kind):
+    """Data delivered in shuffled 200 ms bursts, part of it after the queries passed it, and
+    every measurement twice: finite, never far off, late data counted."""
+    rng = np.random.default_rng(3)
+    estimator = make_estimator(kind, "lh+imu+we")
+    estimator.reset(0.0, start_state(drive))
+    events = _events(drive)
+    xs, queries, k = [], [], 0
+    for burst_end in np.arange(0.2, drive.duration, 0.2):
+        batch = []
+        while k < len(events) and events[k][0] <= burst_end:
+            batch.append(events[k][2])
+            k += 1
+        batch = [batch[i] for i in rng.permutation(len(batch))]
+        batch += [m for m in batch if isinstance(m, Measurement)]  # duplicates
+        held_back = batch[: len(batch) // 10]  # arrives after the queries below
+        for item in batch[len(batch) // 10 :]:
+            _deliver(estimator, item)
+        for t in np.arange(burst_end - 0.2 + 1 / 60, burst_end + 1e-9, 1 / 60):
+            xs.append(estimator.estimate(t).x)
+            queries.append(t)
+        for item in held_back:
+            _deliver(estimator, item)
+    xs = np.array(xs)
+    assert np.all(np.isfinite(xs))
+    error = _position_error(drive, queries, xs)
+    assert error[np.asarray(queries) > 2.0].max() < 0.02
+    assert estimator.diagnostics.late > 0
+
+
+def test_mhe_output_does_not_depend_on_who_queries(drive):
+    """Extra queries at arbitrary stamps change nothing: the grid, not the callers, sets the
+    nodes; the estimates at the 60 Hz stamps are bit for bit the same."""
+    grid = list(np.arange(1, 240) / 60.0)
+    rng = np.random.default_rng(0)
+    extra = sorted(set(grid) | set(rng.uniform(0.01, 4.0, 300)))
+    plain, _ = _run(make_estimator("mhe", "lh+imu+we", inputs="commanded"), drive, grid)
+    both, _ = _run(make_estimator("mhe", "lh+imu+we", inputs="commanded"), drive, extra)
+    index = [extra.index(t) for t in grid]
+    np.testing.assert_array_equal(plain, both[index])
+
+
+def test_mhe_stage_length_is_the_grid_whatever_the_query_rate(drive):
+    """Queried at 23 Hz, the MHE still discretises at its 60 Hz grid (stages of 1/60 s)."""
+    estimator = make_estimator("mhe", "lh+imu+we", inputs="commanded")
+    queries = np.arange(1, 100) / 23.0
+    xs, _ = _run(estimator, drive, queries)
+    np.testing.assert_allclose(np.diff(estimator._times), 1 / 60, rtol=0, atol=1e-9)
+    assert _position_error(drive, queries, xs)[queries > 2].max() < 0.01
+
+
+# --- 2./3./4. blind start without inputs, status ------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 4])
+@pytest.mark.parametrize("kind", KINDS)
+def test_blind_start_lighthouse_only_without_inputs(kind, seed):
+    """No x0, no inputs, Lighthouse only: lost until the first fixes, then on track within
+    1 s and tracking after (measured: first fix after 67 ms; position error after 1 s at most
+    10-15 mm, yaw 0.15-0.19 rad in sharp steering changes, RMSE 2-3 mm / 35-45 mrad)."""
+    result = standard_drive(seed=seed, duration=10.0)
+    queries = np.arange(1, 600) / 60.0
+    estimator = make_estimator(kind, "lh")
+    xs, statuses = _run(estimator, result, queries, with_inputs=False, x0=None)
+    assert statuses[0] == "lost"
+    first = statuses.index("ok")
+    assert queries[first] < 0.2
+    assert estimator.mode == "estimated"  # auto: no command ever arrived
+    assert np.all(np.isfinite(xs))
+    after = queries >= 1.0
+    position = _position_error(result, queries, xs)[after]
+    yaw = _yaw_error(result, queries, xs)[after]
+    assert position.max() < 0.025 and np.sqrt(np.mean(position**2)) < 0.006
+    assert yaw.max() < 0.3 and np.sqrt(np.mean(yaw**2)) < 0.07
+    assert "lost" not in statuses[first:]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_wide_wrong_prior_is_detected_and_reinitialised(drive, kind):
+    """Started 3 m and 3 rad off with a matching wide prior: the Lighthouse disagrees, the
+    estimate says so (not ``ok``), re-initialises from the Lighthouse and then tracks."""
+    x0 = start_state(drive) + np.array([3.0, -3.0, 3.0, 0.0, 0.0, 0.0])
+    estimator = make_estimator(kind, "lh+imu+we")
+    estimator.reset(0.0, x0, np.diag([9.0, 9.0, 9.0, 1.0, 1.0, 4.0]))
+    queries = np.arange(1, 480) / 60.0
+    events, k, xs, statuses = _events(drive), 0, [], []
+    for t in queries:
+        while k < len(events) and events[k][0] <= t:
+            _deliver(estimator, events[k][2])
+            k += 1
+        estimate = estimator.estimate(t)
+        xs.append(estimate.x)
+        statuses.append(estimate.status)
+    xs = np.array(xs)
+    error = _position_error(drive, queries, xs)
+    wrong = error > 0.5
+    assert all(s != "ok" for s, w in zip(statuses, wrong, strict=True) if w)
+    assert error[queries > 2.0].max() < 0.01
+    assert np.all(np.isfinite(xs))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_status_says_degraded_during_a_lighthouse_blackout(kind):
+    """Dead reckoning during a blackout is ``degraded`` with the reason; ``ok`` again after."""
+    dark = standard_drive(seed=5, duration=6.0, blackouts=[Blackout("lighthouse", 3.0, 1.0)])
+    estimator = make_estimator(kind, "lh+imu+we")
+    estimator.reset(0.0, start_state(dark))
+    events, k = _events(dark), 0
+    found = {}
+    for t in np.arange(1, 360) / 60.0:
+        while k < len(events) and events[k][0] <= t:
+            _deliver(estimator, events[k][2])
+            k += 1
+        estimate = estimator.estimate(t)
+        found[round(t, 3)] = estimate
+    during = found[3.8]
+    assert during.status == "degraded" and "dead reckoning" in during.reason
+    assert found[5.9].status == "ok" and found[5.9].reason == ""
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_estimated_inputs_beat_silent_zero_inputs(drive, kind):
+    """Without commands, the input-free model (inputs as random-walk states) tracks the yaw far
+    better than the commanded model fed nothing (u = 0, the old behaviour)."""
+    queries = np.arange(1, 480) / 60.0
+    rms = {}
+    for mode in ("commanded", "estimated"):
+        xs, _ = _run(make_estimator(kind, "lh+imu+we", inputs=mode), drive, queries, False)
+        rms[mode] = float(np.sqrt(np.mean(_yaw_error(drive, queries, xs)[queries > 2] ** 2)))
+    assert rms["estimated"] < 0.5 * rms["commanded"], rms
+
+
+def test_auto_mode_hands_over_to_the_commanded_model(drive):
+    """``auto`` starts input-free and switches once commands arrive, without a jump."""
+    estimator = make_estimator("mhe", "lh+imu+we")
+    queries = np.arange(1, 300) / 60.0
+    xs, statuses = _run(estimator, drive, queries)
+    assert estimator.mode == "commanded"
+    assert estimator.model.estimated_inputs is False
+    assert _position_error(drive, queries, xs)[queries > 1.0].max() < 0.01
+    assert statuses[-1] == "ok"
+
+
+# --- 6. API for users ---------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_time_offset_corrects_a_sensor_latency(kind):
+    """Lighthouse stamps 25 ms late (stamped on arrival): the per-sensor time offset puts them
+    back where they belong and the position error drops. Queried 30 ms behind the data (as the
+    node's ``lag``), so the EKF has not passed the corrected stamps yet."""
+    suite = SensorSuite(lighthouse=SensorSpec(50.0, (1e-3,) * 4, latency_s=0.025))
+    track, model = load_demo_track(), CarModel()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    result = Simulator(model, suite, seed=1).run(JoystickDriver(track, wheelbase, 1), 6.0, x0)
+    queries = np.arange(1, 360) / 60.0
+    rms = {}
+    for offset in (0.0, 0.025):
+        settings = (EkfSettings if kind == "ekf" else MheSettings)(time_offsets={"lh": offset})
+        estimator = make_estimator(kind, "lh+imu+we", settings=settings)
+        xs, _ = _run(estimator, result, queries, lag=0.03)
+        error = _position_error(result, queries, xs)[queries > 2]
+        rms[offset] = float(np.sqrt(np.mean(error**2)))
+    assert rms[0.025] < 0.6 * rms[0.0], rms
+
+
+def test_settings_are_validated_by_name():
+    with pytest.raises(ValueError, match="process_std: needs 6 values"):
+        EstimatorNoise(process_std=(0.02,) * 7)
+    with pytest.raises(ValueError, match=r"extra_process_std: \['tau'\] are not effect states"):
+        make_estimator(
+            "ekf", "lh", settings=EkfSettings(noise=EstimatorNoise(extra_process_std={"tau": 1.0}))
+        )
+    with pytest.raises(ValueError, match="process_bound: needs 6 values"):
+        MheSettings(process_bound=(0.1,) * 8)
+    with pytest.raises(ValueError, match="time_offsets: 'lidar' is neither"):
+        EkfSettings(time_offsets={"lidar": 0.01})
+    with pytest.raises(TypeError, match="settings: a mhe needs MheSettings"):
+        make_estimator("mhe", "lh", settings=EkfSettings())
+    with pytest.raises(ValueError, match="inputs: must be one of"):
+        make_estimator("ekf", "lh", inputs="maybe")
+
+
+def test_no_lighthouse_and_no_x0_is_refused():
+    estimator = make_estimator("ekf", "imu+we", inputs="commanded")
+    with pytest.raises(ValueError, match="x0: an estimator without Lighthouse"):
+        estimator.reset(0.0)
+
+
+def test_effect_states_get_noise_by_name():
+    """``steering_lag`` adds ``steer_applied``: its process noise is set by name."""
+    noise = EstimatorNoise(extra_process_std={"steer_applied": 0.3})
+    model = CarModel(["steering_lag"])
+    assert noise.process_std_for(model.state_names)[-1] == 0.3
+    assert math.isclose(EstimatorNoise().process_std_for(model.state_names)[-1], 1e-3)
