@@ -4,7 +4,8 @@ Many recordings have no commanded inputs (a car driven by hand, a bag of sensors
 input-free model (``CarModel(estimated_inputs=True)``) estimates the applied steering angle and
 torque as random-walk states from the sensors; with commands, the commanded model is more
 accurate. :class:`InputModeEstimator` holds one estimator of each and starts input-free; at the
-first estimate after the first command it hands over to the commanded one: that one restarts
+first estimate at or after the stamp of the first command it hands over to the commanded one
+(so the switch depends on the data, not on when they arrived): that one restarts
 from the current estimate and covariance, with the command active at that time, and receives
 every queued event after it. The counters carry over. ``mode`` says which one is active.
 """
@@ -83,7 +84,7 @@ class InputModeEstimator(Estimator):
         return self.active.late_before()
 
     def estimate(self, t: float) -> Estimate:
-        if self.mode == "estimated" and self._commands:
+        if self.mode == "estimated" and any(c.stamp <= t for c in self._commands):
             self._hand_over(float(t))
         return self.active.estimate(t)
 
