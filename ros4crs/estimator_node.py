@@ -188,6 +188,8 @@ class EstimatorNode(Node):
         msg.late_measurements = d.late
         msg.ignored_measurements = sum(d.ignored.values()) + self.malformed
         msg.fallbacks = d.fallbacks
+        msg.reinitializations = d.reinitializations
+        msg.skipped_time = float(d.skipped_s)
         msg.sensors = list(self.received)
         msg.received = list(self.received.values())
         self._diagnostics.publish(msg)

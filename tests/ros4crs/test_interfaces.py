@@ -49,6 +49,8 @@ SAMPLES: dict[str, dict[str, object]] = {
         "late_measurements": 2,
         "ignored_measurements": 250,
         "fallbacks": 1,
+        "reinitializations": 2,
+        "skipped_time": 1.25,
         "sensors": ["imu", "wheel_encoders", "lighthouse"],
         "received": [2500, 2498, 0],
     },
