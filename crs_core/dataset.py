@@ -1,16 +1,70 @@
 """Datasets on disk: the layout of the real Chronos recordings, plus what simulation adds.
 
-A dataset folder holds
+In memory, inputs are in model order ``[steer, torque]``; the swap happens here, by name. Every
+file is validated when it is read: a malformed one raises ``ValueError`` (a missing required
+one ``FileNotFoundError``) with a one-line message naming the file and the field.
 
-* ``t.npy`` (N,) stamps, s; ``u.npy`` (2, N) **torque first, steering second** (as recorded);
-  ``y.npy`` (13, N) per :data:`Y_CHANNELS`; ``x.npy`` (6, N) a state trajectory (truth when
-  simulated, the car's on-line estimate in the real runs);
-* ``dataset.yaml`` (optional): source, Lighthouse geometry, sensor rates, and for simulated data
-  the truth parameters, effects and noise settings. Without it the real recordings' geometry is
-  assumed;
-* ``stream.npz`` (optional): the full-rate measurement stream, commanded inputs and truth.
+Dataset folder format (``chronos-dataset/1``): write your own recordings into it
+------------------------------------------------------------------------------------
+All arrays are float ``.npy`` / ``.npz`` written with plain numpy (``np.save``,
+``np.savez``); every stamp is in seconds on one clock, any origin (the real recordings use
+Unix time). SI units, rad; REP 103 frames (world x-y plane, z up; body x forward, y left).
 
-In memory, inputs are in model order ``[steer, torque]``; the swap happens here, by name.
+=================  =========  ===================================================================
+file               shape      content
+=================  =========  ===================================================================
+``t.npy``          (N,)       sample stamps, s, strictly increasing. The time base of ``y``,
+                              ``u``, ``x`` and of offline estimates (``crs estimate``).
+``y.npy``          (13, N)    samples per :data:`Y_CHANNELS`: Lighthouse station 0 plane 1
+                              and plane 2 sweep angles of photodiodes 0..3 (rad), wheel speeds
+                              fl, fr, rl, rr (rad/s), yaw rate (rad/s). **NaN = channel not
+                              available** at that sample (a sensor you do not have: all NaN).
+``u.npy``          (2, N)     optional commanded inputs, **torque first** (normalised, -1..1),
+                              steering second (rad), as in the real recordings. Without it the
+                              dataset has no inputs (``Dataset.u is None``): estimators then
+                              estimate them (``inputs="estimated"``).
+``x.npy``          (6, N)     optional reference states ``[x, y, yaw, vx, vy, omega]`` (m, m,
+                              rad, m/s, m/s, rad/s; world pose, body velocities): simulation
+                              truth, or a recording's own on-line estimate (not ground truth).
+``dataset.yaml``   mapping    optional metadata and the Lighthouse geometry (below). Without
+                              it, or without its ``geometry`` block, the geometry of the real
+                              recordings is assumed.
+``stream.npz``     archive    optional full-rate measurement stream (below); when present,
+                              estimators use it instead of the samples in ``y.npy``.
+=================  =========  ===================================================================
+
+``stream.npz`` holds, per sensor, two arrays named after the stream sensor name
+(:mod:`crs_core.measurements`) with ``/`` replaced by ``__``; any sensor may be absent:
+
+* ``meas:<key>:t`` (n,) stamps, s, and ``meas:<key>:v`` (n, k) values, with ``<key>`` one of
+  ``imu`` (k = 3: a_x, a_y in m/s^2, body; yaw rate in rad/s), ``gyro`` (k = 1, rad/s),
+  ``wheel_encoders`` (k = 4: fl, fr, rl, rr in rad/s), ``pose`` (k = 3: x, y in m, yaw in rad;
+  motion capture) and ``lighthouse__<station>__<plane>`` (k = 4: sweep angles of photodiodes
+  0..3 in rad, plane 1 or 2, station < the number of stations in the geometry). A row with NaN
+  is a missing sample and is skipped; inf is an error. Rows need not be sorted.
+* ``inputs:t`` (n,) and ``inputs:u`` (n, 2): commanded inputs in **model order, steering
+  first** (rad, then normalised torque), each held from its stamp on. Optional.
+* ``truth:t`` (n,) and ``truth:x`` (n, 6): dense simulation truth. Optional.
+
+Any other array name is an error (it catches a misspelt key). Reading and writing:
+:mod:`crs_core.stream_file`.
+
+``dataset.yaml`` (all keys optional)::
+
+    format: chronos-dataset/1
+    source: my-lab-recording   # "simulated" marks x.npy as simulation truth
+    geometry:
+      base_stations:           # one entry per Lighthouse base station, index = list position
+        - rotation: [[-0.0017, 0.9995, 0.0319],    # world-from-station rotation, rows
+                     [-0.3676, 0.0290, -0.9295],
+                     [-0.9300, -0.0133, 0.3674]]
+          position: [0.189, 0.138, 1.743]          # station position, world, m
+          dt1: -0.0509                              # factory light-plane tilt offsets, rad
+          dt2: 0.0464
+      photodiodes: [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
+                               # photodiodes 0..3 in the car body frame (x, y), m; z = 0
+
+Any other keys (rates, noise settings, notes) are kept in :attr:`Dataset.meta`.
 """
 
 from __future__ import annotations
@@ -31,6 +85,7 @@ from crs_core.model.chronos import (
 )
 from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES, BaseStation
 from crs_core.parameters import ParameterSet
+from crs_core.stream_file import read_stream, write_stream
 
 #: Row names of ``y.npy``.
 Y_CHANNELS = (
@@ -80,19 +135,56 @@ class Geometry:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Geometry:
+        """The ``geometry`` block of ``dataset.yaml`` (module docstring); ``ValueError`` naming
+        the field when it is malformed."""
         try:
-            stations = tuple(
-                BaseStation.from_rotation(
-                    np.array(s["rotation"], dtype=float), tuple(s["position"]), s["dt1"], s["dt2"]
-                )
-                for s in data["base_stations"]
-            )
-            diodes = tuple((float(x), float(y)) for x, y in data["photodiodes"])
-        except (KeyError, TypeError, ValueError) as error:
-            raise ValueError(f"geometry: malformed ({error!r})") from None
-        if len(diodes) != 4:
-            raise ValueError("geometry.photodiodes: need exactly 4 (x, y) pairs")
-        return cls(stations, diodes)
+            stations = []
+            for i, entry in enumerate(data["base_stations"]):
+                name = f"geometry.base_stations[{i}]"
+                if not isinstance(entry, Mapping):
+                    raise _FieldError(f"{name}: expected a mapping, got {entry!r}")
+                missing = [k for k in ("rotation", "position", "dt1", "dt2") if k not in entry]
+                if missing:
+                    raise _FieldError(
+                        f"geometry: malformed ({name[9:]} lacks {', '.join(missing)})"
+                    )
+                rotation = _finite_array(f"{name}.rotation", entry["rotation"], (3, 3))
+                position = _finite_array(f"{name}.position", entry["position"], (3,))
+                dt = [_finite_array(f"{name}.{k}", entry[k], ()) for k in ("dt1", "dt2")]
+                try:
+                    station = BaseStation.from_rotation(
+                        rotation, tuple(position), float(dt[0]), float(dt[1])
+                    )
+                except ValueError as error:
+                    raise _FieldError(f"{name}.rotation: {error}") from None
+                stations.append(station)
+            diodes = _finite_array("geometry.photodiodes", data["photodiodes"], (4, 2))
+        except _FieldError as error:
+            raise ValueError(str(error)) from None
+        except KeyError as error:
+            raise ValueError(f"geometry: malformed (missing {error})") from None
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"geometry: malformed ({error})") from None
+        if not stations:
+            raise ValueError("geometry.base_stations: needs at least one base station")
+        return cls(tuple(stations), tuple((float(x), float(y)) for x, y in diodes))
+
+
+class _FieldError(ValueError):
+    """A malformed field whose message already names it."""
+
+
+def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise _FieldError(f"{name}: expected numbers, got {value!r}") from None
+    if array.shape != shape:
+        what = "a number" if not shape else f"shape {shape}"
+        raise _FieldError(f"{name}: expected {what}, got {value!r}")
+    if not np.all(np.isfinite(array)):
+        raise _FieldError(f"{name}: contains non-finite values")
+    return array
 
 
 @dataclass
@@ -102,7 +194,8 @@ class Dataset:
     Attributes
     ----------
     t : (N,) stamps, s.
-    u : (N, 2) inputs ``[steer (rad), torque (-)]`` (model order).
+    u : (N, 2) or None: commanded inputs ``[steer (rad), torque (-)]`` (model order); None when
+        the recording has none (no ``u.npy``).
     y : (N, 13) measurements per :data:`Y_CHANNELS`.
     x : (N, 6) or None: state trajectory (truth if simulated).
     geometry : Lighthouse geometry.
@@ -112,7 +205,7 @@ class Dataset:
     """
 
     t: np.ndarray
-    u: np.ndarray
+    u: np.ndarray | None
     y: np.ndarray
     x: np.ndarray | None = None
     geometry: Geometry = field(default_factory=Geometry)
@@ -123,9 +216,12 @@ class Dataset:
     truth_x: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.t, np.ndarray) or self.t.ndim != 1:
+            raise ValueError("t: expected a 1-D array of stamps")
         n = len(self.t)
         _check_array("t", self.t, (n,))
-        _check_array("u", self.u, (n, 2))
+        if self.u is not None:
+            _check_array("u", self.u, (n, 2))
         _check_array("y", self.y, (n, len(Y_CHANNELS)), allow_nan=True)
         if self.x is not None:
             _check_array("x", self.x, (n, self.x.shape[1] if self.x.ndim == 2 else -1))
@@ -138,30 +234,43 @@ class Dataset:
         """Read a dataset folder (real recording or simulated)."""
         folder = Path(folder)
         if not folder.is_dir():
-            raise FileNotFoundError(f"dataset folder {folder} does not exist")
-        t = np.load(folder / "t.npy")
-        u_recorded = np.load(folder / "u.npy")
-        y = np.load(folder / "y.npy")
-        if u_recorded.ndim != 2 or u_recorded.shape[0] != 2:
+            problem = "is not a folder" if folder.exists() else "does not exist"
+            raise FileNotFoundError(f"dataset folder {folder} {problem}")
+        t = _load_npy(folder, "t.npy", required=True)
+        y = _load_npy(folder, "y.npy", required=True)
+        u_recorded = _load_npy(folder, "u.npy")
+        x_recorded = _load_npy(folder, "x.npy")
+        if t.ndim != 1:
+            raise ValueError(f"t.npy: expected shape (N,), got {t.shape}")
+        if u_recorded is not None and (u_recorded.ndim != 2 or u_recorded.shape[0] != 2):
             raise ValueError(f"u.npy: expected shape (2, N), got {u_recorded.shape}")
         if y.ndim != 2 or y.shape[0] != len(Y_CHANNELS):
             raise ValueError(f"y.npy: expected shape ({len(Y_CHANNELS)}, N), got {y.shape}")
-        x = np.load(folder / "x.npy").T if (folder / "x.npy").exists() else None
+        if x_recorded is not None and (x_recorded.ndim != 2 or x_recorded.shape[0] != 6):
+            raise ValueError(f"x.npy: expected shape (6, N), got {x_recorded.shape}")
+        x = x_recorded.T.copy() if x_recorded is not None else None
+        u = u_recorded[::-1].T.copy() if u_recorded is not None else None
         meta: dict[str, Any] = {"source": "real"}
         geometry = Geometry()
         if (folder / "dataset.yaml").exists():
-            meta = yaml.safe_load((folder / "dataset.yaml").read_text()) or {}
+            try:
+                meta = yaml.safe_load((folder / "dataset.yaml").read_text()) or {}
+            except yaml.YAMLError as error:
+                problem = str(error).splitlines()[0]
+                raise ValueError(f"dataset.yaml: not valid YAML ({problem})") from None
             if not isinstance(meta, dict):
                 raise ValueError("dataset.yaml: expected a mapping")
             if meta.get("format", FORMAT) != FORMAT:
                 raise ValueError(f"dataset.yaml: format {meta['format']!r}, expected {FORMAT!r}")
             if "geometry" in meta:
+                if not isinstance(meta["geometry"], Mapping):
+                    raise ValueError("dataset.yaml: geometry must be a mapping")
                 geometry = Geometry.from_dict(meta.pop("geometry"))
-        dataset = cls(
-            t=t, u=u_recorded[::-1].T.copy(), y=y.T.copy(), x=x, geometry=geometry, meta=meta
-        )
+        dataset = cls(t=t, u=u, y=y.T.copy(), x=x, geometry=geometry, meta=meta)
         if (folder / "stream.npz").exists():
-            _read_stream(dataset, folder / "stream.npz")
+            stream = read_stream(folder / "stream.npz", len(geometry.base_stations))
+            dataset.measurements, dataset.inputs = stream.measurements, stream.inputs
+            dataset.truth_t, dataset.truth_x = stream.truth_t, stream.truth_x
         return dataset
 
     def save(self, folder: str | Path) -> Path:
@@ -169,9 +278,14 @@ class Dataset:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         np.save(folder / "t.npy", self.t)
-        np.save(folder / "u.npy", self.u[:, ::-1].T.copy())  # torque first on disk
+        if self.u is not None:
+            np.save(folder / "u.npy", self.u[:, ::-1].T.copy())  # torque first on disk
         np.save(folder / "y.npy", self.y.T.copy())
-        optional = {"x.npy": self.x is not None, "stream.npz": bool(self.measurements)}
+        optional = {
+            "u.npy": self.u is not None,
+            "x.npy": self.x is not None,
+            "stream.npz": bool(self.measurements or self.inputs),
+        }
         for name, present in optional.items():
             if not present:
                 (folder / name).unlink(missing_ok=True)  # no stale file from an earlier save
@@ -180,8 +294,10 @@ class Dataset:
         meta = {"format": FORMAT, **self.meta, "geometry": self.geometry.to_dict()}
         meta["y_channels"] = list(Y_CHANNELS)
         (folder / "dataset.yaml").write_text(yaml.safe_dump(_plain(meta), sort_keys=False))
-        if self.measurements:
-            _write_stream(self, folder / "stream.npz")
+        if optional["stream.npz"]:
+            write_stream(
+                folder / "stream.npz", self.measurements, self.inputs, self.truth_t, self.truth_x
+            )
         return folder
 
     # --- views --------------------------------------------------------------------------
@@ -228,41 +344,18 @@ def _plain(value: Any) -> Any:
     return value
 
 
-def _write_stream(dataset: Dataset, path: Path) -> None:
-    arrays: dict[str, np.ndarray] = {}
-    by_sensor: dict[str, list[Measurement]] = {}
-    for m in dataset.measurements or []:
-        by_sensor.setdefault(m.sensor, []).append(m)
-    for sensor, items in by_sensor.items():
-        key = sensor.replace("/", "__")
-        arrays[f"meas:{key}:t"] = np.array([m.stamp for m in items])
-        arrays[f"meas:{key}:v"] = np.stack([m.values for m in items])
-    if dataset.inputs:
-        arrays["inputs:t"] = np.array([s.stamp for s in dataset.inputs])
-        arrays["inputs:u"] = np.stack([s.u for s in dataset.inputs])
-    if dataset.truth_t is not None and dataset.truth_x is not None:
-        arrays["truth:t"] = dataset.truth_t
-        arrays["truth:x"] = dataset.truth_x
-    np.savez_compressed(path, **arrays)
-
-
-def _read_stream(dataset: Dataset, path: Path) -> None:
-    with np.load(path) as data:
-        measurements = []
-        for key in data.files:
-            kind, *rest = key.split(":")
-            if kind == "meas" and rest[1] == "t":
-                sensor = rest[0].replace("__", "/")
-                values = data[f"meas:{rest[0]}:v"]
-                measurements.extend(
-                    Measurement(float(s), sensor, v) for s, v in zip(data[key], values, strict=True)
-                )
-        measurements.sort(key=lambda m: (m.stamp, m.sensor))
-        dataset.measurements = measurements
-        if "inputs:t" in data.files:
-            dataset.inputs = [
-                InputSample(float(s), u)
-                for s, u in zip(data["inputs:t"], data["inputs:u"], strict=True)
-            ]
-        if "truth:t" in data.files:
-            dataset.truth_t, dataset.truth_x = data["truth:t"], data["truth:x"]
+def _load_npy(folder: Path, name: str, required: bool = False) -> np.ndarray | None:
+    """A numeric array from ``folder/name`` as float; None if absent and not required."""
+    path = folder / name
+    if not path.exists():
+        if required:
+            raise FileNotFoundError(f"{name}: missing in dataset folder {folder}")
+        return None
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        problem = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise ValueError(f"{name}: not a readable .npy array ({problem})") from None
+    if not isinstance(array, np.ndarray) or array.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: expected a numeric array")
+    return array.astype(float, copy=False)

@@ -1,7 +1,8 @@
 """The ``crs`` command line.
 
-``crs sim`` / ``crs demo`` (simulator, no ROS), ``crs consistency`` (sensor models vs the real
-recordings), ``crs bench model|estimation`` (JSON benchmarks), ``crs launch sim`` (the ROS 2
+``crs sim`` / ``crs demo`` (simulator, no ROS), ``crs estimate`` (EKF or MHE over a recorded
+dataset), ``crs consistency`` (sensor models vs the real recordings), ``crs bench
+model|estimation`` (JSON benchmarks), ``crs launch sim`` (the ROS 2
 stack in simulation) and ``crs ros topics|echo|hz`` (small stand-ins for the ``ros2`` CLI).
 ROS is imported only by the commands that need it.
 """
@@ -10,16 +11,26 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+import yaml
+from tqdm import tqdm
 
 from crs_core.analysis.consistency import channel_errors
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.dataset import Dataset
+from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
+from crs_core.estimation.offline import (
+    dataset_model,
+    estimate_dataset,
+    initial_state,
+    reference_comparison,
+)
 from crs_core.model import EFFECTS, CarModel
 from crs_core.track import Track, load_demo_track
 from sim.report import write_report
@@ -100,6 +111,105 @@ def simulate(args: argparse.Namespace) -> Path:
         print(f"report:  {report}/summary.txt, path.png, sensors.png")
         print((report / "summary.txt").read_text(), end="")
     return out
+
+
+def parse_x0(text: str | None) -> np.ndarray | None:
+    """``--x0 x,y,yaw`` or ``x,y,yaw,vx,vy,omega`` (SI units); ValueError naming ``--x0``."""
+    if text is None:
+        return None
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+        initial_state(values)
+    except ValueError:
+        raise ValueError(
+            f"--x0: {text!r} must be 3 (x,y,yaw) or 6 (x,y,yaw,vx,vy,omega) finite numbers "
+            "separated by commas"
+        ) from None
+    return values
+
+
+def parse_rate(text: str | None) -> float | None:
+    """``--rate HZ``: a finite number > 0; ValueError naming ``--rate``."""
+    if text is None:
+        return None
+    try:
+        rate = float(text)
+    except ValueError:
+        rate = math.nan
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"--rate: must be a finite number of Hz > 0, got {text!r}")
+    return rate
+
+
+def writable_folder(path: Path) -> Path:
+    """Create ``path`` if needed and check that files can be written into it."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / ".crs_write_test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as error:
+        raise ValueError(f"--out: cannot write to {path} ({error.strerror or error})") from None
+    return path
+
+
+def estimate(args: argparse.Namespace) -> None:
+    """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
+    from launch_scripts.estimate_report import format_summary, write_figure
+
+    x0 = parse_x0(args.x0)
+    rate = parse_rate(args.rate)
+    if args.sensors != "auto":
+        try:
+            parse_sensor_set(args.sensors)
+        except ValueError as error:
+            raise ValueError(f"--sensors: {str(error).partition(': ')[2]}") from None
+    dataset = Dataset.load(args.dataset)
+    try:
+        model = dataset_model(dataset, args.params)
+    except yaml.YAMLError as error:
+        problem = str(error).splitlines()[0]
+        raise ValueError(f"--params: {args.params} is not valid YAML ({problem})") from None
+    except KeyError as error:
+        raise ValueError(f"--params: {error.args[0]}") from None
+    except OSError as error:
+        raise ValueError(f"--params: cannot read {args.params} ({error.strerror})") from None
+    out = writable_folder(Path(args.out))
+    name = Path(args.dataset).resolve().name
+    with tqdm(total=1000, desc=f"estimate {name}", file=sys.stderr, disable=None) as bar:
+        try:
+            result = estimate_dataset(
+                dataset,
+                args.estimator,
+                args.sensors,
+                model=model,
+                inputs=args.inputs,
+                x0=x0,
+                rate_hz=rate,
+                progress=lambda fraction: bar.update(round(1000 * fraction) - bar.n),
+            )
+        except ValueError as error:  # name the option, not the argument of the function
+            field, _, message = str(error).partition(": ")
+            options = {"x0": "--x0", "rate_hz": "--rate", "sensors": "--sensors"}
+            raise ValueError(f"{options.get(field, field)}: {message}") from None
+    comparison = reference_comparison(result, dataset)
+    result.save_npz(out / "estimates.npz")
+    report = {
+        "command": "crs " + " ".join(sys.argv[1:]),
+        "dataset": str(Path(args.dataset).resolve()),
+        "params": str(args.params) if args.params else None,
+        **result.diagnostics,
+        "reference": comparison,
+    }
+    (out / "diagnostics.json").write_text(json.dumps(report, indent=2) + "\n")
+    duration = float(result.t[-1] - result.t[0])
+    title = (
+        f"{name}: {args.estimator.upper()} on {result.diagnostics['sensors']}, inputs "
+        f"{args.inputs}, {'blind start' if x0 is None else 'given x0'}"
+    )
+    write_figure(result, dataset, out / "estimate.png", title)
+    print(format_summary(name, result.diagnostics, comparison, duration))
+    print(f"wrote {out / 'estimates.npz'}, diagnostics.json, estimate.png")
 
 
 def consistency(args: argparse.Namespace) -> None:
@@ -193,6 +303,40 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument("--track", type=Path, help="track YAML (CRS format)")
         sub.add_argument("--report", action=argparse.BooleanOptionalAction, default=name == "demo")
         sub.set_defaults(handler=simulate)
+    sub = commands.add_parser(
+        "estimate",
+        help="run an EKF or MHE over a recorded dataset (offline)",
+        description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) and "
+        "write DIR/estimates.npz (t, x (6, N), status 0 ok / 1 degraded / 2 lost, "
+        "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
+    )
+    sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("--estimator", choices=KINDS, required=True)
+    sub.add_argument(
+        "--sensors",
+        default="auto",
+        help="sensor groups joined by '+' from lh, imu, gyro, we, pose (default auto: the "
+        "groups among lh, imu, gyro, we the dataset has)",
+    )
+    sub.add_argument(
+        "--inputs",
+        choices=INPUT_MODES,
+        default="auto",
+        help="commanded inputs: auto (use them if recorded), commanded (required), estimated "
+        "(withheld; steering and torque estimated)",
+    )
+    sub.add_argument(
+        "--x0",
+        metavar="x,y,yaw[,vx,vy,omega]",
+        help="initial state at the first stamp (m, rad, m/s, rad/s); default: blind start "
+        "from the Lighthouse",
+    )
+    sub.add_argument(
+        "--rate", metavar="HZ", help="MHE grid rate, Hz (default 60; the EKF has no grid)"
+    )
+    sub.add_argument("--params", type=Path, help="parameter YAML applied to the model")
+    sub.add_argument("--out", type=Path, required=True, help="output folder")
+    sub.set_defaults(handler=estimate)
     sub = commands.add_parser("consistency", help="sensor models vs. the real recordings")
     sub.add_argument("--data", type=Path, action="append", help="dataset folder(s)")
     sub.add_argument("--out", type=Path, help="JSON file")

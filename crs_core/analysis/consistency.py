@@ -21,6 +21,8 @@ def predicted_samples(dataset: Dataset, model: CarModel, params: ParameterSet | 
     """Model prediction of ``y`` (N, 13) from the dataset's states and commanded inputs."""
     if dataset.x is None:
         raise ValueError("dataset: has no state trajectory x.npy to replay")
+    if dataset.u is None:  # the front wheel speeds depend on the steering angle
+        raise ValueError("dataset: has no inputs u.npy; the sensor-model replay needs them")
     params = params or model.parameters.updated(
         {n: v.value for n, v in dataset.geometry.parameters().items() if n in model.parameters}
     )

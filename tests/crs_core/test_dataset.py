@@ -318,3 +318,189 @@ def test_stream_order_of_equal_stamps_survives_round_trip(tmp_path: Path):
     saved_order = [(m.stamp, m.sensor) for m in data.measurements]
     assert len(set(saved_order)) > len({stamp for stamp, _ in saved_order})  # ties exist
     assert [(m.stamp, m.sensor) for m in loaded.measurements] == saved_order
+
+
+# --- recordings without inputs, and user-written streams ------------------------------------------
+def test_dataset_without_inputs_round_trips(saved: Path, tmp_path: Path):
+    """u=None saves no u.npy (removing a stale one) and loads back as u=None."""
+    folder = Path(shutil.copytree(saved, tmp_path / "no_u"))
+    old = Dataset.load(folder)
+    Dataset(t=old.t, u=None, y=old.y, x=old.x).save(folder)
+    assert not (folder / "u.npy").exists()
+    loaded = Dataset.load(folder)
+    assert loaded.u is None and loaded.inputs is None
+    np.testing.assert_array_equal(loaded.y, old.y)
+    np.testing.assert_array_equal(loaded.x, old.x)
+
+
+def test_recording_with_only_t_and_y_loads(saved: Path, tmp_path: Path):
+    """A folder with just t.npy and y.npy (no u, x, yaml, stream) is a dataset without inputs."""
+    folder = tmp_path / "bare"
+    folder.mkdir()
+    for name in ("t.npy", "y.npy"):
+        shutil.copy(saved / name, folder / name)
+    data = Dataset.load(folder)
+    assert data.u is None and data.x is None and data.measurements is None
+    assert data.geometry == Geometry() and data.meta == {"source": "real"}
+    assert len(data.sample_stream()) == 4 * data.t.size - 1  # the one NaN yaw rate skipped
+
+
+def test_missing_required_file_names_it(saved: Path, tmp_path: Path):
+    """Without t.npy the error names t.npy; a folder that is a file says so."""
+    folder = tmp_path / "no_t"
+    folder.mkdir()
+    shutil.copy(saved / "y.npy", folder / "y.npy")
+    with pytest.raises(FileNotFoundError, match=r"^t\.npy: missing in dataset folder"):
+        Dataset.load(folder)
+    (tmp_path / "file").write_text("")
+    with pytest.raises(FileNotFoundError, match=r"is not a folder$"):
+        Dataset.load(tmp_path / "file")
+
+
+def test_corrupt_npy_is_a_one_line_error(corruptible: Path):
+    """A u.npy that is not an .npy array is rejected naming u.npy."""
+    (corruptible / "u.npy").write_text("torque,steer\n0.1,0.2\n")
+    with pytest.raises(ValueError, match=r"^u\.npy: not a readable \.npy array"):
+        Dataset.load(corruptible)
+
+
+def test_consistency_replay_needs_inputs(saved: Path):
+    """The sensor-model replay refuses a dataset without inputs (front wheels need the steer)."""
+    from crs_core.analysis.consistency import predicted_samples
+
+    data = Dataset.load(saved)
+    data.u = None
+    with pytest.raises(ValueError, match=r"^dataset: has no inputs u\.npy"):
+        predicted_samples(data, CarModel())
+
+
+def write_user_recording(folder: Path) -> dict:
+    """A recording written the way a user would, with numpy and PyYAML only (no project code).
+
+    Two base stations; station 1 plane 2 and a gyro are recorded, one wheel-encoder row is NaN
+    (a missing sample), the stamps are Unix-like and the stream arrays unsorted.
+    """
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    t = 1.7e9 + np.arange(25) * 0.02
+    np.save(folder / "t.npy", t)
+    np.save(folder / "y.npy", np.full((13, t.size), np.nan))
+    stations = [
+        {"rotation": np.eye(3).tolist(), "position": [0.0, 0.0, 2.0], "dt1": 0.0, "dt2": 0.0},
+        {
+            "rotation": [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+            "position": [1.0, -0.5, 2.2],
+            "dt1": -0.01,
+            "dt2": 0.02,
+        },
+    ]
+    diodes = [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
+    meta = {"source": "my-lab", "geometry": {"base_stations": stations, "photodiodes": diodes}}
+    (folder / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    lh_t = t[::-1] + 0.001
+    arrays = {
+        "meas:lighthouse__1__2:t": lh_t,
+        "meas:lighthouse__1__2:v": rng.normal(0.0, 0.3, (t.size, 4)),
+        "meas:gyro:t": np.arange(100) * 0.004 + 1.7e9,
+        "meas:gyro:v": rng.normal(0.0, 1.0, (100, 1)),
+        "meas:wheel_encoders:t": np.arange(100) * 0.004 + 1.7e9,
+        "meas:wheel_encoders:v": rng.normal(50.0, 5.0, (100, 4)),
+        "inputs:t": t[::2],
+        "inputs:u": np.column_stack([np.full(13, 0.2), np.full(13, 0.5)]),  # steer, torque
+    }
+    arrays["meas:wheel_encoders:v"][7, 2] = np.nan
+    np.savez(folder / "stream.npz", **arrays)
+    return arrays
+
+
+def test_user_written_stream_is_read_back(tmp_path: Path):
+    """A stream.npz written with plain numpy loads sensor by sensor; save/load keeps it."""
+    arrays = write_user_recording(tmp_path / "mine")
+    data = Dataset.load(tmp_path / "mine")
+    assert data.u is None and data.x is None and data.meta == {"source": "my-lab"}
+    assert len(data.geometry.base_stations) == 2
+    assert data.geometry.base_stations[1].position == (1.0, -0.5, 2.2)
+    np.testing.assert_allclose(
+        data.geometry.base_stations[1].rotation[0], [0.0, -1.0, 0.0], atol=1e-12
+    )
+    assert data.measurements is not None
+    stamps = [m.stamp for m in data.measurements]
+    assert stamps == sorted(stamps)
+    by_sensor: dict[str, list] = {}
+    for m in data.measurements:
+        by_sensor.setdefault(m.sensor, []).append(m)
+    assert {s: len(v) for s, v in by_sensor.items()} == {
+        "lighthouse/1/2": 25,
+        "gyro": 100,
+        "wheel_encoders": 99,  # the NaN row is a missing sample
+    }
+    lh = by_sensor["lighthouse/1/2"]
+    np.testing.assert_array_equal(lh[0].values, arrays["meas:lighthouse__1__2:v"][-1])
+    assert lh[0].stamp == arrays["meas:lighthouse__1__2:t"][-1]
+    assert data.inputs is not None and len(data.inputs) == 13
+    np.testing.assert_array_equal(data.inputs[0].u, [0.2, 0.5])  # steer first in the stream
+
+    again = Dataset.load(data.save(tmp_path / "copy"))
+    assert again.u is None and not (tmp_path / "copy" / "u.npy").exists()
+    assert [(m.stamp, m.sensor) for m in again.measurements] == [
+        (m.stamp, m.sensor) for m in data.measurements
+    ]
+    for got, want in zip(again.measurements, data.measurements, strict=True):
+        np.testing.assert_array_equal(got.values, want.values)
+    assert [s.stamp for s in again.inputs] == [s.stamp for s in data.inputs]
+    assert again.geometry.base_stations[1].position == (1.0, -0.5, 2.2)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"meas:sonar:t": np.zeros(2), "meas:sonar:v": np.zeros((2, 1))}, "unknown sensor 'sonar'"),
+        ({"meas:gyro:v": np.zeros((100, 2))}, r"meas:gyro:v expected shape \(100, 1\)"),
+        ({"meas:gyro:t": np.zeros((100, 1))}, "meas:gyro:t must be a 1-D numeric array"),
+        (
+            {"meas:lighthouse__2__1:t": np.zeros(1), "meas:lighthouse__2__1:v": np.zeros((1, 4))},
+            "is base station 2, but the geometry has 2",
+        ),
+        ({"meas:imu:t": np.zeros(3)}, "meas:imu:t has no values meas:imu:v"),
+        ({"meas:imu:v": np.zeros((3, 3))}, "meas:imu:v has no stamps meas:imu:t"),
+        ({"notes": np.zeros(1)}, "unknown array 'notes'"),
+        ({"meas:gyro:v": np.full((100, 1), np.inf)}, "meas:gyro:v contains inf"),
+        ({"inputs:u": np.zeros((13, 3))}, r"inputs:u expected shape \(13, 2\)"),
+        ({"inputs:u": None}, "inputs:t and inputs:u must come together"),
+    ],
+)
+def test_malformed_stream_is_rejected_naming_the_array(tmp_path: Path, change: dict, message):
+    """Every malformed part of a user-written stream.npz is a one-line error naming it."""
+    arrays = write_user_recording(tmp_path / "bad")
+    for key, value in change.items():
+        if value is None:
+            del arrays[key]
+        else:
+            arrays[key] = value
+    np.savez(tmp_path / "bad" / "stream.npz", **arrays)
+    with pytest.raises(ValueError, match=rf"^stream\.npz: .*{message}") as excinfo:
+        Dataset.load(tmp_path / "bad")
+    assert "\n" not in str(excinfo.value)
+
+
+def test_unreadable_stream_is_a_one_line_error(corruptible: Path):
+    """A stream.npz that is not an archive is rejected naming stream.npz."""
+    (corruptible / "stream.npz").write_bytes(b"not a zip file")
+    with pytest.raises(ValueError, match=r"^stream\.npz: not a readable \.npz archive"):
+        Dataset.load(corruptible)
+
+
+def test_geometry_fields_are_validated_by_name(corruptible: Path):
+    """A base station position of two numbers is rejected naming the field."""
+    meta = yaml.safe_load((corruptible / "dataset.yaml").read_text())
+    meta["geometry"]["base_stations"][0]["position"] = [0.1, 0.2]
+    (corruptible / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(ValueError, match=r"^geometry\.base_stations\[0\]\.position: expected"):
+        Dataset.load(corruptible)
+
+
+def test_x_without_six_rows_is_rejected(corruptible: Path):
+    """An x.npy of poses only (3 rows) is rejected naming x.npy and the expected shape."""
+    np.save(corruptible / "x.npy", np.load(corruptible / "x.npy")[:3])
+    with pytest.raises(ValueError, match=r"^x\.npy: expected shape \(6, N\), got \(3, "):
+        Dataset.load(corruptible)

@@ -1,0 +1,347 @@
+"""Offline estimation: run an EKF or MHE over a recorded dataset (``crs estimate``, notebooks).
+
+:func:`estimate_dataset` replays a :class:`~crs_core.dataset.Dataset` through an estimator as
+it would have arrived live, and queries the estimate at every sample stamp ``dataset.t[k]``
+after delivering every measurement and input stamped up to it (in stamp order, inputs first at
+equal stamps). The result is on the dataset's own time base, so it lines up sample by sample
+with ``y``, ``u`` and the reference ``x`` of the dataset.
+
+Data used: the full-rate stream (``stream.npz``) when the dataset has one, else the 13-channel
+samples of ``y.npy`` (:meth:`~crs_core.dataset.Dataset.sample_stream`; the yaw rate is then the
+``gyro`` sensor). Commanded inputs: those of the stream, else ``u.npy``; none with
+``inputs="estimated"`` or when the recording has none (the input-free model then estimates the
+applied steering and torque).
+
+Start: blind by default (``x0=None``; the estimate is ``lost`` until the Lighthouse gives a
+fix), from a pose ``(x, y, yaw)`` at rest with the loose standard deviations
+:data:`POSE_X0_STD`, or from a full state. The start time is the first stamp of the data.
+
+Units and frames everywhere: SI, rad; world pose ``x, y, yaw`` (REP 103, yaw counter-clockwise
+from the world x axis), body velocities ``vx`` (forward), ``vy`` (left), yaw rate ``omega``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crs_core.analysis.metrics import STATE_NAMES, state_rmse
+from crs_core.dataset import Dataset
+from crs_core.estimation.base import (
+    SENSOR_GROUPS,
+    Estimator,
+    EstimatorSettings,
+    parse_sensor_set,
+    sensor_group,
+)
+from crs_core.estimation.factory import KINDS, make_estimator
+from crs_core.estimation.mhe import MheSettings
+from crs_core.measurements import InputSample, Measurement
+from crs_core.model import CarModel
+
+#: Integer codes of the status words in ``estimates.npz``.
+STATUS_CODES = {"ok": 0, "degraded": 1, "lost": 2}
+#: Initial standard deviation of ``[x, y, yaw, vx, vy, omega]`` (m, m, rad, m/s, m/s, rad/s)
+#: when the start is a pose only: the pose roughly known, the car assumed at rest but possibly
+#: moving at up to ~2 m/s.
+POSE_X0_STD = (0.1, 0.1, 0.2, 2.0, 0.5, 3.0)
+#: Sensor groups ``sensors="auto"`` may pick (motion-capture ``pose`` only when asked for: it is
+#: usually the reference, not a sensor).
+AUTO_SENSOR_GROUPS = ("lh", "imu", "gyro", "we")
+#: Reference comparisons also report the RMSE from this long after the first fix on, s.
+SETTLING_S = 2.0
+
+
+def dataset_model(dataset: Dataset, parameters_yaml: str | Path | None = None) -> CarModel:
+    """The Chronos model with the dataset's Lighthouse geometry (stations, photodiodes).
+
+    ``parameters_yaml`` (a parameter file, :meth:`~crs_core.parameters.ParameterSet.
+    updated_from_yaml`) is applied last, so it may also override the geometry.
+    """
+    n = len(dataset.geometry.base_stations)
+    geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
+    parameters = CarModel(n_base_stations=n).parameters.updated(geometry)
+    if parameters_yaml is not None:
+        parameters = parameters.updated_from_yaml(parameters_yaml)
+    return CarModel(n_base_stations=n, parameters=parameters)
+
+
+def dataset_stream(dataset: Dataset) -> tuple[list[Measurement], list[InputSample], str]:
+    """Measurements and commanded inputs of a dataset, and where they came from (a phrase)."""
+    if dataset.measurements:
+        measurements, source = dataset.measurements, "stream.npz"
+    else:
+        measurements, source = dataset.sample_stream(), "y.npy samples"
+    if dataset.inputs:
+        inputs, source = list(dataset.inputs), source + ", inputs from stream.npz"
+    elif dataset.u is not None:
+        inputs = [InputSample(float(t), u) for t, u in zip(dataset.t, dataset.u, strict=True)]
+        source += ", inputs from u.npy"
+    else:
+        inputs, source = [], source + ", no inputs recorded"
+    return measurements, inputs, source
+
+
+def available_sensors(dataset: Dataset) -> str:
+    """The groups of :data:`AUTO_SENSOR_GROUPS` the dataset has data for, e.g. ``"lh+we+gyro"``."""
+    measurements, _, _ = dataset_stream(dataset)
+    present = {sensor_group(m.sensor) for m in measurements}
+    groups = [g for g in AUTO_SENSOR_GROUPS if g in present]
+    if not groups:
+        raise ValueError("sensors: the dataset has no Lighthouse, IMU, gyro or wheel data")
+    return "+".join(groups)
+
+
+def initial_state(x0: Any) -> tuple[np.ndarray, np.ndarray | None]:
+    """``x0`` (3 or 6 finite values) as a base state and covariance (None: the default)."""
+    values = np.asarray(x0, dtype=float).ravel()
+    if values.size not in (3, 6) or not np.all(np.isfinite(values)):
+        raise ValueError(
+            "x0: needs 3 (x, y, yaw) or 6 (x, y, yaw, vx, vy, omega) finite values, got "
+            f"{values.size}" + ("" if np.all(np.isfinite(values)) else " with NaN or inf")
+        )
+    if values.size == 6:
+        return values, None
+    return np.concatenate([values, np.zeros(3)]), np.diag(np.square(POSE_X0_STD))
+
+
+@dataclass
+class OfflineEstimates:
+    """Estimates at the stamps of a dataset.
+
+    Attributes
+    ----------
+    t : np.ndarray
+        (N,) the dataset's own stamps ``dataset.t``, s.
+    x : np.ndarray
+        (6, N) estimates ``[x, y, yaw, vx, vy, omega]`` (m, m, rad, m/s, m/s, rad/s; world pose,
+        body velocities). Where the status is ``lost`` this is the estimator's held guess (zeros
+        before the first fix): mask it with ``status``.
+    covariance_diag : np.ndarray
+        (6, N) variances of ``x`` (SI units squared).
+    status : np.ndarray
+        (N,) ``"ok"``, ``"degraded"`` or ``"lost"``.
+    reasons : np.ndarray
+        (N,) why, when the status is not ``ok`` (else ``""``).
+    diagnostics : dict
+        JSON-ready summary: settings, the estimator's counters (``processed``, ``rejected``,
+        ``ignored`` per sensor, ``late``, ``fallbacks``, ``reinitializations``, ``skipped_s``),
+        ``status_counts``, ``time_to_first_fix_s`` (from the first data stamp to the first
+        estimate that is not lost; None if never), ``reasons`` (the 20 most frequent, with their
+        sample counts) and timing.
+    estimator : Estimator
+        The estimator after the run (on the dataset's clock).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    covariance_diag: np.ndarray
+    status: np.ndarray
+    reasons: np.ndarray
+    diagnostics: dict[str, Any]
+    estimator: Estimator = field(repr=False)
+
+    @property
+    def status_codes(self) -> np.ndarray:
+        """(N,) int8: 0 ok, 1 degraded, 2 lost (:data:`STATUS_CODES`)."""
+        return np.array([STATUS_CODES[s] for s in self.status], dtype=np.int8)
+
+    def save_npz(self, path: str | Path) -> Path:
+        """Write ``t``, ``x``, ``status`` (codes), ``covariance_diag`` and ``state_names``."""
+        path = Path(path)
+        np.savez_compressed(
+            path,
+            t=self.t,
+            x=self.x,
+            status=self.status_codes,
+            covariance_diag=self.covariance_diag,
+            state_names=np.array(STATE_NAMES),
+        )
+        return path
+
+
+def estimate_dataset(
+    dataset: Dataset,
+    kind: str,
+    sensors: str = "auto",
+    *,
+    model: CarModel | None = None,
+    settings: EstimatorSettings | None = None,
+    inputs: str = "auto",
+    x0: Any = None,
+    rate_hz: float | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> OfflineEstimates:
+    """Run an estimator over ``dataset`` and return its estimates at every ``dataset.t[k]``.
+
+    Parameters
+    ----------
+    dataset : Dataset
+        The recording (:mod:`crs_core.dataset`); its stream if it has one, else its samples.
+    kind : {"ekf", "mhe"}
+    sensors : str
+        Sensor groups joined by ``+`` (``"lh+imu+we"``), or ``"auto"``: every group among
+        :data:`AUTO_SENSOR_GROUPS` the dataset has data for.
+    model : CarModel, optional
+        The estimation model (commanded form); default :func:`dataset_model` (the Chronos
+        parameters with the dataset's Lighthouse geometry).
+    settings : EkfSettings or MheSettings, optional
+        Estimator settings; default ``EkfSettings()`` / ``MheSettings(rate_hz=rate_hz)``.
+    inputs : {"auto", "commanded", "estimated"}
+        See :func:`~crs_core.estimation.factory.make_estimator`. ``estimated`` withholds the
+        recorded inputs; ``auto`` on a recording without inputs stays input-free; ``commanded``
+        needs recorded inputs.
+    x0 : array-like, optional
+        None: blind start from the Lighthouse. 3 values ``x, y, yaw`` (m, m, rad): that pose at
+        rest, standard deviations :data:`POSE_X0_STD`. 6 values: the full state, standard
+        deviations ``settings.initial_std``. It is the state at the first stamp of the data.
+    rate_hz : float, optional
+        MHE grid rate, Hz (default 60, or ``settings.rate_hz``); the EKF has no grid and ignores
+        it.
+    progress : callable, optional
+        Called with the fraction done (0..1) now and then.
+
+    Returns
+    -------
+    OfflineEstimates
+
+    Raises
+    ------
+    ValueError
+        For an empty dataset and invalid ``kind``, ``sensors``, ``inputs``, ``x0`` or
+        ``rate_hz``, with a one-line message naming it.
+    """
+    if kind not in KINDS:
+        raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+    if not len(dataset.t):
+        raise ValueError("dataset: has no samples (t.npy is empty)")
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ValueError(f"rate_hz: must be finite and > 0, got {rate_hz}")
+    sensor_text = available_sensors(dataset) if sensors == "auto" else sensors
+    groups = parse_sensor_set(sensor_text)
+    start_x, start_cov = (None, None) if x0 is None else initial_state(x0)
+    measurements, recorded_inputs, source = dataset_stream(dataset)
+    present = {sensor_group(m.sensor) for m in measurements}
+    if not groups & present:
+        have = "+".join(g for g in SENSOR_GROUPS if g in present) or "no measurements"
+        raise ValueError(f"sensors: the dataset has no data for {sensor_text} (it has {have})")
+    if inputs == "commanded" and not recorded_inputs:
+        raise ValueError(
+            "inputs: 'commanded' needs recorded inputs (u.npy or inputs in stream.npz) and this "
+            "dataset has none; use 'auto' or 'estimated'"
+        )
+    delivered_inputs = [] if inputs == "estimated" else recorded_inputs
+    if recorded_inputs and not delivered_inputs:
+        source += " withheld"
+    if kind == "mhe" and settings is None:
+        settings = MheSettings(rate_hz=rate_hz or MheSettings().rate_hz)
+    elif kind == "mhe" and rate_hz is not None and isinstance(settings, MheSettings):
+        if rate_hz != settings.rate_hz:
+            raise ValueError(f"rate_hz: {rate_hz} contradicts settings.rate_hz {settings.rate_hz}")
+    estimator = make_estimator(
+        kind, groups, model or dataset_model(dataset), settings, inputs=inputs
+    )
+
+    events = sorted(
+        [(s.stamp, 0, s) for s in delivered_inputs] + [(m.stamp, 1, m) for m in measurements],
+        key=lambda e: (e[0], e[1]),
+    )
+    t_start = min(float(dataset.t[0]), events[0][0] if events else math.inf)
+    estimator.reset(t_start, start_x, start_cov)
+    n = len(dataset.t)
+    x, variances, times = np.zeros((6, n)), np.zeros((6, n)), np.zeros(n)
+    status, reasons = np.empty(n, dtype=object), np.empty(n, dtype=object)
+    k_event, report_every = 0, max(1, n // 200)
+    wall = time.perf_counter()
+    for k, stamp in enumerate(dataset.t):
+        started = time.perf_counter()
+        while k_event < len(events) and events[k_event][0] <= stamp:
+            item = events[k_event][2]
+            if events[k_event][1] == 0:
+                estimator.add_input(item)
+            else:
+                estimator.add_measurement(item)
+            k_event += 1
+        estimate = estimator.estimate(float(stamp))
+        times[k] = time.perf_counter() - started
+        x[:, k], variances[:, k] = estimate.x, np.diag(estimate.covariance)
+        status[k], reasons[k] = estimate.status, estimate.reason
+        if progress is not None and (k % report_every == 0 or k == n - 1):
+            progress((k + 1) / n)
+    wall = time.perf_counter() - wall
+
+    status, reasons = status.astype(str), reasons.astype(str)
+    found = np.flatnonzero(status != "lost")
+    d = estimator.diagnostics
+    diagnostics: dict[str, Any] = {
+        "estimator": kind,
+        "sensors": "+".join(g for g in SENSOR_GROUPS if g in groups),
+        "inputs": inputs,
+        "input_mode": getattr(estimator, "mode", inputs),
+        "rate_hz": settings.rate_hz if isinstance(settings, MheSettings) else None,
+        "start": "blind" if x0 is None else [float(v) for v in np.ravel(x0)],
+        "data": source,
+        "samples": n,
+        "t_start": t_start,
+        "measurements_delivered": sum(1 for e in events[:k_event] if e[1] == 1),
+        "inputs_delivered": sum(1 for e in events[:k_event] if e[1] == 0),
+        "events_after_last_sample": len(events) - k_event,
+        "groups_without_data": sorted(groups - present),
+        "status_counts": {s: int(np.sum(status == s)) for s in STATUS_CODES},
+        "time_to_first_fix_s": float(dataset.t[found[0]] - t_start) if found.size else None,
+        "processed": dict(sorted(d.processed.items())),
+        "rejected": dict(sorted(d.rejected.items())),
+        "ignored": dict(sorted(d.ignored.items())),
+        "late": d.late,
+        "fallbacks": d.fallbacks,
+        "reinitializations": d.reinitializations,
+        "skipped_s": d.skipped_s,
+        "final_status": d.status,
+        "final_reason": d.reason,
+        "reasons": dict(Counter(str(r) for r in reasons if r).most_common(20)),
+        "wall_time_s": wall,
+        "time_per_sample_ms": {
+            "median": float(np.median(times) * 1e3),
+            "p95": float(np.percentile(times, 95) * 1e3),
+            "max": float(times.max() * 1e3),
+        },
+    }
+    return OfflineEstimates(
+        np.array(dataset.t, dtype=float), x, variances, status, reasons, diagnostics, estimator
+    )
+
+
+def reference_label(dataset: Dataset) -> str:
+    """What the dataset's ``x`` is: simulation truth or a recording's own estimate."""
+    if dataset.meta.get("source") == "simulated":
+        return "simulation truth"
+    return "recorded on-line estimate x.npy (not ground truth)"
+
+
+def reference_comparison(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | None:
+    """RMSE of the estimates against the dataset's reference ``x`` (None without one).
+
+    ``rmse`` counts every sample that is not ``lost``; ``rmse_settled`` only those at least
+    :data:`SETTLING_S` after the first fix. SI units, yaw error wrapped; ``position`` is
+    ``sqrt(rmse_x² + rmse_y²)``.
+    """
+    if dataset.x is None:
+        return None
+    found = result.status != "lost"
+    first = result.t[found][0] if found.any() else math.inf
+    settled = found & (result.t >= first + SETTLING_S)
+    return {
+        "reference": reference_label(dataset),
+        "rmse": state_rmse(result.x.T, dataset.x, found),
+        "rmse_settled": state_rmse(result.x.T, dataset.x, settled),
+        "settling_s": SETTLING_S,
+        "samples": int(found.sum()),
+        "samples_settled": int(settled.sum()),
+    }

@@ -1,0 +1,191 @@
+"""Output of ``crs estimate``: the summary text and the figure ``estimate.png`` (no algorithm).
+
+The estimates and metrics come from :mod:`crs_core.estimation.offline`; this module only
+presents them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.gridspec import GridSpec
+from matplotlib.patches import Patch
+
+from crs_core.dataset import Dataset
+from crs_core.estimation.offline import OfflineEstimates, reference_label
+from crs_core.track import Track, load_demo_track
+
+#: Label and unit of each state in the time plots.
+STATE_AXES = (
+    ("x", "m"),
+    ("y", "m"),
+    ("yaw", "rad"),
+    ("v_x", "m/s"),
+    ("v_y", "m/s"),
+    ("ω", "rad/s"),
+)
+_SPAN_COLOURS = {"degraded": "tab:orange", "lost": "tab:red"}
+
+
+def format_summary(
+    name: str, diagnostics: dict[str, Any], comparison: dict[str, Any] | None, duration_s: float
+) -> str:
+    """A few lines for the terminal: samples, status, rejections, RMSE against the reference."""
+    d = diagnostics
+    start = "blind start" if d["start"] == "blind" else f"x0 = {d['start']}"
+    rate = f" at {d['rate_hz']:g} Hz" if d["rate_hz"] else ""
+    counts = d["status_counts"]
+    fix = d["time_to_first_fix_s"]
+    lines = [
+        f"{name}: {d['estimator']}{rate} on {d['sensors']}, inputs {d['inputs']} "
+        f"(ran {d['input_mode']}), {start}; {d['samples']} samples over {duration_s:.1f} s "
+        f"({d['data']})",
+        f"status: ok {counts['ok']}, degraded {counts['degraded']}, lost {counts['lost']}; first "
+        + (f"fix after {fix:.3f} s" if fix is not None else "fix: never")
+        + f"; re-initialisations {d['reinitializations']}, solver fallbacks {d['fallbacks']}, "
+        f"late {d['late']}",
+        "processed: " + _counts(d["processed"]),
+        "rejected:  " + _counts(d["rejected"]) + "   ignored: " + _counts(d["ignored"]),
+    ]
+    if d["groups_without_data"]:
+        lines.append(f"note: no data for sensor group(s) {', '.join(d['groups_without_data'])}")
+    if comparison is None:
+        lines.append("reference: none (the dataset has no x.npy)")
+    elif comparison["rmse"] is None:
+        lines.append(f"reference: {comparison['reference']}; no estimate that is not lost")
+    else:
+        lines.append(
+            f"RMSE vs {comparison['reference']}, {comparison['samples']} samples not lost: "
+            + _rmse(comparison["rmse"])
+        )
+        if comparison["rmse_settled"] is not None:
+            lines.append(
+                f"  from {comparison['settling_s']:g} s after the first fix on: "
+                + _rmse(comparison["rmse_settled"])
+            )
+    wall = d["wall_time_s"]
+    lines.append(
+        f"wall time {wall:.2f} s ({duration_s / wall:.0f}x real time); per sample median "
+        f"{d['time_per_sample_ms']['median']:.2f} ms, max {d['time_per_sample_ms']['max']:.1f} ms"
+    )
+    return "\n".join(lines)
+
+
+def _counts(counter: dict[str, int]) -> str:
+    return ", ".join(f"{k} {v}" for k, v in counter.items()) or "none"
+
+
+def _rmse(rmse: dict[str, float]) -> str:
+    return (
+        f"position {rmse['position'] * 1e3:.1f} mm (x {rmse['x'] * 1e3:.1f}, y "
+        f"{rmse['y'] * 1e3:.1f}), yaw {rmse['yaw'] * 1e3:.1f} mrad, vx {rmse['vx'] * 1e3:.0f} "
+        f"mm/s, vy {rmse['vy'] * 1e3:.0f} mm/s, ω {rmse['omega'] * 1e3:.0f} mrad/s"
+    )
+
+
+def write_figure(result: OfflineEstimates, dataset: Dataset, path: Path, title: str) -> Path:
+    """``estimate.png``: the x-y path (with DEMO_TRACK and the reference) and the six states."""
+    fig = plt.figure(figsize=(16, 9))
+    grid = GridSpec(6, 2, figure=fig, width_ratios=(1.0, 1.3), hspace=0.15, wspace=0.18)
+    _plot_path(fig.add_subplot(grid[:, 0]), result, dataset)
+    axes = [fig.add_subplot(grid[0, 1])]
+    axes += [fig.add_subplot(grid[i, 1], sharex=axes[0]) for i in range(1, 6)]
+    _plot_states(axes, result, dataset)
+    fig.suptitle(title)
+    fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def _plot_path(ax, result: OfflineEstimates, dataset: Dataset) -> None:
+    found = result.status != "lost"
+    track = _track_near(result.x[:2, found])
+    if track is not None:
+        normal = np.stack([-np.sin(track.heading), np.cos(track.heading)], axis=1)
+        centre = np.stack([track.x, track.y], axis=1)
+        for side, label in ((-1, "DEMO_TRACK borders"), (1, None)):
+            edge = centre + side * track.width / 2 * normal
+            ax.plot(edge[:, 0], edge[:, 1], color="0.75", lw=1, label=label)
+    if dataset.x is not None:
+        ax.plot(dataset.x[:, 0], dataset.x[:, 1], color="0.45", lw=1.2, label=_reference(dataset))
+    x, y = (np.where(found, v, np.nan) for v in result.x[:2])
+    ax.plot(x, y, color="tab:blue", lw=0.9, label="estimate (not lost)")
+    degraded = result.status == "degraded"
+    if degraded.any():
+        ax.plot(*result.x[:2, degraded], ".", color="tab:orange", ms=2.5, label="degraded")
+    if found.any():
+        first = np.flatnonzero(found)[0]
+        ax.plot(*result.x[:2, first], "g^", ms=8, label="first fix")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m] (world)")
+    ax.set_ylabel("y [m] (world)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+
+
+def _plot_states(axes, result: OfflineEstimates, dataset: Dataset) -> None:
+    t = result.t - result.t[0]
+    found = result.status != "lost"
+    estimate = result.x.copy()
+    reference = None if dataset.x is None else dataset.x[:, :6].T.copy()
+    if found.any():  # yaw unwrapped for reading, the reference moved by whole turns to match
+        estimate[2, found] = np.unwrap(estimate[2, found])
+        if reference is not None:
+            reference[2] = np.unwrap(reference[2])
+            first = np.flatnonzero(found)[0]
+            turns = np.round((estimate[2, first] - reference[2, first]) / (2 * np.pi))
+            reference[2] += 2 * np.pi * turns
+    for i, (ax, (name, unit)) in enumerate(zip(axes, STATE_AXES, strict=True)):
+        if reference is not None:
+            ax.plot(t, reference[i], color="0.45", lw=1.0)
+        ax.plot(t, np.where(found, estimate[i], np.nan), color="tab:blue", lw=0.8)
+        _shade(ax, t, result.status)
+        ax.set_ylabel(f"{name} [{unit}]")
+        ax.grid(alpha=0.3)
+        if i < 5:
+            ax.tick_params(labelbottom=False)
+    handles = [plt.Line2D([], [], color="tab:blue", lw=0.8, label="estimate")]
+    if reference is not None:
+        handles.append(plt.Line2D([], [], color="0.45", lw=1.0, label=_reference(dataset)))
+    handles += [Patch(color=c, alpha=0.25, label=s) for s, c in _SPAN_COLOURS.items()]
+    axes[0].legend(
+        handles=handles, loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8, ncol=4
+    )
+    start = f" (t₀ = {result.t[0]:.3f} s)" if abs(result.t[0]) > 1e-9 else ""
+    axes[-1].set_xlabel(f"t − t₀ [s]{start}")
+
+
+def _shade(ax, t: np.ndarray, status: np.ndarray) -> None:
+    """Shade the runs of ``degraded`` and ``lost`` samples (each up to the next stamp)."""
+    edges = np.flatnonzero(status[1:] != status[:-1]) + 1
+    for begin, end in zip(np.r_[0, edges], np.r_[edges, len(status)], strict=True):
+        colour = _SPAN_COLOURS.get(str(status[begin]))
+        if colour:
+            ax.axvspan(t[begin], t[min(end, len(t) - 1)], color=colour, alpha=0.25, lw=0)
+
+
+def _reference(dataset: Dataset) -> str:
+    label = reference_label(dataset)
+    return label if label == "simulation truth" else "recorded on-line estimate (not ground truth)"
+
+
+def _track_near(points: np.ndarray) -> Track | None:
+    """DEMO_TRACK, if most of the estimated path lies within half a metre of its extent."""
+    if points.shape[1] == 0:
+        return None
+    track = load_demo_track()
+    margin = 0.5
+    inside = (
+        (points[0] > track.x.min() - margin)
+        & (points[0] < track.x.max() + margin)
+        & (points[1] > track.y.min() - margin)
+        & (points[1] < track.y.max() + margin)
+    )
+    return track if inside.mean() > 0.8 else None
