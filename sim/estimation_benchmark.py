@@ -1,7 +1,9 @@
 """Estimation benchmarks (``crs bench estimation``): accuracy, blackout, speed, peers, real data.
 
 Every row is computed on simulated data with known truth, except the real-data rows, whose
-reference is the car's own on-line estimate (not ground truth).
+reference is the car's own on-line estimate (not ground truth). The rows of robust estimation
+(inputs withheld and blind start, the Lighthouse pose solver, pathological timing) live in
+:mod:`sim.robust_estimation_benchmark`; :func:`run_all` and :func:`format_table` include them.
 """
 
 from __future__ import annotations
@@ -53,42 +55,90 @@ class Run:
     statuses: list[str]
 
 
+def stream_events(result: SimulationResult, inputs: bool = True) -> list[tuple[float, object]]:
+    """The run's data as ``(arrival time, item)`` in stamp order, arriving at their stamps.
+
+    Commanded inputs come before measurements of the same stamp; ``inputs=False`` leaves them
+    out (a recording without commands).
+    """
+    events = [(m.stamp, 1, m) for m in result.measurements]
+    if inputs:
+        events += [(s.stamp, 0, s) for s in result.inputs]
+    events.sort(key=lambda e: (e[0], e[1]))
+    return [(stamp, item) for stamp, _, item in events]
+
+
+def replay_schedule(
+    estimator: Estimator,
+    deliveries: Sequence[tuple[float, object]],
+    queries: Sequence[tuple[float, float]],
+    x0: np.ndarray | None,
+    on_update: Callable[[float], None] | None = None,
+) -> Run:
+    """Feed ``deliveries`` in their order and ask for estimates as ``queries`` say.
+
+    ``deliveries`` are ``(arrival time, item)`` (an :class:`InputSample` or a
+    :class:`Measurement`) with non-decreasing arrival times; ``queries`` are ``(query time,
+    stamp asked)``, by query time. Before each query every item that has arrived by its query
+    time is delivered, then ``estimate(stamp asked)`` is called. ``x0=None`` is a blind start
+    (``reset(0.0)``). The per-update time includes the delivery work.
+    """
+    if x0 is None:
+        estimator.reset(0.0)
+    else:
+        estimator.reset(0.0, x0)
+    stamps, estimates, times, statuses = [], [], [], []
+    k = 0
+    for now, asked in queries:
+        start = time.perf_counter()
+        while k < len(deliveries) and deliveries[k][0] <= now:
+            item = deliveries[k][1]
+            if isinstance(item, InputSample):
+                estimator.add_input(item)
+            else:
+                estimator.add_measurement(item)
+            k += 1
+        estimate = estimator.estimate(asked)
+        times.append(time.perf_counter() - start)
+        stamps.append(asked)
+        estimates.append(estimate.x)
+        statuses.append(estimate.status)
+        if on_update:
+            on_update(asked)
+    return Run(np.array(stamps), np.array(estimates), np.array(times), statuses)
+
+
+def query_grid(result: SimulationResult, rate_hz: float) -> np.ndarray:
+    """The regular query stamps ``1/rate_hz, 2/rate_hz, ...`` before the end of the run."""
+    return np.arange(1.0 / rate_hz, result.duration, 1.0 / rate_hz)
+
+
 def replay(
     estimator: Estimator,
     result: SimulationResult,
     rate_hz: float,
-    x0: np.ndarray,
+    x0: np.ndarray | None,
     on_update: Callable[[float], None] | None = None,
+    *,
+    inputs: bool = True,
 ) -> Run:
     """Feed a run to an estimator as it would arrive live and query it at ``rate_hz``.
 
     Data stamped up to each query time is delivered before the query, so the per-update time
     includes the work on the measurements that arrived since the previous query.
+
+    Parameters
+    ----------
+    x0 : array or None
+        Start state at t = 0; ``None`` starts blind (``reset(0.0)``): the estimator initialises
+        itself from Lighthouse pose fixes and is ``lost`` until then.
+    inputs : bool
+        ``False`` withholds the commanded inputs (as in a recording without commands).
     """
-    estimator.reset(0.0, x0)
-    events = sorted(
-        [(s.stamp, 0, s) for s in result.inputs] + [(m.stamp, 1, m) for m in result.measurements],
-        key=lambda e: (e[0], e[1]),
+    grid = query_grid(result, rate_hz)
+    return replay_schedule(
+        estimator, stream_events(result, inputs), [(t, t) for t in grid], x0, on_update
     )
-    stamps = np.arange(1.0 / rate_hz, result.duration, 1.0 / rate_hz)
-    estimates, times, statuses = [], [], []
-    k = 0
-    for t in stamps:
-        start = time.perf_counter()
-        while k < len(events) and events[k][0] <= t:
-            item = events[k][2]
-            if events[k][1] == 0:
-                estimator.add_input(item)
-            else:
-                estimator.add_measurement(item)
-            k += 1
-        estimate = estimator.estimate(t)
-        times.append(time.perf_counter() - start)
-        estimates.append(estimate.x)
-        statuses.append(estimate.status)
-        if on_update:
-            on_update(t)
-    return Run(stamps, np.array(estimates), np.array(times), statuses)
 
 
 def errors(run: Run, result: SimulationResult) -> np.ndarray:
@@ -249,7 +299,7 @@ def speed_rows(seed: int = 0) -> list[dict]:
                 "seeds": [seed],
             }
         )
-    ekf = make_estimator("ekf", "lh+imu+we")
+    ekf = make_estimator("ekf", "lh+imu+we", inputs="commanded")
     ekf.reset(0.0, start_state(result))
     for sample in result.inputs:
         ekf.add_input(sample)
@@ -425,9 +475,11 @@ def run_all(
     real_folders: Sequence[Path] = (),
     plot_dir: Path | None = None,
     peers: bool = True,
+    robust: bool = True,
 ) -> list[dict]:
     """Every estimation benchmark, in the order of the issue: accuracy, blackout, speed, peers,
-    real data."""
+    real data; then (``robust``) inputs withheld with a blind start, the Lighthouse pose
+    solver and pathological timing (:mod:`sim.robust_estimation_benchmark`)."""
     from tqdm import tqdm
 
     bar = tqdm(total=2 * len(SENSOR_SETS) * len(seeds), desc="accuracy", leave=False)
@@ -438,6 +490,16 @@ def run_all(
     if peers:
         rows += peer_rows(seeds[:2])
     rows += real_rows(real_folders, plot_dir)
+    if robust:
+        from sim.robust_estimation_benchmark import (
+            inputs_withheld_rows,
+            pose_solver_rows,
+            timing_robustness_rows,
+        )
+
+        rows += inputs_withheld_rows(seeds)
+        rows += pose_solver_rows(seeds)
+        rows += timing_robustness_rows(seeds)
     return rows
 
 
@@ -493,4 +555,7 @@ def format_table(rows: list[dict]) -> str:
                 f" {r['vx'] * 1e3:.0f} mm/s; LH residual median {lh['median'] * 1e3:.2f} mrad,"
                 f" p95 {lh['p95'] * 1e3:.2f} mrad"
             )
+    from sim.robust_estimation_benchmark import format_rows
+
+    lines += format_rows(rows)
     return "\n".join(lines)

@@ -4,8 +4,8 @@ Many recordings have no commanded inputs (a car driven by hand, a bag of sensors
 input-free model (``CarModel(estimated_inputs=True)``) estimates the applied steering angle and
 torque as random-walk states from the sensors; with commands, the commanded model is more
 accurate. :class:`InputModeEstimator` holds one estimator of each and starts input-free; at the
-first estimate at or after the stamp of the first command it hands over to the commanded one
-(so the switch depends on the data, not on when they arrived): that one restarts
+first estimate at or after the stamp of the first command (so the switch depends on the data,
+not on when they arrived) that is not ``lost`` it hands over to the commanded one: that one restarts
 from the current estimate and covariance, with the command active at that time, and receives
 every queued event after it. The counters carry over. ``mode`` says which one is active.
 """
@@ -85,18 +85,17 @@ class InputModeEstimator(Estimator):
 
     def estimate(self, t: float) -> Estimate:
         if self.mode == "estimated" and any(c.stamp <= t for c in self._commands):
-            self._hand_over(float(t))
+            last = self._estimated.estimate(t)
+            if last.status == "lost":  # hand over a found car, not a blind start
+                return last
+            self._hand_over(last)
         return self.active.estimate(t)
 
-    def _hand_over(self, t: float) -> None:
-        old, new = self._estimated, self._commanded
-        last = old.estimate(t)
+    def _hand_over(self, last: Estimate) -> None:
+        old, new, t = self._estimated, self._commanded, last.stamp
         queued = sorted(old._queue, key=lambda e: (*e[:2], e[3]))  # events after t
         new.diagnostics = old.diagnostics
-        if last.status == "lost":
-            new.reset(t)
-        else:
-            new.reset(t, last.x, last.covariance)
+        new.reset(t, last.x, last.covariance)
         before = [c for c in self._commands if c.stamp <= t]
         if before:
             new.add_input(InputSample(t, max(before, key=lambda c: c.stamp).u))
