@@ -15,6 +15,7 @@ and update maths is generated from the model and compiled (see :mod:`crs_core.co
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -28,6 +29,9 @@ from crs_core.estimation.noise import initial_std_for
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel
+
+#: The EKF keeps its state after every event for this long (s), for queries in the past.
+HISTORY_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -140,6 +144,8 @@ class ExtendedKalmanFilter(Estimator):
             self._P[:6, :6] = covariance
         self._u = np.array(self._last_input, dtype=float)
         self._cap.clear()
+        self._history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
+        self._remember()
 
     def current_state(self) -> np.ndarray:
         return self._x[:6].copy()
@@ -191,9 +197,32 @@ class ExtendedKalmanFilter(Estimator):
                 self._u = item.u
             else:
                 self._update(item)
+            self._remember()
+
+    def _remember(self) -> None:
+        """Keep the state after each event for :data:`HISTORY_S` (queries in the past)."""
+        self._history.append((self._t, self._x, self._P, self._u))
+        if self._history[0][0] < self._t - 2 * HISTORY_S:
+            cut = bisect.bisect_left(self._history, self._t - HISTORY_S, key=lambda h: h[0])
+            del self._history[:cut]
 
     def _estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """All events up to ``t`` applied, then predicted to ``t``."""
+        """All events up to ``t`` applied, then predicted to ``t``; a ``t`` before the newest
+        event is predicted from the state kept after the last event at or before it."""
         self.process(t)
-        x, P = self._predict(self._x, self._P, t - self._t)
+        if t >= self._t:
+            x, P = self._predict(self._x, self._P, t - self._t)
+            return x[:6].copy(), P[:6, :6].copy()
+        k = bisect.bisect_right(self._history, t, key=lambda h: h[0]) - 1
+        if k < 0:
+            oldest = self._history[0][0] if self._history else self._t
+            raise ValueError(
+                f"t: {t:.3f} s is before the oldest state the EKF keeps ({oldest:.3f} s)"
+            )
+        stamp, x, P, u = self._history[k]
+        current_u, self._u = self._u, u
+        try:
+            x, P = self._predict(x, P, t - stamp)
+        finally:
+            self._u = current_u
         return x[:6].copy(), P[:6, :6].copy()

@@ -42,8 +42,8 @@ class EstimatorNoise:
         ``a_x, a_y`` (m/s^2) and yaw rate (rad/s).
     gyro_std : float
         Yaw rate alone (rad/s).
-    wheel_std : float
-        Wheel speed, rad/s.
+    wheel_std : float or tuple of 4 floats
+        Wheel speed, rad/s: one value for all wheels or ``fl, fr, rl, rr``.
     pose_std : tuple of float
         Motion capture ``x, y`` (m) and yaw (rad).
     """
@@ -53,7 +53,7 @@ class EstimatorNoise:
     lighthouse_std: float = 2e-3
     imu_std: tuple[float, float, float] = (1.0, 1.0, 0.06)
     gyro_std: float = 0.06
-    wheel_std: float = 2.5
+    wheel_std: float | tuple[float, float, float, float] = 2.5
     pose_std: tuple[float, float, float] = (0.003, 0.003, 0.01)
 
     def __post_init__(self) -> None:
@@ -64,13 +64,15 @@ class EstimatorNoise:
             )
         if len(self.imu_std) != 3 or len(self.pose_std) != 3:
             raise ValueError("noise.imu_std and noise.pose_std: need 3 values each")
+        if isinstance(self.wheel_std, tuple | list) and len(self.wheel_std) != 4:
+            raise ValueError("noise.wheel_std: one value or 4 (fl, fr, rl, rr)")
         values = {
             "process_std": self.process_std,
             "extra_process_std": tuple(self.extra_process_std.values()),
             "lighthouse_std": (self.lighthouse_std,),
             "imu_std": self.imu_std,
             "gyro_std": (self.gyro_std,),
-            "wheel_std": (self.wheel_std,),
+            "wheel_std": tuple(np.atleast_1d(self.wheel_std)),
             "pose_std": self.pose_std,
         }
         for name, entries in values.items():
@@ -84,7 +86,7 @@ class EstimatorNoise:
         table = {
             "imu": self.imu_std,
             "gyro": (self.gyro_std,),
-            "wheel_encoders": (self.wheel_std,) * 4,
+            "wheel_encoders": tuple(np.broadcast_to(self.wheel_std, 4)),
             "pose": self.pose_std,
         }
         return np.array(table[sensor], dtype=float)
