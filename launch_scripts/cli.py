@@ -256,7 +256,15 @@ def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
     from launch_scripts.sim_stack import run_stack
 
-    report = run_stack(args.cars, args.estimator, args.duration, args.out, args.domain, args.seed)
+    report = run_stack(
+        args.cars,
+        args.estimator,
+        args.duration,
+        args.out,
+        args.domain,
+        args.seed,
+        blind_start=args.blind_start,
+    )
     print(json.dumps(report, indent=2))
     print(f"report: {Path(args.out) / 'report.json'}")
 
@@ -355,6 +363,11 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument("--out", type=Path, required=True)
     sub.add_argument("--domain", type=int, help="ROS_DOMAIN_ID (default: env or 42)")
     sub.add_argument("--seed", type=int, default=0)
+    sub.add_argument(
+        "--blind-start",
+        action="store_true",
+        help="estimators initialise from the Lighthouse instead of the known start pose",
+    )
     sub.set_defaults(handler=launch)
     sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
     sub.add_argument("tool", choices=["topics", "echo", "hz"])

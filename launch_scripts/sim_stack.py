@@ -19,9 +19,19 @@ from launch_scripts.launcher import Launcher, NodeSpec
 
 
 def stack_nodes(
-    cars: int, estimator: str, duration: float, bag: Path, seed: int = 0, record_all: bool = False
+    cars: int,
+    estimator: str,
+    duration: float,
+    bag: Path,
+    seed: int = 0,
+    record_all: bool = False,
+    blind_start: bool = False,
 ) -> list[NodeSpec]:
-    """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder."""
+    """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
+
+    ``blind_start``: the estimators ignore the known start pose and initialise themselves from
+    the Lighthouse (the car waits, its controller seeing no estimate, until they have).
+    """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
     if estimator not in ("ekf", "mhe"):
@@ -37,7 +47,12 @@ def stack_nodes(
                 ns,
                 {"seed": seed + i, "wait_for_subscribers": 2},
             ),
-            NodeSpec("estimator", "ros4crs.estimator_node", ns, {"estimator": estimator}),
+            NodeSpec(
+                "estimator",
+                "ros4crs.estimator_node",
+                ns,
+                {"estimator": estimator, "blind_start": blind_start},
+            ),
             NodeSpec("controller", "ros4crs.controller_node", ns, {}),
         ]
         # the 250 Hz IMU and encoder streams are recorded only on request: in Python that
@@ -63,6 +78,7 @@ def run_stack(
     out: Path,
     domain_id: int | None = None,
     seed: int = 0,
+    blind_start: bool = False,
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -71,7 +87,8 @@ def run_stack(
     if bag.exists():
         raise FileExistsError(f"{bag} exists; choose an empty --out")
     domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-    launcher = Launcher(stack_nodes(cars, estimator, duration, bag, seed), domain, out / "logs")
+    nodes = stack_nodes(cars, estimator, duration, bag, seed, blind_start=blind_start)
+    launcher = Launcher(nodes, domain, out / "logs")
 
     def report_death(exited) -> None:
         print(
