@@ -10,8 +10,10 @@ agree with each other (no jump faster than ``HealthSettings.max_speed`` allows, 
 * the world velocity and the yaw rate (the fit's slopes); the velocity is turned into the body
   frame, :math:`v_b = R(\psi)^\top \dot p`.
 
-The covariance is the newest fix's pose covariance and, for the velocities, the fit's standard
-error floored at ``velocity_std`` / ``yaw_rate_std`` (the fixes are few and close together).
+The covariance is the newest fix's pose covariance, widened in position by the distance the
+car covers in half the largest plane gap (the two planes of a pair are swept at different
+times), and, for the velocities, the fit's standard error floored at ``velocity_std`` /
+``yaw_rate_std`` (the fixes are few and close together).
 """
 
 from __future__ import annotations
@@ -150,6 +152,10 @@ class PoseInitializer:
         x = np.array([value[0], value[1], yaw, vx, vy, slope[2]])
         covariance = np.zeros((6, 6))
         covariance[:3, :3] = fixes[-1].covariance
+        # the two planes of a pair are swept up to max_pair_gap apart while the car moves: the
+        # pair's pose is a blend (measured on the simulated stream: 11 mm median at 1.4 m/s)
+        blur = float(np.hypot(slope[0], slope[1])) * s.max_pair_gap / 2
+        covariance[:2, :2] += np.eye(2) * blur**2
         velocity_std = max(s.velocity_std, float(np.hypot(slope_std[0], slope_std[1])))
         covariance[3, 3] = covariance[4, 4] = velocity_std**2
         covariance[5, 5] = max(s.yaw_rate_std, float(slope_std[2])) ** 2
