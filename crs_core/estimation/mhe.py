@@ -28,7 +28,8 @@ block tridiagonal.
 by ``t``; each new node is a warm start by prediction followed by one Gauss-Newton step (the
 real-time iteration; more with ``iterations``), so the result does not depend on how often or
 when the estimate is queried. The estimate at ``t`` is the newest node predicted forward to
-``t`` (less than one grid step). A step is taken only if it lowers the cost (backtracking by
+``t`` with the measurements since it (EKF steps, :mod:`~crs_core.estimation.readout`; the
+window itself is untouched). A step is taken only if it lowers the cost (backtracking by
 halving, :data:`STEP_FRACTIONS`; else the warm start is kept): the estimate never moves further
 from the data than the prediction. If the cost is not finite, or the normal equations are not
 positive definite, the window restarts from its newest finite state (or keeps the prediction);
@@ -61,6 +62,7 @@ from crs_core.estimation.mhe_problem import (
     offset_output_functions,
 )
 from crs_core.estimation.noise import initial_std_for
+from crs_core.estimation.readout import ForwardReadOut
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel
 
@@ -191,6 +193,7 @@ class MovingHorizonEstimator(Estimator):
         self._default_initial_weight = 1.0 / initial_std_for(s.initial_std, model.state_names) ** 2
         self._max_catch_up = s.max_catch_up or s.horizon
         self._cap = RejectionCap(s.max_consecutive_rejections)
+        self._forward = ForwardReadOut(model, s.noise)
         self.reset(0.0, np.zeros(6))
 
     @staticmethod
@@ -255,7 +258,7 @@ class MovingHorizonEstimator(Estimator):
         self._initial_weight = weight
         self._arrival_information: np.ndarray | None = None  # set once node 0 is marginalized
         self._last_blocks: tuple | None = None
-        self._covariance = np.diag(1.0 / weight)[:6, :6]
+        self._node_covariance = np.diag(1.0 / weight)  # of the newest node, nx x nx
         self._cap.clear()
 
     def _command_average(self, t0: float, t1: float) -> np.ndarray:
@@ -376,23 +379,34 @@ class MovingHorizonEstimator(Estimator):
                 self._attach(self._pending.pop(0)[3])
             for _ in range(self.settings.iterations):
                 self._gauss_newton_step()
-        return self._read_out(t), self._covariance.copy()
+        x, covariance = self._read_out(t)
+        return x[:6].copy(), covariance[:6, :6].copy()
 
-    def _read_out(self, t: float) -> np.ndarray:
-        """The base state at ``t``: the node at or before ``t`` predicted forward."""
+    def _read_out(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """State and covariance at ``t``: the newest node carried forward over the data since
+        it (EKF steps); a ``t`` inside the window: the node at or before it, predicted."""
         first = len(self._times) - self._active
         if t < self._times[first] - 1e-9:
             raise ValueError(
                 f"t: {t:.3f} s is before the oldest state the MHE keeps "
                 f"({self._times[first]:.3f} s, the start of its window)"
             )
+        last = len(self._times) - 1
         j = max(first, int(np.searchsorted(self._times[first:], t, side="right")) + first - 1)
+        if j == last:
+            recent = [m for stamp, _, _, m in self._pending if stamp <= t]
+            return self._forward(
+                float(self._times[j]),
+                self._X[:, j],
+                self._node_covariance,
+                t,
+                recent,
+                self._command_at,
+            )
         dt = t - self._times[j]
-        if dt <= 1e-12:
-            return self._X[:6, j].copy()
         u = self._command_average(self._times[j], t)
-        x = self._predict(self._X[:, j], u, self._p, min(dt, self._dt))[0]
-        return x[:6].copy()
+        x = self._predict(self._X[:, j], u, self._p, dt)[0] if dt > 1e-12 else self._X[:, j]
+        return x, self._node_covariance
 
     def _skip_ahead(self, t: float, due: int) -> None:
         """Too many nodes due (a stalled process): restart the window ``max_catch_up`` nodes
@@ -474,9 +488,9 @@ class MovingHorizonEstimator(Estimator):
         if info != 0:
             self._fallback_event(stamp, "normal equations not positive definite")
             return
-        rhs = np.zeros((ab.shape[1], 7))
+        rhs = np.zeros((ab.shape[1], 1 + nx))
         rhs[:, 0] = -G.ravel(order="F")
-        rhs[M * nx + np.arange(6), 1 + np.arange(6)] = 1.0  # unit vectors of the newest node
+        rhs[M * nx + np.arange(nx), 1 + np.arange(nx)] = 1.0  # unit vectors of the newest node
         solution, info = dpbtrs(factor, rhs)
         step = solution[:, 0].reshape((nx, M + 1), order="F")
         if not np.all(np.isfinite(step)):
@@ -496,8 +510,8 @@ class MovingHorizonEstimator(Estimator):
             after = self._total_cost(candidate, data)
             if math.isfinite(after) and after <= before * (1 + 1e-9) + 1e-12:
                 self._X = candidate
-                covariance = solution[M * nx : M * nx + 6, 1:]
-                self._covariance = 0.5 * (covariance + covariance.T)
+                covariance = solution[M * nx :, 1:]
+                self._node_covariance = 0.5 * (covariance + covariance.T)
                 return
         self._fallback_event(stamp, "Gauss-Newton step raised the cost; kept the prediction")
 
