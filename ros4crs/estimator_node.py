@@ -15,7 +15,8 @@ stale estimate and stops the car; the diagnostics say why.
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
 ``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
 (model parameter YAML, optional), ``initial_state`` (6 floats; default the DEMO_TRACK start),
-``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse).
+``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse), ``time_offsets``
+(per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import numpy as np
 from rclpy.node import Node
 
 from crs_core.estimation import EkfSettings, MheSettings, make_estimator
+from crs_core.estimation.base import parse_time_offsets
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
@@ -56,8 +58,13 @@ class EstimatorNode(Node):
             model = CarModel(
                 n_base_stations=stations, parameters=model.parameters.updated_from_yaml(params_file)
             )
+        offsets = parse_time_offsets(
+            declare(self, "time_offsets", "", "stamp delays, e.g. lh:0.004,imu:0.001 (s)")
+        )
         settings = (
-            MheSettings(horizon=horizon, rate_hz=self.rate_hz) if kind == "mhe" else EkfSettings()
+            MheSettings(horizon=horizon, rate_hz=self.rate_hz, time_offsets=offsets)
+            if kind == "mhe"
+            else EkfSettings(time_offsets=offsets)
         )
         self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
         self._warn_status = throttled_warning(self)

@@ -60,6 +60,25 @@ def parse_sensor_set(text: str) -> frozenset[str]:
     return groups
 
 
+def parse_time_offsets(text: str) -> dict[str, float]:
+    """``"lh:0.004,imu:0.001"`` -> ``{"lh": 0.004, "imu": 0.001}`` (s); ``""`` -> ``{}``.
+
+    Names are checked by :class:`EstimatorSettings`; a malformed entry is a ``ValueError``
+    naming it.
+    """
+    offsets = {}
+    for entry in filter(None, (part.strip() for part in text.split(","))):
+        name, sep, value = entry.rpartition(":")
+        try:
+            seconds = float(value)
+        except ValueError:
+            seconds = math.nan
+        if not sep or not name or not math.isfinite(seconds):
+            raise ValueError(f"time_offsets: {entry!r} is not <sensor or group>:<seconds>")
+        offsets[name] = seconds
+    return offsets
+
+
 def checked_initial_state(x0: np.ndarray) -> np.ndarray:
     """``x0`` as 6 finite floats, else ``ValueError`` naming it."""
     x0 = np.asarray(x0, dtype=float)

@@ -298,6 +298,18 @@ def test_settings_are_validated_by_name():
         make_estimator("ekf", "lh", inputs="maybe")
 
 
+def test_time_offsets_parse_from_text():
+    from crs_core.estimation.base import parse_time_offsets
+
+    assert parse_time_offsets("lh:0.004, lighthouse/0/1:0.01") == {
+        "lh": 0.004,
+        "lighthouse/0/1": 0.01,
+    }
+    assert parse_time_offsets("") == {}
+    with pytest.raises(ValueError, match=r"time_offsets: 'imu=0\.1' is not"):
+        parse_time_offsets("imu=0.1")
+
+
 def test_no_lighthouse_and_no_x0_is_refused():
     estimator = make_estimator("ekf", "imu+we", inputs="commanded")
     with pytest.raises(ValueError, match="x0: an estimator without Lighthouse"):
