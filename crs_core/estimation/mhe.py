@@ -454,10 +454,13 @@ class MovingHorizonEstimator(Estimator):
         return first, self._arrival_information
 
     def _total_cost(self, X: np.ndarray, data: tuple[np.ndarray, ...]) -> float:
-        first, information = self._arrival_terms()
         cost = self._cost(X, self._U, self._DT, *data, self._p, self._bounds)[0]
+        return float(np.asarray(cost).ravel()[0]) + self._arrival_cost(X)
+
+    def _arrival_cost(self, X: np.ndarray) -> float:
+        first, information = self._arrival_terms()
         d = X[:, first] - self._arrival
-        return float(np.asarray(cost).ravel()[0] + d @ information @ d)
+        return float(d @ information @ d)
 
     def _gauss_newton_step(self) -> None:
         M, nx = self.settings.horizon, self.model.nx
@@ -504,7 +507,7 @@ class MovingHorizonEstimator(Estimator):
             stage0_gradient,
             self._X[:, 1].copy(),
         )
-        before = self._total_cost(self._X, data)
+        before = float(cost[0]) + self._arrival_cost(self._X)
         for fraction in STEP_FRACTIONS:
             candidate = self._X + fraction * step
             after = self._total_cost(candidate, data)
