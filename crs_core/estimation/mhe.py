@@ -64,7 +64,8 @@ from crs_core.estimation.mhe_problem import (
 from crs_core.estimation.noise import initial_std_for
 from crs_core.estimation.readout import ForwardReadOut
 from crs_core.measurements import InputSample, Measurement
-from crs_core.model import MAX_SUBSTEP, CarModel
+from crs_core.model import EFFECTS, MAX_SUBSTEP, CarModel
+from crs_core.model.car_model import ESTIMATED_INPUT_STATES
 
 #: Soft bounds of effect states by name (lower, upper); other effect states are unbounded.
 EXTRA_STATE_BOUNDS: dict[str, tuple[float, float]] = {
@@ -199,9 +200,14 @@ class MovingHorizonEstimator(Estimator):
     @staticmethod
     def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
         names = model.state_names[6:]
-        unknown = set(s.extra_state_bounds) - set(names)
+        known = set(names) | {n for n, _ in ESTIMATED_INPUT_STATES}
+        known |= {n for effect in EFFECTS.values() for n, _ in effect.states}
+        unknown = set(s.extra_state_bounds) - known
         if unknown:
-            raise ValueError(f"extra_state_bounds: {sorted(unknown)} are not effect states")
+            raise ValueError(
+                f"extra_state_bounds: {sorted(unknown)} are not effect states "
+                f"(known: {', '.join(sorted(known))})"
+            )
         table = {**EXTRA_STATE_BOUNDS, **s.extra_state_bounds}
         extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]
         return np.concatenate(

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from crs_core.measurements import parse_lighthouse
+from crs_core.model.effects import EFFECTS
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
 #: initial standard deviation. Actuator lags follow their command closely (small noise); the
@@ -92,12 +93,18 @@ class EstimatorNoise:
         return np.array(table[sensor], dtype=float)
 
     def process_std_for(self, state_names: tuple[str, ...]) -> np.ndarray:
-        """Process noise per state of a model with these state names (base six first)."""
-        unknown = set(self.extra_process_std) - set(state_names[6:])
+        """Process noise per state of a model with these state names (base six first).
+
+        Entries for effect states this model lacks are allowed (one setting serves the
+        commanded and the input-free model); names no model has are refused.
+        """
+        known = set(EXTRA_STATE_DEFAULTS) | set(state_names[6:])
+        known |= {name for effect in EFFECTS.values() for name, _ in effect.states}
+        unknown = set(self.extra_process_std) - known
         if unknown:
             raise ValueError(
-                f"noise.extra_process_std: {sorted(unknown)} are not effect states of the model "
-                f"({', '.join(state_names[6:]) or 'it has none'})"
+                f"noise.extra_process_std: {sorted(unknown)} are not effect states "
+                f"(known: {', '.join(sorted(known))})"
             )
         extra = [
             self.extra_process_std.get(

@@ -288,6 +288,10 @@ def test_settings_are_validated_by_name():
         make_estimator(
             "ekf", "lh", settings=EkfSettings(noise=EstimatorNoise(extra_process_std={"tau": 1.0}))
         )
+    # one setting serves both models of the auto mode (the commanded one lacks these states)
+    noise = EstimatorNoise(extra_process_std={"steer_estimated": 0.5})
+    bounds = {"steer_estimated": (-0.4, 0.4)}
+    make_estimator("mhe", "lh", settings=MheSettings(noise=noise, extra_state_bounds=bounds))
     with pytest.raises(ValueError, match="process_bound: needs 6 values"):
         MheSettings(process_bound=(0.1,) * 8)
     with pytest.raises(ValueError, match="time_offsets: 'lidar' is neither"):
