@@ -24,8 +24,9 @@ import numpy as np
 from scipy.stats import chi2
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
-from crs_core.estimation.base import Estimator, EstimatorSettings, RejectionCap
+from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.noise import initial_std_for
+from crs_core.estimation.rejection import RejectionCap
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel

@@ -54,7 +54,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import compile_functions
-from crs_core.estimation.base import Estimator, EstimatorSettings, RejectionCap
+from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.mhe_problem import (
     Band,
     build_mhe_function,
@@ -63,6 +63,7 @@ from crs_core.estimation.mhe_problem import (
 )
 from crs_core.estimation.noise import initial_std_for
 from crs_core.estimation.readout import ForwardReadOut
+from crs_core.estimation.rejection import RejectionCap
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import EFFECTS, MAX_SUBSTEP, CarModel
 from crs_core.model.car_model import ESTIMATED_INPUT_STATES
