@@ -216,7 +216,22 @@ case "$cmd" in
         bootstrap
         mkdir -p "$CRS_CACHE_DIR"
         out="${OUT:-out/demo}"
-        rm -rf "$out"  # the main job always writes a fresh report
+        # the main job writes a fresh report, but never deletes what it did not write itself:
+        # an existing $OUT is replaced only if an earlier crs run made it (its .crs-output marker)
+        if [ -e "$out" ] && [ ! -d "$out" ]; then
+            echo "run.sh: error: OUT=$out is a file, not a folder (nothing was changed)" >&2
+            exit 2
+        fi
+        if [ -d "$out" ] && [ -n "$(ls -A "$out")" ]; then
+            if [ ! -f "$out/.crs-output" ]; then
+                echo "run.sh: error: OUT=$out holds files that crs did not write; choose an" \
+                    "empty or new folder (nothing was changed)" >&2
+                exit 2
+            fi
+            rm -rf "$out"
+        fi
+        mkdir -p "$out"
+        echo "written by ./run.sh" >"$out/.crs-output"
         "$VENV/bin/crs" demo --out "$out/simulation"
         exec "$VENV/bin/crs" launch sim --cars 1 --estimator mhe --duration 45 --out "$out/stack"
         ;;

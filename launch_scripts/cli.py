@@ -33,9 +33,15 @@ from crs_core.estimation.offline import (
 )
 from crs_core.model import EFFECTS, CarModel
 from crs_core.track import Track, load_demo_track
+from launch_scripts.output_folder import prepare_output
 from sim.report import write_report
 from sim.sensors import Blackout, SensorSuite
 from sim.simulator import Simulator
+
+OVERWRITE_HELP = (
+    "replace an --out folder written by an earlier crs run (a folder holding other files is "
+    "always refused)"
+)
 
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
 
@@ -87,6 +93,9 @@ def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
     track = Track.from_yaml(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        raise ValueError(f"--duration: must be > 0 s and finite, got {args.duration}")
+    out = prepare_output(Path(args.out), args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
     if args.noise_free:
         sensors = sensors.ideal()
@@ -98,7 +107,6 @@ def simulate(args: argparse.Namespace) -> Path:
     result = simulator.run(controller, args.duration, x0, progress=sys.stderr.isatty())
     elapsed = time.perf_counter() - started
     result.extra_meta["noise_free"] = bool(args.noise_free)
-    out = Path(args.out)
     result.to_dataset().save(out)
     print(
         f"dataset: {out}  ({len(result.measurements)} measurements, "
@@ -141,18 +149,6 @@ def parse_rate(text: str | None) -> float | None:
     return rate
 
 
-def writable_folder(path: Path) -> Path:
-    """Create ``path`` if needed and check that files can be written into it."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        probe = path / ".crs_write_test"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as error:
-        raise ValueError(f"--out: cannot write to {path} ({error.strerror or error})") from None
-    return path
-
-
 def estimate(args: argparse.Namespace) -> None:
     """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
     from launch_scripts.estimate_report import format_summary, write_figure
@@ -174,7 +170,7 @@ def estimate(args: argparse.Namespace) -> None:
         raise ValueError(f"--params: {error.args[0]}") from None
     except OSError as error:
         raise ValueError(f"--params: cannot read {args.params} ({error.strerror})") from None
-    out = writable_folder(Path(args.out))
+    out = prepare_output(Path(args.out), "estimate", args.overwrite)
     name = Path(args.dataset).resolve().name
     with tqdm(total=1000, desc=f"estimate {name}", file=sys.stderr, disable=None) as bar:
         try:
@@ -256,6 +252,11 @@ def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
     from launch_scripts.sim_stack import run_stack
 
+    if args.cars < 1:
+        raise ValueError(f"--cars: must be >= 1, got {args.cars}")
+    if not (math.isfinite(args.duration) and args.duration > 0):
+        raise ValueError(f"--duration: must be > 0 s and finite, got {args.duration}")
+    prepare_output(Path(args.out), "launch", args.overwrite)
     report = run_stack(
         args.cars,
         args.estimator,
@@ -310,6 +311,7 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument("--params", type=Path, help="parameter YAML applied to the truth")
         sub.add_argument("--track", type=Path, help="track YAML (CRS format)")
         sub.add_argument("--report", action=argparse.BooleanOptionalAction, default=name == "demo")
+        sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
         sub.set_defaults(handler=simulate)
     sub = commands.add_parser(
         "estimate",
@@ -319,6 +321,7 @@ def make_parser() -> argparse.ArgumentParser:
         "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
     )
     sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.add_argument("--estimator", choices=KINDS, required=True)
     sub.add_argument(
         "--sensors",
@@ -368,6 +371,7 @@ def make_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="estimators initialise from the Lighthouse instead of the known start pose",
     )
+    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=launch)
     sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
     sub.add_argument("tool", choices=["topics", "echo", "hz"])

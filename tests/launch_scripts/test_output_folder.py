@@ -1,0 +1,97 @@
+"""Output folders never lose a user's files: created fresh, ours replaced only on request."""
+
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from launch_scripts.cli import main
+from launch_scripts.output_folder import MARKER, prepare_output
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_a_new_or_empty_folder_is_created_and_marked(tmp_path: Path):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for path in (tmp_path / "new" / "deeper", empty):
+        prepare_output(path, "sim")
+        assert (path / MARKER).is_file()
+
+
+@pytest.mark.parametrize(
+    ("setup", "overwrite", "message"),
+    [
+        ("foreign", False, "holds files that crs did not write"),
+        ("foreign", True, "holds files that crs did not write"),
+        ("ours", False, "pass --overwrite to replace it"),
+        ("file", False, "is a file, not a folder"),
+    ],
+)
+def test_refusals_change_nothing(tmp_path: Path, setup: str, overwrite: bool, message: str):
+    target = tmp_path / "out"
+    if setup == "file":
+        target.write_text("my notes")
+    else:
+        target.mkdir()
+        (target / "thesis.tex").write_text("my thesis")
+        if setup == "ours":
+            (target / MARKER).write_text("written by crs sim\n")
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(ValueError, match=f"--out: .*{message}"):
+        prepare_output(target, "sim", overwrite)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before
+    if setup != "file":
+        assert (target / "thesis.tex").read_text() == "my thesis"
+
+
+def test_overwrite_replaces_only_our_own_folder_completely(tmp_path: Path):
+    target = tmp_path / "out"
+    prepare_output(target, "sim")
+    (target / "report").mkdir()
+    (target / "report" / "stale.png").write_bytes(b"old")
+    prepare_output(target, "sim", overwrite=True)
+    assert sorted(p.name for p in target.iterdir()) == [MARKER]
+
+
+def test_crs_sim_refuses_a_second_run_into_the_same_folder_unless_asked(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    """The second ``crs sim --out`` is refused (one line, exit 2, nothing changed); with
+    ``--overwrite`` the old report does not stay beside the new dataset."""
+    out = tmp_path / "run"
+    assert main(["sim", "--duration", "1", "--out", str(out), "--report"]) == 0
+    assert (out / "report").is_dir()
+    capsys.readouterr()
+    assert main(["sim", "--duration", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crs sim: error: --out: {out} holds the output of an earlier crs run")
+    assert err.count("\n") == 1
+    assert (out / "report").is_dir()
+    assert main(["sim", "--duration", "1", "--out", str(out), "--overwrite", "--no-report"]) == 0
+    assert not (out / "report").exists() and (out / "t.npy").is_file()
+
+
+def test_crs_sim_never_writes_into_a_folder_of_the_user(tmp_path: Path, capsys):
+    (tmp_path / "mine.txt").write_text("keep me")
+    assert main(["sim", "--duration", "1", "--out", str(tmp_path), "--overwrite"]) == 2
+    assert "holds files that crs did not write" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"]
+
+
+def test_run_sh_leaves_a_foreign_file_in_out(tmp_path: Path):
+    """``OUT=folder ./run.sh`` with a user's file in the folder refuses and keeps the file
+    (it used to ``rm -rf "$OUT"``)."""
+    (tmp_path / "mine.txt").write_text("keep me")
+    result = subprocess.run(
+        [str(ROOT / "run.sh")],
+        env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "HOME": str(tmp_path)},
+        capture_output=True,
+        text=True,
+        timeout=600,
+        check=False,
+    )
+    assert result.returncode == 2, result.stderr
+    assert "holds files that crs did not write" in result.stderr
+    assert (tmp_path / "mine.txt").read_text() == "keep me"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"]
