@@ -61,12 +61,11 @@ from crs_core.estimation.mhe_problem import (
     measurement_groups,
     offset_output_functions,
 )
-from crs_core.estimation.noise import initial_std_for
+from crs_core.estimation.noise import check_effect_state_names, initial_std_for
 from crs_core.estimation.readout import ForwardReadOut
 from crs_core.estimation.rejection import RejectionCap
 from crs_core.measurements import InputSample, Measurement
-from crs_core.model import EFFECTS, MAX_SUBSTEP, CarModel
-from crs_core.model.car_model import ESTIMATED_INPUT_STATES
+from crs_core.model import MAX_SUBSTEP, CarModel
 
 #: Soft bounds of effect states by name (lower, upper); other effect states are unbounded.
 EXTRA_STATE_BOUNDS: dict[str, tuple[float, float]] = {
@@ -201,14 +200,7 @@ class MovingHorizonEstimator(Estimator):
     @staticmethod
     def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
         names = model.state_names[6:]
-        known = set(names) | {n for n, _ in ESTIMATED_INPUT_STATES}
-        known |= {n for effect in EFFECTS.values() for n, _ in effect.states}
-        unknown = set(s.extra_state_bounds) - known
-        if unknown:
-            raise ValueError(
-                f"extra_state_bounds: {sorted(unknown)} are not effect states "
-                f"(known: {', '.join(sorted(known))})"
-            )
+        check_effect_state_names(s.extra_state_bounds, "extra_state_bounds")
         table = {**EXTRA_STATE_BOUNDS, **s.extra_state_bounds}
         extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]
         return np.concatenate(

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from crs_core.measurements import parse_lighthouse
+from crs_core.model.car_model import ESTIMATED_INPUT_STATES
 from crs_core.model.effects import EFFECTS
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
@@ -98,14 +99,7 @@ class EstimatorNoise:
         Entries for effect states this model lacks are allowed (one setting serves the
         commanded and the input-free model); names no model has are refused.
         """
-        known = set(EXTRA_STATE_DEFAULTS) | set(state_names[6:])
-        known |= {name for effect in EFFECTS.values() for name, _ in effect.states}
-        unknown = set(self.extra_process_std) - known
-        if unknown:
-            raise ValueError(
-                f"noise.extra_process_std: {sorted(unknown)} are not effect states "
-                f"(known: {', '.join(sorted(known))})"
-            )
+        check_effect_state_names(self.extra_process_std, "noise.extra_process_std")
         extra = [
             self.extra_process_std.get(
                 name, EXTRA_STATE_DEFAULTS.get(name, EXTRA_STATE_FALLBACK)[0]
@@ -113,6 +107,19 @@ class EstimatorNoise:
             for name in state_names[6:]
         ]
         return np.array([*self.process_std, *extra], dtype=float)
+
+
+def check_effect_state_names(names: Iterable[str], field: str) -> None:
+    """``ValueError`` naming ``field`` unless every name is a state some effect (or the
+    input-free model) adds; settings may name states the current model lacks, so one setting
+    serves the commanded and the input-free model."""
+    known = {name for effect in EFFECTS.values() for name, _ in effect.states}
+    known |= {name for name, _ in ESTIMATED_INPUT_STATES}
+    unknown = set(names) - known
+    if unknown:
+        raise ValueError(
+            f"{field}: {sorted(unknown)} are not effect states (known: {', '.join(sorted(known))})"
+        )
 
 
 def initial_std_for(base_std: tuple[float, ...], state_names: tuple[str, ...]) -> np.ndarray:
