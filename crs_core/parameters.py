@@ -165,21 +165,42 @@ class ParameterSet(Mapping[str, Parameter]):
         (``m: 0.25``) or a full entry (``m: {value: 0.25, lower: ..., ...}``). Names not in
         this set are rejected.
         """
-        document = yaml.safe_load(Path(path).read_text())
+        path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder, not a parameter YAML file")
+        try:
+            document = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as error:
+            mark = getattr(error, "problem_mark", None)
+            where = f" at line {mark.line + 1}" if mark is not None else ""
+            problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+            raise ValueError(f"{path}: not valid YAML{where} ({problem})") from None
+        except OSError as error:
+            raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
         if not isinstance(document, dict) or not isinstance(document.get("parameters"), dict):
             raise ValueError(f"{path}: expected a mapping with key 'parameters'")
         return self.updated_from_mapping(document["parameters"], source=str(path))
 
     def updated_from_mapping(self, entries: Mapping[str, Any], source: str = "") -> ParameterSet:
         """Apply ``{name: number | {value, lower, upper, prior_std, ...}}`` onto this set."""
+        where = f"{source}: " if source else ""
         out = []
         for p in self._items.values():
-            entry = entries.get(p.name)
-            if entry is None:
+            if p.name not in entries:
                 out.append(p)
-            elif isinstance(entry, Mapping):
+                continue
+            entry = entries[p.name]
+            if entry is None:
+                raise ValueError(f"{where}parameter {p.name!r}: has no value")
+            if isinstance(entry, Mapping):
+                extra = set(entry) - {*_ENTRY_FIELDS, "unit", "group", "description"}
+                if extra or not set(entry) & set(_ENTRY_FIELDS):
+                    raise ValueError(
+                        f"{where}parameter {p.name!r}: unknown field(s) {sorted(map(str, extra))} "
+                        f"(known: {', '.join(_ENTRY_FIELDS)}, unit, group, description)"
+                    )
                 fields = {}
-                for key in ("value", "lower", "upper", "prior_std"):
+                for key in _ENTRY_FIELDS:
                     if key in entry:
                         fields[key] = _as_float(entry[key], f"{p.name}.{key}", source)
                 out.append(replace(p, **fields))
@@ -187,9 +208,12 @@ class ParameterSet(Mapping[str, Parameter]):
                 out.append(replace(p, value=_as_float(entry, p.name, source)))
         unknown = set(entries) - set(self._items)
         if unknown:
-            where = f"{source}: " if source else ""
             raise KeyError(f"{where}unknown parameter(s) {sorted(unknown)}")
         return ParameterSet(out)
+
+
+#: Numeric fields of a full parameter entry in YAML.
+_ENTRY_FIELDS = ("value", "lower", "upper", "prior_std")
 
 
 def wrap_periodic(value: float, period: float) -> float:

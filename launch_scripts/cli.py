@@ -66,13 +66,58 @@ def parse_effect(text: str) -> tuple[str, str | None, float | None]:
     return effect, parameter or params[0], number
 
 
+#: Sensor prefixes a blackout may name (a station: ``lighthouse/<n>``).
+BLACKOUT_SENSORS = ("lighthouse", "imu", "wheel_encoders", "gyro", "pose")
+#: Longest simulation or launch the CLI accepts, s (the simulator keeps every sample).
+MAX_DURATION_S = 3600.0
+
+
 def parse_blackout(text: str) -> Blackout:
-    """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``."""
+    """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``; one-line errors."""
+    parts = text.split(":")
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected SENSOR:START:DURATION (e.g. lighthouse:10:1.127)"
+        )
+    sensor, start, duration = parts
+    family, _, station = sensor.partition("/")
+    if family not in BLACKOUT_SENSORS or (
+        station and (family != "lighthouse" or not station.isdigit())
+    ):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: sensor {sensor!r} is not one of {', '.join(BLACKOUT_SENSORS)} or "
+            "lighthouse/<station>"
+        )
+    values = []
+    for name, value in (("START", start), ("DURATION", duration)):
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not math.isfinite(number):
+            raise argparse.ArgumentTypeError(f"{text!r}: {name} {value!r} is not a finite number")
+        values.append(number)
     try:
-        sensor, start, duration = text.split(":")
-        return Blackout(sensor, float(start), float(duration))
+        return Blackout(sensor, *values)
     except ValueError as error:
-        raise argparse.ArgumentTypeError(f"blackout {text!r}: {error}") from None
+        raise argparse.ArgumentTypeError(f"{text!r}: {str(error).partition(': ')[2]}") from None
+
+
+def bounded_number(name: str, unit: str, low: float, high: float, kind=float):
+    """An argparse type: a finite ``kind`` in ``(low, high]`` (``low`` excluded), named."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and low < value <= high):
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: {name} must be > {low:g} and <= {high:g} {unit}".rstrip()
+            )
+        return value
+
+    return parse
 
 
 def build_model(
@@ -93,8 +138,6 @@ def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
     track = Track.from_yaml(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
-    if not (math.isfinite(args.duration) and args.duration > 0):
-        raise ValueError(f"--duration: must be > 0 s and finite, got {args.duration}")
     out = prepare_output(Path(args.out), args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
     if args.noise_free:
@@ -252,10 +295,6 @@ def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
     from launch_scripts.sim_stack import run_stack
 
-    if args.cars < 1:
-        raise ValueError(f"--cars: must be >= 1, got {args.cars}")
-    if not (math.isfinite(args.duration) and args.duration > 0):
-        raise ValueError(f"--duration: must be > 0 s and finite, got {args.duration}")
     prepare_output(Path(args.out), "launch", args.overwrite)
     report = run_stack(
         args.cars,
@@ -272,6 +311,8 @@ def launch(args: argparse.Namespace) -> None:
 
 def ros_tool(args: argparse.Namespace) -> None:
     """``crs ros topics|echo|hz``."""
+    if args.tool in ("echo", "hz") and not args.topic:
+        raise ValueError(f"TOPIC: {args.tool} needs a topic, e.g. crs ros {args.tool} /car1/input")
     from ros4crs import tools
 
     if args.tool == "topics":
@@ -284,15 +325,27 @@ def ros_tool(args: argparse.Namespace) -> None:
         print(json.dumps(tools.rate(args.topic, args.window, args.timeout)))
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """Argument errors as one line, ``crs <cmd>: error: <argument>: <reason>``, exit code 2."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def make_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="crs", description=__doc__)
+    parser = OneLineParser(prog="crs", description=__doc__)
     commands = parser.add_subparsers(dest="command", required=True)
     for name, help_text, duration in (
         ("sim", "simulate the car on a track and save a dataset", 30.0),
         ("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0),
     ):
         sub = commands.add_parser(name, help=help_text)
-        sub.add_argument("--duration", type=float, default=duration, help="simulated time, s")
+        sub.add_argument(
+            "--duration",
+            type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
+            default=duration,
+            help=f"simulated time, s (default {duration:g}, at most {MAX_DURATION_S:g})",
+        )
         sub.add_argument("--seed", type=int, default=0)
         sub.add_argument("--out", required=name == "sim", default="out/demo")
         sub.add_argument("--noise-free", action="store_true", help="ideal sensors")
@@ -306,8 +359,18 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument(
             "--blackout", type=parse_blackout, action="append", metavar="SENSOR:START:DURATION"
         )
-        sub.add_argument("--stations", type=int, default=1, help="Lighthouse base stations")
-        sub.add_argument("--speed", type=float, default=1.0, help="reference speed, m/s")
+        sub.add_argument(
+            "--stations",
+            type=bounded_number("stations", "", 0, 8, int),
+            default=1,
+            help="Lighthouse base stations, 1..8 (default 1)",
+        )
+        sub.add_argument(
+            "--speed",
+            type=bounded_number("speed", "m/s", 0.0, 5.0),
+            default=1.0,
+            help="reference speed of the path follower, m/s (default 1.0, at most 5)",
+        )
         sub.add_argument("--params", type=Path, help="parameter YAML applied to the truth")
         sub.add_argument("--track", type=Path, help="track YAML (CRS format)")
         sub.add_argument("--report", action=argparse.BooleanOptionalAction, default=name == "demo")
@@ -360,9 +423,16 @@ def make_parser() -> argparse.ArgumentParser:
     sub.set_defaults(handler=bench)
     sub = commands.add_parser("launch", help="run the ROS 2 node suite")
     sub.add_argument("scenario", choices=["sim"])
-    sub.add_argument("--cars", type=int, default=1)
+    sub.add_argument(
+        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
+    )
     sub.add_argument("--estimator", choices=["ekf", "mhe"], default="mhe")
-    sub.add_argument("--duration", type=float, default=40.0, help="wall-clock s")
+    sub.add_argument(
+        "--duration",
+        type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
+        default=40.0,
+        help=f"wall-clock s (default 40, at most {MAX_DURATION_S:g})",
+    )
     sub.add_argument("--out", type=Path, required=True)
     sub.add_argument("--domain", type=int, help="ROS_DOMAIN_ID (default: env or 42)")
     sub.add_argument("--seed", type=int, default=0)
@@ -375,17 +445,37 @@ def make_parser() -> argparse.ArgumentParser:
     sub.set_defaults(handler=launch)
     sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
     sub.add_argument("tool", choices=["topics", "echo", "hz"])
-    sub.add_argument("topic", nargs="?")
-    sub.add_argument("--count", type=int, default=1)
-    sub.add_argument("--window", type=float, default=2.0, help="hz: seconds to listen")
-    sub.add_argument("--wait", type=float, default=1.0, help="topics: discovery time, s")
-    sub.add_argument("--timeout", type=float, default=5.0)
+    sub.add_argument("topic", nargs="?", help="echo, hz: the topic, e.g. /car1/estimate/state")
+    sub.add_argument(
+        "--count", type=bounded_number("count", "", 0, 1e6, int), default=1, help="echo: messages"
+    )
+    sub.add_argument(
+        "--window",
+        type=bounded_number("window", "s", 0.0, 3600.0),
+        default=2.0,
+        help="hz: seconds to listen (default 2)",
+    )
+    sub.add_argument(
+        "--wait",
+        type=bounded_number("wait", "s", 0.0, 3600.0),
+        default=1.0,
+        help="topics: discovery time, s (default 1)",
+    )
+    sub.add_argument(
+        "--timeout",
+        type=bounded_number("timeout", "s", 0.0, 3600.0),
+        default=5.0,
+        help="echo, hz: give up after this many s without a message (default 5)",
+    )
     sub.set_defaults(handler=ros_tool)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = make_parser().parse_args(argv)
+    try:
+        args = make_parser().parse_args(argv)
+    except SystemExit as exit_:  # --help, or an argument error already printed in one line
+        return int(exit_.code or 0)
     try:
         args.handler(args)
     except (ValueError, KeyError, FileNotFoundError, FileExistsError) as error:

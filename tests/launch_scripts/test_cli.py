@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -104,9 +105,7 @@ def test_report_writes_summary_and_two_plots(report_run: tuple[int, Path]):
 
 def test_unknown_effect_is_an_argparse_error(tmp_path: Path, capsys: pytest.CaptureFixture):
     """`--effect bogus` exits with code 2 and names the effect and the known ones."""
-    with pytest.raises(SystemExit) as excinfo:
-        main(["sim", "--out", str(tmp_path / "x"), "--effect", "bogus=1"])
-    assert excinfo.value.code == 2
+    assert main(["sim", "--out", str(tmp_path / "x"), "--effect", "bogus=1"]) == 2
     err = capsys.readouterr().err
     assert "unknown effect 'bogus'" in err
     assert "steering_lag" in err
@@ -117,9 +116,7 @@ def test_unknown_effect_parameter_is_an_argparse_error(
     tmp_path: Path, capsys: pytest.CaptureFixture
 ):
     """`--effect input_delay.bogus=1` exits with code 2 and lists the effect's parameters."""
-    with pytest.raises(SystemExit) as excinfo:
-        main(["sim", "--out", str(tmp_path / "x"), "--effect", "input_delay.bogus=1"])
-    assert excinfo.value.code == 2
+    assert main(["sim", "--out", str(tmp_path / "x"), "--effect", "input_delay.bogus=1"]) == 2
     err = capsys.readouterr().err
     assert "effect 'input_delay' has no parameter 'bogus'" in err
     assert not (tmp_path / "x").exists()
@@ -146,11 +143,83 @@ def test_parse_effect_rejects_non_numbers():
 
 
 def test_parse_blackout():
-    """SENSOR:START:DURATION parses to a Blackout; malformed or negative forms are rejected."""
+    """SENSOR:START:DURATION parses to a Blackout; malformed, unknown or non-finite forms are
+    rejected with what is wrong."""
     assert parse_blackout("lighthouse:10:1.127") == Blackout("lighthouse", 10.0, 1.127)
-    for bad in ("lighthouse:10", "imu:a:1", "imu:-1:1", "imu:1:0"):
-        with pytest.raises(argparse.ArgumentTypeError, match="blackout"):
+    assert parse_blackout("lighthouse/1:0:1") == Blackout("lighthouse/1", 0.0, 1.0)
+    cases = {
+        "lighthouse:10": "expected SENSOR:START:DURATION",
+        "bogus:1:1": "sensor 'bogus' is not one of",
+        "imu/2:1:1": "sensor 'imu/2' is not one of",
+        "lighthouse:nan:1": "START 'nan' is not a finite number",
+        "imu:a:1": "START 'a' is not a finite number",
+        "imu:1:inf": "DURATION 'inf' is not a finite number",
+        "imu:-1:1": "start >= 0",
+        "imu:1:0": "duration > 0",
+    }
+    for bad, message in cases.items():
+        with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
             parse_blackout(bad)
+
+
+BAD_INPUTS = [
+    (["sim", "--duration", "inf"], "crs sim: error: argument --duration: 'inf': duration must be"),
+    (["sim", "--duration", "1e9"], "duration must be > 0 and <= 3600 s"),
+    (["sim", "--duration", "-3"], "duration must be > 0 and <= 3600 s"),
+    (["sim", "--duration", "nan"], "argument --duration: 'nan'"),
+    (["sim", "--blackout", "bogus:1:1"], "argument --blackout: 'bogus:1:1': sensor 'bogus'"),
+    (["sim", "--blackout", "lighthouse:nan:1"], "START 'nan' is not a finite number"),
+    (["sim", "--blackout", "lighthouse:1"], "expected SENSOR:START:DURATION"),
+    (["sim", "--speed", "-1"], "argument --speed: '-1': speed must be > 0 and <= 5 m/s"),
+    (["sim", "--stations", "0"], "argument --stations: '0': stations must be > 0"),
+    (["launch", "sim", "--duration", "0"], "crs launch: error: argument --duration: '0'"),
+    (["launch", "sim", "--cars", "0"], "argument --cars: '0': cars must be > 0"),
+    (["ros", "echo"], "crs ros: error: TOPIC: echo needs a topic"),
+    (["ros", "hz", "/car1/input", "--window", "-1"], "argument --window: '-1': window must"),
+]
+
+
+@pytest.mark.parametrize(("argv", "message"), BAD_INPUTS)
+def test_bad_arguments_give_one_line_and_start_nothing(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    """Each bad argument: exit code 2, one line naming the argument, no output written."""
+    out = tmp_path / "out"
+    if argv[0] in ("sim", "launch"):
+        argv = [*argv, "--out", str(out)]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert err.count("\n") == 1, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        ("parameters:\n  m:\n", "parameter 'm': has no value"),
+        ("parameters:\n  m: {valu: 0.3}\n", "parameter 'm': unknown field(s) ['valu']"),
+        ("parameters:\n  m: [1, 2\n", "not valid YAML at line"),
+        ("parameters:\n  m: heavy\n", "parameter 'm': expected a number, got 'heavy'"),
+        ("parameters:\n  mass: 0.3\n", "unknown parameter(s) ['mass']"),
+    ],
+)
+def test_bad_parameter_files_are_refused_naming_the_field(
+    content: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    params = tmp_path / "p.yaml"
+    params.write_text(content)
+    out = tmp_path / "out"
+    assert main(["sim", "--params", str(params), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("crs sim: error: ") and message in err, err
+    assert err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_a_folder_as_parameter_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture):
+    assert main(["sim", "--params", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
+    assert "is a folder, not a parameter YAML file" in capsys.readouterr().err
 
 
 def test_run_time_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.CaptureFixture):
@@ -160,7 +229,7 @@ def test_run_time_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.Capture
     assert "crs sim: error:" in capsys.readouterr().err
     code = main(["sim", "--out", str(tmp_path / "b"), "--duration", "0"])
     assert code == 2
-    assert "duration: must be > 0" in capsys.readouterr().err
+    assert "duration must be > 0" in capsys.readouterr().err
 
 
 # --- crs estimate ---------------------------------------------------------------------------------
