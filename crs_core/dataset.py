@@ -248,6 +248,12 @@ class Dataset:
             raise ValueError(f"y.npy: expected shape ({len(Y_CHANNELS)}, N), got {y.shape}")
         if x_recorded is not None and (x_recorded.ndim != 2 or x_recorded.shape[0] != 6):
             raise ValueError(f"x.npy: expected shape (6, N), got {x_recorded.shape}")
+        for name, array in (("y.npy", y), ("u.npy", u_recorded), ("x.npy", x_recorded)):
+            if array is not None and array.shape[1] != t.size:
+                raise ValueError(
+                    f"{name}: has {array.shape[1]} samples but t.npy has {t.size} (one column "
+                    "per stamp)"
+                )
         x = x_recorded.T.copy() if x_recorded is not None else None
         u = u_recorded[::-1].T.copy() if u_recorded is not None else None
         meta: dict[str, Any] = {"source": "real"}

@@ -7,6 +7,7 @@ missing sample and is skipped.
 
 from __future__ import annotations
 
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,7 +56,7 @@ def read_stream(path: Path, stations: int) -> StreamContents:
     """Read ``stream.npz``; ``stations`` is the number of base stations of the geometry."""
     try:
         archive = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError) as error:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
         problem = str(error).splitlines()[0] if str(error) else type(error).__name__
         raise ValueError(f"stream.npz: not a readable .npz archive ({problem})") from None
     if not isinstance(archive, np.lib.npyio.NpzFile):
@@ -65,7 +66,7 @@ def read_stream(path: Path, stations: int) -> StreamContents:
         for key in data.files:
             try:
                 arrays[key] = np.asarray(data[key])
-            except (OSError, ValueError, EOFError) as error:
+            except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
                 raise ValueError(f"stream.npz: {key} cannot be read ({error})") from None
     measurements = []
     for key in arrays:

@@ -201,10 +201,10 @@ def test_u_of_wrong_shape_is_rejected(corruptible: Path, shape: tuple[int, ...])
 
 
 def test_u_of_wrong_length_is_rejected(corruptible: Path):
-    """u.npy with one sample too many is rejected naming u."""
+    """u.npy with one sample too many is rejected naming u.npy and both counts."""
     n = np.load(corruptible / "t.npy").size
     np.save(corruptible / "u.npy", np.zeros((2, n + 1)))
-    with pytest.raises(ValueError, match=r"^u: expected shape"):
+    with pytest.raises(ValueError, match=rf"^u\.npy: has {n + 1} samples but t\.npy has {n}"):
         Dataset.load(corruptible)
 
 
@@ -503,4 +503,22 @@ def test_x_without_six_rows_is_rejected(corruptible: Path):
     """An x.npy of poses only (3 rows) is rejected naming x.npy and the expected shape."""
     np.save(corruptible / "x.npy", np.load(corruptible / "x.npy")[:3])
     with pytest.raises(ValueError, match=r"^x\.npy: expected shape \(6, N\), got \(3, "):
+        Dataset.load(corruptible)
+
+
+def test_t_one_sample_short_names_the_files_and_counts(corruptible: Path):
+    """t.npy one stamp short: the error names the file that disagrees with t.npy and both
+    counts (it used to blame u with transposed shapes)."""
+    t = np.load(corruptible / "t.npy")
+    np.save(corruptible / "t.npy", t[:-1])
+    with pytest.raises(
+        ValueError, match=rf"y\.npy: has {t.size} samples but t\.npy has {t.size - 1}"
+    ):
+        Dataset.load(corruptible)
+
+
+def test_truncated_stream_is_a_one_line_error(corruptible: Path):
+    data = (corruptible / "stream.npz").read_bytes()
+    (corruptible / "stream.npz").write_bytes(data[:1000])
+    with pytest.raises(ValueError, match=r"^stream\.npz: not a readable \.npz archive"):
         Dataset.load(corruptible)
