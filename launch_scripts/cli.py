@@ -33,7 +33,7 @@ from crs_core.estimation.offline import (
 )
 from crs_core.model import EFFECTS, CarModel
 from crs_core.track import Track, load_demo_track
-from launch_scripts.output_folder import prepare_output
+from launch_scripts.output_folder import prepare_output, prepare_output_file
 from sim.report import write_report
 from sim.sensors import Blackout, SensorSuite
 from sim.simulator import Simulator
@@ -253,6 +253,8 @@ def estimate(args: argparse.Namespace) -> None:
 
 def consistency(args: argparse.Namespace) -> None:
     """Real-data consistency of the sensor models (median / p95 error per channel)."""
+    if args.out:
+        prepare_output_file(args.out, args.overwrite)
     folders = args.data or sorted(p for p in REAL_DATA.iterdir() if p.is_dir())
     rows = {}
     for folder in folders:
@@ -273,6 +275,8 @@ def bench(args: argparse.Namespace) -> None:
     """``crs bench model`` or ``crs bench estimation``: JSON to ``--out`` and stdout."""
     from sim.benchmarks import machine, model_benchmark
 
+    if args.out:
+        prepare_output_file(args.out, args.overwrite)
     if args.what == "model":
         result = model_benchmark()
         text = json.dumps(result, indent=2)
@@ -414,11 +418,18 @@ def make_parser() -> argparse.ArgumentParser:
     sub = commands.add_parser("consistency", help="sensor models vs. the real recordings")
     sub.add_argument("--data", type=Path, action="append", help="dataset folder(s)")
     sub.add_argument("--out", type=Path, help="JSON file")
+    sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     sub.set_defaults(handler=consistency)
     sub = commands.add_parser("bench", help="benchmarks that print JSON")
     sub.add_argument("what", choices=["model", "estimation"])
     sub.add_argument("--out", type=Path, help="JSON file")
-    sub.add_argument("--seeds", type=int, default=5, help="estimation: seeds per row")
+    sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    sub.add_argument(
+        "--seeds",
+        type=bounded_number("seeds", "", 0, 50, int),
+        default=5,
+        help="estimation: seeds per row (default 5)",
+    )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.set_defaults(handler=bench)
     sub = commands.add_parser("launch", help="run the ROS 2 node suite")

@@ -57,3 +57,22 @@ def prepare_output(
     except OSError as error:
         raise ValueError(f"{option}: cannot write to {path} ({error.strerror or error})") from None
     return path
+
+
+def prepare_output_file(path: Path, overwrite: bool = False, option: str = "--out") -> Path:
+    """Check, before any work, that the file ``path`` can be written: its folder is created;
+    an existing file is replaced only with ``overwrite``; ``ValueError`` naming ``option``."""
+    path = Path(path)
+    if str(path).strip() == "":
+        raise ValueError(f"{option}: must name a file, got an empty string")
+    if path.is_dir():
+        raise ValueError(f"{option}: {path} is a folder; name a file, e.g. {path / 'out.json'}")
+    if path.exists() and not overwrite:
+        raise ValueError(f"{option}: {path} exists; pass --overwrite to replace it")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with path.open("a"):
+            pass
+    except OSError as error:
+        raise ValueError(f"{option}: cannot write to {path} ({error.strerror or error})") from None
+    return path

@@ -95,3 +95,31 @@ def test_run_sh_leaves_a_foreign_file_in_out(tmp_path: Path):
     assert "holds files that crs did not write" in result.stderr
     assert (tmp_path / "mine.txt").read_text() == "keep me"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.txt"]
+
+
+@pytest.mark.parametrize(
+    ("setup", "overwrite", "message"),
+    [
+        ("exists", False, "exists; pass --overwrite to replace it"),
+        ("folder", False, "is a folder; name a file"),
+        ("under_file", True, "cannot write to"),
+    ],
+)
+def test_json_outputs_are_checked_before_any_work(
+    tmp_path: Path, setup: str, overwrite: bool, message: str, capsys: pytest.CaptureFixture
+):
+    """``crs consistency --out`` (and ``crs bench``) refuse a bad --out before running, one
+    line, exit code 2; an existing file is left as it was."""
+    target = {"exists": tmp_path / "mine.json", "folder": tmp_path, "under_file": None}[setup]
+    if setup == "exists":
+        target.write_text("my numbers")
+    if setup == "under_file":
+        (tmp_path / "file").write_text("")
+        target = tmp_path / "file" / "out.json"
+    argv = ["consistency", "--out", str(target)] + (["--overwrite"] if overwrite else [])
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("crs consistency: error: --out: ") and message in err, err
+    assert err.count("\n") == 1
+    if setup == "exists":
+        assert target.read_text() == "my numbers"
