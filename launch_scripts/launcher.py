@@ -83,6 +83,11 @@ class Launcher:
         env["ROS_DOMAIN_ID"] = str(self.domain_id)
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         env["PYTHONUNBUFFERED"] = "1"
+        # node logs with local date and time (rcutils' default is raw epoch seconds)
+        env.setdefault(
+            "RCUTILS_CONSOLE_OUTPUT_FORMAT",
+            "[{severity}] [{date_time_with_ms}] [{name}]: {message}",
+        )
         return env
 
     def start(self) -> None:
