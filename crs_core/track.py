@@ -348,6 +348,14 @@ class Track:
         """Number of centerline samples in one lap."""
         return int(self.x.size)
 
+    def borders(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Left and right track edges (N, 2), m: the centerline moved by half the width along
+        its normal (left in the direction of travel first)."""
+        normal = np.stack([-np.sin(self.heading), np.cos(self.heading)], axis=1)
+        centre = np.stack([self.x, self.y], axis=1)
+        half = np.asarray(self.width, dtype=float).reshape(-1, 1) / 2
+        return centre + half * normal, centre - half * normal
+
     def wrap_s(self, s: ArrayLike) -> NDArray[np.float64] | float:
         """Wrap arc length(s) into ``[0, length)``.
 

@@ -108,10 +108,7 @@ def _plot_path(ax, result: OfflineEstimates, dataset: Dataset) -> None:
     found = result.status != "lost"
     track = _track_near(result.x[:2, found])
     if track is not None:
-        normal = np.stack([-np.sin(track.heading), np.cos(track.heading)], axis=1)
-        centre = np.stack([track.x, track.y], axis=1)
-        for side, label in ((-1, "DEMO_TRACK borders"), (1, None)):
-            edge = centre + side * track.width / 2 * normal
+        for edge, label in zip(track.borders(), ("DEMO_TRACK borders", None), strict=True):
             ax.plot(edge[:, 0], edge[:, 1], color="0.75", lw=1, label=label)
     if dataset.x is not None:
         ax.plot(dataset.x[:, 0], dataset.x[:, 1], color="0.45", lw=1.2, label=_reference(dataset))
