@@ -297,7 +297,7 @@ def bench(args: argparse.Namespace) -> None:
 
 def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
-    from launch_scripts.sim_stack import run_stack
+    from launch_scripts.sim_stack import run_stack, summary
 
     prepare_output(Path(args.out), "launch", args.overwrite)
     report = run_stack(
@@ -309,8 +309,7 @@ def launch(args: argparse.Namespace) -> None:
         args.seed,
         blind_start=args.blind_start,
     )
-    print(json.dumps(report, indent=2))
-    print(f"report: {Path(args.out) / 'report.json'}")
+    print(summary(report, Path(args.out)))
 
 
 def ros_tool(args: argparse.Namespace) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -95,7 +96,9 @@ def run_stack(
             f"[launch] node {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}"
         )
 
-    deaths = launcher.run(duration, on_exit=report_death)
+    print(f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator} for {duration:g} s", flush=True)
+    deaths = launcher.run(duration, on_exit=report_death, until=_progress(launcher, duration))
+    print("[launch] stopped; analysing the bag", flush=True)
     report = analyse(bag, cars)
     report["estimator"] = estimator
     report["duration_s"] = duration
@@ -105,6 +108,54 @@ def run_stack(
     (out / "report.json").write_text(json.dumps(report, indent=2))
     plot(bag, cars, out, estimator)
     return report
+
+
+def _progress(launcher: Launcher, duration: float, every: float = 5.0):
+    """An ``until`` callback for :meth:`Launcher.run` that prints a progress line every
+    ``every`` s (and never stops the run)."""
+    started, due = time.monotonic(), [every]
+
+    def tick() -> bool:
+        elapsed = time.monotonic() - started
+        if elapsed >= due[0]:
+            running = sum(p.poll() is None for p in launcher.processes.values())
+            total = len(launcher.processes)
+            print(
+                f"[launch] {elapsed:3.0f} / {duration:g} s: {running} of {total} nodes running",
+                flush=True,
+            )
+            due[0] += every
+        return False
+
+    return tick
+
+
+def summary(report: dict[str, Any], out: Path) -> str:
+    """A few lines for a person: laps, errors, deadline misses, deaths, where the report is."""
+    lines = []
+    for car, c in report["cars"].items():
+        rmse = c.get("estimation_rmse") or {}
+        times = ", ".join(f"{t:.1f}" for t in c.get("lap_times_s", []))
+        laps = f"{c.get('laps_completed', 0)} laps" + (f" ({times} s)" if times else "")
+        errors = (
+            f"RMSE x {1e3 * rmse['x']:.1f} mm, y {1e3 * rmse['y']:.1f} mm, "
+            f"yaw {1e3 * rmse['yaw']:.1f} mrad"
+            if rmse
+            else "no estimates"
+        )
+        lines.append(
+            f"{car}: {laps}; {errors}; "
+            f"{c.get('estimator_deadline_misses', 0)} deadline misses in "
+            f"{c.get('estimator_updates', 0)} updates"
+        )
+    deaths = report.get("node_deaths") or []
+    lines.append(
+        "node deaths: " + (", ".join(f"{d['node']} ({d['returncode']})" for d in deaths) or "none")
+    )
+    cpu = report.get("cpu_percent", {})
+    lines.append("CPU % of one core: " + ", ".join(f"{n} {v:g}" for n, v in cpu.items()))
+    lines.append(f"report: {out / 'report.json'}, {out / 'path.png'}, bag {out / 'bag'}")
+    return "\n".join(lines)
 
 
 def analyse(bag: Path, cars: int) -> dict[str, Any]:
