@@ -341,7 +341,16 @@ class Estimator:
         else:
             x, covariance = self._estimate(t)
             problem = self._implausible(x, t)
-            if problem:
+            if problem and not self.sensors & {"lh", "pose"}:
+                # nothing absolute to re-initialise from: restart from the last good estimate
+                self.diagnostics.reinitializations += 1
+                self._lost_reason = problem.replace(
+                    "re-initialising from the Lighthouse",
+                    "restarted from the last good estimate (no Lighthouse or pose sensor)",
+                )
+                estimate = self._lost_estimate(t)
+                self._reset_state(t, estimate.x, None)
+            elif problem:
                 self.diagnostics.reinitializations += 1
                 self._start_initializer(problem)
                 estimate = self._lost_estimate(t)

@@ -361,3 +361,21 @@ def test_input_free_estimation_on_a_real_recording(kind):
     comparison = reference_comparison(result, dataset)["rmse_settled"]
     assert comparison["position"] < 0.02, comparison
     assert result.diagnostics["reinitializations"] == 0
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_runaway_without_lighthouse_restarts_instead_of_failing(drive, kind):
+    """IMU and encoders only, fed a wheel speed that claims 30 m/s: the EKF's state leaves the
+    envelope, the estimate says lost and restarts from the last good one (no exception); the
+    MHE's soft speed bounds keep it inside."""
+    estimator = make_estimator(kind, "imu+we", inputs="commanded")
+    estimator.reset(0.0, start_state(drive))
+    for k in range(1, 40):
+        t = k / 60
+        estimator.add_measurement(Measurement(t, "wheel_encoders", np.full(4, 30 / 0.0175)))
+        estimate = estimator.estimate(t)
+        assert np.all(np.isfinite(estimate.x))
+    if kind == "ekf":
+        assert estimator.diagnostics.reinitializations >= 1
+    else:
+        assert abs(estimate.x[3]) <= 10.0
