@@ -27,7 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
-from crs_core.estimation import EkfSettings, MheSettings, make_estimator
+from crs_core.estimation import EkfSettings, MheSettings, make_estimator, parse_sensor_set
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
@@ -49,6 +49,8 @@ class EstimatorNode(Node):
         horizon = int(declare(self, "horizon", 40, "MHE horizon"))
         inputs = declare(self, "inputs", "auto", "auto, commanded or estimated")
         self.blind_start = bool(declare(self, "blind_start", False, "start from the Lighthouse"))
+        if self.blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
+            raise ValueError("blind_start: needs lh (Lighthouse) or pose among the sensors")
         stations = int(declare(self, "stations", 1, "Lighthouse base stations"))
         params_file = declare(self, "params_file", "", "model parameter YAML")
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
@@ -169,7 +171,11 @@ class EstimatorNode(Node):
             return
         self._last_query = t
         start = time.perf_counter()
-        estimate = self.estimator.estimate(t)
+        try:
+            estimate = self.estimator.estimate(t)
+        except ValueError as error:  # e.g. a clock that jumped back: say so, keep running
+            self._warn_status(f"no estimate at {t:.3f} s: {error}")
+            return
         elapsed = time.perf_counter() - start
         self.updates += 1
         self._max_solve = max(self._max_solve, elapsed)
