@@ -237,14 +237,15 @@ class MovingHorizonEstimator(Estimator):
             weight[:6] = 1.0 / np.clip(np.diag(covariance), 1e-12, None)
         self._input_history: list[InputSample] = [InputSample(t0, self._last_input)]
         self._pending: list[tuple[float, str, int, Measurement]] = []
-        self._restart_window(t0, x, weight)
+        self._anchor = t0  # node k sits at anchor + k / rate_hz
+        self._restart_window(0, x, weight)
 
-    def _restart_window(self, t0: float, x: np.ndarray, weight: np.ndarray) -> None:
-        """A window of one node at ``t0`` (the grid anchor) holding ``x`` with prior ``weight``."""
+    def _restart_window(self, node: int, x: np.ndarray, weight: np.ndarray) -> None:
+        """A window of one node, grid node ``node``, holding ``x`` with prior ``weight``."""
         M, ny = self.settings.horizon, self._slot[self.groups[-1]].stop
         ng = len(self.groups)
-        self._anchor, self._newest = t0, 0  # node times are anchor + k / rate_hz
-        self._times = np.full(M + 1, t0)
+        self._newest = node
+        self._times = np.full(M + 1, self._anchor + node * self._dt)
         self._X = np.tile(x[:, None], (1, M + 1))
         self._active = 1  # nodes in use, at the end of the arrays
         self._ysum = np.zeros((ny, M + 1))
@@ -423,9 +424,7 @@ class MovingHorizonEstimator(Estimator):
             dropped += 1
         self.diagnostics.late += dropped
         self.diagnostics.skipped_s += skipped
-        anchor, newest = self._anchor, k_start
-        self._restart_window(t_start, x, self._default_initial_weight.copy())
-        self._anchor, self._newest = anchor, newest
+        self._restart_window(k_start, x, self._default_initial_weight.copy())
         self._fallback_event(t, f"skipped {skipped:.2f} s of data after a stall")
 
     def _weights(self) -> tuple[np.ndarray, ...]:
@@ -569,7 +568,5 @@ class MovingHorizonEstimator(Estimator):
         """
         finite = np.nonzero(np.all(np.isfinite(self._X), axis=0))[0]
         x = self._X[:, finite[-1]].copy() if finite.size else self._arrival.copy()
-        anchor, newest = self._anchor, self._newest
-        self._restart_window(float(self._times[-1]), x, self._default_initial_weight.copy())
-        self._anchor, self._newest = anchor, newest
+        self._restart_window(self._newest, x, self._default_initial_weight.copy())
         self._fallback_event(stamp, f"{reason}; restarted from the last finite estimate")
