@@ -97,7 +97,7 @@ class EstimatorSettings:
         Assumed process and measurement noise.
     initial_std : tuple of float
         Initial standard deviation of ``[x, y, yaw, vx, vy, omega]`` when ``reset`` is given a
-        state but no covariance (effect states: :meth:`EstimatorNoise.extra_initial_std`).
+        state but no covariance (effect states: :func:`~crs_core.estimation.noise.initial_std_for`).
     time_offsets : mapping of str to float
         Per sensor (``"lighthouse/0/1"``) or sensor group (``"lh"``, ``"imu"``, ``"we"``,
         ``"gyro"``, ``"pose"``) the delay ``d`` (s) of its stamps: a value stamped ``t``
@@ -341,19 +341,18 @@ class Estimator:
         else:
             x, covariance = self._estimate(t)
             problem = self._implausible(x, t)
-            if problem and not self.sensors & {"lh", "pose"}:
-                # nothing absolute to re-initialise from: restart from the last good estimate
+            if problem:
                 self.diagnostics.reinitializations += 1
-                self._lost_reason = problem.replace(
-                    "re-initialising from the Lighthouse",
-                    "restarted from the last good estimate (no Lighthouse or pose sensor)",
-                )
-                estimate = self._lost_estimate(t)
-                self._reset_state(t, estimate.x, None)
-            elif problem:
-                self.diagnostics.reinitializations += 1
-                self._start_initializer(problem)
-                estimate = self._lost_estimate(t)
+                if self.sensors & {"lh", "pose"}:
+                    self._start_initializer(f"{problem}; re-initialising from the Lighthouse")
+                    estimate = self._lost_estimate(t)
+                else:  # nothing absolute to re-initialise from: the last good estimate
+                    self._lost_reason = (
+                        f"{problem}; restarted from the last good estimate (no Lighthouse or "
+                        "pose sensor)"
+                    )
+                    estimate = self._lost_estimate(t)
+                    self._reset_state(t, estimate.x, None)
             else:
                 status, reason = self._health.status(t)
                 estimate = Estimate(t, x, covariance, status, reason)
@@ -398,18 +397,15 @@ class Estimator:
         """Why the state ``x`` at ``t`` cannot be trusted at all ('' if it can)."""
         h = self.settings.health
         if not np.all(np.isfinite(x)):
-            return "the state became non-finite; re-initialising from the Lighthouse"
+            return "the state became non-finite"
         if max(abs(x[3]), abs(x[4])) > h.max_speed or abs(x[5]) > h.max_yaw_rate:
             return (
                 f"the state left the physical envelope (v {x[3]:.1f}, {x[4]:.1f} m/s, "
-                f"omega {x[5]:.1f} rad/s); re-initialising from the Lighthouse"
+                f"omega {x[5]:.1f} rad/s)"
             )
         disagreement = self._health.disagreeing_since(t) if "lh" in self.sensors else None
         if disagreement is not None:
-            return (
-                f"every Lighthouse sample rejected for {disagreement:.2f} s; re-initialising "
-                "from the Lighthouse"
-            )
+            return f"every Lighthouse sample rejected for {disagreement:.2f} s"
         return ""
 
     def _accept(self, sensor: str, stamp: float) -> None:
