@@ -25,7 +25,7 @@ from scipy.stats import chi2
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.estimation.base import Estimator, EstimatorSettings
-from crs_core.estimation.noise import initial_std_for
+from crs_core.estimation.noise import EstimatorNoise, initial_std_for
 from crs_core.estimation.rejection import RejectionCap
 from crs_core.integrators import rk4
 from crs_core.measurements import InputSample, Measurement
@@ -103,6 +103,73 @@ def build_ekf_functions(model: CarModel) -> list[ca.Function]:
     return functions
 
 
+@dataclass(frozen=True)
+class UpdateResult:
+    """One measurement update, and which of the EKF's checks it passes.
+
+    ``x``, ``P``: the updated state and covariance; ``normalised_innovation``: innovation over
+    the measurement standard deviation; ``defined``: the model output exists at the prediction;
+    ``within_gate``: the Mahalanobis distance is inside the gate; ``finite``: the update is
+    finite; ``closer``: it leaves the measurement no further from the model output than the
+    prediction did.
+    """
+
+    x: np.ndarray
+    P: np.ndarray
+    normalised_innovation: np.ndarray
+    defined: bool
+    within_gate: bool
+    finite: bool
+    closer: bool
+
+
+class EkfSteps:
+    """The EKF's compiled prediction and per-sensor update for one model and noise setting.
+
+    Shared by :class:`ExtendedKalmanFilter` and the MHE's read-out
+    (:mod:`~crs_core.estimation.readout`), so both predict and gate the same way.
+    """
+
+    def __init__(self, model: CarModel, noise: EstimatorNoise, gate_probability: float) -> None:
+        self._functions = compile_functions(
+            build_ekf_functions(model), f"ekf_{model.tag}_{model.n_base_stations}bs"
+        )
+        self._p = model.parameters.vector()
+        self._q = noise.process_std_for(model.state_names)
+        self._noise = noise
+        self._gates = {m: chi2.ppf(gate_probability, m) for m in range(1, 9)}
+
+    def predict(self, x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
+        """State and covariance ``dt`` s later under command ``u`` (RK4 substeps <= 4 ms)."""
+        if dt <= 0:
+            return x, P
+        n = max(1, math.ceil(dt / MAX_SUBSTEP - 1e-9))
+        step = self._functions["ekf_predict"]
+        for _ in range(n):
+            x, P = step(x, P, u, self._p, dt / n, self._q)
+        return x, P
+
+    def update(
+        self, x: np.ndarray, P: np.ndarray, u: np.ndarray, measurement: Measurement
+    ) -> UpdateResult:
+        """The Joseph-form update with ``measurement`` and its checks (nothing applied)."""
+        sensor = measurement.sensor
+        function = self._functions["ekf_update_" + sensor.replace("/", "_")]
+        std = self._noise.measurement_std(sensor)
+        x_new, P_new, d2, innovation, before, after = function(
+            x, P, u, self._p, measurement.values, std
+        )
+        return UpdateResult(
+            x_new,
+            P_new,
+            innovation / std,
+            defined=bool(np.isfinite(d2[0])),
+            within_gate=bool(d2[0] <= self._gates[measurement.values.size]),
+            finite=bool(np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))),
+            closer=bool(after[0] <= before[0] * (1 + 1e-9) + 1e-12),
+        )
+
+
 class ExtendedKalmanFilter(Estimator):
     """EKF over any subset of the car's sensors.
 
@@ -121,13 +188,8 @@ class ExtendedKalmanFilter(Estimator):
         settings = settings or EkfSettings()
         super().__init__(sensors, model, settings)
         self.settings: EkfSettings = settings
-        self._p = model.parameters.vector()
-        self._functions = compile_functions(
-            build_ekf_functions(model), f"ekf_{model.tag}_{model.n_base_stations}bs"
-        )
-        self._q = settings.noise.process_std_for(model.state_names)
+        self._steps = EkfSteps(model, settings.noise, settings.gate_probability)
         self._initial_std = initial_std_for(settings.initial_std, model.state_names)
-        self._gates = {m: chi2.ppf(settings.gate_probability, m) for m in range(1, 9)}
         self._cap = RejectionCap(settings.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
@@ -152,47 +214,32 @@ class ExtendedKalmanFilter(Estimator):
         return self._x[:6].copy()
 
     # --- propagation and update -------------------------------------------------------
-    def _predict(self, x: np.ndarray, P: np.ndarray, dt: float):
-        if dt <= 0:
-            return x, P
-        n = max(1, math.ceil(dt / MAX_SUBSTEP - 1e-9))
-        step = self._functions["ekf_predict"]
-        for _ in range(n):
-            x, P = step(x, P, self._u, self._p, dt / n, self._q)
-        return x, P
-
     def _update(self, measurement: Measurement) -> None:
         sensor, stamp = measurement.sensor, measurement.stamp
-        function = self._functions["ekf_update_" + sensor.replace("/", "_")]
-        std = self.settings.noise.measurement_std(sensor)
-        x_new, P_new, d2, innovation, before, after = function(
-            self._x, self._P, self._u, self._p, measurement.values, std
-        )
-        if not np.isfinite(d2[0]):  # the model output is undefined at the prediction
+        result = self._steps.update(self._x, self._P, self._u, measurement)
+        if not result.defined:  # the model output is undefined at the prediction
             self._reject(sensor, stamp)
             return
-        if d2[0] > self._gates[measurement.values.size] and not self._cap.override(
-            sensor, innovation / std
-        ):
+        if not result.within_gate and not self._cap.override(sensor, result.normalised_innovation):
             self._reject(sensor, stamp)
             return
-        if not (np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))):
+        if not result.finite:
             self._reject(sensor, stamp)
             self._fallback_event(stamp, "update produced non-finite values; skipped")
             return
-        if not after[0] <= before[0] * (1 + 1e-9) + 1e-12:
+        if not result.closer:
             self._reject(sensor, stamp)
             self._fallback_event(stamp, f"{sensor} update moved away from the data; skipped")
             return
         self._cap.accepted(sensor)
-        self._x, self._P = x_new, 0.5 * (P_new + P_new.T)
+        self._x, self._P = result.x, 0.5 * (result.P + result.P.T)
         self._accept(sensor, stamp)
 
     def process(self, t: float) -> None:
         """Apply every queued event stamped up to ``t``."""
         for item in self._events_until(t):
             stamp = item.stamp
-            self._x, self._P = self._predict(self._x, self._P, stamp - self._t)
+            self._x, self._P = self._steps.predict(self._x, self._P, self._u, stamp - self._t)
             self._t = max(self._t, stamp)
             if isinstance(item, InputSample):
                 self._u = item.u
@@ -212,7 +259,7 @@ class ExtendedKalmanFilter(Estimator):
         event is predicted from the state kept after the last event at or before it."""
         self.process(t)
         if t >= self._t:
-            x, P = self._predict(self._x, self._P, t - self._t)
+            x, P = self._steps.predict(self._x, self._P, self._u, t - self._t)
             return x[:6].copy(), P[:6, :6].copy()
         k = bisect.bisect_right(self._history, t, key=lambda h: h[0]) - 1
         if k < 0:
@@ -221,9 +268,5 @@ class ExtendedKalmanFilter(Estimator):
                 f"t: {t:.3f} s is before the oldest state the EKF keeps ({oldest:.3f} s)"
             )
         stamp, x, P, u = self._history[k]
-        current_u, self._u = self._u, u
-        try:
-            x, P = self._predict(x, P, t - stamp)
-        finally:
-            self._u = current_u
+        x, P = self._steps.predict(x, P, u, t - stamp)
         return x[:6].copy(), P[:6, :6].copy()
