@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -112,3 +113,13 @@ def _finite_vector(field: str, values: object, size: int, what: str) -> np.ndarr
         raise ValueError(f"{field}: {what} has NaN or inf: {array}")
     array.flags.writeable = False
     return array
+
+
+def in_stamp_order(
+    measurements: Iterable[Measurement], inputs: Iterable[InputSample] = ()
+) -> list[Measurement | InputSample]:
+    """Measurements and commanded inputs in stamp order, a command before a measurement of the
+    same stamp (it is in effect from its stamp on); otherwise the given order is kept."""
+    events = [(s.stamp, 0, s) for s in inputs] + [(m.stamp, 1, m) for m in measurements]
+    events.sort(key=lambda e: (e[0], e[1]))
+    return [item for _, _, item in events]

@@ -16,7 +16,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from crs_core.estimation.base import Estimator
-from crs_core.measurements import InputSample, Measurement
+from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from ros4crs import conversions
 from ros4crs.interfaces import typestore
 
@@ -105,18 +105,11 @@ def replay_estimator(
     its initial state at ``t0``); data stamped before ``t0`` count as late there and here.
     """
     estimator.reset(t0, x0)
-    events = sorted(
-        [(s.stamp, 0, s) for s in contents.inputs]
-        + [(m.stamp, 1, m) for m in contents.measurements],
-        key=lambda e: (e[0], e[1]),
-    )
+    events = in_stamp_order(contents.measurements, contents.inputs)
     out, k = [], 0
     for t in stamps:
-        while k < len(events) and events[k][0] <= t:
-            if events[k][1] == 0:
-                estimator.add_input(events[k][2])
-            else:
-                estimator.add_measurement(events[k][2])
+        while k < len(events) and events[k].stamp <= t:
+            estimator.add(events[k])
             k += 1
         out.append(estimator.estimate(t).x)
     return np.array(out)

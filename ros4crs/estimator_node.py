@@ -135,14 +135,11 @@ class EstimatorNode(Node):
             self._buffer.append(item)
             return
         late_before = self.estimator.diagnostics.late
-        if isinstance(item, InputSample):
-            self.estimator.add_input(item)
-        else:
-            try:
-                self.estimator.add_measurement(item)
-            except ValueError as error:  # a sensor the model does not have
-                self._warn_late(f"dropped: {error}")
-                return
+        try:
+            self.estimator.add(item)
+        except ValueError as error:  # a sensor the model does not have
+            self._warn_late(f"dropped: {error}")
+            return
         if self.estimator.diagnostics.late > late_before:
             self._warn_late(
                 f"dropped out-of-order data stamped {item.stamp:.3f} s: older than what the "

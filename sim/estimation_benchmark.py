@@ -20,7 +20,7 @@ from crs_core.dataset import Dataset
 from crs_core.estimation import make_estimator
 from crs_core.estimation.base import Estimator
 from crs_core.estimation.mhe import MheSettings
-from crs_core.measurements import InputSample
+from crs_core.measurements import InputSample, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim.scenarios import JoystickDriver
@@ -61,11 +61,8 @@ def stream_events(result: SimulationResult, inputs: bool = True) -> list[tuple[f
     Commanded inputs come before measurements of the same stamp; ``inputs=False`` leaves them
     out (a recording without commands).
     """
-    events = [(m.stamp, 1, m) for m in result.measurements]
-    if inputs:
-        events += [(s.stamp, 0, s) for s in result.inputs]
-    events.sort(key=lambda e: (e[0], e[1]))
-    return [(stamp, item) for stamp, _, item in events]
+    events = in_stamp_order(result.measurements, result.inputs if inputs else ())
+    return [(item.stamp, item) for item in events]
 
 
 def replay_schedule(
@@ -92,11 +89,7 @@ def replay_schedule(
     for now, asked in queries:
         start = time.perf_counter()
         while k < len(deliveries) and deliveries[k][0] <= now:
-            item = deliveries[k][1]
-            if isinstance(item, InputSample):
-                estimator.add_input(item)
-            else:
-                estimator.add_measurement(item)
+            estimator.add(deliveries[k][1])
             k += 1
         estimate = estimator.estimate(asked)
         times.append(time.perf_counter() - start)

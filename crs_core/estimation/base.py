@@ -263,6 +263,12 @@ class Estimator:
             raise TypeError("input: expected a crs_core.measurements.InputSample")
         return self._push(sample.stamp, 0, "", sample)
 
+    def add(self, item: Measurement | InputSample) -> bool:
+        """Queue a measurement or a commanded input (:meth:`add_measurement`, :meth:`add_input`)."""
+        if isinstance(item, InputSample):
+            return self.add_input(item)
+        return self.add_measurement(item)
+
     def _time_offset(self, sensor: str, group: str) -> float:
         if not self._supervised:
             return 0.0

@@ -99,7 +99,7 @@ class InputModeEstimator(Estimator):
         before = [c for c in self._commands if c.stamp <= t]
         if before:
             new.add_input(InputSample(t, max(before, key=lambda c: c.stamp).u))
-        for _, kind, _, _, item in queued:
-            (new.add_input if kind == 0 else new.add_measurement)(item)
+        for *_, item in queued:
+            new.add(item)
         self._commands.clear()
         self.mode = "commanded"

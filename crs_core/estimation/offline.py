@@ -43,7 +43,7 @@ from crs_core.estimation.base import (
 )
 from crs_core.estimation.factory import KINDS, make_estimator
 from crs_core.estimation.mhe import MheSettings
-from crs_core.measurements import InputSample, Measurement
+from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 
 #: Integer codes of the status words in ``estimates.npz``.
@@ -249,11 +249,8 @@ def estimate_dataset(
         kind, groups, model or dataset_model(dataset), settings, inputs=inputs
     )
 
-    events = sorted(
-        [(s.stamp, 0, s) for s in delivered_inputs] + [(m.stamp, 1, m) for m in measurements],
-        key=lambda e: (e[0], e[1]),
-    )
-    t_start = min(float(dataset.t[0]), events[0][0] if events else math.inf)
+    events = in_stamp_order(measurements, delivered_inputs)
+    t_start = min(float(dataset.t[0]), events[0].stamp if events else math.inf)
     estimator.reset(t_start, start_x, start_cov)
     n = len(dataset.t)
     x, variances, times = np.zeros((6, n)), np.zeros((6, n)), np.zeros(n)
@@ -262,12 +259,8 @@ def estimate_dataset(
     wall = time.perf_counter()
     for k, stamp in enumerate(dataset.t):
         started = time.perf_counter()
-        while k_event < len(events) and events[k_event][0] <= stamp:
-            item = events[k_event][2]
-            if events[k_event][1] == 0:
-                estimator.add_input(item)
-            else:
-                estimator.add_measurement(item)
+        while k_event < len(events) and events[k_event].stamp <= stamp:
+            estimator.add(events[k_event])
             k_event += 1
         estimate = estimator.estimate(float(stamp))
         times[k] = time.perf_counter() - started
@@ -290,8 +283,8 @@ def estimate_dataset(
         "data": source,
         "samples": n,
         "t_start": t_start,
-        "measurements_delivered": sum(1 for e in events[:k_event] if e[1] == 1),
-        "inputs_delivered": sum(1 for e in events[:k_event] if e[1] == 0),
+        "measurements_delivered": sum(isinstance(e, Measurement) for e in events[:k_event]),
+        "inputs_delivered": sum(isinstance(e, InputSample) for e in events[:k_event]),
         "events_after_last_sample": len(events) - k_event,
         "groups_without_data": sorted(groups - present),
         "status_counts": {s: int(np.sum(status == s)) for s in STATUS_CODES},

@@ -12,7 +12,7 @@ from crs_core.estimation import (
     MheSettings,
     make_estimator,
 )
-from crs_core.measurements import InputSample, Measurement
+from crs_core.measurements import Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim.estimation_benchmark import standard_drive, start_state
@@ -29,17 +29,7 @@ def drive():
 
 
 def _events(result, with_inputs=True):
-    events = [(m.stamp, 1, m) for m in result.measurements]
-    if with_inputs:
-        events += [(s.stamp, 0, s) for s in result.inputs]
-    return sorted(events, key=lambda e: (e[0], e[1]))
-
-
-def _deliver(estimator, item):
-    if isinstance(item, InputSample):
-        estimator.add_input(item)
-    else:
-        estimator.add_measurement(item)
+    return in_stamp_order(result.measurements, result.inputs if with_inputs else ())
 
 
 def _run(estimator, result, queries, with_inputs=True, x0="truth", lag=0.0):
@@ -50,8 +40,8 @@ def _run(estimator, result, queries, with_inputs=True, x0="truth", lag=0.0):
         estimator.reset(0.0, x0)
     events, k, xs, statuses = _events(result, with_inputs), 0, [], []
     for t in queries:
-        while k < len(events) and events[k][0] <= t + lag:
-            _deliver(estimator, events[k][2])
+        while k < len(events) and events[k].stamp <= t + lag:
+            estimator.add(events[k])
             k += 1
         estimate = estimator.estimate(t)
         xs.append(estimate.x)
@@ -124,19 +114,19 @@ def test_out_of_order_bursts_and_duplicate_stamps(drive, kind):
     xs, queries, k = [], [], 0
     for burst_end in np.arange(0.2, drive.duration, 0.2):
         batch = []
-        while k < len(events) and events[k][0] <= burst_end:
-            batch.append(events[k][2])
+        while k < len(events) and events[k].stamp <= burst_end:
+            batch.append(events[k])
             k += 1
         batch = [batch[i] for i in rng.permutation(len(batch))]
         batch += [m for m in batch if isinstance(m, Measurement)]  # duplicates
         held_back = batch[: len(batch) // 10]  # arrives after the queries below
         for item in batch[len(batch) // 10 :]:
-            _deliver(estimator, item)
+            estimator.add(item)
         for t in np.arange(burst_end - 0.2 + 1 / 60, burst_end + 1e-9, 1 / 60):
             xs.append(estimator.estimate(t).x)
             queries.append(t)
         for item in held_back:
-            _deliver(estimator, item)
+            estimator.add(item)
     xs = np.array(xs)
     assert np.all(np.isfinite(xs))
     error = _position_error(drive, queries, xs)
@@ -201,8 +191,8 @@ def test_wide_wrong_prior_is_detected_and_reinitialised(drive, kind):
     queries = np.arange(1, 480) / 60.0
     events, k, xs, statuses = _events(drive), 0, [], []
     for t in queries:
-        while k < len(events) and events[k][0] <= t:
-            _deliver(estimator, events[k][2])
+        while k < len(events) and events[k].stamp <= t:
+            estimator.add(events[k])
             k += 1
         estimate = estimator.estimate(t)
         xs.append(estimate.x)
@@ -224,8 +214,8 @@ def test_status_says_degraded_during_a_lighthouse_blackout(kind):
     events, k = _events(dark), 0
     found = {}
     for t in np.arange(1, 360) / 60.0:
-        while k < len(events) and events[k][0] <= t:
-            _deliver(estimator, events[k][2])
+        while k < len(events) and events[k].stamp <= t:
+            estimator.add(events[k])
             k += 1
         estimate = estimator.estimate(t)
         found[round(t, 3)] = estimate
