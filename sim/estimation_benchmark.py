@@ -8,6 +8,7 @@ reference is the car's own on-line estimate (not ground truth). The rows of robu
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from crs_core.analysis.consistency import predicted_samples
+from crs_core.analysis.metrics import STATE_NAMES, state_errors, state_rmse
 from crs_core.dataset import Dataset
 from crs_core.estimation import make_estimator
 from crs_core.estimation.base import Estimator
@@ -136,16 +138,13 @@ def replay(
 
 def errors(run: Run, result: SimulationResult) -> np.ndarray:
     """Estimate minus truth at the query stamps (yaw wrapped), shape (n, 6)."""
-    error = run.estimates - result.truth_at(run.stamps)
-    error[:, 2] = np.arctan2(np.sin(error[:, 2]), np.cos(error[:, 2]))
-    return error
+    return state_errors(run.estimates, result.truth_at(run.stamps))
 
 
 def rmse(run: Run, result: SimulationResult, after: float = SETTLING_S) -> dict[str, float]:
     """Root-mean-square error per state after the settling time, SI units."""
-    error = errors(run, result)[run.stamps >= after]
-    values = np.sqrt(np.mean(error**2, axis=0))
-    return dict(zip(("x", "y", "yaw", "vx", "vy", "omega"), map(float, values), strict=True))
+    values = state_rmse(run.estimates, result.truth_at(run.stamps), run.stamps >= after)
+    return {name: values[name] if values else math.nan for name in STATE_NAMES}
 
 
 def time_summary(seconds: Sequence[float]) -> dict[str, float]:
@@ -174,7 +173,7 @@ PAPER_TABLE_I = {  # real car, motion-capture reference (paper Table I): mm, mra
     ("ekf", "lh+imu+we"): (30, 20, 45, 26, 36),
     ("mhe", "lh+imu+we"): (32, 21, 45, 25, 32),
 }
-STATES = ("x", "y", "yaw", "vx", "vy", "omega")
+STATES = STATE_NAMES
 
 
 def accuracy_rows(seeds: Sequence[int], kinds=("ekf", "mhe"), progress=None) -> list[dict]:
