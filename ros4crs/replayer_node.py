@@ -14,6 +14,10 @@ live. With ``min_subscribers`` > 0 the replay (and the ``start_delay``) starts o
 replay publisher (``/clock`` included) has that many matched subscriptions, so a node still
 starting up misses nothing.
 
+A bag whose MCAP file was cut off (recorder killed, disk full) is replayed up to its last
+complete message (:func:`ros4crs.bag_repair.open_bag`), with a logged warning saying what was lost;
+a bag that cannot be read at all is a one-line ``ValueError`` on ``bag``.
+
 Parameters: ``bag``, ``rate``, ``loop``, ``topics``, ``start_delay`` (s, lets subscribers connect),
 ``clock``, ``min_subscribers``.
 """
@@ -22,11 +26,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
-from rosbags.rosbag2 import Reader
+from rosbags.rosbag2 import ReaderError
 
+from ros4crs.bag_repair import BagCheck, open_bag
 from ros4crs.node_support import STREAM_QOS, declare, message_class, run
 
 
@@ -49,14 +55,11 @@ class ReplayerNode(Node):
             raise ValueError(f"rate: must be > 0, got {self.rate}")
         self.published = 0
         self._topic_publishers: dict[str, object] = {}
-        with Reader(self.bag) as reader:
-            chosen = [c for c in reader.connections if self._wanted(c.topic)]
-            for connection in chosen:
-                if connection.topic not in self._topic_publishers:
-                    self._topic_publishers[connection.topic] = self.create_publisher(
-                        message_class(connection.msgtype), connection.topic, STREAM_QOS
-                    )
-            self.messages = [(c.topic, t, bytes(d)) for c, t, d in reader.messages(chosen)]
+        msgtypes, self.messages = self._read_bag()
+        for topic, msgtype in msgtypes.items():
+            self._topic_publishers[topic] = self.create_publisher(
+                message_class(msgtype), topic, STREAM_QOS
+            )
         if not self.messages:
             raise ValueError(f"bag: no messages on {self.prefixes or 'any topic'} in {self.bag}")
         self._clock_publisher = None
@@ -69,6 +72,28 @@ class ReplayerNode(Node):
         self._t0_bag = self.messages[0][1]
         self._t0_wall: float | None = None  # set once the subscribers are there
         self.create_timer(0.001, self._tick)
+
+    def _read_bag(self) -> tuple[dict[str, str], list[tuple[str, int, bytes]]]:
+        """Wanted topics (message type of each) and their ``(topic, log time ns, CDR)`` messages."""
+        if not self.bag:
+            raise ValueError("bag: no bag directory given")
+        try:
+            with open_bag(self.bag, on_damage=self._log_damage) as reader:
+                chosen = [c for c in reader.connections if self._wanted(c.topic)]
+                msgtypes: dict[str, str] = {}
+                for connection in chosen:
+                    msgtypes.setdefault(connection.topic, connection.msgtype)
+                # rosbags reads every connection when given none
+                found = reader.messages(chosen) if chosen else ()
+                messages = [(c.topic, t, bytes(d)) for c, t, d in found]
+        except (ValueError, OSError, ReaderError) as error:
+            reason = " ".join(str(error).split()) or type(error).__name__
+            where = "" if str(Path(self.bag)) in reason else f"cannot read {self.bag}: "
+            raise ValueError(f"bag: {where}{reason}") from None
+        return msgtypes, messages
+
+    def _log_damage(self, report: BagCheck) -> None:
+        self.get_logger().warning(f"damaged bag {self.bag}: {report.warning}")
 
     def _subscribers_ready(self) -> bool:
         publishers = list(self._topic_publishers.values())
