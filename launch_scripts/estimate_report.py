@@ -1,7 +1,8 @@
 """Output of ``crs estimate``: the summary text and the figure ``estimate.png`` (no algorithm).
 
 The estimates and metrics come from :mod:`crs_core.estimation.offline`; this module only
-presents them.
+presents them. ``estimate.png``: the x-y path, the six states over time, and the x, y and yaw
+error against the dataset's reference over time with the estimator's ±2σ band.
 """
 
 from __future__ import annotations
@@ -18,8 +19,20 @@ from matplotlib.gridspec import GridSpec
 from matplotlib.patches import Patch
 
 from crs_core.dataset import Dataset
-from crs_core.estimation.offline import OfflineEstimates, reference_label
+from crs_core.estimation.base import sensor_group
+from crs_core.estimation.offline import OfflineEstimates, dataset_stream, reference_label
 from crs_core.track import Track, load_demo_track
+from sim.report import (
+    BAND_ALPHA,
+    BAND_LABEL,
+    ERROR_COMPONENTS,
+    band_statistics,
+    clip_to_band,
+    draw_error_band,
+    label_band_panel,
+    pose_errors,
+    shade_status_strip,
+)
 
 #: Label and unit of each state in the time plots.
 STATE_AXES = (
@@ -89,19 +102,85 @@ def _rmse(rmse: dict[str, float]) -> str:
     )
 
 
+def error_bands(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | None:
+    """Error of ``x, y, yaw`` against the dataset's reference and the estimator's σ over time.
+
+    Returns None without a reference (no ``x.npy``), else ``errors`` and ``sigmas`` (N, 3) in
+    mm, mm, mrad (the yaw error wrapped; NaN where the estimate is lost or the reference is
+    missing) and ``stats``: per component the :func:`~sim.report.band_statistics` (RMSE and
+    the fraction inside ±2σ) over the samples that are not lost.
+    """
+    if dataset.x is None:
+        return None
+    factors = np.array([factor for _, _, factor in ERROR_COMPONENTS])
+    errors = pose_errors(result.x[:3].T, dataset.x) * factors
+    errors[result.status == "lost"] = np.nan
+    sigmas = np.sqrt(np.clip(result.covariance_diag[:3].T, 0.0, None)) * factors
+    stats = {
+        name: band_statistics(errors[:, k], sigmas[:, k])
+        for k, (name, _, _) in enumerate(ERROR_COMPONENTS)
+    }
+    return {"errors": errors, "sigmas": sigmas, "stats": stats}
+
+
 def write_figure(result: OfflineEstimates, dataset: Dataset, path: Path, title: str) -> Path:
-    """``estimate.png``: the x-y path (with DEMO_TRACK and the reference) and the six states."""
-    fig = plt.figure(figsize=(16, 9))
-    grid = GridSpec(6, 2, figure=fig, width_ratios=(1.0, 1.3), hspace=0.15, wspace=0.18)
-    _plot_path(fig.add_subplot(grid[:, 0]), result, dataset)
-    axes = [fig.add_subplot(grid[0, 1])]
-    axes += [fig.add_subplot(grid[i, 1], sharex=axes[0]) for i in range(1, 6)]
+    """``estimate.png``: the x-y path (with DEMO_TRACK and the reference), the six states, and
+    the x, y, yaw error against the reference with the estimator's ±2σ band over time."""
+    fig = plt.figure(figsize=(22, 9.5))
+    grid = GridSpec(
+        1, 3, figure=fig, width_ratios=(1.0, 1.15, 1.15), wspace=0.2, left=0.04, right=0.985
+    )
+    grid.update(top=0.9, bottom=0.07)
+    _plot_path(fig.add_subplot(grid[0, 0]), result, dataset)
+    states = grid[0, 1].subgridspec(6, 1, hspace=0.15)
+    axes = [fig.add_subplot(states[0])]
+    axes += [fig.add_subplot(states[i], sharex=axes[0]) for i in range(1, 6)]
     _plot_states(axes, result, dataset)
+    errors = grid[0, 2].subgridspec(3, 1, hspace=0.3)
+    error_axes = [fig.add_subplot(errors[i], sharex=axes[0]) for i in range(3)]
+    _plot_errors(error_axes, result, dataset)
     fig.suptitle(title)
-    fig.subplots_adjust(left=0.05, right=0.98, top=0.93, bottom=0.06)
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def _plot_errors(axes, result: OfflineEstimates, dataset: Dataset) -> None:
+    """x, y and yaw error against the reference (if any) inside the ±2σ band, over time."""
+    t = result.t - result.t[0]
+    bands = error_bands(result, dataset)
+    factors = np.array([factor for _, _, factor in ERROR_COMPONENTS])
+    sigmas = np.sqrt(np.clip(result.covariance_diag[:3].T, 0.0, None)) * factors
+    sigmas[result.status == "lost"] = np.nan
+    for k, (ax, (name, unit, _)) in enumerate(zip(axes, ERROR_COMPONENTS, strict=True)):
+        sigma = sigmas[:, k]
+        error = np.full(t.shape, np.nan) if bands is None else bands["errors"][:, k]
+        draw_error_band(ax, t, error, sigma, "tab:blue", None)
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        shade_status_strip(ax, t, result.status)
+        off_scale = clip_to_band(ax, [error], [sigma], unit)
+        if bands is None:
+            ax.set_ylabel(f"{name} ±2σ [{unit}]")
+            ax.set_title(f"no reference: band only   {off_scale}", loc="left", fontsize=8)
+        else:
+            label_band_panel(ax, name, unit, [("", bands["stats"][name])], off_scale)
+        ax.grid(alpha=0.3)
+        if k < 2:
+            ax.tick_params(labelbottom=False)
+    handles = []
+    if bands is not None:
+        handles.append(
+            plt.Line2D([], [], color="tab:blue", lw=0.7, label=f"estimate − {_reference(dataset)}")
+        )
+    handles.append(Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL))
+    handles += [
+        Patch(color=c, alpha=0.8, label=f"{s} (bottom strip)") for s, c in _SPAN_COLOURS.items()
+    ]
+    axes[0].legend(
+        handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.12), fontsize=8, ncol=2
+    )
+    start = f" (t₀ = {result.t[0]:.3f} s)" if abs(result.t[0]) > 1e-9 else ""
+    axes[-1].set_xlabel(f"t − t₀ [s]{start}")
 
 
 def _plot_path(ax, result: OfflineEstimates, dataset: Dataset) -> None:
@@ -169,8 +248,17 @@ def _shade(ax, t: np.ndarray, status: np.ndarray) -> None:
 
 
 def _reference(dataset: Dataset) -> str:
+    """The reference in words. A recording's ``x.npy`` is the car's own on-line estimate:
+    Lighthouse-based when the recording has Lighthouse data and no motion capture (as the
+    Chronos recordings in ``shared/data/chronos_real``)."""
     label = reference_label(dataset)
-    return label if label == "simulation truth" else "recorded on-line estimate (not ground truth)"
+    if label == "simulation truth":
+        return label
+    measurements, _, _ = dataset_stream(dataset)
+    groups = {sensor_group(m.sensor) for m in measurements}
+    if "lh" in groups and "pose" not in groups:
+        return "recorded on-line estimate (Lighthouse-based, not ground truth)"
+    return "recorded on-line estimate (not ground truth)"
 
 
 def _track_near(points: np.ndarray) -> Track | None:

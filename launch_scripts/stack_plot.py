@@ -2,45 +2,122 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from crs_core.track import load_demo_track
+from sim.report import (
+    BAND_ALPHA,
+    BAND_LABEL,
+    ERROR_COMPONENTS,
+    band_statistics,
+    clip_to_band,
+    draw_error_band,
+    interpolate_pose,
+    label_band_panel,
+    pose_errors,
+)
+
+#: Topics (relative to the car's namespace) of the published estimate and of the truth.
+ESTIMATE_TOPIC, TRUTH_TOPIC = "estimate/state", "ground_truth"
+
+
+@dataclass
+class StateTrack:
+    """``chronos_msgs/CarState`` messages of one topic, in stamp order.
+
+    ``t`` (n,) header stamps, s; ``x`` (n, 6) states; ``sigma`` (n, 6) standard deviations
+    from the diagonal of the message's covariance (NaN where the covariance is all zeros, i.e.
+    unknown, or not finite).
+    """
+
+    t: np.ndarray
+    x: np.ndarray
+    sigma: np.ndarray
+
+
+def read_states(bag: Path, topic: str) -> StateTrack:
+    """Every ``CarState`` on ``topic`` (absolute, e.g. ``/car1/estimate/state``) with its
+    covariance; messages with a non-finite state are skipped."""
+    from rosbags.rosbag2 import Reader
+
+    from ros4crs.conversions import seconds_from_stamp
+    from ros4crs.interfaces import typestore
+
+    store = typestore()
+    stamps, states, sigmas = [], [], []
+    with Reader(bag) as reader:
+        connections = [c for c in reader.connections if c.topic == topic]
+        # (an empty list would mean every message to rosbags)
+        for connection, _, data in reader.messages(connections) if connections else ():
+            msg = store.deserialize_cdr(bytes(data), connection.msgtype)
+            x = np.array([msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega], dtype=float)
+            if not np.all(np.isfinite(x)):
+                continue
+            covariance = np.asarray(msg.covariance, dtype=float).reshape(6, 6)
+            variance = np.diag(covariance).copy()
+            if not np.any(covariance) or not np.all(np.isfinite(variance)):
+                variance[:] = np.nan
+            stamps.append(seconds_from_stamp(msg.header.stamp))
+            states.append(x)
+            sigmas.append(np.sqrt(np.clip(variance, 0.0, None)))
+    order = np.argsort(stamps, kind="stable")
+    return StateTrack(
+        np.asarray(stamps, dtype=float)[order],
+        np.asarray(states, dtype=float).reshape(-1, 6)[order],
+        np.asarray(sigmas, dtype=float).reshape(-1, 6)[order],
+    )
+
+
+def estimate_errors(estimates: StateTrack, truth: StateTrack) -> tuple[np.ndarray, np.ndarray]:
+    """Errors ``x, y, yaw`` (n, 3) of the estimates against the truth interpolated to their
+    stamps (yaw unwrapped before interpolating, the error wrapped), in mm, mm, mrad, NaN
+    outside the span of the truth; and the estimates' σ (n, 3) in the same units."""
+    factors = np.array([factor for _, _, factor in ERROR_COMPONENTS])
+    errors = np.full((estimates.t.size, 3), np.nan)
+    if truth.t.size >= 2:
+        truth_at = interpolate_pose(estimates.t, truth.t, truth.x)
+        errors = pose_errors(estimates.x, truth_at) * factors
+        errors[(estimates.t < truth.t[0]) | (estimates.t > truth.t[-1])] = np.nan
+    return errors, estimates.sigma[:, :3] * factors
 
 
 def plot(bag: Path, cars: int, out: Path, estimator: str = "") -> None:
     """``path.png``: every car's truth and estimate on the track (with a zoomed inset), and the
-    estimation error over time (position in mm, yaw in mrad; against the simulator's truth)."""
+    x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
+    ±2σ band of the covariance the estimator published."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from ros4crs.bag_replay import read_car
+    from matplotlib.patches import Patch
 
     track = load_demo_track()
-    fig = plt.figure(figsize=(12, 6.5))
-    grid = fig.add_gridspec(2, 2, width_ratios=(1.25, 1))
+    runs = {}
+    for i in range(1, cars + 1):
+        estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")
+        truth = read_states(bag, f"/car{i}/{TRUTH_TOPIC}")
+        if estimates.t.size and truth.t.size:
+            runs[i] = (estimates, truth, *estimate_errors(estimates, truth))
+    t0 = min((run[0].t[0] for run in runs.values()), default=0.0)
+
+    fig = plt.figure(figsize=(13.5, 7.5), layout="constrained")
+    grid = fig.add_gridspec(3, 2, width_ratios=(1.2, 1))
     ax = fig.add_subplot(grid[:, 0])
-    ax_pos, ax_yaw = fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1])
+    error_axes = [fig.add_subplot(grid[0, 1])]
+    error_axes += [fig.add_subplot(grid[k, 1], sharex=error_axes[0]) for k in (1, 2)]
     for edge, label in zip(track.borders(), ("track borders", None), strict=True):
         ax.plot(edge[:, 0], edge[:, 1], color="0.7", lw=1, label=label)
-    # inside the loop of the DEMO_TRACK (data coordinates), clear of the track
-    inset = ax.inset_axes((-1.0, -0.65, 0.85, 0.85), transform=ax.transData)
+    # inside the left loop of the DEMO_TRACK (data coordinates), clear of the track
+    inset = ax.inset_axes((-1.21, -0.45, 0.62, 0.62), transform=ax.transData)
     zoom = None
-    for i in range(1, cars + 1):
-        contents = read_car(bag, f"/car{i}")
-        if not (contents.truth and contents.estimates):
-            continue
-        truth_t = np.array([t for t, _ in contents.truth])
-        truth = np.array([x for _, x in contents.truth])
-        est_t = np.array([t for t, _ in contents.estimates])
-        est = np.array([x for _, x in contents.estimates])
+    for i, (estimates, truth, _, _) in runs.items():
         for axis in (ax, inset):
             axis.plot(
-                truth[:, 0],
-                truth[:, 1],
+                truth.x[:, 0],
+                truth.x[:, 1],
                 "-",
                 color=f"C{2 * i - 2}",
                 lw=2.2,
@@ -48,41 +125,55 @@ def plot(bag: Path, cars: int, out: Path, estimator: str = "") -> None:
                 label=f"car{i} truth" if axis is ax else None,
             )
             axis.plot(
-                est[:, 0],
-                est[:, 1],
+                estimates.x[:, 0],
+                estimates.x[:, 1],
                 "-",
                 color=f"C{2 * i - 1}",
                 lw=0.8,
                 label=f"car{i} estimate" if axis is ax else None,
             )
-        zoom = zoom or (est[len(est) // 2, 0], est[len(est) // 2, 1])
-        seconds = est_t - est_t[0]
-        truth_at = np.stack([np.interp(est_t, truth_t, truth[:, k]) for k in range(3)], axis=1)
-        error_mm = 1e3 * np.hypot(*(est[:, :2] - truth_at[:, :2]).T)
-        yaw = est[:, 2] - truth_at[:, 2]
-        yaw_mrad = 1e3 * np.arctan2(np.sin(yaw), np.cos(yaw))
-        ax_pos.plot(seconds, error_mm, lw=0.8, color=f"C{2 * i - 1}", label=f"car{i}")
-        ax_yaw.plot(seconds, yaw_mrad, lw=0.8, color=f"C{2 * i - 1}", label=f"car{i}")
+        middle = estimates.x[len(estimates.x) // 2]
+        zoom = zoom or (middle[0], middle[1])
     if zoom is not None:
         inset.set_xlim(zoom[0] - 0.05, zoom[0] + 0.05)
         inset.set_ylim(zoom[1] - 0.05, zoom[1] + 0.05)
         inset.set_aspect("equal")
-        inset.set_title("10 cm around car 1 mid-run", fontsize=7)
-        inset.tick_params(labelsize=6)
+        inset.set_title("10 cm × 10 cm around\ncar 1 mid-run", fontsize=7)
+        inset.tick_params(labelleft=False, labelbottom=False, length=0)
         ax.indicate_inset_zoom(inset, edgecolor="0.3")
+    else:
+        inset.set_visible(False)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m] (world)")
     ax.set_ylabel("y [m] (world)")
     ax.grid(alpha=0.3)
     ax.legend(loc="lower left", fontsize=8)
-    ax_pos.set_ylabel("position error [mm]")
-    ax_yaw.set_ylabel("yaw error [mrad]")
-    ax_yaw.set_xlabel("time since the first estimate [s]")
-    for axis in (ax_pos, ax_yaw):
+
+    for k, (axis, (name, unit, _)) in enumerate(zip(error_axes, ERROR_COMPONENTS, strict=True)):
+        errors, sigmas, stats = [], [], []
+        for i, (estimates, _, error, sigma) in runs.items():
+            draw_error_band(axis, estimates.t - t0, error[:, k], sigma[:, k], f"C{2 * i - 1}", None)
+            errors.append(error[:, k])
+            sigmas.append(sigma[:, k])
+            who = "" if len(runs) == 1 else f"car{i}"
+            stats.append((who, band_statistics(error[:, k], sigma[:, k])))
+        axis.axhline(0.0, color="0.3", lw=0.6)
+        off_scale = clip_to_band(axis, errors, sigmas, unit) if runs else ""
+        label_band_panel(axis, name, unit, stats or [("", band_statistics([], []))], off_scale)
         axis.grid(alpha=0.3)
-        axis.legend(fontsize=8, loc="upper right")
+        if k < 2:
+            axis.tick_params(labelbottom=False)
+    handles = [
+        plt.Line2D([], [], color=f"C{2 * i - 1}", lw=0.8, label=f"car{i} estimate − truth")
+        for i in runs
+    ]
+    band_colour = f"C{2 * next(iter(runs)) - 1}" if len(runs) == 1 else "0.5"
+    handles.append(
+        Patch(color=band_colour, alpha=BAND_ALPHA, label=f"{BAND_LABEL}, published covariance")
+    )
+    fig.legend(handles=handles, loc="outside lower right", fontsize=8, ncol=min(len(handles), 5))
+    error_axes[-1].set_xlabel("time since the first estimate [s]")
     name = estimator.upper() or "estimator"
     fig.suptitle(f"ROS 2 stack in simulation: {cars} car(s), {name} vs the simulator's truth")
-    fig.tight_layout()
     fig.savefig(out / "path.png", dpi=110)
     plt.close(fig)

@@ -1,8 +1,22 @@
-"""Short human-readable report of a simulation run: numbers (text + JSON) and PNG plots."""
+"""Short human-readable report of a simulation run: numbers (text + JSON) and PNG plots.
+
+Figures (``write_report``):
+
+* ``path.png``: the true path on the track, coloured by the forward speed over the range
+  actually driven.
+* ``sensors.png``: every simulated sensor signal over time (all photodiodes of every base
+  station, wheel speeds, IMU, yaw rate, steering and torque commands).
+* ``estimation.png``: an offline estimator run over the simulated data, its x, y and yaw error
+  against the simulator's truth over time with the estimator's own ±2σ band.
+
+The error-band helpers (:func:`band_statistics`, :func:`pose_errors`, :func:`draw_error_band`)
+are shared with the figures of ``crs estimate`` and ``crs launch sim``.
+"""
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -11,10 +25,33 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.patches import Patch
 
+from crs_core.estimation.offline import OfflineEstimates, estimate_dataset
 from crs_core.measurements import lighthouse_sensor
+from crs_core.model.sensors import N_PHOTODIODES
 from crs_core.track import LapCounter, Track
 from sim.simulator import SimulationResult
+
+#: The components of the error-over-time figures: name, unit and factor from SI.
+ERROR_COMPONENTS = (("x", "mm", 1e3), ("y", "mm", 1e3), ("yaw", "mrad", 1e3))
+#: Legend text of the ±2σ band in every error-over-time figure.
+BAND_LABEL = "±2σ claimed by the estimator (≈95 % inside if consistent)"
+#: Opacity of the ±2σ band.
+BAND_ALPHA = 0.22
+#: Sensor groups in words, for titles.
+SENSOR_WORDS = {
+    "lh": "Lighthouse",
+    "imu": "IMU",
+    "gyro": "gyro",
+    "we": "wheel encoders",
+    "pose": "motion capture",
+}
+#: A sample counts as moving (for the speed colour scale) above this fraction of the median
+#: forward speed of the run.
+MOVING_FRACTION = 0.5
+#: Percentiles of the moving forward speed that bound the colour scale of ``path.png``.
+SPEED_PERCENTILES = (2.0, 98.0)
 
 
 def lap_statistics(result: SimulationResult, track: Track) -> dict[str, Any]:
@@ -51,10 +88,200 @@ def sensor_statistics(result: SimulationResult) -> dict[str, Any]:
     return out
 
 
+# --- error bands (shared with estimate_report.py and stack_plot.py) ---------------------------
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to (-pi, pi]."""
+    return np.arctan2(np.sin(angle), np.cos(angle))
+
+
+def sensor_words(groups: str) -> str:
+    """``"lh+imu+we"`` -> ``"Lighthouse + IMU + wheel encoders"``."""
+    return " + ".join(SENSOR_WORDS.get(g, g) for g in groups.split("+"))
+
+
+def pose_errors(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``estimate - reference`` of ``x, y, yaw`` per sample, (n, 3); the yaw error wrapped.
+
+    Both are (n, >= 3) states ``[x, y, yaw, ...]`` (m, m, rad; yaw wrapped or unwrapped).
+    """
+    error = np.asarray(estimate, dtype=float)[:, :3] - np.asarray(reference, dtype=float)[:, :3]
+    error[:, 2] = wrap_angle(error[:, 2])
+    return error
+
+
+def interpolate_pose(t: np.ndarray, stamps: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """``x, y, yaw`` of ``states`` (n, >= 3) at the times ``t``, (len(t), 3): linear
+    interpolation, the yaw unwrapped first so that a jump by 2 pi is not smeared."""
+    states = np.asarray(states, dtype=float)
+    yaw = np.unwrap(states[:, 2])
+    columns = (states[:, 0], states[:, 1], yaw)
+    return np.stack([np.interp(t, stamps, c) for c in columns], axis=1)
+
+
+def band_statistics(error: np.ndarray, sigma: np.ndarray) -> dict[str, float | int | None]:
+    """RMSE of ``error`` and the fraction of samples with ``|error| <= 2 sigma``.
+
+    ``sigma`` is the standard deviation the estimator claims, in the unit of ``error``. NaN
+    marks a sample without estimate or reference (in ``error``) or without a known covariance
+    (in ``sigma``): the RMSE counts the finite errors (``samples``), the fraction the samples
+    where both are finite (``samples_with_sigma``). A consistent estimator has about 95 % of
+    the samples inside. None where there is no sample to count.
+    """
+    error, sigma = np.asarray(error, dtype=float), np.asarray(sigma, dtype=float)
+    finite = np.isfinite(error)
+    both = finite & np.isfinite(sigma)
+    return {
+        "rmse": float(np.sqrt(np.mean(error[finite] ** 2))) if finite.any() else None,
+        "inside_2sigma": float(np.mean(np.abs(error[both]) <= 2.0 * sigma[both]))
+        if both.any()
+        else None,
+        "samples": int(finite.sum()),
+        "samples_with_sigma": int(both.sum()),
+    }
+
+
+def draw_error_band(
+    ax, t: np.ndarray, error: np.ndarray, sigma: np.ndarray, colour: str, label: str | None
+) -> None:
+    """The error over time (a line) inside its ±2σ band (a shaded area of the same colour).
+
+    NaN in ``error`` leaves a gap in the line; NaN in ``sigma`` a gap in the band.
+    """
+    ax.fill_between(t, -2 * sigma, 2 * sigma, color=colour, alpha=BAND_ALPHA, lw=0)
+    ax.plot(t, error, color=colour, lw=0.7, label=label)
+
+
+def band_limit(errors: list[np.ndarray], sigmas: list[np.ndarray]) -> float:
+    """A symmetric y limit that shows the bulk of the errors and bands: the 98th percentile of
+    ``|error|`` and the 95th of ``2 sigma``, plus 15 %. Short peaks (a glitch, the huge
+    uncertainty before the first fix) go off-scale instead of flattening everything; the panel
+    says so (:func:`clip_to_band`)."""
+    parts = [np.abs(e[np.isfinite(e)]) for e in errors]
+    parts = [p for p in parts if p.size]
+    bands = [2 * s[np.isfinite(s)] for s in sigmas]
+    bands = [b for b in bands if b.size]
+    limit = max([np.percentile(p, 98) for p in parts] + [np.percentile(b, 95) for b in bands])
+    return 1.15 * limit if limit > 0 else 1.0
+
+
+def label_band_panel(
+    ax, name: str, unit: str, stats: list[tuple[str, dict[str, Any]]], off_scale: str = ""
+) -> None:
+    """y label, and above the panel the RMSE and the ±2σ fraction and the note of
+    :func:`clip_to_band`. ``stats``: ``(who, band_statistics)`` pairs, one per car or
+    estimator; ``who`` is "" for a single one, else a name (compact lines, four per line)."""
+    ax.set_ylabel(f"{name} error [{unit}]")
+    single = len(stats) == 1 and not stats[0][0]
+    entries = []
+    for who, st in stats:
+        if st["rmse"] is None:
+            entries.append(f"{who} no samples".strip())
+            continue
+        inside = (
+            "no covariance"
+            if st["inside_2sigma"] is None
+            else f"{100 * st['inside_2sigma']:.1f} %" + (" inside ±2σ" if single else "")
+        )
+        rmse = f"RMSE {st['rmse']:.2f} {unit}" if single else f"{who} {st['rmse']:.2f} {unit}"
+        entries.append(f"{rmse}, {inside}")
+    if single:
+        text = entries[0]
+    else:
+        rows = ["; ".join(entries[i : i + 4]) for i in range(0, len(entries), 4)]
+        text = "RMSE, inside ±2σ: " + "\n".join(rows)
+    ax.set_title(text + (f"   ({off_scale})" if off_scale else ""), loc="left", fontsize=8)
+
+
+def clip_to_band(ax, errors: list[np.ndarray], sigmas: list[np.ndarray], unit: str) -> str:
+    """Set the symmetric y limits of :func:`band_limit`; a note if something is off-scale."""
+    limit = band_limit(errors, sigmas)
+    ax.set_ylim(-limit, limit)
+    peak = max([float(np.nanmax(np.abs(e))) for e in errors if np.isfinite(e).any()] + [0.0])
+    peak_band = max([float(np.nanmax(2 * s)) for s in sigmas if np.isfinite(s).any()] + [0.0])
+    notes = []
+    if peak > limit:
+        notes.append(f"max |error| {_number(peak)} {unit}")
+    if peak_band > limit:
+        notes.append(f"max 2σ {_number(peak_band)} {unit}")
+    return "off-scale peaks: " + ", ".join(notes) if notes else ""
+
+
+def _number(value: float) -> str:
+    """3 significant digits without an exponent below 10⁶ (``2000``, ``13.2``, ``0.412``)."""
+    return f"{value:.0f}" if 1000 <= abs(value) < 1e6 else f"{value:.3g}"
+
+
+# --- the report --------------------------------------------------------------------------------
+def speed_colour_limits(vx: np.ndarray) -> tuple[float, float]:
+    """Colour-scale limits of the forward speed: the :data:`SPEED_PERCENTILES` of the samples
+    where the car moves (above :data:`MOVING_FRACTION` of the median positive speed), so that the
+    colours span the speeds actually driven rather than 0..max. At least 0.05 m/s wide."""
+    vx = np.asarray(vx, dtype=float)
+    positive = vx[vx > 0.05]
+    moving = positive[positive >= MOVING_FRACTION * np.median(positive)] if positive.size else vx
+    low, high = (float(v) for v in np.percentile(moving, SPEED_PERCENTILES))
+    if high - low < 0.05:
+        centre = 0.5 * (high + low)
+        low, high = centre - 0.025, centre + 0.025
+    return low, high
+
+
+def estimation_errors(result: SimulationResult, kind: str = "mhe") -> dict[str, Any]:
+    """Run the ``kind`` estimator offline over the simulated data (blind start, the nominal
+    Chronos model, every sensor, the commanded inputs) and compare it with the truth.
+
+    Returns the estimates (``"estimates"``), the error ``x, y, yaw`` (n, 3; NaN where the
+    estimate is lost), the standard deviations (n, 3) and JSON-ready ``"summary"`` numbers
+    (RMSE and fraction inside ±2σ per component, in mm / mrad). Raises ``ValueError`` when the
+    run has nothing to estimate from (e.g. no Lighthouse sample).
+    """
+    started = time.perf_counter()
+    estimates = estimate_dataset(result.to_dataset(), kind)
+    wall = time.perf_counter() - started
+    found = estimates.status != "lost"
+    truth = interpolate_pose(estimates.t, result.truth_t, result.truth_x)
+    errors = pose_errors(estimates.x[:3].T, truth)
+    errors[~found] = np.nan
+    sigmas = np.sqrt(np.clip(estimates.covariance_diag[:3].T, 0.0, None))
+    d = estimates.diagnostics
+    summary: dict[str, Any] = {
+        "estimator": kind,
+        "sensors": d["sensors"],
+        "start": d["start"],
+        "samples": int(estimates.t.size),
+        "samples_not_lost": int(found.sum()),
+        "time_to_first_fix_s": d["time_to_first_fix_s"],
+        "wall_time_s": round(d["wall_time_s"], 2),
+        "total_time_s": round(wall, 2),
+    }
+    for k, (name, unit, factor) in enumerate(ERROR_COMPONENTS):
+        stats = band_statistics(errors[:, k] * factor, sigmas[:, k] * factor)
+        summary[name] = {
+            f"rmse_{unit}": None if stats["rmse"] is None else round(stats["rmse"], 3),
+            "inside_2sigma": None
+            if stats["inside_2sigma"] is None
+            else round(stats["inside_2sigma"], 3),
+        }
+    return {"estimates": estimates, "errors": errors, "sigmas": sigmas, "summary": summary}
+
+
 def write_report(
-    result: SimulationResult, track: Track, folder: str | Path, extra: dict[str, Any] | None = None
+    result: SimulationResult,
+    track: Track,
+    folder: str | Path,
+    extra: dict[str, Any] | None = None,
+    estimator: str | None = "mhe",
 ) -> Path:
-    """Write ``summary.txt``, ``summary.json``, ``path.png`` and ``sensors.png`` into ``folder``."""
+    """Write ``summary.txt``, ``summary.json``, ``path.png``, ``sensors.png`` and (unless
+    ``estimator`` is None) ``estimation.png`` into ``folder``.
+
+    ``estimator`` (``"mhe"``, the suite's main estimator, or ``"ekf"``) runs over the
+    simulated data offline for the estimation error figure and the ``estimation`` numbers; None
+    skips it. Its cost: the MHE about 3.5 s for a 40 s run (the EKF about 1.7 s), plus a
+    one-off 15–20 s on a machine where its compiled code is not cached yet (EKF about 5 s).
+    When the run has nothing to estimate from (no Lighthouse data), ``estimation`` says why
+    and there is no ``estimation.png``.
+    """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     speed = result.truth_x[:, 3]
@@ -69,78 +296,220 @@ def write_report(
         "max_speed_mps": round(float(speed.max()), 3),
         **lap_statistics(result, track),
         "sensors": sensor_statistics(result),
-        **(extra or {}),
     }
+    estimation = None
+    if estimator is not None:
+        try:
+            estimation = estimation_errors(result, estimator)
+            summary["estimation"] = estimation["summary"]
+        except ValueError as error:
+            summary["estimation"] = {"estimator": estimator, "skipped": str(error)}
+    summary.update(extra or {})
     (folder / "summary.json").write_text(json.dumps(summary, indent=2))
+    (folder / "summary.txt").write_text(_summary_text(result, summary))
+    _save(path_figure(result, track), folder / "path.png", dpi=120)
+    _save(sensors_figure(result), folder / "sensors.png", dpi=100)
+    if estimation is not None:
+        _save(estimation_figure(estimation), folder / "estimation.png", dpi=100)
+    return folder
+
+
+def _save(fig, path: Path, dpi: int) -> None:
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
+def _summary_text(result: SimulationResult, summary: dict[str, Any]) -> str:
     lines = [f"Chronos simulation: {result.duration:.1f} s, seed {result.seed}"]
     for key, value in summary.items():
         if key == "sensors":
             lines.append("sensors:")
             lines += [f"  {n}: {v['samples']} samples, {v['rate_hz']} Hz" for n, v in value.items()]
+        elif key == "estimation" and "skipped" in value:
+            lines.append(f"estimation: {value['estimator']} skipped ({value['skipped']})")
+        elif key == "estimation":
+            lines.append(
+                f"estimation: {value['estimator'].upper()} on {value['sensors']} (offline, "
+                f"{value['start']} start), {value['samples_not_lost']} of {value['samples']} "
+                f"samples not lost, {value['total_time_s']} s"
+            )
+            for name, unit, _ in ERROR_COMPONENTS:
+                v = value[name]
+                if v[f"rmse_{unit}"] is not None:
+                    inside = v["inside_2sigma"]
+                    lines.append(
+                        f"  {name} error: RMSE {v[f'rmse_{unit}']:.2f} {unit}, "
+                        + (
+                            "no covariance"
+                            if inside is None
+                            else f"{100 * inside:.1f} % inside ±2σ"
+                        )
+                    )
         else:
             lines.append(f"{key}: {value}")
-    (folder / "summary.txt").write_text("\n".join(lines) + "\n")
-    _plot_path(result, track, folder / "path.png")
-    _plot_sensors(result, folder / "sensors.png")
-    return folder
+    return "\n".join(lines) + "\n"
 
 
-def _plot_path(result: SimulationResult, track: Track, path: Path) -> None:
+def path_figure(result: SimulationResult, track: Track):
+    """``path.png``: track borders, centreline, the true path coloured by forward speed (scale
+    from :func:`speed_colour_limits`), start marker and colour bar."""
     fig, ax = plt.subplots(figsize=(8, 6))
-    normal = np.stack([-np.sin(track.heading), np.cos(track.heading)], axis=1)
-    centre = np.stack([track.x, track.y], axis=1)
-    for side in (-1, 1):
-        edge = centre + side * track.width / 2 * normal
-        ax.plot(edge[:, 0], edge[:, 1], color="0.3", lw=1)
+    for edge, label in zip(track.borders(), ("track borders", None), strict=True):
+        ax.plot(edge[:, 0], edge[:, 1], color="0.3", lw=1, label=label)
     ax.plot(track.x, track.y, "--", color="0.6", lw=0.8, label="centerline")
+    low, high = speed_colour_limits(result.truth_x[:, 3])
     points = ax.scatter(
-        result.truth_x[::5, 0],
-        result.truth_x[::5, 1],
-        c=result.truth_x[::5, 3],
-        s=2,
+        result.truth_x[::2, 0],
+        result.truth_x[::2, 1],
+        c=result.truth_x[::2, 3],
+        s=3,
         cmap="viridis",
+        vmin=low,
+        vmax=high,
         label="driven path (true)",
     )
-    ax.plot(*result.truth_x[0, :2], "r^", label="start")
-    fig.colorbar(points, ax=ax, label="v_x [m/s]")
+    ax.plot(*result.truth_x[0, :2], "r^", ms=8, label="start")
+    fig.colorbar(points, ax=ax, extend="both", shrink=0.8, label="forward speed v_x [m/s]")
     ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title("Chronos on DEMO_TRACK (simulated)")
-    ax.legend(loc="upper right", fontsize=8)
+    ax.set_xlabel("x [m] (world)")
+    ax.set_ylabel("y [m] (world)")
+    ax.grid(alpha=0.3)
+    low_p, high_p = SPEED_PERCENTILES
+    ax.set_title(
+        f"Simulated Chronos run, {result.duration:g} s: true path coloured by forward speed\n"
+        f"colour scale {low:.2f}–{high:.2f} m/s: percentiles {low_p:g}–{high_p:g} of v_x while "
+        "moving (arrows: beyond)",
+        fontsize=9,
+    )
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.11), ncol=4, fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    return fig
 
 
-def _plot_sensors(result: SimulationResult, path: Path) -> None:
-    fig, axes = plt.subplots(5, 1, figsize=(10, 11), sharex=True)
-    for plane, style in ((1, "."), (2, "x")):
-        t, v = result.measurements_of(lighthouse_sensor(0, plane))
-        if t.size:
-            axes[0].plot(t, v[:, 0], style, ms=2, label=f"plane {plane}, diode 0")
-    axes[0].set_ylabel("Lighthouse [rad]")
+def _lighthouse_stations(result: SimulationResult) -> list[int]:
+    stations = set()
+    for m in result.measurements:
+        if m.sensor.startswith("lighthouse/"):
+            stations.add(int(m.sensor.split("/")[1]))
+    return sorted(stations)
+
+
+def sensors_figure(result: SimulationResult):
+    """``sensors.png``: per Lighthouse base station the sweep angle of each plane and every
+    photodiode's offset, then wheel speeds, IMU, yaw rate, steering and torque commands."""
+    stations = _lighthouse_stations(result)
+    heights = [1.0, 0.9, 0.9] * len(stations) + [0.9, 0.9, 0.9, 0.7, 0.7]
+    fig, axes = plt.subplots(
+        len(heights),
+        1,
+        figsize=(11, 1.9 * sum(heights) + 0.6),
+        sharex=True,
+        gridspec_kw={"height_ratios": heights},
+        layout="constrained",
+    )
+    for k, station in enumerate(stations):
+        _plot_lighthouse(result, station, axes[3 * k : 3 * k + 3])
+    axes = axes[3 * len(stations) :]
     t, v = result.measurements_of("wheel_encoders")
-    for i, name in enumerate(("fl", "fr", "rl", "rr")):
-        axes[1].plot(t, v[:, i], lw=0.5, label=name)
-    axes[1].set_ylabel("wheel speed [rad/s]")
+    if t.size:
+        for i, name in enumerate(("front left", "front right", "rear left", "rear right")):
+            axes[0].plot(t, v[:, i], lw=0.5, alpha=0.8, label=name)
+        _legend_right(axes[0], title="front ≈ rear\non each side", title_fontsize=7)
+    axes[0].set_ylabel("wheel speed\n[rad/s]")
     t, v = result.measurements_of("imu")
-    axes[2].plot(t, v[:, 0], lw=0.5, label="a_x")
-    axes[2].plot(t, v[:, 1], lw=0.5, label="a_y")
-    axes[2].set_ylabel("accel [m/s²]")
-    axes[3].plot(t, v[:, 2], lw=0.5, label="gyro")
-    axes[3].plot(result.truth_t, result.truth_x[:, 5], "k", lw=0.8, label="true ω")
-    axes[3].set_ylabel("yaw rate [rad/s]")
+    if t.size:
+        axes[1].plot(t, v[:, 0], lw=0.5, label="a_x (forward)")
+        axes[1].plot(t, v[:, 1], lw=0.5, label="a_y (left)")
+        axes[2].plot(t, v[:, 2], lw=0.5, label="IMU gyro")
+    axes[1].set_ylabel("IMU specific\nforce [m/s²]")
+    axes[2].plot(result.truth_t, result.truth_x[:, 5], "k", lw=0.8, label="true ω")
+    axes[2].set_ylabel("yaw rate\n[rad/s]")
     stamps = np.array([s.stamp for s in result.inputs])
     inputs = np.stack([s.u for s in result.inputs])
-    axes[4].step(stamps, inputs[:, 0], where="post", label="steer [rad]")
-    axes[4].step(stamps, inputs[:, 1], where="post", label="torque [-]")
-    axes[4].set_ylabel("input")
-    axes[4].set_xlabel("t [s]")
-    for ax in axes:
-        ax.legend(loc="upper right", fontsize=7, ncol=4)
+    axes[3].step(stamps, inputs[:, 0], where="post", color="tab:purple")
+    axes[3].set_ylabel("steering\ncommand [rad]")
+    axes[4].step(stamps, inputs[:, 1], where="post", color="tab:brown")
+    axes[4].set_ylabel("torque command\n[–] (normalised)")
+    axes[4].set_xlabel("t [s] (simulation time)")
+    for ax in fig.axes:
         ax.grid(alpha=0.3)
-    fig.suptitle("Simulated sensor signals (with noise)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+        if ax.get_legend_handles_labels()[0] and ax.get_legend() is None:
+            _legend_right(ax)
+    fig.align_ylabels(fig.axes)
+    fig.suptitle(f"Simulated sensor signals and commands (with noise), seed {result.seed}")
+    return fig
+
+
+def _legend_right(ax, **kwargs) -> None:
+    ax.legend(loc="upper left", bbox_to_anchor=(1.005, 1.0), fontsize=7, frameon=False, **kwargs)
+
+
+def _plot_lighthouse(result: SimulationResult, station: int, axes) -> None:
+    """One base station: the sweep angle of each plane (mean of the photodiodes, which lie
+    within a few mrad of each other at this scale), then per plane every photodiode's offset
+    from that mean, which tells the diodes apart."""
+    plane_colours = {1: "black", 2: "tab:gray"}
+    for plane in (1, 2):
+        t, v = result.measurements_of(lighthouse_sensor(station, plane))
+        ax = axes[plane]
+        if t.size:
+            mean = np.nanmean(v, axis=1)
+            axes[0].plot(t, mean, ".", color=plane_colours[plane], ms=1.5, label=f"plane {plane}")
+            offset = 1e3 * (v - mean[:, None])
+            for diode in range(v.shape[1]):
+                ax.plot(t, offset[:, diode], ".", color=f"C{diode}", ms=1.2, label=f"diode {diode}")
+        ax.set_ylabel(f"LH{station} plane {plane}:\ndiode − mean\n[mrad]")
+        if ax.get_legend_handles_labels()[0]:
+            _legend_right(ax, markerscale=5)
+    axes[0].set_ylabel(f"Lighthouse {station}\nsweep angle\n[rad]")
+    if axes[0].get_legend_handles_labels()[0]:
+        _legend_right(
+            axes[0], markerscale=5, title=f"mean of {N_PHOTODIODES} diodes", title_fontsize=7
+        )
+
+
+def estimation_figure(estimation: dict[str, Any]):
+    """``estimation.png``: x, y and yaw error against the truth inside the ±2σ band, from
+    :func:`estimation_errors`."""
+    estimates: OfflineEstimates = estimation["estimates"]
+    summary = estimation["summary"]
+    t = estimates.t
+    lost = estimates.status == "lost"
+    fig, axes = plt.subplots(3, 1, figsize=(11, 7.5), sharex=True, layout="constrained")
+    for k, (ax, (name, unit, factor)) in enumerate(zip(axes, ERROR_COMPONENTS, strict=True)):
+        error = estimation["errors"][:, k] * factor
+        sigma = np.where(lost, np.nan, estimation["sigmas"][:, k] * factor)
+        draw_error_band(ax, t, error, sigma, "tab:blue", None)
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        shade_status_strip(ax, t, estimates.status)
+        off_scale = clip_to_band(ax, [error], [sigma], unit)
+        label_band_panel(ax, name, unit, [("", band_statistics(error, sigma))], off_scale)
+        ax.grid(alpha=0.3)
+    handles = [
+        plt.Line2D([], [], color="tab:blue", lw=0.7, label="estimate − simulation truth"),
+        Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL),
+        Patch(color="tab:orange", alpha=0.8, label="status degraded (bottom strip)"),
+        Patch(color="tab:red", alpha=0.8, label="status lost (bottom strip)"),
+    ]
+    fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8)
+    axes[-1].set_xlabel("t [s] (simulation time)")
+    fig.suptitle(
+        f"Estimation error over time: offline {summary['estimator'].upper()} on "
+        f"{sensor_words(summary['sensors'])} ({summary['start']} start) vs the simulator's truth",
+        fontsize=11,
+    )
+    return fig
+
+
+def shade_status_strip(ax, t: np.ndarray, status: np.ndarray, height: float = 0.05) -> None:
+    """A strip of ``height`` (axes fraction) at the bottom of ``ax``: orange where the status is
+    ``degraded``, red where ``lost`` (each run up to the next stamp). A strip rather than a
+    full-height shade, which would hide the ±2σ band."""
+    colours = {"degraded": "tab:orange", "lost": "tab:red"}
+    status = np.asarray(status).astype(str)
+    edges = np.flatnonzero(status[1:] != status[:-1]) + 1
+    for begin, end in zip(np.r_[0, edges], np.r_[edges, len(status)], strict=True):
+        colour = colours.get(status[begin])
+        if colour:
+            right = t[min(end, len(t) - 1)]
+            ax.axvspan(t[begin], right, ymin=0.0, ymax=height, color=colour, alpha=0.8, lw=0)

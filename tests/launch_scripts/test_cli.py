@@ -82,8 +82,9 @@ def test_sim_dataset_loads_and_the_car_drives(lag_run: tuple[int, Path]):
     assert np.all((data.u[:, 1] >= -1) & (data.u[:, 1] <= 1))
 
 
-def test_report_writes_summary_and_two_plots(report_run: tuple[int, Path]):
-    """`--report` writes summary.json (with sensor rates), summary.txt and two PNG files."""
+def test_report_writes_summary_and_three_plots(report_run: tuple[int, Path]):
+    """`--report` writes summary.json (with sensor rates), summary.txt and three PNG files
+    (path, sensors, and the estimation error over time)."""
     code, out = report_run
     assert code == 0
     report = out / "report"
@@ -97,7 +98,7 @@ def test_report_writes_summary_and_two_plots(report_run: tuple[int, Path]):
     assert "real_time_factor" in summary
     assert (report / "summary.txt").read_text().startswith("Chronos simulation: 2.0 s, seed 0")
     pngs = sorted(p.name for p in report.glob("*.png"))
-    assert pngs == ["path.png", "sensors.png"]
+    assert pngs == ["estimation.png", "path.png", "sensors.png"]
     for name in pngs:
         data = (report / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000

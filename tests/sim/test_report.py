@@ -1,0 +1,162 @@
+"""Tests of sim.report: the figures of ``crs demo`` / ``crs sim --report`` and their numbers."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pytest
+
+from crs_core.control.path_following import PathFollower, PathFollowerSettings
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+from sim import SensorSuite, SimulationResult, Simulator
+from sim.report import (
+    band_limit,
+    band_statistics,
+    interpolate_pose,
+    path_figure,
+    pose_errors,
+    sensors_figure,
+    speed_colour_limits,
+    write_report,
+)
+
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.fixture(scope="module")
+def run() -> SimulationResult:
+    """4 s of the path follower on DEMO_TRACK with the default (noisy) sensors."""
+    track = load_demo_track()
+    model = CarModel()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    return Simulator(model, SensorSuite(), seed=3).run(controller, 4.0, x0)
+
+
+def test_band_statistics_on_known_numbers():
+    """The RMSE counts the finite errors, the fraction inside ±2σ the samples where the sigma is
+    known too."""
+    error = np.array([1.0, -1.0, 3.0, -2.0, np.nan, 5.0])
+    sigma = np.array([1.0, 1.0, 1.0, 1.0, 1.0, np.nan])
+    stats = band_statistics(error, sigma)
+    assert stats["samples"] == 5 and stats["samples_with_sigma"] == 4
+    assert stats["rmse"] == pytest.approx(np.sqrt((1 + 1 + 9 + 4 + 25) / 5))
+    assert stats["inside_2sigma"] == pytest.approx(3 / 4)  # |-2| <= 2 counts, |3| does not
+    empty = {"rmse": None, "inside_2sigma": None, "samples": 0, "samples_with_sigma": 0}
+    assert band_statistics([], []) == empty
+    assert band_statistics([np.nan], [1.0])["rmse"] is None
+    no_sigma = band_statistics([3.0, 4.0], [np.nan, np.nan])
+    assert no_sigma["rmse"] == pytest.approx(np.sqrt(12.5)) and no_sigma["inside_2sigma"] is None
+
+
+def test_band_statistics_of_gaussian_errors_is_about_95_percent():
+    """Errors drawn with the claimed sigma land inside ±2σ about 95.4 % of the time."""
+    rng = np.random.default_rng(0)
+    sigma = rng.uniform(0.5, 2.0, 20_000)
+    stats = band_statistics(rng.normal(0.0, sigma), sigma)
+    assert stats["inside_2sigma"] == pytest.approx(0.954, abs=0.01)
+    assert stats["rmse"] == pytest.approx(np.sqrt(np.mean(sigma**2)), rel=0.02)
+
+
+def test_pose_errors_wrap_the_yaw():
+    """A yaw of 3.1 rad against -3.1 rad (or against it plus whole turns) is -0.083 rad off."""
+    estimate = np.array([[1.0, 2.0, 3.1], [0.0, 0.0, 3.1], [0.0, 0.0, 0.2]])
+    reference = np.array([[0.9, 2.5, -3.1], [0.0, 0.0, -3.1 + 4 * np.pi], [0.0, 0.0, -0.1]])
+    error = pose_errors(estimate, reference)
+    assert error[0, :2] == pytest.approx([0.1, -0.5])
+    assert error[:, 2] == pytest.approx([6.2 - 2 * np.pi, 6.2 - 2 * np.pi, 0.3])
+
+
+def test_interpolate_pose_does_not_smear_a_wrapped_yaw():
+    """Half-way between yaw 3.1 and -3.1 (a wrap, not a half turn back) the yaw is ±pi."""
+    stamps = np.array([0.0, 1.0, 2.0])
+    states = np.array([[0.0, 0.0, 3.1], [1.0, 2.0, -3.1], [2.0, 4.0, -3.0]])
+    pose = interpolate_pose(np.array([0.5, 1.5]), stamps, states)
+    assert pose[:, :2] == pytest.approx(np.array([[0.5, 1.0], [1.5, 3.0]]))
+    assert abs(np.cos(pose[0, 2]) + 1.0) < 1e-6  # pi, not 0
+    assert pose[1, 2] == pytest.approx(-3.05 + 2 * np.pi)
+
+
+def test_band_limit_ignores_a_short_peak():
+    """One huge error and one huge sigma (before the first fix) do not set the scale."""
+    error = np.r_[np.full(199, 1.0), 500.0]
+    sigma = np.r_[np.full(199, 1.0), 1000.0]
+    assert band_limit([error], [sigma]) == pytest.approx(1.15 * 2.0)
+
+
+def test_speed_colour_limits_follow_the_driven_speeds():
+    """Start-up from rest is left out: the limits span the speeds driven, not 0..max."""
+    rng = np.random.default_rng(1)
+    vx = np.r_[np.linspace(0.0, 0.9, 30), rng.uniform(0.9, 1.1, 1000)]
+    low, high = speed_colour_limits(vx)
+    assert 0.88 < low < 0.92 and 1.08 < high <= 1.1
+    assert speed_colour_limits(np.full(50, 1.0)) == pytest.approx((0.975, 1.025))
+    assert speed_colour_limits(np.zeros(10)) == pytest.approx((-0.025, 0.025))
+
+
+def test_path_figure_colours_span_the_driven_speeds(run: SimulationResult):
+    """The colour scale of the path is the driven speed range, well above 0 m/s."""
+    fig = path_figure(run, load_demo_track())
+    clim = [c.get_clim() for c in fig.axes[0].collections if c.get_array() is not None]
+    plt.close(fig)
+    assert clim == [pytest.approx(speed_colour_limits(run.truth_x[:, 3]))]
+    assert clim[0][0] > 0.5
+
+
+def test_sensors_figure_shows_every_photodiode_and_units(run: SimulationResult):
+    """Both planes show the four photodiodes; every y axis has a unit and there are separate
+    steering (rad) and torque panels."""
+    fig = sensors_figure(run)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    per_plane = [
+        sorted(line.get_label() for line in ax.lines)
+        for ax in fig.axes
+        if "plane" in ax.get_ylabel()
+    ]
+    plt.close(fig)
+    assert per_plane == [[f"diode {d}" for d in range(4)]] * 2
+    assert all("[" in label and "]" in label for label in labels), labels
+    assert any("steering" in label and "[rad]" in label for label in labels)
+    assert any("torque" in label for label in labels)
+
+
+def test_report_writes_the_estimation_figure_and_numbers(run: SimulationResult, tmp_path: Path):
+    """With an estimator: estimation.png and RMSE / ±2σ fractions in summary.json and .txt."""
+    folder = write_report(run, load_demo_track(), tmp_path / "r", {"note": 1}, estimator="ekf")
+    for name in ("path.png", "sensors.png", "estimation.png"):
+        data = (folder / name).read_bytes()
+        assert data[:8] == PNG and len(data) > 10_000
+    summary = json.loads((folder / "summary.json").read_text())
+    estimation = summary["estimation"]
+    assert estimation["estimator"] == "ekf" and estimation["start"] == "blind"
+    assert estimation["samples_not_lost"] > 0.9 * estimation["samples"] > 100
+    for name, key in (("x", "rmse_mm"), ("y", "rmse_mm"), ("yaw", "rmse_mrad")):
+        assert 0.0 < estimation[name][key] < 50.0
+        assert 0.0 <= estimation[name]["inside_2sigma"] <= 1.0
+    assert summary["note"] == 1
+    text = (folder / "summary.txt").read_text()
+    assert "estimation: EKF on lh+imu+we" in text and "% inside ±2σ" in text
+
+
+def test_report_without_estimator_or_lighthouse(run: SimulationResult, tmp_path: Path):
+    """``estimator=None`` skips the estimation; without Lighthouse data it is skipped with the
+    reason in the summary."""
+    folder = write_report(run, load_demo_track(), tmp_path / "none", estimator=None)
+    assert sorted(p.name for p in folder.glob("*.png")) == ["path.png", "sensors.png"]
+    assert "estimation" not in json.loads((folder / "summary.json").read_text())
+
+    blind = SimulationResult(
+        **{
+            **run.__dict__,
+            "measurements": [m for m in run.measurements if "lighthouse" not in m.sensor],
+        }
+    )
+    folder = write_report(blind, load_demo_track(), tmp_path / "blind", estimator="ekf")
+    summary = json.loads((folder / "summary.json").read_text())
+    assert "no samples" in summary["estimation"]["skipped"]
+    assert sorted(p.name for p in folder.glob("*.png")) == ["path.png", "sensors.png"]
