@@ -7,9 +7,9 @@
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
 # The set-up installs requirements.lock with --no-deps, then this project in editable mode,
 # and is skipped when .venv/.crs-setup-stamp matches sha256(requirements.lock + pyproject.toml).
-# It then builds the ROS 2 interfaces in chronos_msgs/ (rosidl + ament_cmake from the wheels,
-# cmake/gcc of the machine) and installs them into .venv itself; skipped when
-# .venv/.chronos-msgs-stamp matches sha256(requirements.lock + the chronos_msgs/ files).
+# It then builds the ROS 2 interfaces in chronos_msgs/ and tf2_msgs/ (rosidl + ament_cmake from
+# the wheels, cmake/gcc of the machine) and installs them into .venv itself; each is skipped when
+# .venv/.<package>-stamp matches sha256(requirements.lock + the package's files).
 set -euo pipefail
 
 cd "$(dirname "${BASH_SOURCE[0]}")"
@@ -17,8 +17,6 @@ ROOT="$PWD"
 
 VENV="$ROOT/.venv"
 STAMP="$VENV/.crs-setup-stamp"
-MSGS_STAMP="$VENV/.chronos-msgs-stamp"
-MSGS_BUILD="$VENV/build/chronos_msgs"
 LOG="$VENV/setup.log"
 
 # Never send DDS discovery traffic off this machine.
@@ -124,10 +122,13 @@ bootstrap() {
     log "done in $((SECONDS - t0)) s"
 }
 
+# The ROS 2 interface packages built from source at set-up (the PyPI wheels lack them).
+MSG_PACKAGES=(chronos_msgs tf2_msgs)
+
 msgs_hash() {
-    # The pinned wheels the build uses plus every file of the package, by name (not
+    # The pinned wheels the build uses plus every file of the package $1, by name (not
     # pyproject.toml: the project's own metadata does not change the interfaces).
-    { sha256sum requirements.lock; find chronos_msgs -type f ! -name '*.pyc' -print0 | LC_ALL=C sort -z |
+    { sha256sum requirements.lock; find "$1" -type f ! -name '*.pyc' -print0 | LC_ALL=C sort -z |
         xargs -0 sha256sum; } | sha256sum | cut -d' ' -f1
 }
 
@@ -135,7 +136,7 @@ msgs_hash() {
 # built with (/opt/python/cp311-cp311/...); point them at this venv's Python and numpy headers.
 # Idempotent: a path that is already right is left alone.
 repair_cmake_paths() {
-    "$VENV/bin/python" - "$VENV/share" <<'EOF'
+    "$VENV/bin/python" - "$VENV/share" <<'PYEOF'
 import pathlib, re, sys, sysconfig
 import numpy
 py_inc, np_inc = sysconfig.get_paths()["include"], numpy.get_include()
@@ -153,60 +154,70 @@ for path in pathlib.Path(sys.argv[1]).glob("*/cmake/*.cmake"):
     if new != text:
         path.write_text(new)
         print(f"repaired {path}")
-EOF
+PYEOF
 }
 
-# Builds chronos_msgs/ with cmake and installs it into .venv (C/C++ libraries in .venv/lib, which
-# the wheels' .pth bootstrapper puts on LD_LIBRARY_PATH; the Python package in site-packages).
 build_msgs() {
-    [ -f chronos_msgs/package.xml ] || return 0
-    local want
-    want="$(msgs_hash)"
-    if [ -f "$MSGS_STAMP" ] && [ "$(cat "$MSGS_STAMP")" = "$want" ]; then
+    local pkg
+    for pkg in "${MSG_PACKAGES[@]}"; do
+        build_msg_package "$pkg"
+    done
+}
+
+# Builds the interface package $1 (a folder of this repository) with cmake and installs it into
+# .venv (C/C++ libraries in .venv/lib, which the wheels' .pth bootstrapper puts on
+# LD_LIBRARY_PATH; the Python package in site-packages). Skipped when .venv/.$1-stamp matches.
+build_msg_package() {
+    local pkg="$1"
+    [ -f "$pkg/package.xml" ] || die "$pkg/package.xml not found"
+    local want stamp="$VENV/.$pkg-stamp" build="$VENV/build/$pkg"
+    want="$(msgs_hash "$pkg")"
+    if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
         return 0
     fi
-    rm -f "$MSGS_STAMP"
-    command -v cmake >/dev/null 2>&1 || die "cmake is needed to build chronos_msgs (apt-get install cmake)"
-    command -v g++ >/dev/null 2>&1 || die "a C++ compiler is needed to build chronos_msgs (apt-get install g++)"
+    rm -f "$stamp"
+    command -v cmake >/dev/null 2>&1 || die "cmake is needed to build $pkg (apt-get install cmake)"
+    command -v g++ >/dev/null 2>&1 || die "a C++ compiler is needed to build $pkg (apt-get install g++)"
     "$VENV/bin/python" -c 'import os, sys, sysconfig
 sys.exit(0 if os.path.isfile(os.path.join(sysconfig.get_paths()["include"], "Python.h")) else 1)' ||
         die "Python.h of $("$VENV/bin/python" --version) not found: install the Python 3.11" \
-            "development headers (Debian: apt-get install python3.11-dev) to build chronos_msgs"
+            "development headers (Debian: apt-get install python3.11-dev) to build $pkg"
 
     local t0=$SECONDS
-    log "building chronos_msgs (ROS 2 interfaces, log: .venv/setup.log)"
+    log "building $pkg (ROS 2 interfaces, log: .venv/setup.log)"
     {
-        echo "=== building chronos_msgs ($(date -u +%FT%TZ))"
+        echo "=== building $pkg ($(date -u +%FT%TZ))"
         # A build directory configured for another source tree cannot be reused.
-        if [ -f "$MSGS_BUILD/CMakeCache.txt" ] &&
-            ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$ROOT/chronos_msgs" "$MSGS_BUILD/CMakeCache.txt"; then
-            rm -rf "$MSGS_BUILD"
+        if [ -f "$build/CMakeCache.txt" ] &&
+            ! grep -qxF "CMAKE_HOME_DIRECTORY:INTERNAL=$ROOT/$pkg" "$build/CMakeCache.txt"; then
+            rm -rf "$build"
         fi
         repair_cmake_paths &&
-            AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" cmake -S chronos_msgs -B "$MSGS_BUILD" \
+            AMENT_PREFIX_PATH="$VENV" CMAKE_PREFIX_PATH="$VENV" cmake -S "$pkg" -B "$build" \
                 -DCMAKE_INSTALL_PREFIX="$VENV" -DCMAKE_BUILD_TYPE=Release -DBUILD_TESTING=OFF \
                 -DPython3_EXECUTABLE="$VENV/bin/python" &&
-            AMENT_PREFIX_PATH="$VENV" cmake --build "$MSGS_BUILD" -j "$(nproc 2>/dev/null || echo 2)" &&
+            AMENT_PREFIX_PATH="$VENV" cmake --build "$build" -j "$(nproc 2>/dev/null || echo 2)" &&
             {
                 # Remove what the previous build installed, so a deleted .msg leaves nothing behind.
-                [ ! -f "$MSGS_BUILD/install_manifest.txt" ] ||
-                    xargs -d '\n' rm -f <"$MSGS_BUILD/install_manifest.txt"
+                [ ! -f "$build/install_manifest.txt" ] ||
+                    xargs -d '\n' rm -f <"$build/install_manifest.txt"
             } &&
-            cmake --install "$MSGS_BUILD" &&
-            "$VENV/bin/python" -c '
+            cmake --install "$build" &&
+            "$VENV/bin/python" - "$pkg" <<'PYEOF'
 # Every generated message loads its C extension and typesupport libraries (from .venv/lib).
-import chronos_msgs.msg as m
+import importlib, sys
 from rclpy.type_support import check_for_type_support
+m = importlib.import_module(f"{sys.argv[1]}.msg")
 for name in dir(m):
     if name[:1].isupper():
         check_for_type_support(getattr(m, name))
-'
+PYEOF
     } >>"$LOG" 2>&1 || {
         tail -n 30 "$LOG" >&2
-        die "building chronos_msgs failed (full log: .venv/setup.log)"
+        die "building $pkg failed (full log: .venv/setup.log)"
     }
-    echo "$want" >"$MSGS_STAMP"
-    log "chronos_msgs built in $((SECONDS - t0)) s"
+    echo "$want" >"$stamp"
+    log "$pkg built in $((SECONDS - t0)) s"
 }
 
 cmd="${1:-demo}"

@@ -123,3 +123,25 @@ def in_stamp_order(
     events = [(s.stamp, 0, s) for s in inputs] + [(m.stamp, 1, m) for m in measurements]
     events.sort(key=lambda e: (e[0], e[1]))
     return [item for _, _, item in events]
+
+
+def from_start(
+    items: Iterable[Measurement | InputSample], t0: float
+) -> list[Measurement | InputSample]:
+    """What an estimator started at ``t0`` takes of the data that arrived before it started.
+
+    Everything stamped at or after ``t0`` (in the given order), and the command in effect at
+    ``t0`` (the newest earlier input) re-stamped at ``t0``, first; older data belong to before
+    the start and are dropped (they are not late: nothing was processed yet). The ROS node and
+    the offline bag replay both start through this, so they start on the same data.
+    """
+    items = list(items)
+    earlier = [i for i in items if isinstance(i, InputSample) and i.stamp < t0]
+    kept = [i for i in items if i.stamp >= t0]
+    if not earlier:
+        return kept
+    in_effect = earlier[0]
+    for sample in earlier:  # the newest; of equal stamps the last to arrive
+        if sample.stamp >= in_effect.stamp:
+            in_effect = sample
+    return [InputSample(t0, in_effect.u), *kept]

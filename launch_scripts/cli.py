@@ -34,6 +34,7 @@ from crs_core.estimation.offline import (
 from crs_core.model import EFFECTS, CarModel
 from crs_core.track import Track, load_demo_track
 from launch_scripts.output_folder import prepare_output, prepare_output_file
+from launch_scripts.sim_stack import RECORD_SETS
 from sim.report import write_report
 from sim.sensors import Blackout, SensorSuite
 from sim.simulator import Simulator
@@ -159,7 +160,7 @@ def simulate(args: argparse.Namespace) -> Path:
         report = write_report(
             result, track, out / "report", {"real_time_factor": round(args.duration / elapsed, 1)}
         )
-        print(f"report:  {report}/summary.txt, path.png, sensors.png")
+        print(f"report:  {report}/summary.txt, path.png, sensors.png, estimation.png")
         print((report / "summary.txt").read_text(), end="")
     return out
 
@@ -308,6 +309,7 @@ def launch(args: argparse.Namespace) -> None:
         args.domain,
         args.seed,
         blind_start=args.blind_start,
+        record=args.record,
     )
     print(summary(report, Path(args.out)))
 
@@ -450,6 +452,14 @@ def make_parser() -> argparse.ArgumentParser:
         "--blind-start",
         action="store_true",
         help="estimators initialise from the Lighthouse instead of the known start pose",
+    )
+    sub.add_argument(
+        "--record",
+        choices=list(RECORD_SETS),
+        default="all",
+        help="what the bag (OUT/bag, MCAP) holds: all (default: sensors, inputs, truth, "
+        "estimates, odometry, /tf; replays the estimator offline exactly), estimates (no 250 Hz "
+        "sensor streams) or sensors (no estimates)",
     )
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=launch)

@@ -19,26 +19,41 @@ from crs_core.track import LapCounter, load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
 
+#: What ``crs launch --record`` records, per car (relative topics) and globally. ``all``:
+#: everything, so the bag replays the estimator offline to its estimates exactly
+#: (:mod:`ros4crs.bag_replay`) and Foxglove / PlotJuggler show the run (IMU, Odometry, TF).
+#: ``estimates``: what the report and the plots need (truth, estimates, inputs, TF), without the
+#: 250 Hz sensor streams. ``sensors``: the sensor streams and inputs (an estimator's input) with
+#: the truth, without the estimates.
+RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "all": (("sensors/", "input", "ground_truth", "estimate/"), ("/tf",)),
+    "estimates": (("input", "ground_truth", "estimate/"), ("/tf",)),
+    "sensors": (("sensors/", "input", "ground_truth"), ()),
+}
+
 
 def stack_nodes(
     cars: int,
     estimator: str,
-    duration: float,
     bag: Path,
     seed: int = 0,
-    record_all: bool = False,
+    record: str = "all",
     blind_start: bool = False,
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
-    ``blind_start``: the estimators ignore the known start pose and initialise themselves from
-    the Lighthouse (the car waits, its controller seeing no estimate, until they have).
+    ``record``: a key of :data:`RECORD_SETS`. ``blind_start``: the estimators ignore the known
+    start pose and initialise themselves from the Lighthouse (the car waits, its controller
+    seeing no estimate, until they have).
     """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
     if estimator not in ("ekf", "mhe"):
         raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
-    nodes, topics = [], []
+    if record not in RECORD_SETS:
+        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
+    per_car, global_topics = RECORD_SETS[record]
+    nodes, topics = [], list(global_topics)
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
@@ -57,11 +72,7 @@ def stack_nodes(
             ),
             NodeSpec("controller", "ros4crs.controller_node", ns, {}),
         ]
-        # the 250 Hz IMU and encoder streams are recorded only on request: in Python that
-        # costs about a third of a core per car
-        recorded = ["ground_truth", "estimate/state", "estimate/diagnostics", "input"]
-        recorded += ["sensors/"] if record_all else ["sensors/lighthouse"]
-        topics += [f"{ns}/{topic}" for topic in recorded]
+        topics += [f"{ns}/{topic}" for topic in per_car]
     nodes.append(
         NodeSpec(
             "recorder",
@@ -81,6 +92,7 @@ def run_stack(
     domain_id: int | None = None,
     seed: int = 0,
     blind_start: bool = False,
+    record: str = "all",
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -89,7 +101,7 @@ def run_stack(
     if bag.exists():
         raise FileExistsError(f"{bag} exists; choose an empty --out")
     domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-    nodes = stack_nodes(cars, estimator, duration, bag, seed, blind_start=blind_start)
+    nodes = stack_nodes(cars, estimator, bag, seed, record=record, blind_start=blind_start)
     launcher = Launcher(nodes, domain, out / "logs")
 
     def report_death(exited) -> None:
@@ -103,6 +115,7 @@ def run_stack(
     report = analyse(bag, cars)
     report["estimator"] = estimator
     report["duration_s"] = duration
+    report["recorded"] = record
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     wall = max(launcher.wall_at_stop, 1e-9)
     report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}

@@ -1,26 +1,38 @@
 """Offline replay of a bag straight into the ``crs_core`` estimators, without ROS.
 
 Reads the sensor and input topics of one car from a bag (rosbags, no rclpy), converts them with
-the same :mod:`ros4crs.conversions` the nodes use, and feeds an estimator. Queried at the stamps
-an estimator node published (``estimate/state`` in the same bag, or any list of stamps), it
-reproduces that node's estimates: the node does exactly the same, in the same stamp order.
+the same :mod:`ros4crs.conversions` the nodes use, and feeds an estimator. An estimator node
+logs each of its queries on ``estimate/query`` with the newest message of every input stream it
+had received by then; :func:`replay_estimator` gives the estimator exactly those messages before
+each query, so it reproduces the node's estimates exactly, whatever the transport delays were
+(a message stamped before a query but arriving after it was not used live, nor here).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from rosbags.rosbag2 import Reader
 
-from crs_core.estimation.base import Estimator
-from crs_core.measurements import InputSample, Measurement, in_stamp_order
+from crs_core.estimation.base import Estimate, Estimator
+from crs_core.measurements import InputSample, Measurement, from_start, in_stamp_order
 from ros4crs import conversions
+from ros4crs.bag_repair import open_bag
 from ros4crs.interfaces import typestore
 
 _FAMILY_OF_TOPIC = {topic: family for family, topic in conversions.TOPICS.items()}
+
+
+@dataclass(frozen=True)
+class Query:
+    """One query of an estimator node (``estimate/query``): the time asked for, whether the
+    estimator started there, and the newest stamp per input stream it had (s)."""
+
+    stamp: float
+    start: bool
+    newest: dict[str, float]
 
 
 @dataclass
@@ -34,18 +46,23 @@ class BagContents:
     malformed: int
     deadline_misses: int = 0
     updates: int = 0
+    queries: list[Query] = field(default_factory=list)
 
 
 def read_car(bag: str | Path, namespace: str = "") -> BagContents:
-    """Sensors, inputs, published estimates and ground truth of the car in ``namespace``."""
+    """Sensors, inputs, published estimates, queries and truth of the car in ``namespace``.
+
+    A cut-off bag is read up to its last complete message, with a
+    :class:`~ros4crs.bag_repair.BagDamagedWarning` saying what was lost.
+    """
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
-    measurements, inputs, estimates, truth = [], [], [], []
+    measurements, inputs, estimates, truth, queries = [], [], [], [], []
     malformed = 0
     diagnostics = None
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:
         wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
-        for connection, _, data in reader.messages(wanted):
+        for connection, _, data in reader.messages(wanted) if wanted else ():
             relative = connection.topic[len(prefix) :]
             family = _FAMILY_OF_TOPIC.get(relative)
             if family is None:
@@ -62,11 +79,13 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
                     truth.append(conversions.state_from_msg(msg))
                 elif family == "diagnostics":
                     diagnostics = msg
+                elif family == "query":
+                    queries.append(Query(*conversions.query_from_msg(msg)))
             except ValueError:
                 malformed += 1
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
     inputs.sort(key=lambda s: s.stamp)
-    contents = BagContents(measurements, inputs, estimates, truth, malformed)
+    contents = BagContents(measurements, inputs, estimates, truth, malformed, queries=queries)
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)
         contents.updates = int(diagnostics.updates)
@@ -79,10 +98,9 @@ def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[
     prefix = namespace.rstrip("/") + "/"
     kinds = {"sensors/": "sensor", "estimate/state": "estimate", "input": "input"}
     out: dict[str, list[tuple[float, float]]] = {kind: [] for kind in kinds.values()}
-    with Reader(bag) as reader:
-        for connection, received, data in reader.messages(
-            [c for c in reader.connections if c.topic.startswith(prefix)]
-        ):
+    with open_bag(bag) as reader:
+        wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
+        for connection, received, data in reader.messages(wanted) if wanted else ():
             relative = connection.topic[len(prefix) :]
             kind = next((k for key, k in kinds.items() if relative.startswith(key)), None)
             if kind is None:
@@ -95,21 +113,58 @@ def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[
 def replay_estimator(
     contents: BagContents,
     estimator: Estimator,
-    stamps: Iterable[float],
-    x0: np.ndarray,
-    t0: float,
-) -> np.ndarray:
-    """Estimates (n, 6) at ``stamps``, the estimator reset to ``x0`` at ``t0`` first.
+    queries: Iterable[Query],
+    x0: np.ndarray | None,
+) -> list[Estimate | None]:
+    """The estimates of ``estimator`` at each query, fed as the node that logged them was.
 
-    Data are delivered up to each stamp before it is queried, as in the node (which publishes
-    its initial state at ``t0``); data stamped before ``t0`` count as late there and here.
+    At a ``start`` query the estimator is reset there (to ``x0``; ``None``: a blind start) on
+    :func:`~crs_core.measurements.from_start` of the data it had; before any other query it
+    gets every message up to the query's newest stamp of each stream, then is asked for the
+    estimate (``None`` where that fails, as the node logs and skips it; also at a start).
     """
-    estimator.reset(t0, x0)
-    events = in_stamp_order(contents.measurements, contents.inputs)
-    out, k = [], 0
-    for t in stamps:
-        while k < len(events) and events[k].stamp <= t:
-            estimator.add(events[k])
-            k += 1
-        out.append(estimator.estimate(t).x)
-    return np.array(out)
+    queries = list(queries)
+    if not queries or not queries[0].start:
+        raise ValueError(
+            "queries: the first is not the estimator's start (was the bag recorded from the "
+            "start of the estimator node, with estimate/query?)"
+        )
+    streams: dict[str, list[Measurement | InputSample]] = {}
+    for item in in_stamp_order(contents.measurements, contents.inputs):
+        streams.setdefault(_stream_of(item), []).append(item)
+    taken = dict.fromkeys(streams, 0)
+    out: list[Estimate | None] = []
+    for query in queries:
+        arrived: list[Measurement | InputSample] = []
+        for stream, items in streams.items():
+            newest, k = query.newest.get(stream, -np.inf), taken[stream]
+            while k < len(items) and items[k].stamp <= newest:
+                arrived.append(items[k])
+                k += 1
+            taken[stream] = k
+        if query.start:
+            estimator.reset(query.stamp, x0)
+            arrived = from_start(
+                in_stamp_order(
+                    [i for i in arrived if isinstance(i, Measurement)],
+                    [i for i in arrived if isinstance(i, InputSample)],
+                ),
+                query.stamp,
+            )
+        for item in arrived:
+            estimator.add(item)
+        if query.start:
+            out.append(None)
+            continue
+        try:
+            out.append(estimator.estimate(query.stamp))
+        except ValueError:
+            out.append(None)
+    return out
+
+
+def _stream_of(item: Measurement | InputSample) -> str:
+    """The topic (relative to the car) an item came on."""
+    if isinstance(item, InputSample):
+        return conversions.TOPICS["input"]
+    return conversions.TOPICS[conversions.topic_family(item.sensor)]

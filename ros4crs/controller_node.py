@@ -42,7 +42,7 @@ class ControllerNode(Node):
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_QOS
         )
-        self.malformed = subscribe_checked(
+        self._estimates = subscribe_checked(
             self,
             CarState,
             conversions.TOPICS["state"],
@@ -59,6 +59,7 @@ class ControllerNode(Node):
         self._latest = value
 
     def _control(self) -> None:
+        self._estimates.take_pending()  # act on the newest estimate that has arrived
         now = self.get_clock().now().nanoseconds * 1e-9
         stale = self._latest is None or now - self._latest[0] > self.stale_timeout
         if stale:

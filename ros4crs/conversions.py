@@ -20,7 +20,13 @@ ground_truth          chronos_msgs/CarState            simulator truth
 estimate/state        chronos_msgs/CarState            estimate with covariance
 estimate/odometry     nav_msgs/Odometry                the same for any ROS tool
 estimate/diagnostics  chronos_msgs/EstimatorDiagnostics
+estimate/query        chronos_msgs/EstimatorQuery      each query and the newest data it had
+/tf (absolute)        tf2_msgs/TFMessage               ``world`` -> ``<car>/base_link``
 ====================  ===============================  =====================================
+
+Frames (REP 103/105): ``world`` is the track frame; a car's body frame is ``<ns>/base_link``
+(``car1/base_link`` for the node namespace ``/car1``, see :func:`body_frame`), so the cars of
+one ROS graph share one TF tree.
 """
 
 from __future__ import annotations
@@ -44,7 +50,14 @@ TOPICS = {
     "state": "estimate/state",
     "odometry": "estimate/odometry",
     "diagnostics": "estimate/diagnostics",
+    "query": "estimate/query",
 }
+
+
+def body_frame(namespace: str) -> str:
+    """The body frame id of the car in ``namespace``: ``/car1`` -> ``car1/base_link``."""
+    prefix = namespace.strip("/")
+    return f"{prefix}/base_link" if prefix else "base_link"
 
 
 # --- time ------------------------------------------------------------------------------------
@@ -221,6 +234,49 @@ def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     msg.pose.covariance = pose_cov.ravel().tolist()
     msg.twist.covariance = twist_cov.ravel().tolist()
     return msg
+
+
+def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
+    """``tf2_msgs/TFMessage`` with the one transform ``world`` -> ``child_frame_id`` (the
+    estimated planar pose, z = 0)."""
+    from geometry_msgs.msg import TransformStamped
+
+    from tf2_msgs.msg import TFMessage
+
+    transform = TransformStamped()
+    transform.header.frame_id, transform.child_frame_id = "world", child_frame_id
+    fill_stamp(transform.header.stamp, estimate.stamp)
+    x = estimate.x
+    transform.transform.translation.x = float(x[0])
+    transform.transform.translation.y = float(x[1])
+    transform.transform.rotation.z = math.sin(x[2] / 2)
+    transform.transform.rotation.w = math.cos(x[2] / 2)
+    return TFMessage(transforms=[transform])
+
+
+def query_msg(stamp: float, start: bool, newest: dict[str, float]) -> Any:
+    """``chronos_msgs/EstimatorQuery``: the time queried and, per stream, the newest stamp."""
+    from builtin_interfaces.msg import Time
+
+    from chronos_msgs.msg import EstimatorQuery
+
+    msg = EstimatorQuery(start=start, streams=list(newest))
+    fill_stamp(msg.header.stamp, stamp)
+    for value in newest.values():
+        time_msg = Time()
+        fill_stamp(time_msg, value)
+        msg.newest.append(time_msg)
+    return msg
+
+
+def query_from_msg(msg: Any) -> tuple[float, bool, dict[str, float]]:
+    """``chronos_msgs/EstimatorQuery`` -> (stamp, start, newest stamp per stream)."""
+    if len(msg.streams) != len(msg.newest):
+        raise ValueError(
+            f"newest: {len(msg.newest)} stamps for {len(msg.streams)} streams, expected equal"
+        )
+    newest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.newest, strict=True)}
+    return seconds_from_stamp(msg.header.stamp), bool(msg.start), newest
 
 
 def sensor_message_types() -> dict[str, type]:

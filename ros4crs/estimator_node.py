@@ -4,12 +4,14 @@ Subscribes to ``sensors/*`` and ``input``; every message is validated and conver
 boundary (a malformed one is logged and dropped). A timer at ``rate_hz`` asks the estimator for
 the state at ``now - lag`` (the lag lets messages in flight arrive first; it must exceed the
 transport latency) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
-(Odometry) and, once a second, ``estimate/diagnostics``. An update slower than the period
+(Odometry), the transform ``world`` -> ``<ns>/base_link`` on ``/tf`` and, once a second,
+``estimate/diagnostics``; ``estimate/query`` logs every query with the newest data it had, so
+that a recorded bag replays the estimator offline exactly. An update slower than the period
 counts as a deadline miss. A missing sensor never blocks: its terms are simply absent. The
 estimator starts (and publishes its initial state) at the first update after the first
 measurement arrived, so no controller drives on a guess with no data behind it. While the
 estimate is ``lost`` (a blind start waiting for its Lighthouse fix, or a re-initialisation)
-nothing is published on ``estimate/state`` and ``estimate/odometry``: a controller sees a
+nothing is published on ``estimate/state``, ``estimate/odometry`` and ``/tf``: a controller sees a
 stale estimate and stops the car; the diagnostics say why.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
@@ -29,11 +31,11 @@ from rclpy.node import Node
 
 from crs_core.estimation import EkfSettings, MheSettings, make_estimator, parse_sensor_set
 from crs_core.estimation.base import parse_time_offsets
-from crs_core.measurements import InputSample, Measurement
+from crs_core.measurements import InputSample, Measurement, from_start
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import declare, run, subscribe_checked, throttled_warning
+from ros4crs.node_support import LOG_QOS, declare, run, subscribe_checked, throttled_warning
 
 
 class EstimatorNode(Node):
@@ -73,13 +75,14 @@ class EstimatorNode(Node):
         self.kind = kind
         from nav_msgs.msg import Odometry
 
-        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics
+        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, EstimatorQuery
+        from tf2_msgs.msg import TFMessage
 
-        self._drop_counters: list = []
+        self._checked_subscriptions: list = []
         self._warn_late = throttled_warning(self)
         for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
-        self._drop_counters.append(
+        self._checked_subscriptions.append(
             subscribe_checked(
                 self,
                 CarInput,
@@ -89,12 +92,16 @@ class EstimatorNode(Node):
                 "input",
             )
         )
-        self._state = self.create_publisher(CarState, conversions.TOPICS["state"], 10)
+        self._state = self.create_publisher(CarState, conversions.TOPICS["state"], LOG_QOS)
         self._odometry = self.create_publisher(Odometry, conversions.TOPICS["odometry"], 10)
+        self._tf = self.create_publisher(TFMessage, "/tf", 100)
+        self.body_frame = conversions.body_frame(self.get_namespace())
         self._diagnostics = self.create_publisher(
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
+        self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
         self.received: dict[str, int] = {}
+        self._newest: dict[str, float] = {}  # per input topic, the newest stamp received
         self.deadline_misses = 0
         self.updates = 0
         self._max_solve = 0.0
@@ -106,11 +113,14 @@ class EstimatorNode(Node):
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
 
     def _subscribe(self, family: str, msg_type: type) -> None:
+        topic = conversions.TOPICS[family]
+
         def handle(measurement: Measurement) -> None:
             self.received[measurement.sensor] = self.received.get(measurement.sensor, 0) + 1
+            self._newest[topic] = max(self._newest.get(topic, -np.inf), measurement.stamp)
             self._deliver(measurement)
 
-        self._drop_counters.append(
+        self._checked_subscriptions.append(
             subscribe_checked(
                 self,
                 msg_type,
@@ -122,12 +132,14 @@ class EstimatorNode(Node):
         )
 
     def _on_input(self, value: tuple[float, np.ndarray]) -> None:
+        topic = conversions.TOPICS["input"]
+        self._newest[topic] = max(self._newest.get(topic, -np.inf), value[0])
         self._deliver(InputSample(*value))
 
     @property
     def malformed(self) -> int:
         """Messages dropped at the boundary so far."""
-        return sum(count() for count in self._drop_counters)
+        return sum(s.dropped for s in self._checked_subscriptions)
 
     def _deliver(self, item: Measurement | InputSample) -> None:
         """Into the estimator, or a buffer until its first update (it starts at now - lag)."""
@@ -150,16 +162,20 @@ class EstimatorNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _update(self) -> None:
+        # everything that has arrived first (rclpy runs a due timer before queued messages)
+        for subscription in self._checked_subscriptions:
+            subscription.take_pending()
         t = self._now() - self.lag
         if not self._started and not any(isinstance(i, Measurement) for i in self._buffer):
             return  # no data yet: publishing the initial guess would let the car drive blind
-        if not self._started:  # start at now - lag; what is older counts as late
+        if not self._started:  # start at now - lag, with the command in effect then
             self.estimator.reset(t, None if self.blind_start else self.initial)
             self._started = True
             self._last_query = t
-            for item in self._buffer:
+            for item in from_start(self._buffer, t):
                 self._deliver(item)
             self._buffer.clear()
+            self._queries.publish(conversions.query_msg(t, True, self._newest))
             if not self.blind_start:
                 covariance = np.diag(np.full(6, 1.0))
                 self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
@@ -173,6 +189,8 @@ class EstimatorNode(Node):
         except ValueError as error:  # e.g. a clock that jumped back: say so, keep running
             self._warn_status(f"no estimate at {t:.3f} s: {error}")
             return
+        finally:
+            self._queries.publish(conversions.query_msg(t, False, self._newest))
         elapsed = time.perf_counter() - start
         self.updates += 1
         self._max_solve = max(self._max_solve, elapsed)
@@ -183,7 +201,8 @@ class EstimatorNode(Node):
         if estimate.status == "lost":
             return
         self._state.publish(conversions.car_state_msg(estimate.x, t, estimate.covariance))
-        self._odometry.publish(conversions.odometry_msg(estimate))
+        self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
+        self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
 
     def _publish_diagnostics(self) -> None:
         from chronos_msgs.msg import EstimatorDiagnostics

@@ -13,11 +13,22 @@ from typing import Any
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 #: Sensor and command streams: reliable with a queue deep enough for 250 Hz bursts.
 STREAM_QOS = QoSProfile(
     depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
+)
+#: Estimates and the estimator's query log: reliable and transient-local, the last
+#: ``LOG_DEPTH`` messages kept for a subscriber that joins late (a recorder discovering the topic
+#: after the first estimates were published gets them; volatile subscribers, like the
+#: controller, still match and get only new messages).
+LOG_DEPTH = 1000
+LOG_QOS = QoSProfile(
+    depth=LOG_DEPTH,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
 )
 
 
@@ -55,6 +66,60 @@ def throttled_warning(node: Node, period: float = 1.0) -> Callable[[str], None]:
     return warn
 
 
+class CheckedSubscription:
+    """A raw subscription whose messages are validated before ``handle`` sees them.
+
+    The CDR bytes are deserialized here (a message that does not deserialize, e.g. of another
+    type or truncated, is dropped instead of raising inside the executor), then ``parse``
+    converts and validates it (``ValueError`` drops it). Each drop logs a warning naming the
+    problem, throttled to one a second per topic; :attr:`dropped` counts them.
+
+    :meth:`take_pending` handles every message already waiting in the queue. rclpy's executor
+    runs a due timer before the messages queued behind it and takes one message per
+    subscription per wake-up, so a node that fell behind would otherwise compute at its timer
+    without data that are already in the process.
+    """
+
+    def __init__(
+        self,
+        node: Node,
+        msg_type: type,
+        topic: str,
+        parse: Callable[[Any], Any],
+        handle: Callable[[Any], None],
+        what: str,
+    ) -> None:
+        self.dropped = 0
+        self._msg_type, self._topic, self._what = msg_type, topic, what
+        self._parse, self._handle = parse, handle
+        self._warn = throttled_warning(node)
+        self.subscription = node.create_subscription(
+            msg_type, topic, self._on_message, STREAM_QOS, raw=True
+        )
+
+    def _on_message(self, data: bytes) -> None:
+        from rclpy.serialization import deserialize_message
+
+        try:
+            value = self._parse(deserialize_message(bytes(data), self._msg_type))
+        except Exception as error:
+            self.dropped += 1
+            self._warn(f"dropped malformed {self._what} on {self._topic}: {error}")
+            return
+        self._handle(value)
+
+    def take_pending(self) -> int:
+        """Handle every message waiting in the queue, in arrival order; how many there were."""
+        taken = 0
+        with self.subscription.handle:
+            while True:
+                message = self.subscription.handle.take_message(self._msg_type, True)
+                if message is None:
+                    return taken
+                self._on_message(message[0])
+                taken += 1
+
+
 def subscribe_checked(
     node: Node,
     msg_type: type,
@@ -62,30 +127,9 @@ def subscribe_checked(
     parse: Callable[[Any], Any],
     handle: Callable[[Any], None],
     what: str,
-) -> Callable[[], int]:
-    """Subscribe raw and validate every message before ``handle`` sees it.
-
-    The CDR bytes are deserialized here (a message that does not deserialize, e.g. of another
-    type or truncated, is dropped instead of raising inside the executor), then ``parse``
-    converts and validates it (``ValueError`` drops it). Each drop logs a warning naming the
-    problem, throttled to one a second per topic. Returns a function giving the number of drops.
-    """
-    from rclpy.serialization import deserialize_message
-
-    dropped = [0]
-    warn = throttled_warning(node)
-
-    def callback(data: bytes) -> None:
-        try:
-            value = parse(deserialize_message(bytes(data), msg_type))
-        except Exception as error:
-            dropped[0] += 1
-            warn(f"dropped malformed {what} on {topic}: {error}")
-            return
-        handle(value)
-
-    node.create_subscription(msg_type, topic, callback, STREAM_QOS, raw=True)
-    return lambda: dropped[0]
+) -> CheckedSubscription:
+    """Subscribe raw to ``topic``, every message validated (see :class:`CheckedSubscription`)."""
+    return CheckedSubscription(node, msg_type, topic, parse, handle, what)
 
 
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:

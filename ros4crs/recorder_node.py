@@ -2,7 +2,8 @@
 
 Subscribes raw (no deserialization) to every topic that matches ``topics`` (comma-separated
 names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
-up topics as they appear. Each message is written with its receive time. The bag is closed
+up topics as they appear (transient-local topics, such as the estimates, with the messages
+published before it joined). Each message is written with its receive time. The bag is closed
 cleanly on shutdown.
 
 Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3).
@@ -15,10 +16,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from ros4crs.interfaces import typestore
-from ros4crs.node_support import STREAM_QOS, declare, message_class, run
+from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, run
 
 
 class RecorderNode(Node):
@@ -71,9 +73,17 @@ class RecorderNode(Node):
                 message_class(msgtype),
                 topic,
                 self._writer_for(topic, connection),
-                STREAM_QOS,
+                self._qos_for(topic),
                 raw=True,
             )
+
+    def _qos_for(self, topic: str) -> QoSProfile:
+        """Transient-local (getting what was published before it joined) when every publisher
+        of ``topic`` offers it, else the stream QoS."""
+        offered = [info.qos_profile.durability for info in self.get_publishers_info_by_topic(topic)]
+        if offered and all(d == DurabilityPolicy.TRANSIENT_LOCAL for d in offered):
+            return LOG_QOS
+        return STREAM_QOS
 
     def _writer_for(self, topic: str, connection):
         def write(data: bytes) -> None:

@@ -9,8 +9,8 @@ with ``use_sim_time``.
 Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
 ("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
 ``initial_state`` (6 floats; default the DEMO_TRACK start), ``duration`` (s, 0 = forever),
-``wait_for_subscribers`` (simulated time starts once this many nodes subscribe to the
-Lighthouse topic, so a launched stack misses nothing at the start; 0 = start at once).
+``wait_for_subscribers`` (simulated time starts once every sensor topic has this many
+subscribers, so a launched stack misses nothing at the start; 0 = start at once).
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class SimulatorNode(Node):
         from chronos_msgs.msg import CarInput, CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
-        self.malformed_inputs = subscribe_checked(
+        self._inputs = subscribe_checked(
             self,
             CarInput,
             conversions.TOPICS["input"],
@@ -98,6 +98,7 @@ class SimulatorNode(Node):
             from rosgraph_msgs.msg import Clock
 
             self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
+        self.body_frame = conversions.body_frame(self.get_namespace())
         self._next_truth = 0.0
         self._truth_period = 1.0 / truth_hz
         self.create_timer(1.0 / tick_hz, self._tick)
@@ -107,13 +108,14 @@ class SimulatorNode(Node):
         )
 
     def _tick(self) -> None:
-        if self._waiting:
-            listeners = self._sensor_publishers["lighthouse"].get_subscription_count()
+        if self._waiting:  # every sensor topic heard by the estimator and the recorder
+            listeners = min(p.get_subscription_count() for p in self._sensor_publishers.values())
             if listeners < self.wait_for_subscribers:
                 return
             self._waiting = False  # the clock starts when the stack is listening
             self.epoch, self._wall_start = time.time(), time.monotonic()
             self.get_logger().info(f"{listeners} subscribers to the sensors: starting")
+        self._inputs.take_pending()  # commands that arrived apply before time advances
         t = (time.monotonic() - self._wall_start) * self.rate_factor
         if self.duration and t >= self.duration:
             self.get_logger().info(f"simulated {self.duration:g} s; stopping")
@@ -124,7 +126,9 @@ class SimulatorNode(Node):
                 self.epoch + measurement.stamp, measurement.sensor, measurement.values
             )
             family = conversions.topic_family(measurement.sensor)
-            self._sensor_publishers[family].publish(conversions.measurement_to_msg(stamped))
+            self._sensor_publishers[family].publish(
+                conversions.measurement_to_msg(stamped, self.body_frame)
+            )
         if self._clock_publisher is not None:
             from rosgraph_msgs.msg import Clock
 

@@ -70,8 +70,10 @@ class InputModeEstimator(Estimator):
         if self.mode == "estimated":
             if not isinstance(sample, InputSample):
                 raise TypeError("input: expected a crs_core.measurements.InputSample")
-            self._commands.append(sample)
-            return self._estimated.add_input(sample)
+            accepted = self._estimated.add_input(sample)
+            if accepted:  # a late command neither counts as the first one nor takes effect
+                self._commands.append(sample)
+            return accepted
         return self._commanded.add_input(sample)
 
     def accepts(self, sensor: str) -> bool:

@@ -1,17 +1,31 @@
-"""Record a run of the stack, replay the bag through a fresh estimator node, compare offline."""
+"""A bag recorded by the stack reproduces its estimator's estimates, offline and through a node.
+
+One recording (the module fixture) of the stack as ``crs launch sim`` runs it: simulator, MHE
+estimator, controller and a recorder with the default ``--record all``. Then:
+
+* offline, the core MHE fed from that bag as the node's query log (``estimate/query``) says
+  reproduces every estimate the live node published, bit for bit, whatever the transport
+  delays on the machine were;
+* a fresh MHE node fed by the replayer node in another domain (``/clock`` on the recording's
+  time axis) logs its own queries, and the offline MHE fed as those say reproduces its
+  estimates too.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
 from stack_probe import Probe, wait_for
 
-from crs_core.estimation import make_estimator
+from crs_core.estimation import MheSettings, make_estimator
 from crs_core.model import CarModel
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import stack_nodes
-from ros4crs.bag_replay import read_car, replay_estimator
+from ros4crs.bag_replay import BagContents, read_car, replay_estimator
 from ros4crs.interfaces import typestore
 
 pytestmark = pytest.mark.integration
@@ -19,57 +33,52 @@ pytestmark = pytest.mark.integration
 DOMAIN_RECORD = 103
 DOMAIN_REPLAY = 106
 
-#: Seconds of driving to record once the car moves (the recorder may join a second or two
-#: late: it discovers topics after they appear).
+#: Seconds of driving to record once the car moves.
 DRIVE_S = 8.0
-#: The replayed estimator's lag: messages in flight up to this long (sim time = recorded time)
-#: are not late. Far above the ms of a replay, so that a stalled process on a busy machine does
-#: not make data late (late data would be dropped by the node but not offline).
+#: The replayed estimator's lag (sim time = recorded time): the replayer node needs far more
+#: than the live 20 ms, so that nothing it replays arrives after the node's query.
 REPLAY_LAG_S = 0.5
 RATE_HZ = 60.0
 REPLAYED_PREFIXES = ("/car1/sensors/", "/car1/input")
-#: Node and offline estimates must agree to this (the stamps are float seconds, so they carry
-#: ~0.2 us of rounding: a few 1e-7 m at 1 m/s).
-MATCH_TOLERANCE = 1e-6
 
 
-def _last_diagnostics(bag, topic: str):
-    store = typestore()
-    last = None
-    with Reader(bag) as reader:
-        wanted = [c for c in reader.connections if c.topic == topic]
-        for connection, _, data in reader.messages(wanted):
-            last = store.deserialize_cdr(bytes(data), connection.msgtype)
-    return last
+@dataclass
+class Recording:
+    bag: Path
+    contents: BagContents
 
 
-def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_path, warm_codegen):
-    """A bag recorded from the stack replays through a fresh estimator node with the same
-    estimates as the offline replay of the same bag through the core estimator.
+def _mhe() -> object:
+    """The estimator the node builds with its default parameters."""
+    return make_estimator("mhe", "lh+imu+we", CarModel(), MheSettings(rate_hz=RATE_HZ))
 
-    1. Record: simulator, EKF estimator, controller and a recorder of all of car 1's topics
-       (``stack_nodes(..., record_all=True)``: 250 Hz IMU and encoders, Lighthouse, inputs)
-       until the car has driven ``DRIVE_S`` s.
-    2. Replay in a fresh domain: ``replayer_node`` publishes the recorded sensor and input
-       topics with ``clock`` (``/clock`` on the recording's time axis) and
-       ``min_subscribers`` 1 (starts once everything is connected); a new EKF estimator node
-       runs with ``use_sim_time`` and lag ``REPLAY_LAG_S``, so it queries at recorded time -
-       lag, exactly as live; a recorder captures its ``estimate/*``.
-    3. Offline: ``bag_replay.read_car`` of the first bag, ``replay_estimator`` with a fresh
-       ``make_estimator("ekf", ...)`` reset at the node's first published stamp with its first
-       published state (its initial state), queried at the stamps the node published.
 
-    Every estimate matches to ``MATCH_TOLERANCE`` (1e-6 in every state component); the node
-    and the offline estimator counted the same late data (those stamped before the start).
-    Measured (2-core machine, load ~2.5-3): ~430 estimates over the ~7 s replayed, all
-    bit-identical to the offline ones (max difference 0; float-seconds stamp rounding could
-    make them differ by ~1e-7, hence the tolerance); the whole test takes ~25 s.
-    """
+def _compare(contents: BagContents, estimates: list[tuple[float, np.ndarray]]) -> np.ndarray:
+    """Offline replay of ``contents`` fed as ``contents.queries`` say, against ``estimates``
+    (the node's, by stamp): the largest absolute difference per estimate."""
+    start = contents.queries[0]
+    published = {round(t, 6): x for t, x in estimates}
+    x0 = published[round(start.stamp, 6)]
+    offline = replay_estimator(contents, _mhe(), contents.queries, x0)
+    differences = []
+    for query, estimate in zip(contents.queries[1:], offline[1:], strict=True):
+        node = published.get(round(query.stamp, 6))
+        if node is None:  # a lost estimate is not published (none here)
+            assert estimate is None or estimate.status == "lost"
+            continue
+        differences.append(np.abs(estimate.x - node).max())
+    return np.array(differences)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, warm_codegen) -> Recording:
+    """The stack of ``crs launch sim`` (one car, MHE, default recording) until the car has
+    driven ``DRIVE_S`` s."""
     from chronos_msgs.msg import CarState
 
-    record_bag, replay_bag = tmp_path / "recorded", tmp_path / "replayed"
-    nodes = stack_nodes(1, "ekf", 0.0, record_bag, seed=3, record_all=True)
-    recording = Launcher(nodes, DOMAIN_RECORD, tmp_path / "record_logs")
+    folder = tmp_path_factory.mktemp("recording")
+    bag = folder / "bag"
+    launcher = Launcher(stack_nodes(1, "mhe", bag, seed=3), DOMAIN_RECORD, folder / "logs")
     probe = Probe(DOMAIN_RECORD)
     truth = probe.collect(CarState, "/car1/ground_truth")
 
@@ -81,22 +90,76 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
         return stamp(truth[-1][1]) - stamp(moving[0]) >= DRIVE_S
 
     try:
-        deaths = recording.run(120.0, until=driven_enough)
+        deaths = launcher.run(120.0, until=driven_enough)
     finally:
-        recording.stop()
+        launcher.stop()
         probe.close()
     assert not deaths, deaths
     assert driven_enough(), "the car did not drive"
+    return Recording(bag, read_car(bag, "/car1"))
 
-    estimator_parameters = {
-        "estimator": "ekf",
-        "rate_hz": RATE_HZ,
-        "lag": REPLAY_LAG_S,
-        "use_sim_time": True,
-    }
+
+def test_launch_bag_has_what_foxglove_and_the_replay_need(recording: Recording):
+    """The default recording holds every sensor stream, the inputs, the truth, the estimates
+    as CarState, Odometry and TF (``world`` -> ``car1/base_link``) and the query log."""
+    store = typestore()
+    with Reader(recording.bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        types = {c.topic: c.msgtype for c in reader.connections}
+        tf = next(
+            store.deserialize_cdr(bytes(data), c.msgtype)
+            for c, _, data in reader.messages([c for c in reader.connections if c.topic == "/tf"])
+        )
+    for topic in (
+        "/car1/sensors/imu",
+        "/car1/sensors/wheel_speeds",
+        "/car1/sensors/lighthouse",
+        "/car1/input",
+        "/car1/ground_truth",
+        "/car1/estimate/state",
+        "/car1/estimate/odometry",
+        "/car1/estimate/query",
+        "/tf",
+    ):
+        assert counts.get(topic, 0) > 0, (topic, counts)
+    assert types["/car1/sensors/imu"] == "sensor_msgs/msg/Imu"
+    assert types["/car1/estimate/odometry"] == "nav_msgs/msg/Odometry"
+    assert types["/tf"] == "tf2_msgs/msg/TFMessage"
+    (transform,) = tf.transforms
+    assert (transform.header.frame_id, transform.child_frame_id) == ("world", "car1/base_link")
+    # the recorder joined the transient-local estimate topics from their first message
+    assert recording.contents.queries[0].start
+
+
+def test_launch_bag_replays_offline_to_the_node_estimates_exactly(recording: Recording):
+    """Offline, the core MHE fed from the bag as the node's query log says (each query: every
+    message up to the newest stamp per stream the node had received) gives every published
+    estimate bit for bit. Without the log (all data up to each stamp) the live node's
+    estimates are not reproduced: data that arrived after a query stamped before it were
+    used offline but not live (measured: mm-level differences in the first second, fading
+    later; 0.1 m in vx at worst).
+    """
+    contents = recording.contents
+    difference = _compare(contents, contents.estimates)
+    print(f"{difference.size} estimates, max difference {difference.max():.3g}")
+    assert difference.size > 0.8 * RATE_HZ * DRIVE_S
+    assert np.all(difference == 0.0), (np.sum(difference > 0), difference.max())
+
+
+def test_bag_replayed_through_a_fresh_estimator_node_matches_offline(tmp_path, recording):
+    """The recorded sensors and inputs, replayed by the replayer node (``/clock`` on the
+    recording's time axis, started once everything is connected) into a fresh MHE node with
+    ``use_sim_time`` and lag ``REPLAY_LAG_S``: the offline MHE fed as that node's query log says
+    gives its estimates exactly, and the node estimated over the whole replay at its rate."""
+    replay_bag = tmp_path / "replayed"
     consumers = Launcher(
         [
-            NodeSpec("estimator", "ros4crs.estimator_node", "/car1", estimator_parameters),
+            NodeSpec(
+                "estimator",
+                "ros4crs.estimator_node",
+                "/car1",
+                {"estimator": "mhe", "lag": REPLAY_LAG_S, "use_sim_time": True},
+            ),
             NodeSpec(
                 "recorder",
                 "ros4crs.recorder_node",
@@ -105,7 +168,7 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
             ),
         ],
         DOMAIN_REPLAY,
-        tmp_path / "replay_logs",
+        tmp_path / "logs",
     )
     replayer = Launcher(
         [
@@ -114,7 +177,7 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
                 "ros4crs.replayer_node",
                 "",
                 {
-                    "bag": str(record_bag),
+                    "bag": str(recording.bag),
                     "topics": ",".join(REPLAYED_PREFIXES),
                     "clock": True,
                     "min_subscribers": 1,
@@ -123,12 +186,11 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
             )
         ],
         DOMAIN_REPLAY,
-        tmp_path / "replay_logs",
+        tmp_path / "logs",
     )
     probe = Probe(DOMAIN_REPLAY)
     try:
         consumers.start()
-        # the recorder must be subscribed before the estimator publishes its initial state
         wait_for(
             lambda: probe.subscribers_of("/car1/estimate/state") == ["/recorder"],
             60.0,
@@ -143,36 +205,18 @@ def test_replayed_bag_through_a_fresh_estimator_node_matches_offline_replay(tmp_
         consumers.stop()
         probe.close()
 
-    recorded = read_car(record_bag, "/car1")
-    published = read_car(replay_bag, "/car1").estimates
-    t0, x0 = published[0]
-    stamps = np.array([t for t, _ in published[1:]])
-    node = np.array([x for _, x in published[1:]])
-    assert np.all(np.diff(stamps) > 0)
-    # the node estimated at its rate over the whole replay (up to the last stamp - lag)
-    recorded_span = recorded.measurements[-1].stamp - recorded.measurements[0].stamp
-    assert stamps[-1] - stamps[0] > recorded_span - REPLAY_LAG_S - 0.5, (stamps, recorded_span)
-    assert len(stamps) > 0.8 * RATE_HZ * (stamps[-1] - stamps[0]), len(stamps)
-    # the replay clock starts at the first replayed message's recorded (receive) time
-    with Reader(record_bag) as reader:
-        sensors = [c for c in reader.connections if c.topic.startswith("/car1/sensors/")]
-        first_received = next(reader.messages(sensors))[1] * 1e-9
-    # the node starts at its first update after the first measurement (within two periods)
-    start_offset = t0 - (first_received - REPLAY_LAG_S)
-    assert -1e-6 < start_offset < 2.0 / RATE_HZ + 0.01, (t0, first_received)
-
-    estimator = make_estimator("ekf", "lh+imu+we", CarModel())
-    offline = replay_estimator(recorded, estimator, stamps, x0, t0)
-    error = np.abs(offline - node).max(axis=1)
-    exact = int(np.sum(error == 0.0))
-    print(
-        f"{len(stamps)} estimates, {exact} identical, max difference {error.max():.3g}, "
-        f"over {stamps[-1] - stamps[0]:.1f} s"
+    replayed = read_car(replay_bag, "/car1")
+    # the recorded data, fed as the fresh node's own query log says
+    contents = recording.contents
+    contents_as_replayed = BagContents(
+        contents.measurements, contents.inputs, replayed.estimates, [], 0, queries=replayed.queries
     )
-    assert np.all(error < MATCH_TOLERANCE), (np.sum(error >= MATCH_TOLERANCE), error.max())
-    diagnostics = _last_diagnostics(replay_bag, "/car1/estimate/diagnostics")
-    assert diagnostics is not None
-    assert diagnostics.late_measurements == estimator.diagnostics.late
-    assert diagnostics.ignored_measurements == 0
+    difference = _compare(contents_as_replayed, replayed.estimates)
+    stamps = np.array([q.stamp for q in replayed.queries[1:]])
+    recorded_span = contents.measurements[-1].stamp - contents.measurements[0].stamp
+    print(f"{difference.size} estimates, max difference {difference.max():.3g}")
+    assert stamps[-1] - stamps[0] > recorded_span - REPLAY_LAG_S - 0.5, (stamps, recorded_span)
+    assert difference.size > 0.8 * RATE_HZ * (stamps[-1] - stamps[0])
+    assert np.all(difference == 0.0), (np.sum(difference > 0), difference.max())
     # the car drove during the replayed window: the comparison is not of a car at rest
-    assert np.ptp(node[:, 0]) > 1.0
+    assert np.ptp([x[0] for _, x in replayed.estimates]) > 1.0

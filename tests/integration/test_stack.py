@@ -67,7 +67,7 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
 
     track = load_demo_track()
     bag = tmp_path / "bag"
-    launcher = Launcher(stack_nodes(1, "mhe", 0.0, bag), DOMAIN_LAP, tmp_path / "logs")
+    launcher = Launcher(stack_nodes(1, "mhe", bag), DOMAIN_LAP, tmp_path / "logs")
     probe = Probe(DOMAIN_LAP)
     truth = probe.collect(CarState, "/car1/ground_truth")
     # counted as in the report (``analyse``): from when the car starts moving, on the line

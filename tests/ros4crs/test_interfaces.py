@@ -210,3 +210,52 @@ def test_typestore_is_cached_and_reads_installed_msgs() -> None:
     assert msg_dir() == Path(sys.prefix) / "share" / PACKAGE / "msg"
     assert {f"{PACKAGE}/msg/{n}" for n in NAMES} <= set(typestore().types)
     assert typestore().types[f"{PACKAGE}/msg/CarInput"].MODE_VELOCITY == 1
+
+
+def test_tf2_msgs_tfmessage_is_the_standard_type() -> None:
+    """The TFMessage built by ./run.sh (the wheels lack tf2_msgs) has the standard definition:
+    its generated RIHS01 hash equals that of the stock ROS 2 Jazzy type in rosbags, so RViz,
+    Foxglove and any real ROS installation accept our /tf; it round-trips through rosbags."""
+    from geometry_msgs.msg import TransformStamped
+    from rosbags.typesys import Stores, get_typestore
+
+    from tf2_msgs.msg import TFMessage
+
+    typename = "tf2_msgs/msg/TFMessage"
+    json_file = Path(sys.prefix) / "share" / "tf2_msgs" / "msg" / "TFMessage.json"
+    generated = json.loads(json_file.read_text())
+    want = {h["type_name"]: h["hash_string"] for h in generated["type_hashes"]}
+    assert want[typename] == get_typestore(Stores.ROS2_JAZZY).hash_rihs01(typename)
+    transform = TransformStamped(child_frame_id="car1/base_link")
+    transform.header.frame_id = "world"
+    transform.transform.translation.x = 1.5
+    transform.transform.rotation.z, transform.transform.rotation.w = 0.6, 0.8
+    raw = serialize_message(TFMessage(transforms=[transform]))
+    decoded = typestore().deserialize_cdr(raw, typename)
+    (got,) = decoded.transforms
+    assert (got.header.frame_id, got.child_frame_id) == ("world", "car1/base_link")
+    assert (got.transform.translation.x, got.transform.rotation.z) == (1.5, 0.6)
+
+
+def test_estimator_query_round_trips_with_its_time_sequence() -> None:
+    """EstimatorQuery (a sequence of builtin Time) between rclpy and rosbags, both ways, and its
+    rosbags type hash equals the generated one."""
+    from chronos_msgs.msg import EstimatorQuery
+
+    typename = f"{PACKAGE}/msg/EstimatorQuery"
+    sent = EstimatorQuery(
+        header=Header(stamp=Time(**HEADER["stamp"]), frame_id=""),
+        start=True,
+        streams=["sensors/imu", "input"],
+        newest=[Time(sec=1_700_000_122, nanosec=999_999_999), Time(sec=5, nanosec=0)],
+    )
+    decoded = typestore().deserialize_cdr(serialize_message(sent), typename)
+    assert decoded.start is True and decoded.streams == ["sensors/imu", "input"]
+    assert [(t.sec, t.nanosec) for t in decoded.newest] == [(1_700_000_122, 999_999_999), (5, 0)]
+    back = deserialize_message(bytes(typestore().serialize_cdr(decoded, typename)), EstimatorQuery)
+    assert back == sent
+    json_file = Path(sys.prefix) / "share" / PACKAGE / "msg" / "EstimatorQuery.json"
+    want = {
+        h["type_name"]: h["hash_string"] for h in json.loads(json_file.read_text())["type_hashes"]
+    }
+    assert typestore().hash_rihs01(typename) == want[typename]
