@@ -3,7 +3,8 @@
 ``crs sim`` / ``crs demo`` (simulator, no ROS), ``crs estimate`` (EKF or MHE over a recorded
 dataset), ``crs consistency`` (sensor models vs the real recordings), ``crs bench
 model|estimation`` (JSON benchmarks), ``crs launch sim`` (the ROS 2
-stack in simulation) and ``crs ros topics|echo|hz`` (small stand-ins for the ``ros2`` CLI).
+stack in simulation), ``crs bag check|repair`` (cut-off bags) and ``crs ros topics|echo|hz``
+(small stand-ins for the ``ros2`` CLI).
 ROS is imported only by the commands that need it.
 """
 
@@ -314,6 +315,25 @@ def launch(args: argparse.Namespace) -> None:
     print(summary(report, Path(args.out)))
 
 
+def bag_tool(args: argparse.Namespace) -> int:
+    """``crs bag check|repair``: what a (cut-off) bag holds; a complete copy of it."""
+    from ros4crs.bag_repair import check, repair
+
+    if args.tool == "check":
+        report = check(args.bag)
+        print(report.describe())
+        return 0 if report.complete else 1
+    if args.out is None:
+        raise ValueError("--out: repair needs --out NEW_BAG (a folder that does not exist yet)")
+    if args.out.exists():
+        raise ValueError(f"--out: {args.out} exists; the repaired bag goes to a new folder")
+    report = repair(args.bag, args.out)
+    if not report.complete:
+        print(f"warning: {report.warning}")
+    print(f"wrote {args.out}: {report.messages} messages on {len(report.topics)} topics")
+    return 0
+
+
 def ros_tool(args: argparse.Namespace) -> None:
     """``crs ros topics|echo|hz``."""
     if args.tool in ("echo", "hz") and not args.topic:
@@ -463,6 +483,18 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=launch)
+    sub = commands.add_parser(
+        "bag",
+        help="check a bag, or repair one whose recording was cut off",
+        description="check: what a ROS 2 bag folder holds (topics, messages, duration) and, for "
+        "an MCAP file cut off by a killed recorder or a full disk, what is still readable and how "
+        "much was lost; exit code 0 complete, 1 damaged. repair: write every complete message "
+        "of a bag into a new, complete bag at --out (the original is only read).",
+    )
+    sub.add_argument("tool", choices=["check", "repair"])
+    sub.add_argument("bag", type=Path, help="bag folder (holding metadata.yaml and/or *.mcap)")
+    sub.add_argument("--out", type=Path, help="repair: the new bag folder (must not exist)")
+    sub.set_defaults(handler=bag_tool)
     sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
     sub.add_argument("tool", choices=["topics", "echo", "hz"])
     sub.add_argument("topic", nargs="?", help="echo, hz: the topic, e.g. /car1/estimate/state")
@@ -497,11 +529,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exit_:  # --help, or an argument error already printed in one line
         return int(exit_.code or 0)
     try:
-        args.handler(args)
+        return int(args.handler(args) or 0)
     except (ValueError, KeyError, FileNotFoundError, FileExistsError) as error:
         print(f"crs {args.command}: error: {error}", file=sys.stderr)
         return 2
-    return 0
 
 
 if __name__ == "__main__":
