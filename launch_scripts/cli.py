@@ -33,11 +33,12 @@ from crs_core.estimation.offline import (
     reference_comparison,
 )
 from crs_core.model import EFFECTS, CarModel
+from crs_core.model.effects import effect_spec, parse_effect
 from crs_core.track import Track, load_demo_track
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
 from sim.report import write_report
-from sim.sensors import Blackout, SensorSuite
+from sim.sensors import SensorSuite, parse_blackout
 from sim.simulator import Simulator
 
 OVERWRITE_HELP = (
@@ -48,61 +49,21 @@ OVERWRITE_HELP = (
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
 
 
-def parse_effect(text: str) -> tuple[str, str | None, float | None]:
-    """``NAME``, ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` -> (effect, parameter, value)."""
-    name, _, value = text.partition("=")
-    effect, _, parameter = name.partition(".")
-    if effect not in EFFECTS:
-        raise argparse.ArgumentTypeError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
-    params = [p.name for p in EFFECTS[effect].parameters]
-    if parameter and parameter not in params:
-        raise argparse.ArgumentTypeError(
-            f"effect {effect!r} has no parameter {parameter!r}; it has {params}"
-        )
-    if not value:
-        return effect, None, None
-    try:
-        number = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"effect {effect!r}: {value!r} is not a number") from None
-    return effect, parameter or params[0], number
+def argument_type(parse):
+    """An argparse type from a parser raising ``ValueError`` (its message, one line)."""
+
+    def parse_argument(text: str):
+        try:
+            return parse(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    parse_argument.__name__ = parse.__name__
+    return parse_argument
 
 
-#: Sensor prefixes a blackout may name (a station: ``lighthouse/<n>``).
-BLACKOUT_SENSORS = ("lighthouse", "imu", "wheel_encoders", "gyro", "pose")
 #: Longest simulation or launch the CLI accepts, s (the simulator keeps every sample).
 MAX_DURATION_S = 3600.0
-
-
-def parse_blackout(text: str) -> Blackout:
-    """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``; one-line errors."""
-    parts = text.split(":")
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: expected SENSOR:START:DURATION (e.g. lighthouse:10:1.127)"
-        )
-    sensor, start, duration = parts
-    family, _, station = sensor.partition("/")
-    if family not in BLACKOUT_SENSORS or (
-        station and (family != "lighthouse" or not station.isdigit())
-    ):
-        raise argparse.ArgumentTypeError(
-            f"{text!r}: sensor {sensor!r} is not one of {', '.join(BLACKOUT_SENSORS)} or "
-            "lighthouse/<station>"
-        )
-    values = []
-    for name, value in (("START", start), ("DURATION", duration)):
-        try:
-            number = float(value)
-        except ValueError:
-            number = math.nan
-        if not math.isfinite(number):
-            raise argparse.ArgumentTypeError(f"{text!r}: {name} {value!r} is not a finite number")
-        values.append(number)
-    try:
-        return Blackout(sensor, *values)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(f"{text!r}: {str(error).partition(': ')[2]}") from None
 
 
 def bounded_number(name: str, unit: str, low: float, high: float, kind=float):
@@ -125,11 +86,7 @@ def bounded_number(name: str, unit: str, low: float, high: float, kind=float):
 def build_model(
     effects: Sequence[tuple[str, str | None, float | None]], stations: int, params_yaml: Path | None
 ) -> CarModel:
-    spec: dict[str, dict[str, float] | None] = {}
-    for effect, parameter, value in effects:
-        entry = spec.setdefault(effect, None)
-        if parameter is not None:
-            spec[effect] = {**(entry or {}), parameter: value}
+    spec = effect_spec(effects)
     model = CarModel(spec, n_base_stations=stations)
     if params_yaml is not None:
         model = CarModel(spec, stations, model.parameters.updated_from_yaml(params_yaml))
@@ -376,13 +333,16 @@ def make_parser() -> argparse.ArgumentParser:
         sub.add_argument("--noise-free", action="store_true", help="ideal sensors")
         sub.add_argument(
             "--effect",
-            type=parse_effect,
+            type=argument_type(parse_effect),
             action="append",
             metavar="NAME[=VALUE]",
             help=f"hidden truth effect, one of: {', '.join(EFFECTS)}",
         )
         sub.add_argument(
-            "--blackout", type=parse_blackout, action="append", metavar="SENSOR:START:DURATION"
+            "--blackout",
+            type=argument_type(parse_blackout),
+            action="append",
+            metavar="SENSOR:START:DURATION",
         )
         sub.add_argument(
             "--stations",
@@ -529,10 +489,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exit_:  # --help, or an argument error already printed in one line
         return int(exit_.code or 0)
     try:
-        return int(args.handler(args) or 0)
+        code = args.handler(args)  # an exit code, or what the command made (0)
     except (ValueError, KeyError, FileNotFoundError, FileExistsError) as error:
         print(f"crs {args.command}: error: {error}", file=sys.stderr)
         return 2
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, run, subscribe_checked
+from ros4crs.node_support import STREAM_QOS, declare, positive, run, subscribe_checked
 
 STOP = np.array([0.0, 0.0])
 
@@ -29,9 +29,11 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__("controller")
-        rate_hz = float(declare(self, "rate_hz", 50.0, "control rate, Hz"))
-        v_ref = float(declare(self, "v_ref", 1.0, "reference speed, m/s"))
-        self.stale_timeout = float(declare(self, "stale_timeout", 0.2, "s"))
+        rate_hz = declare(self, "rate_hz", 50.0, "control rate, Hz", positive)
+        v_ref = declare(self, "v_ref", 1.0, "reference speed, m/s", positive)
+        self.stale_timeout = declare(
+            self, "stale_timeout", 0.2, "stop when the estimate is this old, s", positive
+        )
         parameters = CarModel().parameters
         wheelbase = parameters.value("lf") + parameters.value("lr")
         self.follower = PathFollower(

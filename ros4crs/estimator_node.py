@@ -29,13 +29,34 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
-from crs_core.estimation import EkfSettings, MheSettings, make_estimator, parse_sensor_set
+from crs_core.estimation import (
+    INPUT_MODES,
+    KINDS,
+    EkfSettings,
+    MheSettings,
+    make_estimator,
+    parse_sensor_set,
+)
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.measurements import InputSample, Measurement, from_start
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import LOG_QOS, declare, run, subscribe_checked, throttled_warning
+from ros4crs.node_support import (
+    LOG_QOS,
+    ParameterError,
+    declare,
+    file_or_empty,
+    finite_vector,
+    in_range,
+    non_negative,
+    one_of,
+    parsed_with,
+    positive,
+    run,
+    subscribe_checked,
+    throttled_warning,
+)
 
 
 class EstimatorNode(Node):
@@ -44,26 +65,41 @@ class EstimatorNode(Node):
     def __init__(self) -> None:
         super().__init__("estimator")
         track = load_demo_track()
-        kind = declare(self, "estimator", "mhe", "ekf or mhe")
-        sensors = declare(self, "sensors", "lh+imu+we", "sensor groups joined by +")
-        self.rate_hz = float(declare(self, "rate_hz", 60.0, "estimate rate, Hz"))
-        self.lag = float(declare(self, "lag", 0.02, "estimate this many s in the past"))
-        horizon = int(declare(self, "horizon", 40, "MHE horizon"))
-        inputs = declare(self, "inputs", "auto", "auto, commanded or estimated")
-        self.blind_start = bool(declare(self, "blind_start", False, "start from the Lighthouse"))
+        kind = declare(self, "estimator", "mhe", "ekf or mhe", one_of(*KINDS))
+        sensors = declare(
+            self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)
+        )
+        self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
+        self.lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
+        horizon = declare(self, "horizon", 40, "MHE horizon, stages", in_range(2, 1000))
+        inputs = declare(
+            self, "inputs", "auto", "auto, commanded or estimated", one_of(*INPUT_MODES)
+        )
+        self.blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
         if self.blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
-            raise ValueError("blind_start: needs lh (Lighthouse) or pose among the sensors")
-        stations = int(declare(self, "stations", 1, "Lighthouse base stations"))
-        params_file = declare(self, "params_file", "", "model parameter YAML")
+            raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
+        stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
+        params_file = declare(self, "params_file", "", "model parameter YAML", file_or_empty)
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
-        self.initial = np.asarray(declare(self, "initial_state", start, "initial estimate"))
+        self.initial = np.asarray(
+            declare(self, "initial_state", start, "initial estimate", finite_vector(6))
+        )
         model = CarModel(n_base_stations=stations)
         if params_file:
-            model = CarModel(
-                n_base_stations=stations, parameters=model.parameters.updated_from_yaml(params_file)
-            )
+            try:
+                parameters = model.parameters.updated_from_yaml(params_file)
+            except (ValueError, KeyError, OSError) as error:
+                message = error.args[0] if isinstance(error, KeyError) else error
+                raise ParameterError(f"params_file: {message}") from None
+            model = CarModel(n_base_stations=stations, parameters=parameters)
         offsets = parse_time_offsets(
-            declare(self, "time_offsets", "", "stamp delays, e.g. lh:0.004,imu:0.001 (s)")
+            declare(
+                self,
+                "time_offsets",
+                "",
+                "stamp delays, e.g. lh:0.004,imu:0.001 (s)",
+                parsed_with(parse_time_offsets),
+            )
         )
         settings = (
             MheSettings(horizon=horizon, rate_hz=self.rate_hz, time_offsets=offsets)

@@ -32,11 +32,107 @@ LOG_QOS = QoSProfile(
 )
 
 
-def declare(node: Node, name: str, default: Any, description: str = "") -> Any:
-    """Declare a parameter with a default and return its value."""
+class ParameterError(ValueError):
+    """A node parameter with a bad value; the message starts with the parameter's name."""
+
+
+def declare(
+    node: Node,
+    name: str,
+    default: Any,
+    description: str = "",
+    check: Callable[[Any], str | None] | None = None,
+) -> Any:
+    """Declare a parameter with a default and return its value, of the default's type.
+
+    An integer is accepted for a float parameter (``rate_hz: 60``) and integers for a list of
+    floats; any other type than the default's is refused. ``check(value)`` returns what is
+    wrong (``None``: nothing). Raises :class:`ParameterError` naming the parameter.
+    """
     from rcl_interfaces.msg import ParameterDescriptor
 
-    return node.declare_parameter(name, default, ParameterDescriptor(description=description)).value
+    descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
+    value = _of_type(name, node.declare_parameter(name, default, descriptor).value, default)
+    problem = check(value) if check is not None else None
+    if problem:
+        raise ParameterError(f"{name}: {problem.removeprefix(f'{name}: ')}, got {value!r}")
+    return value
+
+
+def _of_type(name: str, value: Any, default: Any) -> Any:
+    """``value`` as the type of ``default`` (int -> float allowed), else ParameterError."""
+
+    def number(v: Any) -> bool:
+        return isinstance(v, int | float) and not isinstance(v, bool)
+
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok, value = number(value), float(value) if number(value) else value
+    elif isinstance(default, str):
+        ok = isinstance(value, str)
+    else:  # a list of numbers
+        ok = isinstance(value, list | tuple) and all(number(v) for v in value)
+        value = [float(v) for v in value] if ok else value
+    if not ok:
+        kind = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
+        wanted = kind.get(type(default), "a list of numbers")
+        raise ParameterError(f"{name}: expected {wanted}, got {value!r}")
+    return value
+
+
+def positive(value: float) -> str | None:
+    """A :func:`declare` check: a finite number > 0."""
+    return None if math.isfinite(value) and value > 0 else "must be a finite number > 0"
+
+
+def non_negative(value: float) -> str | None:
+    """A :func:`declare` check: a finite number >= 0."""
+    return None if math.isfinite(value) and value >= 0 else "must be a finite number >= 0"
+
+
+def one_of(*choices: str) -> Callable[[str], str | None]:
+    """A :func:`declare` check: one of ``choices``."""
+    return lambda value: None if value in choices else f"must be one of {', '.join(choices)}"
+
+
+def in_range(low: int, high: int) -> Callable[[int], str | None]:
+    """A :func:`declare` check: ``low <= value <= high``."""
+    return lambda value: None if low <= value <= high else f"must be in {low}..{high}"
+
+
+def finite_vector(size: int) -> Callable[[list[float]], str | None]:
+    """A :func:`declare` check: ``size`` finite numbers."""
+
+    def check(value: list[float]) -> str | None:
+        if len(value) != size or not all(math.isfinite(v) for v in value):
+            return f"must be {size} finite numbers"
+        return None
+
+    return check
+
+
+def file_or_empty(value: str) -> str | None:
+    """A :func:`declare` check: empty (not given) or an existing file."""
+    if not value or os.path.isfile(value):
+        return None
+    return "is a folder, not a file" if os.path.isdir(value) else "no such file"
+
+
+def parsed_with(parse: Callable[[str], Any]) -> Callable[[str], str | None]:
+    """A :func:`declare` check: ``parse(value)`` raises no ``ValueError`` (its message is
+    the problem)."""
+
+    def check(value: str) -> str | None:
+        try:
+            parse(value)
+        except ValueError as error:
+            return str(error)
+        return None
+
+    return check
 
 
 def message_class(msgtype: str) -> type:
@@ -135,15 +231,29 @@ def subscribe_checked(
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:
     """Initialise rclpy, spin the node until Ctrl-C / SIGTERM / shutdown, clean up.
 
-    ``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to ``LOCALHOST`` so no discovery traffic leaves
-    the machine unless asked for.
+    A node that cannot start (a bad parameter, an unreadable file, a broken ``--params-file``)
+    prints one line, ``<node>: error: <parameter or file>: <reason>``, on stderr and exits with
+    code 2 (no traceback). ``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to ``LOCALHOST`` so no
+    discovery traffic leaves the machine unless asked for.
     """
+    from rclpy._rclpy_pybind11 import RCLError
+
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    rclpy.init(args=list(argv) if argv is not None else sys.argv)
+    args = list(argv) if argv is not None else sys.argv
+    name = _node_name(args, make_node)
+    try:
+        rclpy.init(args=args)
+    except RCLError as error:  # e.g. a --params-file that is not valid YAML
+        reason = " ".join(str(error).split()).split(", at /")[0]
+        return _start_failure(name, f"cannot start ROS: {reason}")
     signal.signal(signal.SIGTERM, lambda *_: rclpy.try_shutdown())
     node = None
     try:
-        node = make_node()
+        try:
+            node = make_node()
+        except (ValueError, KeyError, OSError) as error:  # what a user can give wrong
+            message = error.args[0] if isinstance(error, KeyError) else str(error)
+            return _start_failure(name, " ".join(str(message).split()))
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
@@ -156,3 +266,16 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _node_name(args: Sequence[str], make_node: Callable[[], Node]) -> str:
+    """``/ns/name`` from the ``__ns:=`` / ``__node:=`` remaps, else the node class's name."""
+    remaps = dict(a.split(":=", 1) for a in args if a.startswith(("__ns:=", "__node:=")))
+    default = getattr(make_node, "__name__", "node").removesuffix("Node").lower()
+    namespace = remaps.get("__ns", "").rstrip("/")
+    return f"{namespace}/{remaps.get('__node', default)}"
+
+
+def _start_failure(name: str, message: str) -> int:
+    print(f"{name}: error: {message}", file=sys.stderr, flush=True)
+    return 2

@@ -20,7 +20,18 @@ from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from ros4crs.interfaces import typestore
-from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, run
+from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, one_of, run
+
+
+def _new_folder(path: str) -> str | None:
+    """A :func:`declare` check: a folder that can be created (not there yet, parent exists)."""
+    if not path:
+        return "must name the bag folder to create"
+    if Path(path).exists():
+        return "exists already (a bag goes to a new folder)"
+    if not Path(path).absolute().parent.is_dir():
+        return "its parent folder does not exist"
+    return None
 
 
 class RecorderNode(Node):
@@ -28,12 +39,10 @@ class RecorderNode(Node):
 
     def __init__(self) -> None:
         super().__init__("recorder")
-        output = Path(declare(self, "output", "bag", "bag directory to create"))
+        output = Path(declare(self, "output", "bag", "bag directory to create", _new_folder))
         patterns = declare(self, "topics", "", "comma-separated topic names or prefixes")
-        storage = declare(self, "storage", "mcap", "mcap or sqlite3")
         plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
-        if storage not in plugins:
-            raise ValueError(f"storage: must be mcap or sqlite3, got {storage!r}")
+        storage = declare(self, "storage", "mcap", "mcap or sqlite3", one_of(*plugins))
         self.patterns = [self._resolve(p.strip()) for p in patterns.split(",") if p.strip()]
         self.writer = Writer(output, version=9, storage_plugin=plugins[storage])
         self.writer.open()

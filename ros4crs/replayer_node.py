@@ -33,7 +33,15 @@ from rclpy.node import Node
 from rosbags.rosbag2 import ReaderError
 
 from ros4crs.bag_repair import BagCheck, open_bag
-from ros4crs.node_support import STREAM_QOS, declare, message_class, run
+from ros4crs.node_support import (
+    STREAM_QOS,
+    declare,
+    in_range,
+    message_class,
+    non_negative,
+    positive,
+    run,
+)
 
 
 class ReplayerNode(Node):
@@ -42,17 +50,21 @@ class ReplayerNode(Node):
     def __init__(self) -> None:
         super().__init__("replayer")
         self.bag = declare(self, "bag", "", "bag directory")
-        self.rate = float(declare(self, "rate", 1.0, "replay speed factor"))
-        self.loop = bool(declare(self, "loop", False, "start over at the end"))
+        self.rate = declare(self, "rate", 1.0, "replay speed factor", positive)
+        self.loop = declare(self, "loop", False, "start over at the end")
         prefixes = [p.strip() for p in declare(self, "topics", "", "prefixes").split(",")]
         self.prefixes = [p for p in prefixes if p]
-        self.start_delay = float(declare(self, "start_delay", 0.5, "s before the first message"))
-        clock = bool(declare(self, "clock", False, "publish /clock from the recorded times"))
-        self.min_subscribers = int(
-            declare(self, "min_subscribers", 0, "start once every publisher has this many")
+        self.start_delay = declare(
+            self, "start_delay", 0.5, "s before the first message", non_negative
         )
-        if self.rate <= 0:
-            raise ValueError(f"rate: must be > 0, got {self.rate}")
+        clock = declare(self, "clock", False, "publish /clock from the recorded times")
+        self.min_subscribers = declare(
+            self,
+            "min_subscribers",
+            0,
+            "start once every publisher has this many",
+            in_range(0, 100),
+        )
         self.published = 0
         self._topic_publishers: dict[str, object] = {}
         msgtypes, self.messages = self._read_bag()

@@ -23,29 +23,36 @@ import rclpy
 from rclpy.node import Node
 
 from crs_core.model import CarModel
+from crs_core.model.effects import effect_spec, parse_effect
 from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, run, subscribe_checked
-from sim.sensors import Blackout, SensorSuite
+from ros4crs.node_support import (
+    STREAM_QOS,
+    declare,
+    finite_vector,
+    in_range,
+    non_negative,
+    parsed_with,
+    positive,
+    run,
+    subscribe_checked,
+)
+from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
 
 
-def parse_effects(text: str) -> dict[str, float | None]:
-    """``"steering_lag=0.05,gyro_bias"`` -> ``{"steering_lag": 0.05, "gyro_bias": None}``."""
-    effects: dict[str, float | None] = {}
-    for item in filter(None, (part.strip() for part in text.split(","))):
-        name, _, value = item.partition("=")
-        effects[name] = float(value) if value else None
-    return effects
+def parse_effects(text: str) -> dict[str, dict[str, float] | None]:
+    """``"steering_lag=0.05,gyro_bias"`` -> the ``effects`` mapping of ``CarModel``.
+
+    Each item is ``NAME``, ``NAME=VALUE`` or ``NAME.PARAM=VALUE``
+    (:func:`~crs_core.model.effects.parse_effect`).
+    """
+    return effect_spec(parse_effect(item) for item in text.split(",") if item.strip())
 
 
 def parse_blackouts(text: str) -> tuple[Blackout, ...]:
-    """``"lighthouse:10:1.127;imu:3:0.5"`` -> blackouts."""
-    out = []
-    for item in filter(None, (part.strip() for part in text.split(";"))):
-        sensor, start, duration = item.split(":")
-        out.append(Blackout(sensor, float(start), float(duration)))
-    return tuple(out)
+    """``"lighthouse:10:1.127;imu:3:0.5"`` -> blackouts (see :func:`sim.sensors.parse_blackout`)."""
+    return tuple(parse_blackout(item) for item in text.split(";") if item.strip())
 
 
 class SimulatorNode(Node):
@@ -56,21 +63,37 @@ class SimulatorNode(Node):
         track = load_demo_track()
         seed = declare(self, "seed", 0, "seed of all noise")
         noise_free = declare(self, "noise_free", False, "ideal sensors")
-        effects = parse_effects(declare(self, "effects", "", "hidden truth effects name=value,..."))
-        blackouts = parse_blackouts(declare(self, "blackouts", "", "sensor:start:duration;..."))
-        stations = declare(self, "stations", 1, "Lighthouse base stations")
-        self.rate_factor = float(declare(self, "rate_factor", 1.0, "simulated s per wall s"))
-        tick_hz = float(declare(self, "tick_hz", 250.0, "how often the engine advances"))
-        truth_hz = float(declare(self, "truth_rate_hz", 50.0, "ground-truth rate"))
+        effects = parse_effects(
+            declare(
+                self,
+                "effects",
+                "",
+                "hidden truth effects name=value,...",
+                parsed_with(parse_effects),
+            )
+        )
+        blackouts = parse_blackouts(
+            declare(
+                self, "blackouts", "", "sensor:start:duration;...", parsed_with(parse_blackouts)
+            )
+        )
+        stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
+        self.rate_factor = declare(self, "rate_factor", 1.0, "simulated s per wall s", positive)
+        tick_hz = declare(self, "tick_hz", 250.0, "how often the engine advances, Hz", positive)
+        truth_hz = declare(self, "truth_rate_hz", 50.0, "ground-truth rate, Hz", positive)
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
-        initial = declare(self, "initial_state", start, "x, y, yaw, vx, vy, omega")
-        self.duration = float(declare(self, "duration", 0.0, "stop after (s); 0 = never"))
-        self.wait_for_subscribers = int(
-            declare(self, "wait_for_subscribers", 0, "hold t = 0 until this many sensor listeners")
+        initial = declare(
+            self, "initial_state", start, "x, y, yaw, vx, vy, omega", finite_vector(6)
+        )
+        self.duration = declare(self, "duration", 0.0, "stop after (s); 0 = never", non_negative)
+        self.wait_for_subscribers = declare(
+            self,
+            "wait_for_subscribers",
+            0,
+            "hold t = 0 until every sensor topic has this many subscribers",
+            in_range(0, 100),
         )
         self._waiting = self.wait_for_subscribers > 0
-        if self.rate_factor <= 0 or tick_hz <= 0 or truth_hz <= 0:
-            raise ValueError("rate_factor, tick_hz and truth_rate_hz must be > 0")
         sensors = SensorSuite(blackouts=blackouts)
         model = CarModel(effects, n_base_stations=stations)
         self.session = Simulator(model, sensors.ideal() if noise_free else sensors, seed).session(

@@ -11,6 +11,7 @@ Latency defaults to zero: the car stamps its packets with an SNTP-synchronised c
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 
 
@@ -85,6 +86,40 @@ class Blackout:
 
     def covers(self, sensor: str, t: float) -> bool:
         return sensor.startswith(self.sensor) and self.start <= t < self.start + self.duration
+
+
+#: Sensor prefixes a blackout may name (a station: ``lighthouse/<n>``).
+BLACKOUT_SENSORS = ("lighthouse", "imu", "wheel_encoders", "gyro", "pose")
+
+
+def parse_blackout(text: str) -> Blackout:
+    """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``; ``ValueError`` naming the
+    text and the part that is wrong."""
+    parts = text.strip().split(":")
+    if len(parts) != 3:
+        raise ValueError(f"{text!r}: expected SENSOR:START:DURATION (e.g. lighthouse:10:1.127)")
+    sensor, start, duration = parts
+    family, _, station = sensor.partition("/")
+    if family not in BLACKOUT_SENSORS or (
+        station and (family != "lighthouse" or not station.isdigit())
+    ):
+        raise ValueError(
+            f"{text!r}: sensor {sensor!r} is not one of {', '.join(BLACKOUT_SENSORS)} or "
+            "lighthouse/<station>"
+        )
+    values = []
+    for name, value in (("START", start), ("DURATION", duration)):
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not math.isfinite(number):
+            raise ValueError(f"{text!r}: {name} {value!r} is not a finite number")
+        values.append(number)
+    try:
+        return Blackout(sensor, *values)
+    except ValueError as error:
+        raise ValueError(f"{text!r}: {str(error).partition(': ')[2]}") from None
 
 
 @dataclass(frozen=True)

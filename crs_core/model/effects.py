@@ -16,6 +16,8 @@ hidden truth, identification fits their parameters, the discrepancy workflow sea
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -189,3 +191,39 @@ EFFECTS: dict[str, Effect] = {
         ),
     )
 }
+
+
+def parse_effect(text: str) -> tuple[str, str | None, float | None]:
+    """``NAME``, ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` -> (effect, parameter, value).
+
+    ``NAME=VALUE`` sets the effect's first parameter. ``ValueError`` (naming the text) for an
+    unknown effect or parameter or a value that is not a finite number.
+    """
+    name, _, value = text.strip().partition("=")
+    effect, _, parameter = name.partition(".")
+    if effect not in EFFECTS:
+        raise ValueError(f"unknown effect {effect!r}; known: {', '.join(EFFECTS)}")
+    names = [p.name for p in EFFECTS[effect].parameters]
+    if parameter and parameter not in names:
+        raise ValueError(f"effect {effect!r} has no parameter {parameter!r}; it has {names}")
+    if not value:
+        return effect, None, None
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not math.isfinite(number):
+        raise ValueError(f"effect {effect!r}: {value!r} is not a finite number")
+    return effect, parameter or names[0], number
+
+
+def effect_spec(
+    effects: Iterable[tuple[str, str | None, float | None]],
+) -> dict[str, dict[str, float] | None]:
+    """Parsed effects (:func:`parse_effect`) -> the ``effects`` mapping of ``CarModel``."""
+    spec: dict[str, dict[str, float] | None] = {}
+    for effect, parameter, value in effects:
+        entry = spec.setdefault(effect, None)
+        if parameter is not None and value is not None:
+            spec[effect] = {**(entry or {}), parameter: value}
+    return spec

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import json
-import re
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +12,8 @@ import pytest
 import yaml
 
 from crs_core.dataset import Dataset
-from launch_scripts.cli import main, parse_blackout, parse_effect
+from launch_scripts.cli import main
 from launch_scripts.output_folder import MARKER
-from sim.sensors import Blackout
 
 DATASET_FILES = {"t.npy", "u.npy", "y.npy", "x.npy", "dataset.yaml", "stream.npz"}
 
@@ -121,46 +118,6 @@ def test_unknown_effect_parameter_is_an_argparse_error(
     err = capsys.readouterr().err
     assert "effect 'input_delay' has no parameter 'bogus'" in err
     assert not (tmp_path / "x").exists()
-
-
-@pytest.mark.parametrize(
-    ("text", "expected"),
-    [
-        ("gyro_bias", ("gyro_bias", None, None)),
-        ("steering_lag=0.08", ("steering_lag", "tau_steer", 0.08)),
-        ("steering_lag.tau_steer=0.1", ("steering_lag", "tau_steer", 0.1)),
-        ("input_delay=0", ("input_delay", "input_delay", 0.0)),
-    ],
-)
-def test_parse_effect_forms(text: str, expected: tuple):
-    """NAME, NAME=VALUE and NAME.PARAM=VALUE parse to (effect, parameter, value)."""
-    assert parse_effect(text) == expected
-
-
-def test_parse_effect_rejects_non_numbers():
-    """A value that is not a number is an argparse type error naming the effect."""
-    with pytest.raises(argparse.ArgumentTypeError, match="effect 'steering_lag': 'slow'"):
-        parse_effect("steering_lag=slow")
-
-
-def test_parse_blackout():
-    """SENSOR:START:DURATION parses to a Blackout; malformed, unknown or non-finite forms are
-    rejected with what is wrong."""
-    assert parse_blackout("lighthouse:10:1.127") == Blackout("lighthouse", 10.0, 1.127)
-    assert parse_blackout("lighthouse/1:0:1") == Blackout("lighthouse/1", 0.0, 1.0)
-    cases = {
-        "lighthouse:10": "expected SENSOR:START:DURATION",
-        "bogus:1:1": "sensor 'bogus' is not one of",
-        "imu/2:1:1": "sensor 'imu/2' is not one of",
-        "lighthouse:nan:1": "START 'nan' is not a finite number",
-        "imu:a:1": "START 'a' is not a finite number",
-        "imu:1:inf": "DURATION 'inf' is not a finite number",
-        "imu:-1:1": "start >= 0",
-        "imu:1:0": "duration > 0",
-    }
-    for bad, message in cases.items():
-        with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
-            parse_blackout(bad)
 
 
 BAD_INPUTS = [

@@ -1,0 +1,89 @@
+"""Every node refuses a bad parameter at start-up in one line naming it, with exit code 2.
+
+Each case starts the node process as the launcher does (``python -m <module> --ros-args ...``);
+the processes run in parallel (each needs a second or two to import) and never reach DDS.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+#: (module, ROS arguments, the one line it must print on stderr; {tmp} is a temporary folder)
+CASES = [
+    (
+        "estimator_node",
+        ["-p", "rate_hz:=0"],
+        "error: rate_hz: must be a finite number > 0, got 0.0",
+    ),
+    ("estimator_node", ["-p", "rate_hz:=nan"], "error: rate_hz: must be a finite number > 0"),
+    ("estimator_node", ["-p", "rate_hz:=fast"], "error: rate_hz: expected a number, got 'fast'"),
+    ("estimator_node", ["-p", "estimator:=ukf"], "error: estimator: must be one of ekf, mhe"),
+    ("estimator_node", ["-p", "sensors:=lh+sonar"], "error: sensors: 'lh+sonar' must combine"),
+    ("estimator_node", ["-p", "horizon:=1"], "error: horizon: must be in 2..1000, got 1"),
+    ("estimator_node", ["-p", "initial_state:=[1.0,2.0]"], "initial_state: must be 6 finite"),
+    ("estimator_node", ["-p", "params_file:={tmp}/none.yaml"], "params_file: no such file"),
+    ("estimator_node", ["-p", "params_file:={tmp}/bad.yaml"], "params_file: {tmp}/bad.yaml: "),
+    ("estimator_node", ["-p", "time_offsets:=lh"], "error: time_offsets: "),
+    ("simulator_node", ["-p", "effects:=bogus"], "error: effects: unknown effect 'bogus'"),
+    ("simulator_node", ["-p", "blackouts:=lighthouse:1"], "error: blackouts: 'lighthouse:1'"),
+    ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
+    ("controller_node", ["-p", "v_ref:=-1.0"], "error: v_ref: must be a finite number > 0"),
+    ("recorder_node", ["-p", "output:={tmp}"], "error: output: exists already"),
+    ("recorder_node", ["-p", "storage:=zip"], "error: storage: must be one of mcap, sqlite3"),
+    ("replayer_node", ["-p", "bag:={tmp}/none"], "error: bag: {tmp}/none: not a bag folder"),
+    ("replayer_node", ["-p", "rate:=0.0"], "error: rate: must be a finite number > 0"),
+]
+
+
+@pytest.fixture(scope="module")
+def outcomes(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[tuple[int, str, str]]]:
+    """The temporary folder, and (exit code, stderr, expected line) per case, run in parallel."""
+    tmp = tmp_path_factory.mktemp("startup")
+    (tmp / "bad.yaml").write_text("parameters:\n  m: heavy\n")
+    env = {**os.environ, "ROS_DOMAIN_ID": "171", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    processes = []
+    for module, arguments, expected in CASES:
+        command = [
+            sys.executable,
+            "-m",
+            f"ros4crs.{module}",
+            "--ros-args",
+            "-r",
+            "__ns:=/car1",
+            *[a.format(tmp=tmp) for a in arguments],
+        ]
+        process = subprocess.Popen(
+            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
+        )
+        processes.append((process, expected.format(tmp=tmp)))
+    out = []
+    for process, expected in processes:
+        try:
+            _, err = process.communicate(timeout=120)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            _, err = process.communicate()
+        out.append((process.returncode, err, expected))
+    return tmp, out
+
+
+@pytest.mark.parametrize("case", range(len(CASES)), ids=[f"{m}:{a[-1]}" for m, a, _ in CASES])
+def test_bad_parameter_is_one_line_naming_it(outcomes, case: int):
+    code, err, expected = outcomes[1][case]
+    module = CASES[case][0].removesuffix("_node")
+    assert code == 2, err
+    assert "Traceback" not in err, err
+    (line,) = [line for line in err.splitlines() if "error:" in line]
+    assert line.startswith(f"/car1/{module}: error: "), err
+    assert expected in line, err
+
+
+def test_nothing_was_written_or_deleted(outcomes):
+    """The refused recorder (an existing ``output``) and the others left the folder as it was."""
+    tmp, _ = outcomes
+    assert sorted(p.name for p in tmp.iterdir()) == ["bad.yaml"]
