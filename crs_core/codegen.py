@@ -40,18 +40,24 @@ def cache_dir() -> Path:
 class NumericFunction:
     """Call a CasADi function with numpy arrays; returns a tuple of numpy arrays.
 
-    Inputs are flattened column-major into the function's dense inputs; outputs come back with
-    their CasADi shape (``(n,)`` for column vectors). Subclasses choose the backend.
+    Every backend takes and returns the same shapes: each input is any array with the
+    input's number of elements, read column-major (a matrix input such as an 8x8 covariance may
+    come as that matrix or as its 64 column-major values); outputs come back with their CasADi
+    shape (``(n,)`` for column vectors). Subclasses choose the backend.
     """
 
     def __init__(self, function: ca.Function) -> None:
         self.function = function
         self.name = function.name()
+        self._in_shapes = [function.size_in(i) for i in range(function.n_in())]
         self._in_sizes = [function.numel_in(i) for i in range(function.n_in())]
         self._out_shapes = [
             (function.size1_out(i),) if function.size2_out(i) == 1 else function.size_out(i)
             for i in range(function.n_out())
         ]
+        for i in range(function.n_in()):
+            if not function.sparsity_in(i).is_dense():
+                raise ValueError(f"{self.name}: input {i} must be dense")
         for i in range(function.n_out()):
             if not function.sparsity_out(i).is_dense():
                 raise ValueError(f"{self.name}: output {i} must be dense (use casadi.densify)")
@@ -61,6 +67,18 @@ class NumericFunction:
     def __call__(self, *args: np.ndarray | float) -> tuple[np.ndarray, ...]:
         raise NotImplementedError
 
+    def _flat_inputs(self, args: Sequence[np.ndarray | float]) -> list[np.ndarray]:
+        """Each argument as its column-major values, checked against the input's size."""
+        if len(args) != len(self._in_sizes):
+            raise TypeError(f"{self.name}: expected {len(self._in_sizes)} inputs, got {len(args)}")
+        flats = []
+        for value, size in zip(args, self._in_sizes, strict=True):
+            flat = np.asarray(value, dtype=float).ravel(order="F")
+            if flat.size != size:
+                raise ValueError(f"{self.name}: input of size {flat.size}, expected {size}")
+            flats.append(flat)
+        return flats
+
 
 class VMFunction(NumericFunction):
     """Evaluation in CasADi's virtual machine (no compiler needed)."""
@@ -68,7 +86,13 @@ class VMFunction(NumericFunction):
     backend = "vm"
 
     def __call__(self, *args: np.ndarray | float) -> tuple[np.ndarray, ...]:
-        out = self.function.call([np.asarray(a, dtype=float).ravel(order="F") for a in args])
+        # CasADi checks each input's shape: a column-major flat buffer (what the compiled code
+        # takes) is reshaped back to the input's (rows, columns).
+        inputs = [
+            flat.reshape(shape, order="F")
+            for flat, shape in zip(self._flat_inputs(args), self._in_shapes, strict=True)
+        ]
+        out = self.function.call(inputs)
         return tuple(
             np.asarray(o, dtype=float).reshape(shape, order="F")
             for o, shape in zip(out, self._out_shapes, strict=True)
@@ -105,12 +129,7 @@ class CompiledFunction(NumericFunction):
         getattr(library, f"{self.name}_incref")()
 
     def __call__(self, *args: np.ndarray | float) -> tuple[np.ndarray, ...]:
-        if len(args) != len(self._inputs):
-            raise TypeError(f"{self.name}: expected {len(self._inputs)} inputs, got {len(args)}")
-        for buf, value in zip(self._inputs, args, strict=True):
-            flat = np.asarray(value, dtype=float).ravel(order="F")
-            if flat.size != buf.size:
-                raise ValueError(f"{self.name}: input of size {flat.size}, expected {buf.size}")
+        for buf, flat in zip(self._inputs, self._flat_inputs(args), strict=True):
             buf[:] = flat
         if self._entry(self._arg, self._res, self._iw_ptr, self._w_ptr, 0) != 0:
             raise RuntimeError(f"{self.name}: evaluation failed")

@@ -18,21 +18,21 @@ import numpy as np
 from matplotlib.gridspec import GridSpec
 from matplotlib.patches import Patch
 
+from crs_core.analysis.figures import (
+    BAND_ALPHA,
+    BAND_LABEL,
+    ERROR_COMPONENTS,
+    STATUS_COLOURS,
+    clip_to_band,
+    draw_error_band,
+    label_band_panel,
+    shade_status_strip,
+)
+from crs_core.analysis.metrics import band_statistics, pose_error_bands
 from crs_core.dataset import Dataset
 from crs_core.estimation.base import sensor_group
 from crs_core.estimation.offline import OfflineEstimates, dataset_stream, reference_label
 from crs_core.track import Track, load_demo_track
-from sim.report import (
-    BAND_ALPHA,
-    BAND_LABEL,
-    ERROR_COMPONENTS,
-    band_statistics,
-    clip_to_band,
-    draw_error_band,
-    label_band_panel,
-    pose_errors,
-    shade_status_strip,
-)
 
 #: Label and unit of each state in the time plots.
 STATE_AXES = (
@@ -43,7 +43,6 @@ STATE_AXES = (
     ("v_y", "m/s"),
     ("ω", "rad/s"),
 )
-_SPAN_COLOURS = {"degraded": "tab:orange", "lost": "tab:red"}
 
 
 def format_summary(
@@ -107,15 +106,17 @@ def error_bands(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | 
 
     Returns None without a reference (no ``x.npy``), else ``errors`` and ``sigmas`` (N, 3) in
     mm, mm, mrad (the yaw error wrapped; NaN where the estimate is lost or the reference is
-    missing) and ``stats``: per component the :func:`~sim.report.band_statistics` (RMSE and
-    the fraction inside ±2σ) over the samples that are not lost.
+    missing) and ``stats``: per component the
+    :func:`~crs_core.analysis.metrics.band_statistics` (RMSE and the fraction inside ±2σ) over
+    the samples that are not lost.
     """
     if dataset.x is None:
         return None
     factors = np.array([factor for _, _, factor in ERROR_COMPONENTS])
-    errors = pose_errors(result.x[:3].T, dataset.x) * factors
-    errors[result.status == "lost"] = np.nan
-    sigmas = np.sqrt(np.clip(result.covariance_diag[:3].T, 0.0, None)) * factors
+    errors, sigmas = pose_error_bands(
+        result.x[:3].T, result.covariance_diag[:3].T, dataset.x, result.status != "lost"
+    )
+    errors, sigmas = errors * factors, sigmas * factors
     stats = {
         name: band_statistics(errors[:, k], sigmas[:, k])
         for k, (name, _, _) in enumerate(ERROR_COMPONENTS)
@@ -174,7 +175,7 @@ def _plot_errors(axes, result: OfflineEstimates, dataset: Dataset) -> None:
         )
     handles.append(Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL))
     handles += [
-        Patch(color=c, alpha=0.8, label=f"{s} (bottom strip)") for s, c in _SPAN_COLOURS.items()
+        Patch(color=c, alpha=0.8, label=f"{s} (bottom strip)") for s, c in STATUS_COLOURS.items()
     ]
     axes[0].legend(
         handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.12), fontsize=8, ncol=2
@@ -222,7 +223,7 @@ def _plot_states(axes, result: OfflineEstimates, dataset: Dataset) -> None:
         if reference is not None:
             ax.plot(t, reference[i], color="0.45", lw=1.0)
         ax.plot(t, np.where(found, estimate[i], np.nan), color="tab:blue", lw=0.8)
-        _shade(ax, t, result.status)
+        shade_status_strip(ax, t, result.status, height=1.0, alpha=0.25)
         ax.set_ylabel(f"{name} [{unit}]")
         ax.grid(alpha=0.3)
         if i < 5:
@@ -230,21 +231,12 @@ def _plot_states(axes, result: OfflineEstimates, dataset: Dataset) -> None:
     handles = [plt.Line2D([], [], color="tab:blue", lw=0.8, label="estimate")]
     if reference is not None:
         handles.append(plt.Line2D([], [], color="0.45", lw=1.0, label=_reference(dataset)))
-    handles += [Patch(color=c, alpha=0.25, label=s) for s, c in _SPAN_COLOURS.items()]
+    handles += [Patch(color=c, alpha=0.25, label=s) for s, c in STATUS_COLOURS.items()]
     axes[0].legend(
         handles=handles, loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8, ncol=4
     )
     start = f" (t₀ = {result.t[0]:.3f} s)" if abs(result.t[0]) > 1e-9 else ""
     axes[-1].set_xlabel(f"t − t₀ [s]{start}")
-
-
-def _shade(ax, t: np.ndarray, status: np.ndarray) -> None:
-    """Shade the runs of ``degraded`` and ``lost`` samples (each up to the next stamp)."""
-    edges = np.flatnonzero(status[1:] != status[:-1]) + 1
-    for begin, end in zip(np.r_[0, edges], np.r_[edges, len(status)], strict=True):
-        colour = _SPAN_COLOURS.get(str(status[begin]))
-        if colour:
-            ax.axvspan(t[begin], t[min(end, len(t) - 1)], color=colour, alpha=0.25, lw=0)
 
 
 def _reference(dataset: Dataset) -> str:

@@ -7,18 +7,16 @@ from pathlib import Path
 
 import numpy as np
 
-from crs_core.track import load_demo_track
-from sim.report import (
+from crs_core.analysis.figures import (
     BAND_ALPHA,
     BAND_LABEL,
     ERROR_COMPONENTS,
-    band_statistics,
     clip_to_band,
     draw_error_band,
-    interpolate_pose,
     label_band_panel,
-    pose_errors,
 )
+from crs_core.analysis.metrics import band_statistics, interpolate_pose, pose_errors
+from crs_core.track import load_demo_track
 
 #: Topics (relative to the car's namespace) of the published estimate and of the truth.
 ESTIMATE_TOPIC, TRUTH_TOPIC = "estimate/state", "ground_truth"

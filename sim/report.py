@@ -9,8 +9,9 @@ Figures (``write_report``):
 * ``estimation.png``: an offline estimator run over the simulated data, its x, y and yaw error
   against the simulator's truth over time with the estimator's own ±2σ band.
 
-The error-band helpers (:func:`band_statistics`, :func:`pose_errors`, :func:`draw_error_band`)
-are shared with the figures of ``crs estimate`` and ``crs launch sim``.
+The error numbers come from :mod:`crs_core.analysis.metrics`, the error-band drawing from
+:mod:`crs_core.analysis.figures` (shared with the figures of ``crs estimate`` and
+``crs launch sim``).
 """
 
 from __future__ import annotations
@@ -27,18 +28,28 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Patch
 
+from crs_core.analysis.figures import (
+    BAND_ALPHA,
+    BAND_LABEL,
+    ERROR_COMPONENTS,
+    STATUS_COLOURS,
+    clip_to_band,
+    draw_error_band,
+    label_band_panel,
+    shade_status_strip,
+)
+from crs_core.analysis.metrics import (
+    band_statistics,
+    interpolate_pose,
+    lap_statistics,
+    pose_error_bands,
+)
 from crs_core.estimation.offline import OfflineEstimates, estimate_dataset
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model.sensors import N_PHOTODIODES
-from crs_core.track import LapCounter, Track
+from crs_core.track import Track
 from sim.simulator import SimulationResult
 
-#: The components of the error-over-time figures: name, unit and factor from SI.
-ERROR_COMPONENTS = (("x", "mm", 1e3), ("y", "mm", 1e3), ("yaw", "mrad", 1e3))
-#: Legend text of the ±2σ band in every error-over-time figure.
-BAND_LABEL = "±2σ claimed by the estimator (≈95 % inside if consistent)"
-#: Opacity of the ±2σ band.
-BAND_ALPHA = 0.22
 #: Sensor groups in words, for titles.
 SENSOR_WORDS = {
     "lh": "Lighthouse",
@@ -54,28 +65,6 @@ MOVING_FRACTION = 0.5
 SPEED_PERCENTILES = (2.0, 98.0)
 
 
-def lap_statistics(result: SimulationResult, track: Track) -> dict[str, Any]:
-    """Laps completed, lap times and path-following errors of the true trajectory."""
-    counter = LapCounter(track.length)
-    lateral = []
-    s_hint = None
-    s_start = None
-    for t, state in zip(result.truth_t, result.truth_x, strict=True):
-        projection = track.project(state[0], state[1], s_hint)
-        s_hint = projection.s
-        s_start = projection.s if s_start is None else s_start
-        lateral.append(projection.lateral_error)
-        counter.update(t, projection.s)
-    lateral_arr = np.abs(np.array(lateral))
-    return {
-        "laps_completed": counter.laps_completed,
-        "lap_times_s": [round(v, 3) for v in counter.lap_times],
-        "distance_m": round(counter.progress - (s_start or 0.0), 3),
-        "max_lateral_error_m": round(float(lateral_arr.max()), 4),
-        "rms_lateral_error_m": round(float(np.sqrt(np.mean(lateral_arr**2))), 4),
-    }
-
-
 def sensor_statistics(result: SimulationResult) -> dict[str, Any]:
     """Samples and effective rate per sensor."""
     out = {}
@@ -88,130 +77,11 @@ def sensor_statistics(result: SimulationResult) -> dict[str, Any]:
     return out
 
 
-# --- error bands (shared with estimate_report.py and stack_plot.py) ---------------------------
-def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Angles wrapped to (-pi, pi]."""
-    return np.arctan2(np.sin(angle), np.cos(angle))
-
-
 def sensor_words(groups: str) -> str:
     """``"lh+imu+we"`` -> ``"Lighthouse + IMU + wheel encoders"``."""
     return " + ".join(SENSOR_WORDS.get(g, g) for g in groups.split("+"))
 
 
-def pose_errors(estimate: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """``estimate - reference`` of ``x, y, yaw`` per sample, (n, 3); the yaw error wrapped.
-
-    Both are (n, >= 3) states ``[x, y, yaw, ...]`` (m, m, rad; yaw wrapped or unwrapped).
-    """
-    error = np.asarray(estimate, dtype=float)[:, :3] - np.asarray(reference, dtype=float)[:, :3]
-    error[:, 2] = wrap_angle(error[:, 2])
-    return error
-
-
-def interpolate_pose(t: np.ndarray, stamps: np.ndarray, states: np.ndarray) -> np.ndarray:
-    """``x, y, yaw`` of ``states`` (n, >= 3) at the times ``t``, (len(t), 3): linear
-    interpolation, the yaw unwrapped first so that a jump by 2 pi is not smeared."""
-    states = np.asarray(states, dtype=float)
-    yaw = np.unwrap(states[:, 2])
-    columns = (states[:, 0], states[:, 1], yaw)
-    return np.stack([np.interp(t, stamps, c) for c in columns], axis=1)
-
-
-def band_statistics(error: np.ndarray, sigma: np.ndarray) -> dict[str, float | int | None]:
-    """RMSE of ``error`` and the fraction of samples with ``|error| <= 2 sigma``.
-
-    ``sigma`` is the standard deviation the estimator claims, in the unit of ``error``. NaN
-    marks a sample without estimate or reference (in ``error``) or without a known covariance
-    (in ``sigma``): the RMSE counts the finite errors (``samples``), the fraction the samples
-    where both are finite (``samples_with_sigma``). A consistent estimator has about 95 % of
-    the samples inside. None where there is no sample to count.
-    """
-    error, sigma = np.asarray(error, dtype=float), np.asarray(sigma, dtype=float)
-    finite = np.isfinite(error)
-    both = finite & np.isfinite(sigma)
-    return {
-        "rmse": float(np.sqrt(np.mean(error[finite] ** 2))) if finite.any() else None,
-        "inside_2sigma": float(np.mean(np.abs(error[both]) <= 2.0 * sigma[both]))
-        if both.any()
-        else None,
-        "samples": int(finite.sum()),
-        "samples_with_sigma": int(both.sum()),
-    }
-
-
-def draw_error_band(
-    ax, t: np.ndarray, error: np.ndarray, sigma: np.ndarray, colour: str, label: str | None
-) -> None:
-    """The error over time (a line) inside its ±2σ band (a shaded area of the same colour).
-
-    NaN in ``error`` leaves a gap in the line; NaN in ``sigma`` a gap in the band.
-    """
-    ax.fill_between(t, -2 * sigma, 2 * sigma, color=colour, alpha=BAND_ALPHA, lw=0)
-    ax.plot(t, error, color=colour, lw=0.7, label=label)
-
-
-def band_limit(errors: list[np.ndarray], sigmas: list[np.ndarray]) -> float:
-    """A symmetric y limit that shows the bulk of the errors and bands: the 98th percentile of
-    ``|error|`` and the 95th of ``2 sigma``, plus 15 %. Short peaks (a glitch, the huge
-    uncertainty before the first fix) go off-scale instead of flattening everything; the panel
-    says so (:func:`clip_to_band`)."""
-    parts = [np.abs(e[np.isfinite(e)]) for e in errors]
-    parts = [p for p in parts if p.size]
-    bands = [2 * s[np.isfinite(s)] for s in sigmas]
-    bands = [b for b in bands if b.size]
-    limit = max([np.percentile(p, 98) for p in parts] + [np.percentile(b, 95) for b in bands])
-    return 1.15 * limit if limit > 0 else 1.0
-
-
-def label_band_panel(
-    ax, name: str, unit: str, stats: list[tuple[str, dict[str, Any]]], off_scale: str = ""
-) -> None:
-    """y label, and above the panel the RMSE and the ±2σ fraction and the note of
-    :func:`clip_to_band`. ``stats``: ``(who, band_statistics)`` pairs, one per car or
-    estimator; ``who`` is "" for a single one, else a name (compact lines, four per line)."""
-    ax.set_ylabel(f"{name} error [{unit}]")
-    single = len(stats) == 1 and not stats[0][0]
-    entries = []
-    for who, st in stats:
-        if st["rmse"] is None:
-            entries.append(f"{who} no samples".strip())
-            continue
-        inside = (
-            "no covariance"
-            if st["inside_2sigma"] is None
-            else f"{100 * st['inside_2sigma']:.1f} %" + (" inside ±2σ" if single else "")
-        )
-        rmse = f"RMSE {st['rmse']:.2f} {unit}" if single else f"{who} {st['rmse']:.2f} {unit}"
-        entries.append(f"{rmse}, {inside}")
-    if single:
-        text = entries[0]
-    else:
-        rows = ["; ".join(entries[i : i + 4]) for i in range(0, len(entries), 4)]
-        text = "RMSE, inside ±2σ: " + "\n".join(rows)
-    ax.set_title(text + (f"   ({off_scale})" if off_scale else ""), loc="left", fontsize=8)
-
-
-def clip_to_band(ax, errors: list[np.ndarray], sigmas: list[np.ndarray], unit: str) -> str:
-    """Set the symmetric y limits of :func:`band_limit`; a note if something is off-scale."""
-    limit = band_limit(errors, sigmas)
-    ax.set_ylim(-limit, limit)
-    peak = max([float(np.nanmax(np.abs(e))) for e in errors if np.isfinite(e).any()] + [0.0])
-    peak_band = max([float(np.nanmax(2 * s)) for s in sigmas if np.isfinite(s).any()] + [0.0])
-    notes = []
-    if peak > limit:
-        notes.append(f"max |error| {_number(peak)} {unit}")
-    if peak_band > limit:
-        notes.append(f"max 2σ {_number(peak_band)} {unit}")
-    return "off-scale peaks: " + ", ".join(notes) if notes else ""
-
-
-def _number(value: float) -> str:
-    """3 significant digits without an exponent below 10⁶ (``2000``, ``13.2``, ``0.412``)."""
-    return f"{value:.0f}" if 1000 <= abs(value) < 1e6 else f"{value:.3g}"
-
-
-# --- the report --------------------------------------------------------------------------------
 def speed_colour_limits(vx: np.ndarray) -> tuple[float, float]:
     """Colour-scale limits of the forward speed: the :data:`SPEED_PERCENTILES` of the samples
     where the car moves (above :data:`MOVING_FRACTION` of the median positive speed), so that the
@@ -240,9 +110,9 @@ def estimation_errors(result: SimulationResult, kind: str = "mhe") -> dict[str, 
     wall = time.perf_counter() - started
     found = estimates.status != "lost"
     truth = interpolate_pose(estimates.t, result.truth_t, result.truth_x)
-    errors = pose_errors(estimates.x[:3].T, truth)
-    errors[~found] = np.nan
-    sigmas = np.sqrt(np.clip(estimates.covariance_diag[:3].T, 0.0, None))
+    errors, sigmas = pose_error_bands(
+        estimates.x[:3].T, estimates.covariance_diag[:3].T, truth, found
+    )
     d = estimates.diagnostics
     summary: dict[str, Any] = {
         "estimator": kind,
@@ -294,7 +164,7 @@ def write_report(
         },
         "mean_speed_mps": round(float(speed.mean()), 3),
         "max_speed_mps": round(float(speed.max()), 3),
-        **lap_statistics(result, track),
+        **lap_statistics(result.truth_t, result.truth_x, track),
         "sensors": sensor_statistics(result),
     }
     estimation = None
@@ -488,8 +358,10 @@ def estimation_figure(estimation: dict[str, Any]):
     handles = [
         plt.Line2D([], [], color="tab:blue", lw=0.7, label="estimate − simulation truth"),
         Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL),
-        Patch(color="tab:orange", alpha=0.8, label="status degraded (bottom strip)"),
-        Patch(color="tab:red", alpha=0.8, label="status lost (bottom strip)"),
+        *(
+            Patch(color=c, alpha=0.8, label=f"status {s} (bottom strip)")
+            for s, c in STATUS_COLOURS.items()
+        ),
     ]
     fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8)
     axes[-1].set_xlabel("t [s] (simulation time)")
@@ -499,17 +371,3 @@ def estimation_figure(estimation: dict[str, Any]):
         fontsize=11,
     )
     return fig
-
-
-def shade_status_strip(ax, t: np.ndarray, status: np.ndarray, height: float = 0.05) -> None:
-    """A strip of ``height`` (axes fraction) at the bottom of ``ax``: orange where the status is
-    ``degraded``, red where ``lost`` (each run up to the next stamp). A strip rather than a
-    full-height shade, which would hide the ±2σ band."""
-    colours = {"degraded": "tab:orange", "lost": "tab:red"}
-    status = np.asarray(status).astype(str)
-    edges = np.flatnonzero(status[1:] != status[:-1]) + 1
-    for begin, end in zip(np.r_[0, edges], np.r_[edges, len(status)], strict=True):
-        colour = colours.get(status[begin])
-        if colour:
-            right = t[min(end, len(t) - 1)]
-            ax.axvspan(t[begin], right, ymin=0.0, ymax=height, color=colour, alpha=0.8, lw=0)

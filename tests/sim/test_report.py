@@ -13,16 +13,7 @@ from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim import SensorSuite, SimulationResult, Simulator
-from sim.report import (
-    band_limit,
-    band_statistics,
-    interpolate_pose,
-    path_figure,
-    pose_errors,
-    sensors_figure,
-    speed_colour_limits,
-    write_report,
-)
+from sim.report import path_figure, sensors_figure, speed_colour_limits, write_report
 
 PNG = b"\x89PNG\r\n\x1a\n"
 
@@ -36,57 +27,6 @@ def run() -> SimulationResult:
     controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
     x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
     return Simulator(model, SensorSuite(), seed=3).run(controller, 4.0, x0)
-
-
-def test_band_statistics_on_known_numbers():
-    """The RMSE counts the finite errors, the fraction inside ±2σ the samples where the sigma is
-    known too."""
-    error = np.array([1.0, -1.0, 3.0, -2.0, np.nan, 5.0])
-    sigma = np.array([1.0, 1.0, 1.0, 1.0, 1.0, np.nan])
-    stats = band_statistics(error, sigma)
-    assert stats["samples"] == 5 and stats["samples_with_sigma"] == 4
-    assert stats["rmse"] == pytest.approx(np.sqrt((1 + 1 + 9 + 4 + 25) / 5))
-    assert stats["inside_2sigma"] == pytest.approx(3 / 4)  # |-2| <= 2 counts, |3| does not
-    empty = {"rmse": None, "inside_2sigma": None, "samples": 0, "samples_with_sigma": 0}
-    assert band_statistics([], []) == empty
-    assert band_statistics([np.nan], [1.0])["rmse"] is None
-    no_sigma = band_statistics([3.0, 4.0], [np.nan, np.nan])
-    assert no_sigma["rmse"] == pytest.approx(np.sqrt(12.5)) and no_sigma["inside_2sigma"] is None
-
-
-def test_band_statistics_of_gaussian_errors_is_about_95_percent():
-    """Errors drawn with the claimed sigma land inside ±2σ about 95.4 % of the time."""
-    rng = np.random.default_rng(0)
-    sigma = rng.uniform(0.5, 2.0, 20_000)
-    stats = band_statistics(rng.normal(0.0, sigma), sigma)
-    assert stats["inside_2sigma"] == pytest.approx(0.954, abs=0.01)
-    assert stats["rmse"] == pytest.approx(np.sqrt(np.mean(sigma**2)), rel=0.02)
-
-
-def test_pose_errors_wrap_the_yaw():
-    """A yaw of 3.1 rad against -3.1 rad (or against it plus whole turns) is -0.083 rad off."""
-    estimate = np.array([[1.0, 2.0, 3.1], [0.0, 0.0, 3.1], [0.0, 0.0, 0.2]])
-    reference = np.array([[0.9, 2.5, -3.1], [0.0, 0.0, -3.1 + 4 * np.pi], [0.0, 0.0, -0.1]])
-    error = pose_errors(estimate, reference)
-    assert error[0, :2] == pytest.approx([0.1, -0.5])
-    assert error[:, 2] == pytest.approx([6.2 - 2 * np.pi, 6.2 - 2 * np.pi, 0.3])
-
-
-def test_interpolate_pose_does_not_smear_a_wrapped_yaw():
-    """Half-way between yaw 3.1 and -3.1 (a wrap, not a half turn back) the yaw is ±pi."""
-    stamps = np.array([0.0, 1.0, 2.0])
-    states = np.array([[0.0, 0.0, 3.1], [1.0, 2.0, -3.1], [2.0, 4.0, -3.0]])
-    pose = interpolate_pose(np.array([0.5, 1.5]), stamps, states)
-    assert pose[:, :2] == pytest.approx(np.array([[0.5, 1.0], [1.5, 3.0]]))
-    assert abs(np.cos(pose[0, 2]) + 1.0) < 1e-6  # pi, not 0
-    assert pose[1, 2] == pytest.approx(-3.05 + 2 * np.pi)
-
-
-def test_band_limit_ignores_a_short_peak():
-    """One huge error and one huge sigma (before the first fix) do not set the scale."""
-    error = np.r_[np.full(199, 1.0), 500.0]
-    sigma = np.r_[np.full(199, 1.0), 1000.0]
-    assert band_limit([error], [sigma]) == pytest.approx(1.15 * 2.0)
 
 
 def test_speed_colour_limits_follow_the_driven_speeds():
