@@ -15,7 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from crs_core.track import LapCounter, load_demo_track
+from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
+from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
 
@@ -188,24 +189,23 @@ def analyse(bag: Path, cars: int) -> dict[str, Any]:
             # laps are timed from when the car starts moving (it waits on the start line until
             # the estimator is up), a start within 5 cm of the line counting as on it
             moving = int(np.argmax(states[:, 3] > 0.05)) if np.any(states[:, 3] > 0.05) else 0
-            counter, hint = LapCounter(track.length, line_tolerance=0.05), None
-            for t, x in zip(stamps[moving:], states[moving:], strict=True):
-                projection = track.project(x[0], x[1], hint)
-                hint = projection.s
-                counter.update(t, projection.s)
-            car["laps_completed"] = counter.laps_completed
-            car["lap_times_s"] = [round(v, 3) for v in counter.lap_times]
+            laps = lap_statistics(stamps[moving:], states[moving:], track, line_tolerance=0.05)
+            car["laps_completed"] = laps["laps_completed"]
+            car["lap_times_s"] = laps["lap_times_s"]
             if contents.estimates:
                 est_t = np.array([t for t, _ in contents.estimates[1:]])
                 est_x = np.array([x for _, x in contents.estimates[1:]])
-                inside = (est_t >= stamps[0] + 2.0) & (est_t <= stamps[-1])
-                truth = np.stack([np.interp(est_t, stamps, states[:, k]) for k in range(6)], 1)
-                error = (est_x - truth)[inside]
-                error[:, 2] = np.arctan2(np.sin(error[:, 2]), np.cos(error[:, 2]))
-                rmse = np.sqrt(np.mean(error**2, axis=0)) if error.size else np.full(6, np.nan)
-                car["estimation_rmse"] = dict(
-                    zip(("x", "y", "yaw", "vx", "vy"), rmse[:5].round(5).tolist(), strict=True)
+                truth = np.column_stack(
+                    [
+                        interpolate_pose(est_t, stamps, states),
+                        *(np.interp(est_t, stamps, states[:, k]) for k in range(3, 6)),
+                    ]
                 )
+                inside = (est_t >= stamps[0] + 2.0) & (est_t <= stamps[-1])
+                rmse = state_rmse(est_x, truth, inside)
+                if rmse is not None:
+                    names = ("x", "y", "yaw", "vx", "vy")
+                    car["estimation_rmse"] = {n: round(rmse[n], 5) for n in names}
         car["estimator_deadline_misses"] = contents.deadline_misses
         car["estimator_updates"] = contents.updates
         car["malformed_messages"] = contents.malformed

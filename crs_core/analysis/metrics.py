@@ -198,7 +198,9 @@ def state_rmse(
     return out
 
 
-def lap_statistics(t: ArrayLike, states: ArrayLike, track: Track) -> dict[str, Any]:
+def lap_statistics(
+    t: ArrayLike, states: ArrayLike, track: Track, line_tolerance: float = 1e-3
+) -> dict[str, Any]:
     """Laps completed, lap times and path-following errors of a trajectory on a track.
 
     Parameters
@@ -209,6 +211,8 @@ def lap_statistics(t: ArrayLike, states: ArrayLike, track: Track) -> dict[str, A
         (n, >= 2) states ``[x, y, ...]``, m (world frame).
     track : Track
         The track; laps are counted at its start/finish line (:class:`~crs_core.track.LapCounter`).
+    line_tolerance : float, optional
+        A first sample within this distance past the line (m) counts as starting on it.
 
     Returns
     -------
@@ -218,7 +222,7 @@ def lap_statistics(t: ArrayLike, states: ArrayLike, track: Track) -> dict[str, A
         ``max_lateral_error_m`` and ``rms_lateral_error_m``, the distance from the centreline
         (m, rounded to 0.1 mm).
     """
-    counter = LapCounter(track.length)
+    counter = LapCounter(track.length, line_tolerance)
     lateral = []
     s_hint = None
     s_start = None
