@@ -65,6 +65,13 @@ def argument_type(parse):
 #: Longest simulation or launch the CLI accepts, s (the simulator keeps every sample).
 MAX_DURATION_S = 3600.0
 
+#: The effects and their parameters (name, unit, default), for ``--help``.
+EFFECTS_EPILOG = "effects (--effect NAME[.PARAM][=VALUE]; parameter, unit, default):\n" + "\n".join(
+    f"  {effect.name:20s} "
+    + "; ".join(f"{p.name} [{p.unit}] {p.value:g}: {p.description}" for p in effect.parameters)
+    for effect in EFFECTS.values()
+)
+
 
 def bounded_number(name: str, unit: str, low: float, high: float, kind=float):
     """An argparse type: a finite ``kind`` in ``(low, high]`` (``low`` excluded), named."""
@@ -321,28 +328,48 @@ def make_parser() -> argparse.ArgumentParser:
         ("sim", "simulate the car on a track and save a dataset", 30.0),
         ("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0),
     ):
-        sub = commands.add_parser(name, help=help_text)
+        sub = commands.add_parser(
+            name,
+            help=help_text,
+            description=f"{help_text[0].upper()}{help_text[1:]}: the ROS-free simulator "
+            "(noisy sensors at their own rates) with the path follower in the loop; writes a "
+            "dataset folder (crs_core.dataset format) and, with --report, OUT/report/ "
+            "(summary.txt, summary.json, path.png, sensors.png, estimation.png).",
+            epilog=EFFECTS_EPILOG,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         sub.add_argument(
             "--duration",
             type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
             default=duration,
             help=f"simulated time, s (default {duration:g}, at most {MAX_DURATION_S:g})",
         )
-        sub.add_argument("--seed", type=int, default=0)
-        sub.add_argument("--out", required=name == "sim", default="out/demo")
-        sub.add_argument("--noise-free", action="store_true", help="ideal sensors")
+        sub.add_argument("--seed", type=int, default=0, help="seed of all noise (default 0)")
+        sub.add_argument(
+            "--out",
+            required=name == "sim",
+            default="out/demo",
+            help="output folder" + (" (default out/demo)" if name == "demo" else ""),
+        )
+        sub.add_argument(
+            "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
+        )
         sub.add_argument(
             "--effect",
             type=argument_type(parse_effect),
             action="append",
-            metavar="NAME[=VALUE]",
-            help=f"hidden truth effect, one of: {', '.join(EFFECTS)}",
+            metavar="NAME[.PARAM][=VALUE]",
+            help="hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME "
+            "alone uses the default; the effects and parameters are listed below",
         )
         sub.add_argument(
             "--blackout",
             type=argument_type(parse_blackout),
             action="append",
             metavar="SENSOR:START:DURATION",
+            help="no samples of SENSOR (lighthouse, lighthouse/<station>, imu, wheel_encoders, "
+            "gyro, pose) from START for DURATION, s of simulated time (repeatable), e.g. "
+            "lighthouse:10:1.127",
         )
         sub.add_argument(
             "--stations",
@@ -356,9 +383,19 @@ def make_parser() -> argparse.ArgumentParser:
             default=1.0,
             help="reference speed of the path follower, m/s (default 1.0, at most 5)",
         )
-        sub.add_argument("--params", type=Path, help="parameter YAML applied to the truth")
-        sub.add_argument("--track", type=Path, help="track YAML (CRS format)")
-        sub.add_argument("--report", action=argparse.BooleanOptionalAction, default=name == "demo")
+        sub.add_argument(
+            "--params",
+            type=Path,
+            help="parameter YAML applied to the simulated car (a top-level 'parameters:' "
+            "mapping of name: value; default: the Chronos parameters)",
+        )
+        sub.add_argument("--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK)")
+        sub.add_argument(
+            "--report",
+            action=argparse.BooleanOptionalAction,
+            default=name == "demo",
+            help=f"write OUT/report/ (default: {'on' if name == 'demo' else 'off'})",
+        )
         sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
         sub.set_defaults(handler=simulate)
     sub = commands.add_parser(
@@ -370,7 +407,7 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument("dataset", type=Path, help="dataset folder")
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.add_argument("--estimator", choices=KINDS, required=True)
+    sub.add_argument("--estimator", choices=KINDS, required=True, help="EKF or MHE")
     sub.add_argument(
         "--sensors",
         default="auto",
@@ -393,17 +430,38 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument(
         "--rate", metavar="HZ", help="MHE grid rate, Hz (default 60; the EKF has no grid)"
     )
-    sub.add_argument("--params", type=Path, help="parameter YAML applied to the model")
+    sub.add_argument(
+        "--params",
+        type=Path,
+        help="parameter YAML applied to the model (default: the Chronos parameters with the "
+        "dataset's Lighthouse geometry)",
+    )
     sub.add_argument("--out", type=Path, required=True, help="output folder")
     sub.set_defaults(handler=estimate)
-    sub = commands.add_parser("consistency", help="sensor models vs. the real recordings")
-    sub.add_argument("--data", type=Path, action="append", help="dataset folder(s)")
-    sub.add_argument("--out", type=Path, help="JSON file")
+    sub = commands.add_parser(
+        "consistency",
+        help="sensor models vs. the real recordings",
+        description="Replay recorded states through the sensor models and print the error per "
+        "channel (median / p95).",
+    )
+    sub.add_argument(
+        "--data",
+        type=Path,
+        action="append",
+        help=f"dataset folder (repeatable; default: the real recordings in {REAL_DATA})",
+    )
+    sub.add_argument("--out", type=Path, help="also write the table as JSON to this file")
     sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     sub.set_defaults(handler=consistency)
-    sub = commands.add_parser("bench", help="benchmarks that print JSON")
-    sub.add_argument("what", choices=["model", "estimation"])
-    sub.add_argument("--out", type=Path, help="JSON file")
+    sub = commands.add_parser(
+        "bench",
+        help="benchmarks that print JSON",
+        description="model: model evaluation speed and the simulator's real-time factor (s). "
+        "estimation: EKF / MHE accuracy and speed on simulated runs (and on the real "
+        f"recordings in {REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min.",
+    )
+    sub.add_argument("what", choices=["model", "estimation"], help="which benchmark")
+    sub.add_argument("--out", type=Path, help="also write the JSON to this file")
     sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     sub.add_argument(
         "--seeds",
@@ -413,21 +471,36 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.set_defaults(handler=bench)
-    sub = commands.add_parser("launch", help="run the ROS 2 node suite")
-    sub.add_argument("scenario", choices=["sim"])
+    sub = commands.add_parser(
+        "launch",
+        help="run the ROS 2 node suite",
+        description="sim: per car a simulator, an estimator and a controller node (namespaces "
+        "/car1, /car2, ...) and one recorder, as processes on DDS (loopback), for --duration; "
+        "then OUT/report.json (laps, estimation RMSE, deadline misses, latencies, CPU), "
+        "OUT/path.png, OUT/bag (MCAP) and OUT/logs.",
+    )
+    sub.add_argument("scenario", choices=["sim"], help="sim: simulated cars (no car needed)")
     sub.add_argument(
         "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
     )
-    sub.add_argument("--estimator", choices=["ekf", "mhe"], default="mhe")
+    sub.add_argument(
+        "--estimator", choices=["ekf", "mhe"], default="mhe", help="(default mhe, at 60 Hz)"
+    )
     sub.add_argument(
         "--duration",
         type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
         default=40.0,
         help=f"wall-clock s (default 40, at most {MAX_DURATION_S:g})",
     )
-    sub.add_argument("--out", type=Path, required=True)
-    sub.add_argument("--domain", type=int, help="ROS_DOMAIN_ID (default: env or 42)")
-    sub.add_argument("--seed", type=int, default=0)
+    sub.add_argument("--out", type=Path, required=True, help="output folder")
+    sub.add_argument(
+        "--domain",
+        type=bounded_number("domain", "", -1, 232, int),
+        help="ROS_DOMAIN_ID, 0..232 (default: $ROS_DOMAIN_ID, else 42)",
+    )
+    sub.add_argument(
+        "--seed", type=int, default=0, help="noise seed; car i uses SEED + i (default 0)"
+    )
     sub.add_argument(
         "--blind-start",
         action="store_true",
@@ -455,11 +528,20 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument("bag", type=Path, help="bag folder (holding metadata.yaml and/or *.mcap)")
     sub.add_argument("--out", type=Path, help="repair: the new bag folder (must not exist)")
     sub.set_defaults(handler=bag_tool)
-    sub = commands.add_parser("ros", help="topics, echo, hz (no ros2 CLI here)")
-    sub.add_argument("tool", choices=["topics", "echo", "hz"])
+    sub = commands.add_parser(
+        "ros",
+        help="topics, echo, hz (no ros2 CLI here)",
+        description="topics: list the topics and types seen in the ROS domain ($ROS_DOMAIN_ID). "
+        "echo: print the next messages of a topic. hz: its receive rate (JSON: rate_hz, "
+        "messages, gap_ms_median, gap_ms_max).",
+    )
+    sub.add_argument("tool", choices=["topics", "echo", "hz"], help="which tool")
     sub.add_argument("topic", nargs="?", help="echo, hz: the topic, e.g. /car1/estimate/state")
     sub.add_argument(
-        "--count", type=bounded_number("count", "", 0, 1e6, int), default=1, help="echo: messages"
+        "--count",
+        type=bounded_number("count", "", 0, 1e6, int),
+        default=1,
+        help="echo: messages to print (default 1)",
     )
     sub.add_argument(
         "--window",
