@@ -6,7 +6,8 @@ up topics as they appear (transient-local topics, such as the estimates, with th
 published before it joined). Each message is written with its receive time. The bag is closed
 cleanly on shutdown.
 
-Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3).
+Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3),
+``flush_period`` (s between writes to disk: what a killed recorder loses at most).
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ from pathlib import Path
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
 from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2.storage_mcap import McapWriter
 
 from ros4crs.interfaces import typestore
-from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, one_of, run
+from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, one_of, positive, run
 
 
 def _new_folder(path: str) -> str | None:
@@ -43,9 +45,13 @@ class RecorderNode(Node):
         patterns = declare(self, "topics", "", "comma-separated topic names or prefixes")
         plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
         storage = declare(self, "storage", "mcap", "mcap or sqlite3", one_of(*plugins))
+        flush_period = declare(
+            self, "flush_period", 1.0, "s between writes of the pending data to disk", positive
+        )
         self.patterns = [self._resolve(p.strip()) for p in patterns.split(",") if p.strip()]
         self.writer = Writer(output, version=9, storage_plugin=plugins[storage])
         self.writer.open()
+        self.create_timer(flush_period, self._flush)
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}
         self._store = typestore()
@@ -100,6 +106,15 @@ class RecorderNode(Node):
             self.counts[topic] += 1
 
         return write
+
+    def _flush(self) -> None:
+        """Write the pending MCAP chunk to the file now (rosbags keeps up to 1 MiB in memory),
+        so that a recorder that is killed loses at most ``flush_period`` s of messages: the
+        cut-off file is read up to its last complete chunk (:mod:`ros4crs.bag_repair`)."""
+        storage = self.writer.storage
+        if isinstance(storage, McapWriter) and storage.chunk.msgs:
+            storage.close_chunk()
+            storage.bio.flush()
 
     def destroy_node(self) -> None:
         self.writer.close()

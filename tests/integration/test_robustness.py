@@ -19,6 +19,8 @@ from stack_probe import Probe, log_text, wait_for
 
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
+from ros4crs.bag_repair import BagDamagedWarning
+from ros4crs.bag_replay import read_car
 
 pytestmark = pytest.mark.integration
 
@@ -179,6 +181,43 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     states = np.array([[m.x, m.y, m.yaw, m.vx, m.vy, m.omega] for m in _after(estimates, sent)])
     assert np.all(np.isfinite(states))
     assert launcher.poll() == []
+
+
+def test_a_killed_recorder_leaves_a_bag_readable_up_to_its_last_second(stack, tmp_path):
+    """``kill -9`` of a recorder (no clean close: no MCAP summary, no metadata.yaml) after ~4 s
+    of 250 Hz IMU: the bag is read up to its last flushed chunk, with a warning saying what was
+    lost, and that chunk is at most ~``flush_period`` (1 s) older than the kill."""
+    del stack  # the running simulator publishes the IMU
+    bag = tmp_path / "bag"
+    recorder = Launcher(
+        [
+            NodeSpec(
+                "recorder",
+                "ros4crs.recorder_node",
+                "",
+                {"output": str(bag), "topics": "/car1/sensors/imu", "flush_period": 1.0},
+            )
+        ],
+        DOMAIN,
+        tmp_path / "logs",
+    )
+    try:
+        recorder.start()
+        wait_for(lambda: any(bag.glob("*.mcap")), 30.0, "the recorder to create its bag")
+        wait_for(lambda: "recording" in log_text(tmp_path / "logs", "/recorder"), 30.0, "its start")
+        time.sleep(4.3)
+        (process,) = recorder.processes.values()
+        os.kill(process.pid, signal.SIGKILL)
+        killed = time.time()
+        process.wait(10)
+    finally:
+        recorder.stop()
+    assert not (bag / "metadata.yaml").exists()
+    with pytest.warns(BagDamagedWarning, match="cut off: read"):
+        imu = read_car(bag, "/car1").measurements
+    assert len(imu) > 250 * 2.0, len(imu)  # more than 2 of the ~4 s
+    last = imu[-1].stamp
+    assert killed - last < 1.0 + 0.6, killed - last  # one flush period, and a busy machine
 
 
 def test_launcher_reports_a_killed_node_and_the_others_keep_running(stack):
