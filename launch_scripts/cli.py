@@ -221,6 +221,11 @@ def consistency(args: argparse.Namespace) -> None:
     """Real-data consistency of the sensor models (median / p95 error per channel)."""
     if args.out:
         prepare_output_file(args.out, args.overwrite)
+    if not args.data and not REAL_DATA.is_dir():
+        raise ValueError(
+            f"--data: no dataset given, and the real recordings are not at {REAL_DATA} (they "
+            "come with the project's shared data); pass --data DATASET_FOLDER"
+        )
     folders = args.data or sorted(p for p in REAL_DATA.iterdir() if p.is_dir())
     rows = {}
     for folder in folders:
