@@ -19,6 +19,8 @@ from typing import Any
 
 import yaml
 
+from ros4crs.discovery import set_discovery_environment
+
 
 @dataclass
 class NodeSpec:
@@ -83,6 +85,7 @@ class Launcher:
         env["ROS_DOMAIN_ID"] = str(self.domain_id)
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         env["PYTHONUNBUFFERED"] = "1"
+        set_discovery_environment(env)  # the suite's Fast DDS profile, unless the user has one
         # node logs with local date and time (rcutils' default is raw epoch seconds)
         env.setdefault(
             "RCUTILS_CONSOLE_OUTPUT_FORMAT",

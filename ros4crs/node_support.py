@@ -15,6 +15,8 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from ros4crs.discovery import set_discovery_environment
+
 #: Sensor and command streams: reliable with a queue deep enough for 250 Hz bursts.
 STREAM_QOS = QoSProfile(
     depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
@@ -233,12 +235,12 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
 
     A node that cannot start (a bad parameter, an unreadable file, a broken ``--params-file``)
     prints one line, ``<node>: error: <parameter or file>: <reason>``, on stderr and exits with
-    code 2 (no traceback). ``ROS_AUTOMATIC_DISCOVERY_RANGE`` defaults to ``LOCALHOST`` so no
-    discovery traffic leaves the machine unless asked for.
+    code 2 (no traceback). Discovery stays on this machine and uses the suite's Fast DDS profile
+    unless the environment says otherwise (:mod:`ros4crs.discovery`).
     """
     from rclpy._rclpy_pybind11 import RCLError
 
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    set_discovery_environment()
     args = list(argv) if argv is not None else sys.argv
     name = _node_name(args, make_node)
     try:

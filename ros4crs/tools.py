@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable
 
@@ -10,11 +9,12 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
+from ros4crs.discovery import set_discovery_environment
 from ros4crs.node_support import STREAM_QOS, message_class
 
 
 def _with_node(work: Callable[[Node], object]) -> object:
-    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    set_discovery_environment()
     context = rclpy.context.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("crs_tools", context=context)
@@ -28,13 +28,27 @@ def _with_node(work: Callable[[Node], object]) -> object:
 
 
 def list_topics(wait: float = 1.0) -> list[tuple[str, str]]:
-    """``(topic, type)`` of every topic seen within ``wait`` s of discovery."""
+    """``(topic, type)`` of every topic seen within ``wait`` s of discovery, and then until the
+    list has not changed for 0.3 s (at most 2 s more).
+
+    A running node's reply to our first discovery announcement is dropped about half the time
+    (Fast DDS 2.14 announces before it listens); we then see the node only at its next periodic
+    announcement, so ``wait`` must exceed that period: 0.25 s for the suite's processes
+    (:mod:`ros4crs.discovery`), 3 s (Fast DDS default) for others. The settling
+    lets the endpoints of a node discovered near the end of ``wait`` come in.
+    """
 
     def work(node, executor):
-        end = time.monotonic() + wait
-        while time.monotonic() < end:
+        start = time.monotonic()
+        seen, changed = [], start
+        while True:
             executor.spin_once(timeout_sec=0.05)
-        return [(name, types[0]) for name, types in sorted(node.get_topic_names_and_types())]
+            now = time.monotonic()
+            topics = [(name, types[0]) for name, types in sorted(node.get_topic_names_and_types())]
+            if topics != seen:
+                seen, changed = topics, now
+            if now - start >= wait and (now - changed >= 0.3 or now - start >= wait + 2.0):
+                return seen
 
     return _with_node(work)
 

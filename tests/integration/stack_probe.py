@@ -18,6 +18,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+from ros4crs.discovery import FASTDDS_PROFILE
 from ros4crs.node_support import STREAM_QOS
 
 
@@ -57,6 +58,7 @@ class Probe:
         with pytest.MonkeyPatch.context() as patch:
             patch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
             patch.setenv("ROS_DOMAIN_ID", str(domain_id))
+            patch.setenv("FASTRTPS_DEFAULT_PROFILES_FILE", str(FASTDDS_PROFILE))
             rclpy.init(context=self.context, domain_id=domain_id)
             self.node = rclpy.create_node(name, context=self.context)
         self.executor = SingleThreadedExecutor(context=self.context)

@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 from stack_probe import Probe, wait_for
 
@@ -11,6 +18,8 @@ from ros4crs import tools
 pytestmark = pytest.mark.integration
 
 DOMAIN = 108
+DOMAIN_REPEATED = 109
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_topics_echo_and_rate_of_a_running_simulator(tmp_path, monkeypatch, warm_codegen):
@@ -40,3 +49,48 @@ def test_topics_echo_and_rate_of_a_running_simulator(tmp_path, monkeypatch, warm
     finally:
         launcher.stop()
         probe.close()
+
+
+def test_tools_see_the_node_on_every_one_of_repeated_calls(tmp_path, warm_codegen):
+    """8 ``crs ros topics`` and 2 ``crs ros hz`` calls in a row, each a new process with the
+    default discovery wait, all see the simulator: a running node's reply to a new process's
+    first announcement is often lost (Fast DDS), so that process finds the node only at the
+    node's next announcement, which the launcher makes come every 0.25 s instead of 3 s."""
+    from sensor_msgs.msg import Imu
+
+    launcher = Launcher(
+        [NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 3})],
+        DOMAIN_REPEATED,
+        tmp_path / "logs",
+    )
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_REPEATED))
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+    def crs_ros(*args: str) -> str:
+        command = [sys.executable, "-m", "launch_scripts.cli", "ros", *args]
+        done = subprocess.run(
+            command, env=env, cwd=ROOT, capture_output=True, text=True, timeout=60
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        return done.stdout
+
+    expected = ["/car1/sensors/imu  [sensor_msgs/msg/Imu]", "/car1/sensors/lighthouse  ["]
+    probe = Probe(DOMAIN_REPEATED)
+    imu = probe.collect(Imu, "/car1/sensors/imu")
+    try:
+        launcher.start()
+        try:
+            wait_for(lambda: len(imu) > 50, 60.0, "the simulator's IMU stream")
+        finally:
+            probe.close()  # its subscription would show /car1/sensors/imu in the listings too
+        started = time.monotonic()
+        listings = [crs_ros("topics") for _ in range(8)]
+        rates = [json.loads(crs_ros("hz", "/car1/sensors/imu", "--window", "1")) for _ in range(2)]
+        seconds = time.monotonic() - started
+        misses = [i for i, text in enumerate(listings) if not all(t in text for t in expected)]
+        assert not misses, f"calls {misses} of 8 missed /car1 topics:\n{listings[misses[0]]}"
+        assert [r["rate_hz"] for r in rates] == [pytest.approx(250.0, rel=0.2)] * 2
+        assert launcher.poll() == []
+        print(f"10 tool calls in {seconds:.1f} s")
+    finally:
+        launcher.stop()
