@@ -20,26 +20,13 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from tqdm import tqdm
 
-from crs_core.analysis.consistency import channel_errors
-from crs_core.control.path_following import PathFollower, PathFollowerSettings
-from crs_core.dataset import Dataset
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
-from crs_core.estimation.offline import (
-    dataset_model,
-    estimate_dataset,
-    initial_state,
-    reference_comparison,
-)
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec, parse_effect
-from crs_core.track import Track, load_demo_track
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
-from sim.report import write_report
 from sim.sensors import SensorSuite, parse_blackout
-from sim.simulator import Simulator
 
 OVERWRITE_HELP = (
     "replace an --out folder written by an earlier crs run (a folder holding other files is "
@@ -102,6 +89,11 @@ def build_model(
 
 def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
+    from crs_core.control.path_following import PathFollower, PathFollowerSettings
+    from crs_core.track import Track, load_demo_track
+    from sim.report import write_report
+    from sim.simulator import Simulator
+
     track = Track.from_yaml(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
     out = prepare_output(Path(args.out), args.command, args.overwrite)
@@ -132,6 +124,8 @@ def simulate(args: argparse.Namespace) -> Path:
 
 def parse_x0(text: str | None) -> np.ndarray | None:
     """``--x0 x,y,yaw`` or ``x,y,yaw,vx,vy,omega`` (SI units); ValueError naming ``--x0``."""
+    from crs_core.estimation.offline import initial_state
+
     if text is None:
         return None
     try:
@@ -160,6 +154,10 @@ def parse_rate(text: str | None) -> float | None:
 
 def estimate(args: argparse.Namespace) -> None:
     """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
+    from tqdm import tqdm
+
+    from crs_core.dataset import Dataset
+    from crs_core.estimation.offline import dataset_model, estimate_dataset, reference_comparison
     from launch_scripts.estimate_report import format_summary, write_figure
 
     x0 = parse_x0(args.x0)
@@ -219,6 +217,9 @@ def estimate(args: argparse.Namespace) -> None:
 
 def consistency(args: argparse.Namespace) -> None:
     """Real-data consistency of the sensor models (median / p95 error per channel)."""
+    from crs_core.analysis.consistency import channel_errors
+    from crs_core.dataset import Dataset
+
     if args.out:
         prepare_output_file(args.out, args.overwrite)
     if not args.data and not REAL_DATA.is_dir():

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtri
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.estimation.base import Estimator, EstimatorSettings
@@ -137,7 +137,8 @@ class EkfSteps:
         self._p = model.parameters.vector()
         self._q = noise.process_std_for(model.state_names)
         self._noise = noise
-        self._gates = {m: chi2.ppf(gate_probability, m) for m in range(1, 9)}
+        # chi-square quantile: chdtri inverts the upper tail (lighter to import than scipy.stats)
+        self._gates = {m: chdtri(m, 1.0 - gate_probability) for m in range(1, 9)}
 
     def predict(self, x: np.ndarray, P: np.ndarray, u: np.ndarray, dt: float):
         """State and covariance ``dt`` s later under command ``u`` (RK4 substeps <= 4 ms)."""
