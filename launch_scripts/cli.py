@@ -269,8 +269,14 @@ def bench(args: argparse.Namespace) -> None:
 
 def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
+    from crs_core.track import Track
     from launch_scripts.sim_stack import run_stack, summary
 
+    # the nodes check these too, but a mistake is cheaper to hear before four processes start
+    if args.track is not None:
+        Track.from_yaml(args.track)
+    if args.params is not None:
+        build_model([], 1, args.params)
     prepare_output(Path(args.out), "launch", args.overwrite)
     report = run_stack(
         args.cars,
@@ -281,6 +287,8 @@ def launch(args: argparse.Namespace) -> None:
         args.seed,
         blind_start=args.blind_start,
         record=args.record,
+        track_file=args.track,
+        params_file=args.params,
     )
     print(summary(report, Path(args.out)))
 
@@ -511,6 +519,15 @@ def make_parser() -> argparse.ArgumentParser:
         "--blind-start",
         action="store_true",
         help="estimators initialise from the Lighthouse instead of the known start pose",
+    )
+    sub.add_argument(
+        "--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK) for every car"
+    )
+    sub.add_argument(
+        "--params",
+        type=Path,
+        help="parameter YAML of the cars: the simulated truth and the model of the estimators "
+        "and controllers (default: the Chronos parameters)",
     )
     sub.add_argument(
         "--record",

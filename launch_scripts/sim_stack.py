@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
-from crs_core.track import load_demo_track
+from crs_core.track import Track, load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
 
@@ -40,12 +40,16 @@ def stack_nodes(
     seed: int = 0,
     record: str = "all",
     blind_start: bool = False,
+    track_file: Path | None = None,
+    params_file: Path | None = None,
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
     ``record``: a key of :data:`RECORD_SETS`. ``blind_start``: the estimators ignore the known
     start pose and initialise themselves from the Lighthouse (the car waits, its controller
-    seeing no estimate, until they have).
+    seeing no estimate, until they have). ``track_file`` (default DEMO_TRACK) and
+    ``params_file`` (the car's parameters: the simulated truth and the model of the estimator
+    and the controller) go to every car's nodes.
     """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
@@ -55,6 +59,11 @@ def stack_nodes(
         raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
     per_car, global_topics = RECORD_SETS[record]
     nodes, topics = [], list(global_topics)
+    files = {
+        name: str(Path(path).resolve())
+        for name, path in (("track_file", track_file), ("params_file", params_file))
+        if path is not None
+    }
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
@@ -63,15 +72,15 @@ def stack_nodes(
                 "simulator",
                 "ros4crs.simulator_node",
                 ns,
-                {"seed": seed + i, "wait_for_subscribers": 2},
+                {"seed": seed + i, "wait_for_subscribers": 2, **files},
             ),
             NodeSpec(
                 "estimator",
                 "ros4crs.estimator_node",
                 ns,
-                {"estimator": estimator, "blind_start": blind_start},
+                {"estimator": estimator, "blind_start": blind_start, **files},
             ),
-            NodeSpec("controller", "ros4crs.controller_node", ns, {}),
+            NodeSpec("controller", "ros4crs.controller_node", ns, dict(files)),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
     nodes.append(
@@ -94,6 +103,8 @@ def run_stack(
     seed: int = 0,
     blind_start: bool = False,
     record: str = "all",
+    track_file: Path | None = None,
+    params_file: Path | None = None,
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -102,7 +113,17 @@ def run_stack(
     if bag.exists():
         raise FileExistsError(f"{bag} exists; choose an empty --out")
     domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
-    nodes = stack_nodes(cars, estimator, bag, seed, record=record, blind_start=blind_start)
+    nodes = stack_nodes(
+        cars,
+        estimator,
+        bag,
+        seed,
+        record=record,
+        blind_start=blind_start,
+        track_file=track_file,
+        params_file=params_file,
+    )
+    track = Track.from_yaml(track_file) if track_file else load_demo_track()
     launcher = Launcher(nodes, domain, out / "logs")
 
     def report_death(exited) -> None:
@@ -113,7 +134,7 @@ def run_stack(
     print(f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator} for {duration:g} s", flush=True)
     deaths = launcher.run(duration, on_exit=report_death, until=_progress(launcher, duration))
     print("[launch] stopped; analysing the bag", flush=True)
-    report = analyse(bag, cars)
+    report = analyse(bag, cars, track)
     report["estimator"] = estimator
     report["duration_s"] = duration
     report["recorded"] = record
@@ -121,7 +142,7 @@ def run_stack(
     wall = max(launcher.wall_at_stop, 1e-9)
     report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
     (out / "report.json").write_text(json.dumps(report, indent=2))
-    plot(bag, cars, out, estimator)
+    plot(bag, cars, out, estimator, track)
     return report
 
 
@@ -173,11 +194,11 @@ def summary(report: dict[str, Any], out: Path) -> str:
     return "\n".join(lines)
 
 
-def analyse(bag: Path, cars: int) -> dict[str, Any]:
+def analyse(bag: Path, cars: int, track: Track | None = None) -> dict[str, Any]:
     """Per car: laps, lap times, estimation RMSE, deadline misses, latencies."""
     from ros4crs.bag_replay import read_car, read_receive_times
 
-    track = load_demo_track()
+    track = track or load_demo_track()
     report: dict[str, Any] = {"cars": {}}
     for i in range(1, cars + 1):
         ns = f"/car{i}"

@@ -16,7 +16,7 @@ from crs_core.analysis.figures import (
     label_band_panel,
 )
 from crs_core.analysis.metrics import band_statistics, interpolate_pose, pose_errors
-from crs_core.track import load_demo_track
+from crs_core.track import Track, load_demo_track
 
 #: Topics (relative to the car's namespace) of the published estimate and of the truth.
 ESTIMATE_TOPIC, TRUTH_TOPIC = "estimate/state", "ground_truth"
@@ -82,7 +82,7 @@ def estimate_errors(estimates: StateTrack, truth: StateTrack) -> tuple[np.ndarra
     return errors, estimates.sigma[:, :3] * factors
 
 
-def plot(bag: Path, cars: int, out: Path, estimator: str = "") -> None:
+def plot(bag: Path, cars: int, out: Path, estimator: str = "", track: Track | None = None) -> None:
     """``path.png``: every car's truth and estimate on the track (with a zoomed inset), and the
     x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
     ±2σ band of the covariance the estimator published."""
@@ -92,7 +92,7 @@ def plot(bag: Path, cars: int, out: Path, estimator: str = "") -> None:
     import matplotlib.pyplot as plt
     from matplotlib.patches import Patch
 
-    track = load_demo_track()
+    track = track or load_demo_track()
     runs = {}
     for i in range(1, cars + 1):
         estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")

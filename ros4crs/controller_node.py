@@ -1,11 +1,12 @@
-"""Controller node: tracks the DEMO_TRACK with the ``crs_core`` path follower.
+"""Controller node: tracks a track (the DEMO_TRACK by default) with the ``crs_core`` path follower.
 
 Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz``. When the newest estimate
 is older than ``stale_timeout`` (or none arrived yet), it commands zero torque and straight
 wheels, so the car rolls to a stop, and says so once per episode. The MPCC replaces the path
 follower through this same node later.
 
-Parameters: ``rate_hz``, ``v_ref`` (m/s), ``stale_timeout`` (s).
+Parameters: ``rate_hz``, ``v_ref`` (m/s), ``stale_timeout`` (s), ``track_file`` (CRS track YAML;
+default DEMO_TRACK), ``params_file`` (model parameter YAML: the wheelbase).
 """
 
 from __future__ import annotations
@@ -16,10 +17,16 @@ import numpy as np
 from rclpy.node import Node
 
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
-from crs_core.model import CarModel
-from crs_core.track import load_demo_track
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, positive, run, subscribe_checked
+from ros4crs.node_support import (
+    STREAM_QOS,
+    declare,
+    declare_model,
+    declare_track,
+    positive,
+    run,
+    subscribe_checked,
+)
 
 STOP = np.array([0.0, 0.0])
 
@@ -34,10 +41,10 @@ class ControllerNode(Node):
         self.stale_timeout = declare(
             self, "stale_timeout", 0.2, "stop when the estimate is this old, s", positive
         )
-        parameters = CarModel().parameters
+        parameters = declare_model(self).parameters
         wheelbase = parameters.value("lf") + parameters.value("lr")
         self.follower = PathFollower(
-            load_demo_track(), wheelbase, PathFollowerSettings(v_ref=v_ref)
+            declare_track(self), wheelbase, PathFollowerSettings(v_ref=v_ref)
         )
         from chronos_msgs.msg import CarInput, CarState
 

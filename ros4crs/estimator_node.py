@@ -16,7 +16,8 @@ stale estimate and stops the car; the diagnostics say why.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
 ``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
-(model parameter YAML, optional), ``initial_state`` (6 floats; default the DEMO_TRACK start),
+(model parameter YAML, optional), ``track_file`` (CRS track YAML; default DEMO_TRACK),
+``initial_state`` (6 floats; default the track's start),
 ``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse), ``time_offsets``
 (per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger).
 """
@@ -39,14 +40,13 @@ from crs_core.estimation import (
 )
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.measurements import InputSample, Measurement, from_start
-from crs_core.model import CarModel
-from crs_core.track import load_demo_track
 from ros4crs import conversions
 from ros4crs.node_support import (
     LOG_QOS,
     ParameterError,
     declare,
-    file_or_empty,
+    declare_model,
+    declare_track,
     finite_vector,
     in_range,
     non_negative,
@@ -64,7 +64,6 @@ class EstimatorNode(Node):
 
     def __init__(self) -> None:
         super().__init__("estimator")
-        track = load_demo_track()
         kind = declare(self, "estimator", "mhe", "ekf or mhe", one_of(*KINDS))
         sensors = declare(
             self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)
@@ -79,19 +78,12 @@ class EstimatorNode(Node):
         if self.blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
             raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
-        params_file = declare(self, "params_file", "", "model parameter YAML", file_or_empty)
+        model = declare_model(self, n_base_stations=stations)
+        track = declare_track(self)
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
         self.initial = np.asarray(
             declare(self, "initial_state", start, "initial estimate", finite_vector(6))
         )
-        model = CarModel(n_base_stations=stations)
-        if params_file:
-            try:
-                parameters = model.parameters.updated_from_yaml(params_file)
-            except (ValueError, KeyError, OSError) as error:
-                message = error.args[0] if isinstance(error, KeyError) else error
-                raise ParameterError(f"params_file: {message}") from None
-            model = CarModel(n_base_stations=stations, parameters=parameters)
         offsets = parse_time_offsets(
             declare(
                 self,

@@ -8,7 +8,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
@@ -16,6 +16,10 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from ros4crs.discovery import set_discovery_environment
+
+if TYPE_CHECKING:
+    from crs_core.model import CarModel
+    from crs_core.track import Track
 
 #: Sensor and command streams: reliable with a queue deep enough for 250 Hz bursts.
 STREAM_QOS = QoSProfile(
@@ -135,6 +139,37 @@ def parsed_with(parse: Callable[[str], Any]) -> Callable[[str], str | None]:
         return None
 
     return check
+
+
+def declare_track(node: Node) -> Track:
+    """The ``track_file`` parameter: a CRS track YAML, empty for the DEMO_TRACK."""
+    from crs_core.track import Track, load_demo_track
+
+    path = declare(
+        node, "track_file", "", "track YAML (CRS format); empty: DEMO_TRACK", file_or_empty
+    )
+    try:
+        return Track.from_yaml(path) if path else load_demo_track()
+    except (ValueError, KeyError, OSError) as error:
+        message = error.args[0] if isinstance(error, KeyError) else error
+        raise ParameterError(f"track_file: {message}") from None
+
+
+def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> CarModel:
+    """The car model with the ``params_file`` parameter (a parameter YAML, empty for the
+    Chronos defaults) applied."""
+    from crs_core.model import CarModel
+
+    path = declare(node, "params_file", "", "model parameter YAML; empty: defaults", file_or_empty)
+    model = CarModel(effects, n_base_stations=n_base_stations)
+    if not path:
+        return model
+    try:
+        parameters = model.parameters.updated_from_yaml(path)
+    except (ValueError, KeyError, OSError) as error:
+        message = error.args[0] if isinstance(error, KeyError) else error
+        raise ParameterError(f"params_file: {message}") from None
+    return CarModel(effects, n_base_stations=n_base_stations, parameters=parameters)
 
 
 def message_class(msgtype: str) -> type:

@@ -8,7 +8,8 @@ with ``use_sim_time``.
 
 Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
 ("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
-``initial_state`` (6 floats; default the DEMO_TRACK start), ``duration`` (s, 0 = forever),
+``initial_state`` (6 floats; default the track's start), ``track_file`` (CRS track YAML; default
+DEMO_TRACK), ``params_file`` (parameter YAML of the simulated car), ``duration`` (s, 0 = forever),
 ``wait_for_subscribers`` (simulated time starts once every sensor topic has this many
 subscribers, so a launched stack misses nothing at the start; 0 = start at once).
 """
@@ -22,13 +23,13 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
-from crs_core.model import CarModel
 from crs_core.model.effects import effect_spec, parse_effect
-from crs_core.track import load_demo_track
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
     declare,
+    declare_model,
+    declare_track,
     finite_vector,
     in_range,
     non_negative,
@@ -60,7 +61,7 @@ class SimulatorNode(Node):
 
     def __init__(self) -> None:
         super().__init__("simulator")
-        track = load_demo_track()
+        track = declare_track(self)
         seed = declare(self, "seed", 0, "seed of all noise")
         noise_free = declare(self, "noise_free", False, "ideal sensors")
         effects = parse_effects(
@@ -95,7 +96,7 @@ class SimulatorNode(Node):
         )
         self._waiting = self.wait_for_subscribers > 0
         sensors = SensorSuite(blackouts=blackouts)
-        model = CarModel(effects, n_base_stations=stations)
+        model = declare_model(self, effects, n_base_stations=stations)
         self.session = Simulator(model, sensors.ideal() if noise_free else sensors, seed).session(
             np.asarray(initial, dtype=float)
         )

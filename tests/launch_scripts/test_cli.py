@@ -175,6 +175,28 @@ def test_bad_parameter_files_are_refused_naming_the_field(
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("option", "content", "message"),
+    [
+        ("--track", "track:\n  xCoords: [1, 2]\n", "track.yCoords: required key missing"),
+        ("--params", "parameters:\n  m: heavy\n", "parameter 'm': expected a number"),
+    ],
+)
+def test_launch_checks_track_and_parameter_files_before_starting_nodes(
+    option: str, content: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    """A bad --track or --params of `crs launch`: one line naming the file, nothing started or
+    written (the nodes would refuse it too, but only after starting)."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(content)
+    out = tmp_path / "out"
+    assert main(["launch", "sim", option, str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crs launch: error: {bad}: ") and message in err, err
+    assert err.count("\n") == 1
+    assert not out.exists()
+
+
 def test_a_folder_as_parameter_file_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture):
     assert main(["sim", "--params", str(tmp_path), "--out", str(tmp_path / "out")]) == 2
     assert "is a folder, not a parameter YAML file" in capsys.readouterr().err

@@ -1,0 +1,273 @@
+"""``crs calibrate-lighthouse``: Lighthouse base-station calibration (argument parsing only).
+
+``static POINTS_FILE --out DIR [--stations N] [--fit-tilt]``: base stations from sweeps at
+known static poses (format: :mod:`crs_core.calibration.points`).
+``moving DATASET --out DIR [--fit-offset] [--fit-photodiodes] [--fit-tilt]``: from a recording
+with a motion-capture pose reference (:mod:`crs_core.calibration.moving`).
+``simulate-points FILE`` and ``simulate-moving --out DIR`` write simulated inputs for both.
+Every mode writes ``geometry.yaml`` (the ``geometry`` block of ``dataset.yaml``), ``report.md``,
+``report.json`` and PNG figures. :func:`add_commands` adds the sub-command to the ``crs`` parser.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from launch_scripts.output_folder import prepare_output, prepare_output_file
+
+COMMAND = "calibrate-lighthouse"
+OVERWRITE_HELP = (
+    "replace an --out folder written by an earlier crs run (a folder holding other files is "
+    "always refused)"
+)
+
+
+def _bounded(name: str, unit: str, low: float, high: float, kind=float):
+    """argparse type: a finite ``kind`` in ``[low, high]``, the error naming ``name``."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name}: {text!r} is not a number") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(
+                f"{name}: must be >= {low:g} and <= {high:g} {unit}, got {text!r}".replace(
+                    "  ", " "
+                )
+            )
+        return value
+
+    parse.__name__ = name
+    return parse
+
+
+def add_commands(subparsers) -> None:
+    """Add ``calibrate-lighthouse`` (modes static, moving, simulate-points, simulate-moving)."""
+    parser = subparsers.add_parser(
+        COMMAND,
+        help="calibrate Lighthouse base stations (static points or a moving recording)",
+        description=__doc__.split("\n\n")[1] if __doc__ else None,
+    )
+    modes = parser.add_subparsers(dest="mode", required=True)
+    static = modes.add_parser(
+        "static",
+        help="base stations from sweeps at known static poses",
+        description="Fit every base station (rotation, position; tilt offsets with --fit-tilt) "
+        "to the sweeps recorded at known car poses, using every photodiode angle. Writes "
+        "DIR/geometry.yaml, report.md, report.json, angle_residuals.png, "
+        "position_residuals.png, residual_vs_n.png.",
+    )
+    static.add_argument("points_file", type=Path, metavar="POINTS_FILE",
+                        help="YAML, format chronos-lighthouse-points/1 (see the README)")
+    static.add_argument("--out", type=Path, required=True, help="output folder")
+    static.add_argument("--stations", type=_bounded("--stations", "", 1, 16, int),
+                        help="calibrate stations 0..N-1 (default: every station in the file)")
+    static.add_argument("--fit-tilt", action="store_true",
+                        help="also fit the light-plane tilt offsets dt1, dt2")
+    static.add_argument("--no-sweep", action="store_true",
+                        help="skip the mean/max-vs-number-of-points study")
+    static.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    static.set_defaults(handler=run_static)
+    moving = modes.add_parser(
+        "moving",
+        help="base stations (and clock offset, photodiodes) from a recording with mocap poses",
+        description="Fit the base stations to every sweep of a dataset folder whose stream.npz "
+        "holds motion-capture poses (sensor 'pose'); inputs, IMU and encoders may be absent. "
+        "Writes DIR/geometry.yaml, report.md, report.json, moving_residuals.png and, with "
+        "--fit-offset, offset_scan.png.",
+    )
+    moving.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
+    moving.add_argument("--out", type=Path, required=True, help="output folder")
+    moving.add_argument("--fit-offset", action="store_true",
+                        help="fit the clock offset (motion capture minus car), s")
+    moving.add_argument("--offset", type=_bounded("--offset", "s", -1.0, 1.0), default=0.0,
+                        help="clock offset, s: fixed, or the start with --fit-offset "
+                        "(default 0)")
+    moving.add_argument("--max-offset", type=_bounded("--max-offset", "s", 0.0, 1.0),
+                        default=0.25, help="search range of --fit-offset, +-s (default 0.25)")
+    moving.add_argument("--fit-photodiodes", action="store_true",
+                        help="also fit the photodiode positions (body frame)")
+    moving.add_argument("--fit-tilt", action="store_true",
+                        help="also fit the light-plane tilt offsets dt1, dt2")
+    moving.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    moving.set_defaults(handler=run_moving)
+    points = modes.add_parser(
+        "simulate-points",
+        help="write a simulated POINTS_FILE (and its true geometry)",
+        description="Simulate the car standing at N well-spread poses on the demo-track area "
+        "with the simulator's Lighthouse noise (1 mrad per sweep); writes FILE and "
+        "FILE's stem + '_truth.yaml' (the true geometry).",
+    )
+    points.add_argument("file", type=Path, metavar="FILE", help="points YAML to write")
+    points.add_argument("--points", type=_bounded("--points", "", 1, 1000, int), default=24,
+                        help="number of points (default 24)")
+    points.add_argument("--stations", type=_bounded("--stations", "", 1, 8, int), default=1,
+                        help="base stations, 1..8 (default 1: the recorded one)")
+    points.add_argument("--sweeps", type=_bounded("--sweeps", "", 1, 10000, int), default=20,
+                        help="sweeps per plane at each point (default 20)")
+    points.add_argument("--position-std", type=_bounded("--position-std", "m", 0.0, 1.0),
+                        default=0.0, help="error of the written positions, m (default 0)")
+    points.add_argument("--unknown-yaw", action="store_true", help="do not write the yaws")
+    points.add_argument("--seed", type=int, default=0, help="noise and layout seed (default 0)")
+    points.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
+    points.set_defaults(handler=run_simulate_points)
+    recording = modes.add_parser(
+        "simulate-moving",
+        help="write a simulated recording with mocap poses and a clock offset",
+        description="Drive the demo track in the simulator and write a dataset folder with "
+        "only Lighthouse sweeps and motion-capture poses (100 Hz, 0.5 mm), the motion-capture "
+        "clock --offset s ahead of the car's.",
+    )
+    recording.add_argument("--out", type=Path, required=True, help="dataset folder")
+    recording.add_argument("--duration", type=_bounded("--duration", "s", 1.0, 600.0),
+                           default=20.0, help="simulated time, s (default 20)")
+    recording.add_argument("--offset", type=_bounded("--offset", "s", -1.0, 1.0), default=0.02,
+                           help="motion-capture clock minus car clock, s (default 0.02)")
+    recording.add_argument("--stations", type=_bounded("--stations", "", 1, 8, int), default=1,
+                           help="base stations, 1..8 (default 1)")
+    recording.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    recording.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    recording.set_defaults(handler=run_simulate_moving)
+
+
+def _command_line() -> str:
+    return "crs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+
+
+def run_static(args: argparse.Namespace) -> Path:
+    """The ``static`` mode; returns the output folder."""
+    from crs_core.calibration.evaluation import n_sweep, point_reports, spread_order
+    from crs_core.calibration.plots import static_figures
+    from crs_core.calibration.points import load_points
+    from crs_core.calibration.report import (
+        static_markdown,
+        static_summary,
+        write_geometry,
+        write_json,
+    )
+    from crs_core.calibration.static import calibrate_static
+
+    points = load_points(args.points_file)
+    if args.stations is not None and args.stations > points.n_stations:
+        raise ValueError(
+            f"--stations: POINTS_FILE lists {points.n_stations} station(s); got {args.stations}"
+        )
+    calibration = calibrate_static(points, args.stations, args.fit_tilt)
+    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    reports = point_reports(points, calibration.stations, calibration.yaws)
+    if args.no_sweep or len(points.points) < 5:
+        rows, order = [], spread_order(np.array([p.position for p in points.points]))
+    else:
+        rows, order = n_sweep(points, None, args.stations, args.fit_tilt)
+    write_geometry(out / "geometry.yaml", calibration.stations, points.photodiodes)
+    summary = static_summary(points, calibration, reports, rows, order, args.fit_tilt)
+    write_json(out / "report.json", summary)
+    (out / "report.md").write_text(static_markdown(summary, _command_line()))
+    static_figures(out, summary, [r.fix for r in reports])
+    error = summary["position_error_m"]
+    print(
+        f"calibrated {len(calibration.stations)} station(s) from {len(points.points)} points: "
+        f"angle rms {1e3 * summary['angle_residual_rms_rad']:.3f} mrad, reprojected position "
+        f"error mean {1e3 * error['mean']:.2f} mm, max {1e3 * error['max']:.2f} mm"
+    )
+    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
+    return out
+
+
+def run_moving(args: argparse.Namespace) -> Path:
+    """The ``moving`` mode; returns the output folder."""
+    from crs_core.calibration.evaluation import moving_fixes
+    from crs_core.calibration.moving import calibrate_moving
+    from crs_core.calibration.plots import moving_figures
+    from crs_core.calibration.report import (
+        moving_markdown,
+        moving_summary,
+        write_geometry,
+        write_json,
+    )
+    from crs_core.dataset import Dataset
+
+    if abs(args.offset) > args.max_offset:
+        raise ValueError(
+            f"--offset: {args.offset} s lies outside +-{args.max_offset} s (--max-offset)"
+        )
+    dataset = Dataset.load(args.dataset)
+    calibration = calibrate_moving(
+        dataset,
+        fit_offset=args.fit_offset,
+        fit_photodiodes=args.fit_photodiodes,
+        fit_tilt=args.fit_tilt,
+        max_offset=args.max_offset,
+        offset=args.offset,
+    )
+    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    fixes = moving_fixes(calibration)
+    write_geometry(out / "geometry.yaml", calibration.stations, calibration.fit.photodiodes)
+    summary = moving_summary(
+        calibration, fixes, args.fit_offset, args.fit_photodiodes, args.fit_tilt
+    )
+    write_json(out / "report.json", summary)
+    (out / "report.md").write_text(moving_markdown(summary, _command_line()))
+    moving_figures(out, calibration, fixes)
+    print(
+        f"calibrated {len(calibration.stations)} station(s) from {summary['sweeps']} sweeps: "
+        f"clock offset {1e3 * calibration.offset:.2f} ± {1e3 * calibration.offset_std:.2f} ms, "
+        f"angle rms {1e3 * summary['angle_residual_rms_rad']:.3f} mrad, pose-fix error median "
+        f"{1e3 * summary['pose_fix_error_m']['median']:.2f} mm"
+    )
+    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
+    return out
+
+
+def run_simulate_points(args: argparse.Namespace) -> Path:
+    """The ``simulate-points`` mode; returns the points file."""
+    from crs_core.calibration.report import write_geometry
+    from crs_core.model.chronos import default_base_stations
+    from crs_core.model.lighthouse import RECORDED_PHOTODIODES
+    from sim.static_points import grid_layout, simulate_static_points
+
+    if args.file.suffix not in (".yaml", ".yml"):
+        raise ValueError(f"FILE: {args.file} should end in .yaml")
+    truth = args.file.with_name(args.file.stem + "_truth.yaml")
+    prepare_output_file(args.file, args.overwrite, "FILE")
+    prepare_output_file(truth, args.overwrite, "FILE")
+    stations = default_base_stations(args.stations)
+    positions, yaws = grid_layout(args.points, seed=args.seed)
+    points = simulate_static_points(
+        stations,
+        positions,
+        yaws,
+        sweeps=args.sweeps,
+        seed=args.seed,
+        yaw_known=not args.unknown_yaw,
+        position_std=args.position_std,
+    )
+    points.save(args.file)
+    write_geometry(truth, stations, RECORDED_PHOTODIODES)
+    print(f"points: {args.file}  true geometry: {truth}")
+    return args.file
+
+
+def run_simulate_moving(args: argparse.Namespace) -> Path:
+    """The ``simulate-moving`` mode; returns the dataset folder."""
+    from crs_core.model.chronos import default_base_stations
+    from sim.mocap_recording import simulate_mocap_recording
+
+    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    dataset = simulate_mocap_recording(
+        duration=args.duration,
+        clock_offset=args.offset,
+        stations=list(default_base_stations(args.stations)),
+        seed=args.seed,
+    )
+    dataset.save(out)
+    print(f"dataset: {out}  ({len(dataset.measurements or [])} measurements, clock offset "
+          f"{1e3 * args.offset:.1f} ms; true geometry in dataset.yaml)")
+    return out
