@@ -12,7 +12,8 @@ estimator starts (and publishes its initial state) at the first update after the
 measurement arrived, so no controller drives on a guess with no data behind it. While the
 estimate is ``lost`` (a blind start waiting for its Lighthouse fix, or a re-initialisation)
 nothing is published on ``estimate/state``, ``estimate/odometry`` and ``/tf``: a controller sees a
-stale estimate and stops the car; the diagnostics say why.
+stale estimate and stops the car; the diagnostics say why. A clock that jumps back (a looped
+bag replay with ``/clock``) restarts the estimator on the data that follow, with a warning.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
 ``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
@@ -57,6 +58,9 @@ from ros4crs.node_support import (
     subscribe_checked,
     throttled_warning,
 )
+
+#: A clock that goes back by more than this (s) restarts the estimator (a looped replay).
+CLOCK_JUMP_S = 0.5
 
 
 class EstimatorNode(Node):
@@ -134,6 +138,7 @@ class EstimatorNode(Node):
         self.updates = 0
         self._max_solve = 0.0
         self._started = False
+        self.restarts = 0
         self._buffer: list[Measurement | InputSample] = []
         self._last_query = -np.inf
         self.create_timer(1.0 / self.rate_hz, self._update)
@@ -190,21 +195,26 @@ class EstimatorNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _update(self) -> None:
+        t = self._now() - self.lag
+        if self._started and t < self._last_query - CLOCK_JUMP_S:
+            self._restart(f"the clock jumped back by {self._last_query - t:.2f} s")
         # everything that has arrived first (rclpy runs a due timer before queued messages)
         for subscription in self._checked_subscriptions:
             subscription.take_pending()
-        t = self._now() - self.lag
         if not self._started and not any(isinstance(i, Measurement) for i in self._buffer):
             return  # no data yet: publishing the initial guess would let the car drive blind
         if not self._started:  # start at now - lag, with the command in effect then
-            self.estimator.reset(t, None if self.blind_start else self.initial)
+            blind = self.blind_start or self.restarts > 0
+            self.estimator.reset(t, None if blind else self.initial)
             self._started = True
             self._last_query = t
-            for item in from_start(self._buffer, t):
+            # data still in flight from before a clock jump lie in the future: not ours
+            arrived = [i for i in self._buffer if i.stamp <= t + self.lag + CLOCK_JUMP_S]
+            for item in from_start(arrived, t):
                 self._deliver(item)
             self._buffer.clear()
             self._queries.publish(conversions.query_msg(t, True, self._newest))
-            if not self.blind_start:
+            if not blind:
                 covariance = np.diag(np.full(6, 1.0))
                 self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
             return
@@ -231,6 +241,16 @@ class EstimatorNode(Node):
         self._state.publish(conversions.car_state_msg(estimate.x, t, estimate.covariance))
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
+
+    def _restart(self, why: str) -> None:
+        """Start over on the data that come next (the Lighthouse initialises it when the
+        estimator has it; else ``initial_state``), e.g. when a looped bag replay with ``/clock``
+        jumps back in time: continuing would call everything that follows late."""
+        self.restarts += 1
+        self._started = False
+        self._buffer.clear()
+        self._newest.clear()
+        self.get_logger().warning(f"{why}: restarting the estimator (restart {self.restarts})")
 
     def _publish_diagnostics(self) -> None:
         from chronos_msgs.msg import EstimatorDiagnostics

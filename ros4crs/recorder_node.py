@@ -3,7 +3,8 @@
 Subscribes raw (no deserialization) to every topic that matches ``topics`` (comma-separated
 names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
 up topics as they appear (transient-local topics, such as the estimates, with the messages
-published before it joined). Each message is written with its receive time. The bag is closed
+published before it joined). Each message is written with its receive time on the node's clock
+(``/clock`` with ``use_sim_time``). The bag is closed
 cleanly on shutdown.
 
 Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3),
@@ -12,7 +13,6 @@ Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` 
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -102,7 +102,7 @@ class RecorderNode(Node):
 
     def _writer_for(self, topic: str, connection):
         def write(data: bytes) -> None:
-            self.writer.write(connection, time.time_ns(), data)
+            self.writer.write(connection, self.get_clock().now().nanoseconds, data)
             self.counts[topic] += 1
 
         return write

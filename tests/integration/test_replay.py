@@ -19,12 +19,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
-from stack_probe import Probe, wait_for
+from stack_probe import Probe, log_text, wait_for
 
 from crs_core.estimation import MheSettings, make_estimator
 from crs_core.model import CarModel
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import stack_nodes
+from ros4crs import conversions
 from ros4crs.bag_replay import BagContents, read_car, replay_estimator
 from ros4crs.interfaces import typestore
 
@@ -32,6 +33,7 @@ pytestmark = pytest.mark.integration
 
 DOMAIN_RECORD = 103
 DOMAIN_REPLAY = 106
+DOMAIN_LOOP = 111
 
 #: Seconds of driving to record once the car moves.
 DRIVE_S = 8.0
@@ -220,3 +222,63 @@ def test_bag_replayed_through_a_fresh_estimator_node_matches_offline(tmp_path, r
     assert np.all(difference == 0.0), (np.sum(difference > 0), difference.max())
     # the car drove during the replayed window: the comparison is not of a car at rest
     assert np.ptp([x[0] for _, x in replayed.estimates]) > 1.0
+
+
+def test_a_looped_replay_with_clock_keeps_producing_estimates_after_each_jump(
+    tmp_path, recording: Recording
+):
+    """The replayer loops the recorded sensors and inputs with ``/clock`` (which jumps back at
+    every start over); an EKF node with ``use_sim_time`` restarts at each jump instead of
+    calling everything late, and keeps estimating on the car's track after two jumps."""
+    from chronos_msgs.msg import CarState
+
+    nodes = [
+        NodeSpec(
+            "estimator",
+            "ros4crs.estimator_node",
+            "/car1",
+            {"estimator": "ekf", "lag": 0.2, "use_sim_time": True},
+        ),
+        NodeSpec(
+            "replayer",
+            "ros4crs.replayer_node",
+            "",
+            {
+                "bag": str(recording.bag),
+                "topics": ",".join(REPLAYED_PREFIXES),
+                "clock": True,
+                "loop": True,
+                "min_subscribers": 1,
+            },
+        ),
+    ]
+    launcher = Launcher(nodes, DOMAIN_LOOP, tmp_path / "logs")
+    probe = Probe(DOMAIN_LOOP)
+    estimates = probe.collect(CarState, "/car1/estimate/state")
+
+    def stamps() -> np.ndarray:
+        return np.array([conversions.seconds_from_stamp(m.header.stamp) for _, m in estimates])
+
+    def after_second_jump() -> int:
+        t = stamps()
+        jumps = np.flatnonzero(np.diff(t) < -1.0) if t.size > 1 else []
+        return len(jumps) >= 2 and t.size - jumps[1] > 2 * RATE_HZ
+
+    try:
+        launcher.start()
+        wait_for(after_second_jump, 150.0, lambda: f"two jumps ({stamps().size} estimates)")
+        assert launcher.poll() == []
+    finally:
+        launcher.stop()
+        probe.close()
+    t = stamps()
+    jumps = np.flatnonzero(np.diff(t) < -1.0)
+    positions = np.array([[m.x, m.y] for _, m in estimates])
+    # after each jump the estimates follow the recorded drive again, on the track
+    truth = np.array([x[:2] for _, x in recording.contents.truth])
+    for jump in jumps[:2]:
+        later = positions[jump + 1 + int(RATE_HZ) :][: int(RATE_HZ)]  # 1 s after the restart
+        nearest = np.min(np.linalg.norm(later[:, None, :] - truth[None, :, :], axis=2), axis=1)
+        assert np.all(nearest < 0.05), nearest.max()
+    log = log_text(tmp_path / "logs", "/car1/estimator")
+    assert "the clock jumped back" in log and "restarting the estimator (restart 2)" in log
