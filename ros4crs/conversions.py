@@ -194,11 +194,17 @@ def input_from_msg(msg: Any) -> tuple[float, np.ndarray]:
     return seconds_from_stamp(msg.header.stamp), u
 
 
-def car_state_msg(x: np.ndarray, seconds: float, covariance: np.ndarray | None = None) -> Any:
-    """``chronos_msgs/CarState`` from a base state (and its 6 x 6 covariance)."""
+#: ``CarState.status`` of each estimate status.
+STATUS_CODES = {"ok": 0, "degraded": 1, "lost": 2}
+
+
+def car_state_msg(
+    x: np.ndarray, seconds: float, covariance: np.ndarray | None = None, status: str = "ok"
+) -> Any:
+    """``chronos_msgs/CarState`` from a base state (its 6 x 6 covariance, its status)."""
     from chronos_msgs.msg import CarState
 
-    msg = CarState()
+    msg = CarState(status=STATUS_CODES[status])
     msg.header.frame_id = "world"
     fill_stamp(msg.header.stamp, seconds)
     msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega = map(float, x[:6])
@@ -211,6 +217,15 @@ def state_from_msg(msg: Any) -> tuple[float, np.ndarray]:
     """``chronos_msgs/CarState`` -> (stamp, state (6,))."""
     x = _finite("state", [msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega], 6)
     return seconds_from_stamp(msg.header.stamp), x
+
+
+def status_from_msg(msg: Any) -> tuple[float, np.ndarray, str]:
+    """``chronos_msgs/CarState`` -> (stamp, state (6,), status ``ok`` | ``degraded`` | ``lost``)."""
+    names = {code: name for name, code in STATUS_CODES.items()}
+    if msg.status not in names:
+        raise ValueError(f"status: must be 0 (ok), 1 (degraded) or 2 (lost), got {msg.status}")
+    stamp, x = state_from_msg(msg)
+    return stamp, x, names[msg.status]
 
 
 def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:

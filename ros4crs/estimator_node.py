@@ -238,7 +238,9 @@ class EstimatorNode(Node):
             self._warn_status(f"estimate {estimate.summary}")
         if estimate.status == "lost":
             return
-        self._state.publish(conversions.car_state_msg(estimate.x, t, estimate.covariance))
+        self._state.publish(
+            conversions.car_state_msg(estimate.x, t, estimate.covariance, estimate.status)
+        )
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
 

@@ -203,7 +203,9 @@ class PathFollower:
         self._last_torque_saturation: int = 0
         self.status: PathFollowerStatus | None = None
 
-    def __call__(self, t: float, x: ArrayLike) -> NDArray[np.float64]:
+    def __call__(
+        self, t: float, x: ArrayLike, speed_limit: float | None = None
+    ) -> NDArray[np.float64]:
         """Compute the input for the current state.
 
         Parameters
@@ -214,6 +216,9 @@ class PathFollower:
         x : array_like, shape (6,)
             State ``[x_p, y_p, psi, v_x, v_y, omega]``: position m and yaw rad (world frame),
             velocities m/s and yaw rate rad/s (body frame).
+        speed_limit : float, optional
+            A lower speed than ``v_ref`` for this call, m/s (e.g. while the state estimate is
+            degraded); ``None``: ``v_ref``.
 
         Returns
         -------
@@ -252,7 +257,7 @@ class PathFollower:
         count = math.ceil(preview / self._preview_step) + 1
         _, _, _, kappa = track.interpolate(projection.s + np.linspace(0.0, preview, count))
         kappa_max = float(np.max(np.abs(kappa)))
-        v_target = cfg.v_ref
+        v_target = cfg.v_ref if speed_limit is None else min(cfg.v_ref, speed_limit)
         if kappa_max > 0.0:
             v_target = min(v_target, math.sqrt(cfg.a_lat_max / kappa_max))
 

@@ -60,3 +60,47 @@ def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
     finally:
         launcher.stop()
         probe.close()
+
+
+def test_controller_slows_down_on_a_degraded_and_stops_on_a_lost_estimate(tmp_path):
+    """Fresh estimates with status ``degraded`` (the car at 1 m/s): the controller aims at its
+    ``degraded_speed`` (0.3 m/s) and commands less torque than for ``ok``, saying so once;
+    status ``lost``: zero torque and straight wheels, as for a stale estimate."""
+    from chronos_msgs.msg import CarInput, CarState
+
+    track = load_demo_track()
+    state = np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
+    parameters = {"stale_timeout": 0.2, "degraded_speed": 0.3}
+    launcher = Launcher(
+        [NodeSpec("controller", "ros4crs.controller_node", "/car1", parameters)],
+        DOMAIN,
+        tmp_path / "logs",
+    )
+    probe = Probe(DOMAIN)
+    inputs = probe.collect(CarInput, "/car1/input")
+    try:
+        launcher.start()
+        publisher = probe.publisher(CarState, "/car1/estimate/state")
+
+        def inputs_while(status: str, seconds: float) -> list[tuple[float, float]]:
+            start = time.time()
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                publisher.publish(conversions.car_state_msg(state, time.time(), status=status))
+                time.sleep(0.01)
+            # the last half of the window: the controller has seen the status by then
+            return [(m.steer, m.torque) for t, m in inputs if t > start + seconds / 2]
+
+        wait_for(lambda: probe.subscribers_of("/car1/estimate/state"), 30.0, "the controller")
+        ok = inputs_while("ok", 1.0)
+        degraded = inputs_while("degraded", 1.0)
+        lost = inputs_while("lost", 1.0)
+        assert ok and degraded and lost
+        assert np.mean([t for _, t in degraded]) < np.mean([t for _, t in ok]) - 0.05
+        assert all(steer == 0.0 and torque == 0.0 for steer, torque in lost)
+        log = log_text(tmp_path / "logs", "/car1/controller")
+        assert "state estimate degraded: slowing to 0.3 m/s" in log
+        assert launcher.poll() == []
+    finally:
+        launcher.stop()
+        probe.close()

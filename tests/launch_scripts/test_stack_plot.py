@@ -28,6 +28,7 @@ def _car_state(seconds: float, state, covariance) -> object:
     header = store.types["std_msgs/msg/Header"](stamp=stamp, frame_id="world")
     return store.types[CAR_STATE](
         header=header,
+        status=0,
         x=float(state[0]),
         y=float(state[1]),
         yaw=float(state[2]),

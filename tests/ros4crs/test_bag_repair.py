@@ -71,6 +71,7 @@ def _serialize(i: int) -> tuple[str, str, bytes]:
     elif kind == 1:
         msg = types["chronos_msgs/msg/CarState"](
             header=header,
+            status=i % 3,
             x=0.1 * i,
             y=-0.2 * i,
             yaw=0.01 * i,

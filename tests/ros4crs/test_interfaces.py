@@ -30,6 +30,7 @@ HEADER = {"stamp": {"sec": 1_700_000_123, "nanosec": 456_789_012}, "frame_id": "
 SAMPLES: dict[str, dict[str, object]] = {
     "CarInput": {"mode": 1, "steer": -0.31, "torque": 0.875, "velocity": 2.5},
     "CarState": {
+        "status": 1,
         "x": 1.25,
         "y": -3.5,
         "yaw": 3.0,
