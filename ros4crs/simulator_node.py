@@ -98,7 +98,7 @@ class SimulatorNode(Node):
         sensors = SensorSuite(blackouts=blackouts)
         model = declare_model(self, effects, n_base_stations=stations)
         self.session = Simulator(model, sensors.ideal() if noise_free else sensors, seed).session(
-            np.asarray(initial, dtype=float)
+            np.asarray(initial, dtype=float), keep_history=False
         )
         self.epoch = time.time()
         self._wall_start = time.monotonic()

@@ -158,9 +158,14 @@ class Simulator:
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)
 
-    def session(self, x0: np.ndarray) -> SimulationSession:
-        """A running simulation from base state ``x0`` (6,) at t = 0, advanced step by step."""
-        return SimulationSession(self, x0)
+    def session(self, x0: np.ndarray, keep_history: bool = True) -> SimulationSession:
+        """A running simulation from base state ``x0`` (6,) at t = 0, advanced step by step.
+
+        ``keep_history=False`` keeps no truth, input or measurement history (constant memory,
+        for a simulator that streams its samples out, such as the ROS node); ``result()`` then
+        holds only the current state.
+        """
+        return SimulationSession(self, x0, keep_history)
 
     def run(
         self,
@@ -218,8 +223,9 @@ class SimulationSession:
     input delay); a sensor sample at exactly that time already sees it.
     """
 
-    def __init__(self, simulator: Simulator, x0: np.ndarray) -> None:
+    def __init__(self, simulator: Simulator, x0: np.ndarray, keep_history: bool = True) -> None:
         self.simulator = simulator
+        self.keep_history = keep_history
         model, sensors, seed = simulator.model, simulator.sensors, simulator.seed
         self._numeric = model.numeric
         self._p = model.parameters.vector()
@@ -274,7 +280,8 @@ class SimulationSession:
     def command(self, u: np.ndarray) -> InputSample:
         """Issue command ``[steer, torque]`` now (validated); returns the logged sample."""
         sample = InputSample(self._now, np.asarray(u, dtype=float))
-        self.inputs.append(sample)
+        if self.keep_history:
+            self.inputs.append(sample)
         if self._delay > 0:
             self._push(self._now + self._delay, _APPLY, sample.u)
         else:
@@ -298,13 +305,17 @@ class SimulationSession:
                     new.append(measurement)
         self._integrate_to(t)
         new.sort(key=lambda m: (m.stamp, m.sensor))
-        self.measurements.extend(new)
+        if self.keep_history:
+            self.measurements.extend(new)
         return new
 
     def _integrate_to(self, t: float) -> None:
         if t > self._now:
             self._x = self._numeric.step(self._x, self._u, self._p, t - self._now)
             self._now = t
+            if not self.keep_history:  # only the current state
+                self.truth_t.clear()
+                self.truth_x.clear()
             self.truth_t.append(t)
             self.truth_x.append(self._x[:6].copy())
 

@@ -415,3 +415,26 @@ def test_to_dataset_keeps_only_rotations_with_both_planes(rest_run: SimulationRe
     np.testing.assert_array_equal(data.y[:, :4], a1[partner[complete]])
     np.testing.assert_array_equal(data.y[:, 4:8], a2[complete])
     assert np.all(np.isfinite(data.y))
+
+
+def test_a_streaming_session_keeps_constant_memory_and_the_same_samples(base_model: CarModel):
+    """``keep_history=False`` (the ROS simulator node): after 60 s of driving the session holds
+    one truth sample and no inputs or measurements (its memory does not grow with time), and it
+    streams exactly the samples of a session that keeps everything."""
+    sensors = SensorSuite()
+    x0 = np.array([0.0, 0.0, 0.0, 0.5, 0.0, 0.0])
+    kept = Simulator(base_model, sensors, seed=4).session(x0)
+    streaming = Simulator(base_model, sensors, seed=4).session(x0, keep_history=False)
+    streamed = []
+    for k in range(1, 60 * 50 + 1):  # 60 s at a 50 Hz control rate
+        for session in (kept, streaming):
+            session.command(np.array([0.2, 0.3]))
+        kept.advance(k / 50)
+        streamed += streaming.advance(k / 50)
+    assert len(kept.measurements) > 30_000 and len(kept.truth_t) > 3_000
+    assert (len(streaming.truth_t), len(streaming.inputs), len(streaming.measurements)) == (1, 0, 0)
+    np.testing.assert_array_equal(streaming.base_state, kept.base_state)
+    assert len(streamed) == len(kept.measurements)
+    for a, b in zip(streamed, kept.measurements, strict=True):
+        assert (a.stamp, a.sensor) == (b.stamp, b.sensor)
+        np.testing.assert_array_equal(a.values, b.values)
