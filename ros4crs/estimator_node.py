@@ -234,6 +234,10 @@ class EstimatorNode(Node):
         self._max_solve = max(self._max_solve, elapsed)
         if elapsed > 1.0 / self.rate_hz:
             self.deadline_misses += 1
+            self._warn_late(
+                f"update took {1e3 * elapsed:.0f} ms, over the {1e3 / self.rate_hz:.0f} ms period "
+                f"({self.deadline_misses} misses): the next one estimates at the newest time"
+            )
         if estimate.status != "ok":
             self._warn_status(f"estimate {estimate.summary}")
         if estimate.status == "lost":
