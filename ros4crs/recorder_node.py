@@ -4,7 +4,8 @@ Subscribes raw (no deserialization) to every topic that matches ``topics`` (comm
 names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
 up topics as they appear (transient-local topics, such as the estimates, with the messages
 published before it joined). Each message is written with its receive time on the node's clock
-(``/clock`` with ``use_sim_time``). The bag is closed
+(``/clock`` with ``use_sim_time``). The callbacks only queue the messages; a thread of its own
+writes them, so a slow disk never blocks the subscriptions. The bag is closed
 cleanly on shutdown.
 
 Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3),
@@ -13,6 +14,8 @@ Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` 
 
 from __future__ import annotations
 
+import queue
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -51,6 +54,11 @@ class RecorderNode(Node):
         self.patterns = [self._resolve(p.strip()) for p in patterns.split(",") if p.strip()]
         self.writer = Writer(output, version=9, storage_plugin=plugins[storage])
         self.writer.open()
+        # the callbacks only queue; a thread of its own writes (and waits for the disk)
+        self._lock = threading.Lock()
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._write_queued, name="bag-writer", daemon=True)
+        self._thread.start()
         self.create_timer(flush_period, self._flush)
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}
@@ -77,7 +85,8 @@ class RecorderNode(Node):
             msgtype = types[0]
             try:
                 message_class(msgtype)
-                connection = self.writer.add_connection(topic, msgtype, typestore=self._store)
+                with self._lock:
+                    connection = self.writer.add_connection(topic, msgtype, typestore=self._store)
             except (ImportError, AttributeError, KeyError) as error:
                 self.get_logger().warning(f"cannot record {topic} ({msgtype}): {error}")
                 self.connections[topic] = None
@@ -102,21 +111,36 @@ class RecorderNode(Node):
 
     def _writer_for(self, topic: str, connection):
         def write(data: bytes) -> None:
-            self.writer.write(connection, self.get_clock().now().nanoseconds, data)
+            self._queue.put((connection, self.get_clock().now().nanoseconds, data))
             self.counts[topic] += 1
 
         return write
+
+    def _write_queued(self) -> None:
+        """The writer thread: everything queued, in order, until the ``None`` sentinel."""
+        while True:
+            batch = [self._queue.get()]
+            while not self._queue.empty() and len(batch) < 1000:
+                batch.append(self._queue.get())
+            with self._lock:
+                for item in batch:
+                    if item is None:
+                        return
+                    self.writer.write(*item)
 
     def _flush(self) -> None:
         """Write the pending MCAP chunk to the file now (rosbags keeps up to 1 MiB in memory),
         so that a recorder that is killed loses at most ``flush_period`` s of messages: the
         cut-off file is read up to its last complete chunk (:mod:`ros4crs.bag_repair`)."""
-        storage = self.writer.storage
-        if isinstance(storage, McapWriter) and storage.chunk.msgs:
-            storage.close_chunk()
-            storage.bio.flush()
+        with self._lock:
+            storage = self.writer.storage
+            if isinstance(storage, McapWriter) and storage.chunk.msgs:
+                storage.close_chunk()
+                storage.bio.flush()
 
     def destroy_node(self) -> None:
+        self._queue.put(None)  # write what is queued, then close
+        self._thread.join()
         self.writer.close()
         total = sum(self.counts.values())
         self.get_logger().info(f"bag closed: {total} messages on {len(self.counts)} topics")

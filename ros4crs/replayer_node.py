@@ -1,5 +1,8 @@
 """Replayer node: publish a bag with its original timing.
 
+The bag is streamed: messages are read as they fall due, so a long bag needs no more memory
+than a short one.
+
 Messages go out as the raw CDR bytes stored in the bag, on their original topics, spaced as
 recorded divided by ``rate``. ``loop`` starts over at the end; ``topics`` (comma-separated
 prefixes) filters. Without ``loop`` the node shuts down after the last message.
@@ -24,13 +27,14 @@ Parameters: ``bag``, ``rate``, ``loop``, ``topics``, ``start_delay`` (s, lets su
 
 from __future__ import annotations
 
+import contextlib
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
-from rosbags.rosbag2 import ReaderError
+from rosbags.rosbag2 import Reader, ReaderError
 
 from ros4crs.bag_repair import BagCheck, open_bag
 from ros4crs.node_support import (
@@ -67,42 +71,50 @@ class ReplayerNode(Node):
         )
         self.published = 0
         self._topic_publishers: dict[str, object] = {}
-        msgtypes, self.messages = self._read_bag()
-        for topic, msgtype in msgtypes.items():
-            self._topic_publishers[topic] = self.create_publisher(
-                message_class(msgtype), topic, STREAM_QOS
-            )
-        if not self.messages:
+        self._bag_context = contextlib.ExitStack()
+        self._reader, chosen = self._open_bag()
+        self._connections = chosen
+        for connection in chosen:
+            if connection.topic not in self._topic_publishers:
+                self._topic_publishers[connection.topic] = self.create_publisher(
+                    message_class(connection.msgtype), connection.topic, STREAM_QOS
+                )
+        count = sum(c.msgcount for c in chosen)
+        self._messages = self._stream()
+        self._next = next(self._messages, None)
+        if self._next is None:
+            self._bag_context.close()
             raise ValueError(f"bag: no messages on {self.prefixes or 'any topic'} in {self.bag}")
         self._clock_publisher = None
         if clock:
             from rosgraph_msgs.msg import Clock
 
             self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
-        self.get_logger().info(f"replaying {len(self.messages)} messages x{self.rate:g}")
-        self._index = 0
-        self._t0_bag = self.messages[0][1]
+        self.get_logger().info(f"replaying {count} messages x{self.rate:g}")
+        self._t0_bag = self._next[1]
         self._t0_wall: float | None = None  # set once the subscribers are there
         self.create_timer(0.001, self._tick)
 
-    def _read_bag(self) -> tuple[dict[str, str], list[tuple[str, int, bytes]]]:
-        """Wanted topics (message type of each) and their ``(topic, log time ns, CDR)`` messages."""
+    def _open_bag(self) -> tuple[Reader, list]:
+        """The open reader (kept open while replaying: messages are read as they are due, not
+        loaded at once) and the wanted connections."""
         if not self.bag:
             raise ValueError("bag: no bag directory given")
         try:
-            with open_bag(self.bag, on_damage=self._log_damage) as reader:
-                chosen = [c for c in reader.connections if self._wanted(c.topic)]
-                msgtypes: dict[str, str] = {}
-                for connection in chosen:
-                    msgtypes.setdefault(connection.topic, connection.msgtype)
-                # rosbags reads every connection when given none
-                found = reader.messages(chosen) if chosen else ()
-                messages = [(c.topic, t, bytes(d)) for c, t, d in found]
+            reader = self._bag_context.enter_context(open_bag(self.bag, on_damage=self._log_damage))
         except (ValueError, OSError, ReaderError) as error:
+            self._bag_context.close()
             reason = " ".join(str(error).split()) or type(error).__name__
             where = "" if str(Path(self.bag)) in reason else f"cannot read {self.bag}: "
             raise ValueError(f"bag: {where}{reason}") from None
-        return msgtypes, messages
+        return reader, [c for c in reader.connections if self._wanted(c.topic)]
+
+    def _stream(self) -> Iterator[tuple[str, int, bytes]]:
+        """``(topic, log time ns, CDR bytes)`` of the wanted messages, in log-time order."""
+        if not self._connections:  # rosbags reads every connection when given none
+            return
+        for connection, stamp, data in self._reader.messages(self._connections):
+            yield connection.topic, stamp, bytes(data)
 
     def _log_damage(self, report: BagCheck) -> None:
         self.get_logger().warning(f"damaged bag {self.bag}: {report.warning}")
@@ -131,23 +143,26 @@ class ReplayerNode(Node):
                 self._publish_clock(self._t0_bag)
             return
         elapsed = (time.monotonic() - self._t0_wall) * self.rate * 1e9
-        while self._index < len(self.messages):
-            topic, stamp, data = self.messages[self._index]
-            if stamp - self._t0_bag > elapsed:
-                break
+        while self._next is not None and self._next[1] - self._t0_bag <= elapsed:
+            topic, _, data = self._next
             self._topic_publishers[topic].publish(data)
             self.published += 1
-            self._index += 1
+            self._next = next(self._messages, None)
         if self._clock_publisher is not None:
             self._publish_clock(self._t0_bag + int(elapsed))
-        if self._index < len(self.messages):
+        if self._next is not None:
             return
         if self.loop:
-            self._index = 0
+            self._messages = self._stream()
+            self._next = next(self._messages, None)
             self._t0_wall = time.monotonic()
         else:
             self.get_logger().info(f"replayed {self.published} messages")
             rclpy.try_shutdown()
+
+    def destroy_node(self) -> None:
+        self._bag_context.close()
+        super().destroy_node()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
