@@ -149,6 +149,18 @@ class Launcher:
                 continue
         return out
 
+    def peak_memory_mib(self) -> dict[str, float]:
+        """Peak resident memory (VmHWM, MiB) of each running process."""
+        out = {}
+        for name, process in self.processes.items():
+            try:
+                status = Path(f"/proc/{process.pid}/status").read_text()
+                line = next(ln for ln in status.splitlines() if ln.startswith("VmHWM:"))
+                out[name] = int(line.split()[1]) / 1024
+            except (OSError, StopIteration, IndexError, ValueError):
+                continue
+        return out
+
     def stop(self, timeout: float = 5.0) -> None:
         """SIGINT every node, then SIGTERM, then SIGKILL whatever is still running."""
         for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
@@ -186,6 +198,7 @@ class Launcher:
             pass
         finally:
             self.cpu_at_stop = self.cpu_seconds()
+            self.memory_at_stop = self.peak_memory_mib()
             self.wall_at_stop = time.monotonic() - started
             self.stop()
         return deaths

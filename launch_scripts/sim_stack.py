@@ -141,6 +141,7 @@ def run_stack(
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     wall = max(launcher.wall_at_stop, 1e-9)
     report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
+    report["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
     (out / "report.json").write_text(json.dumps(report, indent=2))
     plot(bag, cars, out, estimator, track)
     return report
@@ -229,6 +230,7 @@ def analyse(bag: Path, cars: int, track: Track | None = None) -> dict[str, Any]:
                     car["estimation_rmse"] = {n: round(rmse[n], 5) for n in names}
         car["estimator_deadline_misses"] = contents.deadline_misses
         car["estimator_updates"] = contents.updates
+        car["estimator_reinitializations"] = contents.reinitializations
         car["malformed_messages"] = contents.malformed
         car["latency_ms"] = latencies(read_receive_times(bag, ns))
         report["cars"][ns.strip("/")] = car

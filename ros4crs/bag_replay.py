@@ -46,6 +46,7 @@ class BagContents:
     malformed: int
     deadline_misses: int = 0
     updates: int = 0
+    reinitializations: int = 0
     queries: list[Query] = field(default_factory=list)
 
 
@@ -89,6 +90,7 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)
         contents.updates = int(diagnostics.updates)
+        contents.reinitializations = int(diagnostics.reinitializations)
     return contents
 
 

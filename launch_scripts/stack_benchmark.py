@@ -1,0 +1,110 @@
+"""``crs bench stack``: the launched ROS 2 stack measured, optionally on a loaded machine.
+
+Each repeat runs :func:`launch_scripts.sim_stack.run_stack` (``crs launch sim``) into a folder of
+its own and keeps, per car, laps, lap times, estimation RMSE (x, y, yaw, vx, vy) against the
+simulator's truth, deadline misses, re-initialisations and latencies (median, p95), and per node
+CPU (% of one core) and peak memory (MiB). ``load`` busy-looping processes run beside the stack
+for the whole measurement (a machine that is busy with something else).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+from launch_scripts.sim_stack import run_stack
+
+#: A process that keeps one core busy until it is killed.
+BUSY_LOOP = "while True:\n    pass\n"
+
+
+def stack_benchmark(
+    cars: int,
+    estimator: str,
+    duration: float,
+    repeats: int,
+    load: int,
+    work_dir: Path,
+    domain_id: int | None = None,
+) -> dict[str, Any]:
+    """Run the stack ``repeats`` times with ``load`` busy processes beside it.
+
+    Returns a JSON-ready dict: the settings, ``runs`` (per repeat: ``cars`` as in
+    ``report.json``, ``cpu_percent``, ``peak_memory_mib``, ``node_deaths``) and ``worst`` (per
+    car over the repeats: fewest laps, largest position RMSE, most deadline misses).
+    """
+    busy = [
+        subprocess.Popen([sys.executable, "-c", BUSY_LOOP], start_new_session=True)
+        for _ in range(load)
+    ]
+    runs = []
+    try:
+        for repeat in range(1, repeats + 1):
+            print(f"[bench] repeat {repeat} of {repeats}", flush=True)
+            report = run_stack(
+                cars, estimator, duration, work_dir / f"run{repeat}", domain_id, seed=repeat
+            )
+            runs.append(
+                {
+                    key: report[key]
+                    for key in ("cars", "cpu_percent", "peak_memory_mib", "node_deaths")
+                }
+            )
+    finally:
+        for process in busy:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    return {
+        "cars": cars,
+        "estimator": estimator,
+        "duration_s": duration,
+        "repeats": repeats,
+        "load_processes": load,
+        "runs": runs,
+        "worst": _worst(runs),
+    }
+
+
+def _worst(runs: list[dict[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per car over the repeats: fewest laps, largest position RMSE (m), most misses."""
+    worst: dict[str, dict[str, float]] = {}
+    for run in runs:
+        for car, result in run["cars"].items():
+            rmse = result.get("estimation_rmse") or {}
+            position = max(rmse.get("x", float("inf")), rmse.get("y", float("inf")))
+            entry = worst.setdefault(
+                car, {"laps": float("inf"), "position_rmse_m": 0.0, "deadline_misses": 0}
+            )
+            entry["laps"] = min(entry["laps"], result.get("laps_completed", 0))
+            entry["position_rmse_m"] = max(entry["position_rmse_m"], position)
+            entry["deadline_misses"] = max(
+                entry["deadline_misses"], result.get("estimator_deadline_misses", 0)
+            )
+    return worst
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """One line per car and repeat, for a person."""
+    lines = [
+        f"{result['cars']} car(s), {result['estimator']}, {result['duration_s']:g} s, "
+        f"{result['load_processes']} busy process(es)"
+    ]
+    for k, run in enumerate(result["runs"], start=1):
+        for car, c in run["cars"].items():
+            rmse = c.get("estimation_rmse") or {}
+            errors = (
+                f"RMSE x {1e3 * rmse['x']:.1f} mm, y {1e3 * rmse['y']:.1f} mm, "
+                f"yaw {1e3 * rmse['yaw']:.1f} mrad"
+                if rmse
+                else "no estimates"
+            )
+            lines.append(
+                f"  repeat {k} {car}: {c.get('laps_completed', 0)} laps; {errors}; "
+                f"{c.get('estimator_deadline_misses', 0)} misses, "
+                f"{c.get('estimator_reinitializations', 0)} re-initialisations"
+            )
+    return "\n".join(lines)
