@@ -239,6 +239,7 @@ class Dataset:
         t = _load_npy(folder, "t.npy", required=True)
         y = _load_npy(folder, "y.npy", required=True)
         u_recorded = _load_npy(folder, "u.npy")
+        u_recorded = None if u_recorded is not None and np.isnan(u_recorded).all() else u_recorded
         x_recorded = _load_npy(folder, "x.npy")
         if t.ndim != 1:
             raise ValueError(f"t.npy: expected shape (N,), got {t.shape}")

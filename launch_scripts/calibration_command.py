@@ -64,15 +64,24 @@ def add_commands(subparsers) -> None:
         "DIR/geometry.yaml, report.md, report.json, angle_residuals.png, "
         "position_residuals.png, residual_vs_n.png.",
     )
-    static.add_argument("points_file", type=Path, metavar="POINTS_FILE",
-                        help="YAML, format chronos-lighthouse-points/1 (see the README)")
+    static.add_argument(
+        "points_file",
+        type=Path,
+        metavar="POINTS_FILE",
+        help="YAML, format chronos-lighthouse-points/1 (see the README)",
+    )
     static.add_argument("--out", type=Path, required=True, help="output folder")
-    static.add_argument("--stations", type=_bounded("--stations", "", 1, 16, int),
-                        help="calibrate stations 0..N-1 (default: every station in the file)")
-    static.add_argument("--fit-tilt", action="store_true",
-                        help="also fit the light-plane tilt offsets dt1, dt2")
-    static.add_argument("--no-sweep", action="store_true",
-                        help="skip the mean/max-vs-number-of-points study")
+    static.add_argument(
+        "--stations",
+        type=_bounded("--stations", "", 1, 16, int),
+        help="calibrate stations 0..N-1 (default: every station in the file)",
+    )
+    static.add_argument(
+        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
+    )
+    static.add_argument(
+        "--no-sweep", action="store_true", help="skip the mean/max-vs-number-of-points study"
+    )
     static.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     static.set_defaults(handler=run_static)
     moving = modes.add_parser(
@@ -85,17 +94,31 @@ def add_commands(subparsers) -> None:
     )
     moving.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
     moving.add_argument("--out", type=Path, required=True, help="output folder")
-    moving.add_argument("--fit-offset", action="store_true",
-                        help="fit the clock offset (motion capture minus car), s")
-    moving.add_argument("--offset", type=_bounded("--offset", "s", -1.0, 1.0), default=0.0,
-                        help="clock offset, s: fixed, or the start with --fit-offset "
-                        "(default 0)")
-    moving.add_argument("--max-offset", type=_bounded("--max-offset", "s", 0.0, 1.0),
-                        default=0.25, help="search range of --fit-offset, +-s (default 0.25)")
-    moving.add_argument("--fit-photodiodes", action="store_true",
-                        help="also fit the photodiode positions (body frame)")
-    moving.add_argument("--fit-tilt", action="store_true",
-                        help="also fit the light-plane tilt offsets dt1, dt2")
+    moving.add_argument(
+        "--fit-offset",
+        action="store_true",
+        help="fit the clock offset (motion capture minus car), s",
+    )
+    moving.add_argument(
+        "--offset",
+        type=_bounded("--offset", "s", -1.0, 1.0),
+        default=0.0,
+        help="clock offset, s: fixed, or the start with --fit-offset (default 0)",
+    )
+    moving.add_argument(
+        "--max-offset",
+        type=_bounded("--max-offset", "s", 0.0, 1.0),
+        default=0.25,
+        help="search range of --fit-offset, +-s (default 0.25)",
+    )
+    moving.add_argument(
+        "--fit-photodiodes",
+        action="store_true",
+        help="also fit the photodiode positions (body frame)",
+    )
+    moving.add_argument(
+        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
+    )
     moving.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     moving.set_defaults(handler=run_moving)
     points = modes.add_parser(
@@ -106,14 +129,30 @@ def add_commands(subparsers) -> None:
         "FILE's stem + '_truth.yaml' (the true geometry).",
     )
     points.add_argument("file", type=Path, metavar="FILE", help="points YAML to write")
-    points.add_argument("--points", type=_bounded("--points", "", 1, 1000, int), default=24,
-                        help="number of points (default 24)")
-    points.add_argument("--stations", type=_bounded("--stations", "", 1, 8, int), default=1,
-                        help="base stations, 1..8 (default 1: the recorded one)")
-    points.add_argument("--sweeps", type=_bounded("--sweeps", "", 1, 10000, int), default=20,
-                        help="sweeps per plane at each point (default 20)")
-    points.add_argument("--position-std", type=_bounded("--position-std", "m", 0.0, 1.0),
-                        default=0.0, help="error of the written positions, m (default 0)")
+    points.add_argument(
+        "--points",
+        type=_bounded("--points", "", 1, 1000, int),
+        default=24,
+        help="number of points (default 24)",
+    )
+    points.add_argument(
+        "--stations",
+        type=_bounded("--stations", "", 1, 8, int),
+        default=1,
+        help="base stations, 1..8 (default 1: the recorded one)",
+    )
+    points.add_argument(
+        "--sweeps",
+        type=_bounded("--sweeps", "", 1, 10000, int),
+        default=20,
+        help="sweeps per plane at each point (default 20)",
+    )
+    points.add_argument(
+        "--position-std",
+        type=_bounded("--position-std", "m", 0.0, 1.0),
+        default=0.0,
+        help="error of the written positions, m (default 0)",
+    )
     points.add_argument("--unknown-yaw", action="store_true", help="do not write the yaws")
     points.add_argument("--seed", type=int, default=0, help="noise and layout seed (default 0)")
     points.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
@@ -126,15 +165,44 @@ def add_commands(subparsers) -> None:
         "clock --offset s ahead of the car's.",
     )
     recording.add_argument("--out", type=Path, required=True, help="dataset folder")
-    recording.add_argument("--duration", type=_bounded("--duration", "s", 1.0, 600.0),
-                           default=20.0, help="simulated time, s (default 20)")
-    recording.add_argument("--offset", type=_bounded("--offset", "s", -1.0, 1.0), default=0.02,
-                           help="motion-capture clock minus car clock, s (default 0.02)")
-    recording.add_argument("--stations", type=_bounded("--stations", "", 1, 8, int), default=1,
-                           help="base stations, 1..8 (default 1)")
+    recording.add_argument(
+        "--duration",
+        type=_bounded("--duration", "s", 1.0, 600.0),
+        default=20.0,
+        help="simulated time, s (default 20)",
+    )
+    recording.add_argument(
+        "--offset",
+        type=_bounded("--offset", "s", -1.0, 1.0),
+        default=0.02,
+        help="motion-capture clock minus car clock, s (default 0.02)",
+    )
+    recording.add_argument(
+        "--stations",
+        type=_bounded("--stations", "", 1, 8, int),
+        default=1,
+        help="base stations, 1..8 (default 1)",
+    )
     recording.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     recording.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     recording.set_defaults(handler=run_simulate_moving)
+    bench = modes.add_parser(
+        "bench",
+        help="accuracy on simulated data (JSON): static mean/max vs n, moving offset recovery",
+        description="Static: 24 simulated points (1 mrad per sweep) for 1 or 20 sweeps per "
+        "point and 0 or 2 mm error of the known positions; mean/max reprojected error and the "
+        "true station error vs n = 4..24, mean over --seeds. Moving: 20 s recordings with a "
+        "20 ms clock offset; offset and station errors. Prints JSON (about 1 min).",
+    )
+    bench.add_argument("--out", type=Path, help="also write the JSON to this file")
+    bench.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    bench.add_argument(
+        "--seeds",
+        type=_bounded("--seeds", "", 1, 50, int),
+        default=5,
+        help="static seeds per setting (default 5; moving uses min(seeds, 3))",
+    )
+    bench.set_defaults(handler=run_bench)
 
 
 def _command_line() -> str:
@@ -268,6 +336,33 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
         seed=args.seed,
     )
     dataset.save(out)
-    print(f"dataset: {out}  ({len(dataset.measurements or [])} measurements, clock offset "
-          f"{1e3 * args.offset:.1f} ms; true geometry in dataset.yaml)")
+    print(
+        f"dataset: {out}  ({len(dataset.measurements or [])} measurements, clock offset "
+        f"{1e3 * args.offset:.1f} ms; true geometry in dataset.yaml)"
+    )
     return out
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    """The ``bench`` mode: print (and save) the JSON of :mod:`sim.calibration_benchmark`."""
+    import json
+    import platform
+    import time
+
+    from sim.calibration_benchmark import moving_study, static_study
+
+    if args.out is not None:
+        prepare_output_file(args.out, args.overwrite)
+    started = time.perf_counter()
+    result = {
+        "command": _command_line(),
+        "machine": {"python": platform.python_version(), "processor": platform.machine()},
+        "static": static_study(seeds=args.seeds),
+        "moving": moving_study(seeds=min(args.seeds, 3)),
+    }
+    result["elapsed_s"] = round(time.perf_counter() - started, 1)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out is not None:
+        args.out.write_text(text + "\n")
+    return 0

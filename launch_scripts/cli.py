@@ -24,6 +24,7 @@ import yaml
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec, parse_effect
+from launch_scripts.calibration_command import add_commands as add_calibration_commands
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
 from sim.sensors import SensorSuite, parse_blackout
@@ -244,7 +245,7 @@ def consistency(args: argparse.Namespace) -> None:
 
 
 def bench(args: argparse.Namespace) -> None:
-    """``crs bench model`` or ``crs bench estimation``: JSON to ``--out`` and stdout."""
+    """``crs bench model|estimation|stack``: JSON to ``--out`` and stdout."""
     from sim.benchmarks import machine, model_benchmark
 
     if args.out:
@@ -253,6 +254,18 @@ def bench(args: argparse.Namespace) -> None:
         result = model_benchmark()
         text = json.dumps(result, indent=2)
         print(text)
+    elif args.what == "stack":
+        from launch_scripts.stack_benchmark import format_table, stack_benchmark
+
+        runs = Path(args.out).with_suffix("") if args.out else Path("out/bench/stack")
+        work = prepare_output(runs.with_name(runs.name + "_runs"), "bench", args.overwrite)
+        result = stack_benchmark(
+            args.cars, args.estimator, args.duration, args.repeats, args.load, work
+        )
+        result = {"machine": machine(), "command": "crs " + " ".join(sys.argv[1:]), **result}
+        text = json.dumps(result, indent=2)
+        print(format_table(result))
+        print(f"runs (reports, figures, bags): {work}")
     else:
         from sim.estimation_benchmark import format_table, run_all
 
@@ -472,9 +485,12 @@ def make_parser() -> argparse.ArgumentParser:
         help="benchmarks that print JSON",
         description="model: model evaluation speed and the simulator's real-time factor (s). "
         "estimation: EKF / MHE accuracy and speed on simulated runs (and on the real "
-        f"recordings in {REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min.",
+        f"recordings in {REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min. "
+        "stack: the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, "
+        "deadline misses, re-initialisations, latencies, and CPU and peak memory per node; "
+        "--load K busy processes beside it; the runs go to <out without .json>_runs/.",
     )
-    sub.add_argument("what", choices=["model", "estimation"], help="which benchmark")
+    sub.add_argument("what", choices=["model", "estimation", "stack"], help="which benchmark")
     sub.add_argument("--out", type=Path, help="also write the JSON to this file")
     sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     sub.add_argument(
@@ -484,6 +500,33 @@ def make_parser() -> argparse.ArgumentParser:
         help="estimation: seeds per row (default 5)",
     )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
+    sub.add_argument(
+        "--cars",
+        type=bounded_number("cars", "", 0, 8, int),
+        default=1,
+        help="stack: 1..8 (default 1)",
+    )
+    sub.add_argument(
+        "--estimator", choices=["ekf", "mhe"], default="mhe", help="stack: (default mhe)"
+    )
+    sub.add_argument(
+        "--duration",
+        type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
+        default=40.0,
+        help="stack: wall-clock s per repeat (default 40)",
+    )
+    sub.add_argument(
+        "--repeats",
+        type=bounded_number("repeats", "", 0, 20, int),
+        default=1,
+        help="stack: runs (default 1)",
+    )
+    sub.add_argument(
+        "--load",
+        type=bounded_number("load", "", -1, 16, int),
+        default=0,
+        help="stack: busy-looping processes beside the stack, 0..16 (default 0)",
+    )
     sub.set_defaults(handler=bench)
     sub = commands.add_parser(
         "launch",
@@ -585,6 +628,7 @@ def make_parser() -> argparse.ArgumentParser:
         help="echo, hz: give up after this many s without a message (default 5)",
     )
     sub.set_defaults(handler=ros_tool)
+    add_calibration_commands(commands)
     return parser
 
 

@@ -1,0 +1,314 @@
+r"""Moving calibration: base stations (and clock offset, photodiodes) from a driven recording.
+
+Input: a dataset (:mod:`crs_core.dataset`) with Lighthouse sweeps and a pose reference, the
+motion-capture ``pose`` sensor of ``stream.npz``. Sweeps come from ``stream.npz``
+(``lighthouse/<s>/<l>``, each plane at its own stamp) or, without them, from ``y.npy`` (station
+0, both planes at the sample stamp). Inputs, IMU and encoders are not used and may be absent.
+
+Model: the sweep stamped :math:`t` (car clock) was taken at the reference pose stamped
+:math:`t + \tau` (motion-capture clock), :math:`\tau` = ``offset`` (s); the reference pose is
+a cubic smoothing spline through the motion-capture samples (yaw unwrapped;
+:class:`ReferenceTrajectory`), so :math:`\partial q / \partial \tau` is the spline's
+derivative. Unknowns: every station's pose
+(:mod:`crs_core.calibration.solver`), optionally :math:`\tau`, the photodiode positions and the
+tilt offsets; residuals: every photodiode angle of every sweep, ``soft_l1`` loss (scale 5 mrad:
+quadratic for 1 mrad noise, linear for stray sweeps).
+
+Start: planar DLT on up to 400 plane pairs at the start offset (default 0; the pose is off by
+:math:`v\tau`, a few cm, harmless), a station-only fit, then a scan of :math:`\tau` over
+``[-max_offset, max_offset]`` in 2 ms steps with those stations (picks the basin), then the
+joint fit. Sweeps whose :math:`t \pm` ``max_offset`` leaves the reference, or that fall in a
+reference gap longer than 50 ms, are dropped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import make_smoothing_spline
+
+from crs_core.calibration.solver import FitResult, LighthouseFit, Observations
+from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings
+from crs_core.dataset import Dataset
+from crs_core.measurements import parse_lighthouse
+from crs_core.model.lighthouse import BaseStation
+
+#: Largest gap in the pose reference a sweep may fall in, s.
+MAX_REFERENCE_GAP = 0.05
+#: Plane pairs used for the closed-form start.
+START_PAIRS = 400
+#: Step of the clock-offset scan, s.
+OFFSET_STEP = 0.002
+#: Scale of the robust loss, rad.
+LOSS_SCALE = 5e-3
+
+
+@dataclass(frozen=True)
+class Recording:
+    """What moving calibration reads from a dataset.
+
+    Attributes
+    ----------
+    stamps : (K,) sweep stamps, s (car clock).
+    observations : the sweeps (station, plane, 4 angles).
+    pose_t : (M,) reference stamps, s (motion-capture clock).
+    pose : (M, 3) reference poses x, y (m), yaw (rad, unwrapped).
+    n_stations : stations seen.
+    """
+
+    stamps: np.ndarray
+    observations: Observations
+    pose_t: np.ndarray
+    pose: np.ndarray
+    n_stations: int
+
+
+def read_recording(dataset: Dataset) -> Recording:
+    """Sweeps and pose reference of ``dataset``; ``ValueError`` naming what is missing."""
+    measurements = dataset.measurements or []
+    sweeps = [(m, parse_lighthouse(m.sensor)) for m in measurements]
+    sweeps = [(m, key) for m, key in sweeps if key is not None]
+    if sweeps:
+        stamps = np.array([m.stamp for m, _ in sweeps])
+        station = np.array([key[0] for _, key in sweeps])
+        plane = np.array([key[1] for _, key in sweeps])
+        angles = np.stack([m.values for m, _ in sweeps])
+    else:
+        rows = np.all(np.isfinite(dataset.y[:, :8]), axis=1)
+        if not rows.any():
+            raise ValueError(
+                "lighthouse: the dataset has no Lighthouse sweeps (stream.npz "
+                "meas:lighthouse__<s>__<l> or finite y.npy rows 0-7)"
+            )
+        t = dataset.t[rows]
+        stamps = np.concatenate([t, t])
+        station = np.zeros(2 * t.size, dtype=int)
+        plane = np.repeat([1, 2], t.size)
+        angles = np.vstack([dataset.y[rows, 0:4], dataset.y[rows, 4:8]])
+    reference = sorted((m for m in measurements if m.sensor == "pose"), key=lambda m: m.stamp)
+    if len(reference) < 10:
+        raise ValueError(
+            "pose: the dataset has no motion-capture pose reference (stream.npz meas:pose:t and "
+            f"meas:pose:v with at least 10 samples; found {len(reference)})"
+        )
+    pose_t = np.array([m.stamp for m in reference])
+    keep = np.concatenate([[True], np.diff(pose_t) > 0])
+    pose_t = pose_t[keep]
+    pose = np.stack([m.values for m in reference])[keep]
+    pose[:, 2] = np.unwrap(pose[:, 2])
+    order = np.argsort(stamps, kind="stable")
+    return Recording(
+        stamps[order],
+        Observations(station[order].astype(int), plane[order].astype(int), angles[order]),
+        pose_t,
+        pose,
+        int(station.max()) + 1,
+    )
+
+
+@dataclass(frozen=True)
+class MovingCalibration:
+    """Result of :func:`calibrate_moving`.
+
+    Attributes
+    ----------
+    fit : the least-squares result (stations, photodiodes, residuals, std).
+    offset : clock offset (motion capture minus car), s.
+    offset_std : its one-sigma, s (0 when not fitted).
+    recording : the sweeps used (after dropping those outside the reference).
+    start : closed-form start stations.
+    scan : (offsets, cost) of the offset scan (empty when not fitted).
+    reference : the smoothed pose reference (motion-capture clock).
+    """
+
+    fit: FitResult
+    offset: float
+    offset_std: float
+    recording: Recording
+    start: tuple[BaseStation, ...]
+    scan: tuple[np.ndarray, np.ndarray]
+    reference: ReferenceTrajectory
+
+    @property
+    def stations(self) -> tuple[BaseStation, ...]:
+        return self.fit.stations
+
+    def reference_pose(self, stamps: np.ndarray) -> np.ndarray:
+        """Reference pose (N, 3) at car-clock ``stamps`` with the fitted offset."""
+        return self.reference(np.asarray(stamps, dtype=float) + self.offset)
+
+
+def calibrate_moving(
+    dataset: Dataset,
+    fit_offset: bool = True,
+    fit_photodiodes: bool = False,
+    fit_tilt: bool = False,
+    max_offset: float = 0.25,
+    offset: float = 0.0,
+    sweep_model: SweepModel | None = None,
+) -> MovingCalibration:
+    """Fit the stations of a recording with a pose reference (module docstring).
+
+    ``offset`` is the start (or, without ``fit_offset``, the fixed) clock offset, s.
+    """
+    if not (math.isfinite(max_offset) and max_offset >= 0):
+        raise ValueError(f"max_offset: must be finite and >= 0, got {max_offset!r}")
+    if not (math.isfinite(offset) and abs(offset) <= max_offset):
+        raise ValueError(f"offset: must lie within +-max_offset ({max_offset} s), got {offset!r}")
+    data = read_recording(dataset)
+    spline = ReferenceTrajectory(data.pose_t, data.pose)
+    velocity = spline.velocity
+    margin = max_offset if fit_offset else abs(offset)
+    inside = (data.stamps - margin >= data.pose_t[0]) & (data.stamps + margin <= data.pose_t[-1])
+    after = np.clip(np.searchsorted(data.pose_t, data.stamps + offset), 1, data.pose_t.size - 1)
+    gap = data.pose_t[after] - data.pose_t[after - 1]
+    keep = inside & (gap <= MAX_REFERENCE_GAP)
+    if keep.sum() < 20:
+        raise ValueError(
+            f"pose: only {int(keep.sum())} sweeps fall inside the motion-capture reference "
+            f"(+-{margin} s); the recordings' time ranges barely overlap"
+        )
+    obs = Observations(
+        data.observations.station[keep],
+        data.observations.plane[keep],
+        data.observations.angles[keep],
+    )
+    stamps = data.stamps[keep]
+    data = Recording(stamps, obs, data.pose_t, data.pose, data.n_stations)
+    n = data.n_stations
+    prior = dataset.geometry
+    tilts = [
+        (prior.base_stations[s].dt1, prior.base_stations[s].dt2)
+        if s < len(prior.base_stations)
+        else (0.0, 0.0)
+        for s in range(n)
+    ]
+    if not fit_tilt and n > len(prior.base_stations):
+        raise ValueError(
+            f"geometry.base_stations: the recording has sweeps of {n} station(s) but the "
+            f"dataset geometry gives tilt offsets for {len(prior.base_stations)}; add them or "
+            "fit them"
+        )
+    model = sweep_model or SweepModel()
+    start = _start_stations(data, spline, offset, tilts, np.asarray(prior.photodiodes))
+
+    def poses_at(value: float):
+        return spline(stamps + value), velocity(stamps + value)[:, :, None]
+
+    def poses_fixed(_):
+        return spline(stamps + offset), np.zeros((len(stamps), 3, 0))
+
+    fixed = LighthouseFit(
+        obs,
+        start,
+        prior.photodiodes,
+        poses_fixed,
+        0,
+        fit_tilt=False,
+        sweep_model=model,
+    )
+    first = fixed.solve(np.zeros(0), loss="soft_l1", f_scale=LOSS_SCALE)
+    scan = (np.zeros(0), np.zeros(0))
+    start_offset = offset
+    if fit_offset:
+        offsets = np.arange(-max_offset, max_offset + 0.5 * OFFSET_STEP, OFFSET_STEP)
+        at_first = LighthouseFit(
+            obs,
+            first.stations,
+            prior.photodiodes,
+            lambda e: poses_at(float(e[0])),
+            1,
+            sweep_model=model,
+        )
+        z = at_first.start_vector(np.zeros(1))
+        costs = []
+        for value in offsets:
+            z[-1] = value
+            residual = at_first.evaluate(z, jacobian=False)
+            costs.append(float(np.sum(_soft_l1(residual / LOSS_SCALE))))
+        scan = (offsets, np.array(costs))
+        start_offset = float(offsets[int(np.argmin(costs))])
+    problem = LighthouseFit(
+        obs,
+        first.stations,
+        prior.photodiodes,
+        (lambda e: poses_at(float(e[0]))) if fit_offset else poses_fixed,
+        1 if fit_offset else 0,
+        fit_tilt=fit_tilt,
+        fit_photodiodes=fit_photodiodes,
+        sweep_model=model,
+    )
+    bounds = (np.array([-max_offset]), np.array([max_offset])) if fit_offset else None
+    fit = problem.solve(
+        np.array([start_offset]) if fit_offset else np.zeros(0),
+        loss="soft_l1",
+        f_scale=LOSS_SCALE,
+        bounds=bounds,
+    )
+    value = float(fit.extra[0]) if fit_offset else float(offset)
+    spread = float(fit.extra_std[0]) if fit_offset else 0.0
+    return MovingCalibration(fit, value, spread, data, tuple(start), scan, spline)
+
+
+class ReferenceTrajectory:
+    r"""The motion-capture pose as a smooth function of time: per channel a cubic smoothing
+    spline (``scipy.interpolate.make_smoothing_spline``) with
+    :math:`\lambda = 1 / (h\,(2\pi f_c)^4)`, :math:`h` the median sample spacing, which halves
+    the amplitude at :math:`f_c` = ``cutoff_hz`` (default 10 Hz: 0.2 % loss at 2 Hz, the car's
+    manoeuvres; 6 % of the amplitude left at 20 Hz).
+
+    Interpolating the raw samples instead would make the reference noise depend on where a sweep
+    falls between two samples (largest on a sample), which pulls the clock offset towards the
+    middle between samples when the photodiodes are fitted too (4 ms in simulation); smoothing
+    removes that.
+    """
+
+    def __init__(self, stamps: np.ndarray, poses: np.ndarray, cutoff_hz: float = 10.0) -> None:
+        spacing = float(np.median(np.diff(stamps)))
+        lam = 1.0 / (spacing * (2.0 * math.pi * cutoff_hz) ** 4)
+        self._splines = [make_smoothing_spline(stamps, poses[:, i], lam=lam) for i in range(3)]
+        self._derivatives = [s.derivative() for s in self._splines]
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        """Poses (N, 3) at reference-clock times ``t``."""
+        return np.column_stack([s(t) for s in self._splines])
+
+    def velocity(self, t: np.ndarray) -> np.ndarray:
+        """Time derivative of the pose (N, 3) at ``t``."""
+        return np.column_stack([s(t) for s in self._derivatives])
+
+
+def _soft_l1(z: np.ndarray) -> np.ndarray:
+    return 2.0 * (np.sqrt(1.0 + z * z) - 1.0)
+
+
+def _start_stations(data: Recording, spline, offset, tilts, diodes) -> list[BaseStation]:
+    """Closed-form stations from plane pairs (a plane 2 sweep and the plane 1 before it)."""
+    stations = []
+    obs = data.observations
+    for s in range(data.n_stations):
+        first = np.flatnonzero((obs.station == s) & (obs.plane == 1))
+        second = np.flatnonzero((obs.station == s) & (obs.plane == 2))
+        if first.size == 0 or second.size == 0:
+            raise ValueError(f"lighthouse: station {s} has no sweeps of both light planes")
+        before = np.searchsorted(data.stamps[first], data.stamps[second], side="right") - 1
+        ok = before >= 0
+        pairs_2, pairs_1 = second[ok], first[before[ok]]
+        close = data.stamps[pairs_2] - data.stamps[pairs_1] <= 0.03
+        pairs_1, pairs_2 = pairs_1[close], pairs_2[close]
+        if pairs_1.size < 4:
+            raise ValueError(f"lighthouse: station {s} has fewer than 4 pairs of light planes")
+        pick = np.unique(
+            np.linspace(0, pairs_1.size - 1, min(START_PAIRS, pairs_1.size)).astype(int)
+        )
+        world, directions = [], []
+        for i1, i2 in zip(pairs_1[pick], pairs_2[pick], strict=True):
+            q = spline(np.array([0.5 * (data.stamps[i1] + data.stamps[i2]) + offset]))[0]
+            c, si = math.cos(q[2]), math.sin(q[2])
+            world.extend(q[:2] + diodes @ np.array([[c, si], [-si, c]]))
+            directions.extend(bearings(obs.angles[i1], obs.angles[i2], *tilts[s]))
+        rotation, position = station_from_bearings(np.array(world), np.array(directions))
+        stations.append(BaseStation.from_rotation(rotation, tuple(position), *tilts[s]))
+    return stations

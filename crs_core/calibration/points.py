@@ -1,0 +1,250 @@
+"""The static calibration points file (``POINTS_FILE`` of ``crs calibrate-lighthouse static``).
+
+A YAML file, format ``chronos-lighthouse-points/1``; SI units, rad, REP 103 frames (world x-y
+floor plane, z up; body x forward, y left)::
+
+    format: chronos-lighthouse-points/1
+    photodiodes: [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
+                        # optional: photodiodes 0..3 in the body frame (x, y), m; default: the
+                        # Lighthouse deck of the real recordings
+    stations:           # one entry per base station, index = list position
+      - dt1: -0.0508728 # factory light-plane tilt offsets, rad (from the station's data
+        dt2: 0.0464478  # stream); may be omitted with --fit-tilt (then 0 is the start value)
+    points:             # the car standing still at known poses
+      - position: [0.5, -0.25]   # body origin in the world frame, m (floor, z = 0)
+        yaw: 1.2                 # heading, rad; optional (omit or null: unknown, fitted)
+        sweeps:                  # what each station measured there
+          - station: 0
+            plane1: [[0.101, 0.093, 0.128, 0.121], ...]   # one row per sweep: photodiodes
+            plane2: [[-0.231, -0.240, -0.205, -0.214], ...]  # 0..3, rad; any number of rows
+          - station: 1
+            ...
+
+A station may be missing at a point (out of view), and a point may have only one plane of a
+station. The sweeps of a plane are averaged per photodiode (the fit uses each photodiode's
+angle, never the mean over photodiodes); their spread estimates the angle noise.
+:func:`load_points` validates everything and raises a one-line ``ValueError`` naming the field.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from crs_core.model.lighthouse import RECORDED_PHOTODIODES
+from crs_core.model.sensors import N_PHOTODIODES
+
+FORMAT = "chronos-lighthouse-points/1"
+
+
+@dataclass(frozen=True)
+class CalibrationPoint:
+    """One static pose and the sweeps recorded there.
+
+    Attributes
+    ----------
+    position : (x, y) of the body origin, world frame, m.
+    yaw : heading, rad, or None when unknown.
+    sweeps : ``(station, plane)`` -> ``(n_sweeps, 4)`` angles of photodiodes 0..3, rad.
+    """
+
+    position: tuple[float, float]
+    yaw: float | None
+    sweeps: Mapping[tuple[int, int], np.ndarray]
+
+    def mean_angles(self, station: int, plane: int) -> np.ndarray | None:
+        """Per-photodiode mean of the sweeps of one plane (4,), rad; None if not seen."""
+        rows = self.sweeps.get((station, plane))
+        if rows is None:
+            return None
+        first = rows[0]
+        return first + np.mean(np.arctan2(np.sin(rows - first), np.cos(rows - first)), axis=0)
+
+
+@dataclass(frozen=True)
+class CalibrationPoints:
+    """Contents of a points file.
+
+    Attributes
+    ----------
+    points : the calibration points.
+    tilts : per station ``(dt1, dt2)`` in rad; an entry is None when the file omits it.
+    photodiodes : photodiodes 0..3 in the body frame (x, y), m.
+    """
+
+    points: tuple[CalibrationPoint, ...]
+    tilts: tuple[tuple[float | None, float | None], ...]
+    photodiodes: tuple[tuple[float, float], ...] = RECORDED_PHOTODIODES
+
+    @property
+    def n_stations(self) -> int:
+        return len(self.tilts)
+
+    def subset(self, indices: list[int] | np.ndarray) -> CalibrationPoints:
+        """The same file with only the points ``indices`` (in that order)."""
+        return CalibrationPoints(
+            tuple(self.points[i] for i in indices), self.tilts, self.photodiodes
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML mapping (module docstring)."""
+        stations = []
+        for dt1, dt2 in self.tilts:
+            entry = {}
+            if dt1 is not None:
+                entry["dt1"] = float(dt1)
+            if dt2 is not None:
+                entry["dt2"] = float(dt2)
+            stations.append(entry)
+        points = []
+        for point in self.points:
+            by_station: dict[int, dict[str, Any]] = {}
+            for (station, plane), rows in sorted(point.sweeps.items()):
+                entry = by_station.setdefault(station, {"station": station})
+                entry[f"plane{plane}"] = np.asarray(rows, dtype=float).tolist()
+            item: dict[str, Any] = {"position": [float(v) for v in point.position]}
+            if point.yaw is not None:
+                item["yaw"] = float(point.yaw)
+            item["sweeps"] = list(by_station.values())
+            points.append(item)
+        return {
+            "format": FORMAT,
+            "photodiodes": [[float(x), float(y)] for x, y in self.photodiodes],
+            "stations": stations,
+            "points": points,
+        }
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, default_flow_style=None))
+        return path
+
+
+def load_points(path: str | Path) -> CalibrationPoints:
+    """Read and validate a points file (module docstring); ``ValueError`` naming the field."""
+    path = Path(path)
+    if not path.is_file():
+        problem = "is a folder" if path.is_dir() else "does not exist"
+        raise ValueError(f"POINTS_FILE: {path} {problem}")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        problem = str(error).splitlines()[0]
+        raise ValueError(f"POINTS_FILE: {path} is not valid YAML ({problem})") from None
+    except (OSError, UnicodeDecodeError) as error:
+        raise ValueError(f"POINTS_FILE: cannot read {path} ({error})") from None
+    return points_from_dict(data)
+
+
+def points_from_dict(data: Any) -> CalibrationPoints:
+    """Validate the YAML mapping of a points file; ``ValueError`` naming the field."""
+    if not isinstance(data, Mapping):
+        raise ValueError("POINTS_FILE: expected a mapping with stations and points")
+    unknown = set(data) - {"format", "photodiodes", "stations", "points"}
+    if unknown:
+        raise ValueError(f"POINTS_FILE: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+    if data.get("format", FORMAT) != FORMAT:
+        raise ValueError(f"format: {data['format']!r}, expected {FORMAT!r}")
+    photodiodes = RECORDED_PHOTODIODES
+    if data.get("photodiodes") is not None:
+        diodes = _numbers("photodiodes", data["photodiodes"], (N_PHOTODIODES, 2))
+        photodiodes = tuple((float(x), float(y)) for x, y in diodes)
+    stations = data.get("stations")
+    if not isinstance(stations, list) or not stations:
+        raise ValueError("stations: expected a list with one entry per base station")
+    tilts = []
+    for i, entry in enumerate(stations):
+        if entry is None:
+            entry = {}
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"stations[{i}]: expected a mapping (dt1, dt2), got {entry!r}")
+        extra = set(entry) - {"dt1", "dt2"}
+        if extra:
+            raise ValueError(f"stations[{i}]: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+        pair = []
+        for key in ("dt1", "dt2"):
+            value = entry.get(key)
+            pair.append(
+                None if value is None else float(_numbers(f"stations[{i}].{key}", value, ()))
+            )
+        tilts.append((pair[0], pair[1]))
+    raw_points = data.get("points")
+    if not isinstance(raw_points, list) or not raw_points:
+        raise ValueError("points: expected a non-empty list of points")
+    points = [_point(f"points[{i}]", item, len(tilts)) for i, item in enumerate(raw_points)]
+    return CalibrationPoints(tuple(points), tuple(tilts), photodiodes)
+
+
+def _point(name: str, item: Any, n_stations: int) -> CalibrationPoint:
+    if not isinstance(item, Mapping):
+        raise ValueError(f"{name}: expected a mapping (position, yaw, sweeps), got {item!r}")
+    extra = set(item) - {"position", "yaw", "sweeps"}
+    if extra:
+        raise ValueError(f"{name}: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+    if "position" not in item:
+        raise ValueError(f"{name}.position: missing (x, y of the body origin, m)")
+    position = _numbers(f"{name}.position", item["position"], (2,))
+    yaw = item.get("yaw")
+    if yaw is not None:
+        yaw = float(_numbers(f"{name}.yaw", yaw, ()))
+    raw = item.get("sweeps")
+    if not isinstance(raw, list) or not raw:
+        raise ValueError(f"{name}.sweeps: expected a non-empty list of station entries")
+    sweeps: dict[tuple[int, int], np.ndarray] = {}
+    for j, entry in enumerate(raw):
+        where = f"{name}.sweeps[{j}]"
+        if not isinstance(entry, Mapping):
+            raise ValueError(f"{where}: expected a mapping (station, plane1, plane2)")
+        extra = set(entry) - {"station", "plane1", "plane2"}
+        if extra:
+            raise ValueError(f"{where}: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+        station = entry.get("station")
+        if isinstance(station, bool) or not isinstance(station, int):
+            raise ValueError(f"{where}.station: expected a station index, got {station!r}")
+        if not 0 <= station < n_stations:
+            raise ValueError(
+                f"{where}.station: {station} is not one of the {n_stations} station(s) listed "
+                "under stations"
+            )
+        planes = [k for k in ("plane1", "plane2") if entry.get(k) is not None]
+        if not planes:
+            raise ValueError(f"{where}: needs plane1 and/or plane2 sweeps")
+        for key in planes:
+            rows = _numbers(f"{where}.{key}", entry[key], None)
+            if rows.ndim == 1:
+                rows = rows[None, :]
+            if rows.ndim != 2 or rows.shape[1] != N_PHOTODIODES or rows.shape[0] == 0:
+                raise ValueError(
+                    f"{where}.{key}: expected rows of 4 angles (rad, photodiodes 0..3), got "
+                    f"shape {rows.shape}"
+                )
+            if np.any(np.abs(rows) > math.pi):
+                raise ValueError(f"{where}.{key}: angles must lie in [-pi, pi] rad")
+            plane = int(key[-1])
+            if (station, plane) in sweeps:
+                raise ValueError(f"{where}.{key}: station {station} is listed twice")
+            sweeps[(station, plane)] = rows
+    return CalibrationPoint((float(position[0]), float(position[1])), yaw, sweeps)
+
+
+def _numbers(name: str, value: Any, shape: tuple[int, ...] | None) -> np.ndarray:
+    """``value`` as a finite float array of ``shape`` (any shape if None)."""
+    if isinstance(value, bool | str):
+        raise ValueError(f"{name}: expected numbers, got {value!r}")
+    try:
+        array = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name}: expected numbers, got {value!r}") from None
+    if shape is not None and array.shape != shape:
+        what = "a number" if not shape else f"shape {shape}"
+        raise ValueError(f"{name}: expected {what}, got {value!r}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError(f"{name}: contains non-finite values")
+    return array
