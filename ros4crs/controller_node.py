@@ -3,12 +3,14 @@
 Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz``. When the newest estimate
 is older than ``stale_timeout``, ``lost`` (or none arrived yet), it commands zero torque and
 straight wheels, so the car rolls to a stop, and says so once per episode; while it is
-``degraded`` the car drives at ``degraded_speed`` at most. The MPCC replaces the path
+``degraded`` the car drives at ``degraded_speed`` at most. With ``predict`` (default) the
+estimate, tens of ms old when it arrives, is carried forward to the time the command acts with
+the model and the last command. The MPCC replaces the path
 follower through this same node later.
 
 Parameters: ``rate_hz``, ``v_ref`` (m/s), ``stale_timeout`` (s), ``degraded_speed`` (m/s),
-``track_file`` (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the
-wheelbase).
+``predict``, ``track_file`` (CRS track YAML; default DEMO_TRACK), ``params_file`` (model
+parameter YAML: the wheelbase and the prediction).
 """
 
 from __future__ import annotations
@@ -46,8 +48,15 @@ class ControllerNode(Node):
         self.degraded_speed = declare(
             self, "degraded_speed", 0.5, "speed while the estimate is degraded, m/s", positive
         )
-        parameters = declare_model(self).parameters
+        model = declare_model(self)
+        parameters = model.parameters
         wheelbase = parameters.value("lf") + parameters.value("lr")
+        self.predict = declare(
+            self, "predict", True, "predict the estimate forward to now with the last command"
+        )
+        self._numeric = model.numeric if self.predict else None
+        self._p = parameters.vector()
+        self._u = STOP
         self.follower = PathFollower(
             declare_track(self), wheelbase, PathFollowerSettings(v_ref=v_ref)
         )
@@ -100,8 +109,18 @@ class ControllerNode(Node):
                     else "state estimate ok again: full speed"
                 )
                 self._degraded = degraded
-            u = self.follower(now, self._latest[1], self.degraded_speed if degraded else None)
+            u = self.follower(now, self._predicted(now), self.degraded_speed if degraded else None)
+        self._u = u
         self._input_publisher.publish(conversions.car_input_msg(u, now))
+
+    def _predicted(self, now: float) -> np.ndarray:
+        """The newest estimate carried forward to ``now``, when the command will act, with the
+        model and the last command (the estimate is tens of ms old: the estimator's lag and
+        the transport); as it is without ``predict``."""
+        stamp, x, _ = self._latest
+        if self._numeric is None or now <= stamp:
+            return x
+        return self._numeric.step(x, self._u, self._p, min(now - stamp, self.stale_timeout))
 
 
 def main(argv: Sequence[str] | None = None) -> int:
