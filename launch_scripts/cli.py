@@ -27,6 +27,7 @@ from crs_core.model.effects import effect_spec, parse_effect
 from launch_scripts.calibration_command import add_commands as add_calibration_commands
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
+from launch_scripts.sysid_command import add_commands as add_sysid_commands
 from sim.sensors import SensorSuite, parse_blackout
 
 OVERWRITE_HELP = (
@@ -252,6 +253,13 @@ def bench(args: argparse.Namespace) -> None:
         prepare_output_file(args.out, args.overwrite)
     if args.what == "model":
         result = model_benchmark()
+        text = json.dumps(result, indent=2)
+        print(text)
+    elif args.what == "sysid":
+        from launch_scripts.sysid_command import sysid_benchmark
+
+        result = {"command": "crs " + " ".join(sys.argv[1:]), **sysid_benchmark(None, args.seeds)}
+        result["machine"] = machine()
         text = json.dumps(result, indent=2)
         print(text)
     elif args.what == "stack":
@@ -488,16 +496,21 @@ def make_parser() -> argparse.ArgumentParser:
         f"recordings in {REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min. "
         "stack: the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, "
         "deadline misses, re-initialisations, latencies, and CPU and peak memory per node; "
-        "--load K busy processes beside it; the runs go to <out without .json>_runs/.",
+        "--load K busy processes beside it; the runs go to <out without .json>_runs/. "
+        "sysid: identification speed (a real run, 3000 simulated samples), real-data "
+        "cross-validation (run 1 <-> run 2) and the simulated coverage study (--seeds, "
+        "default 5; 10 for the README figures); ~5 min.",
     )
-    sub.add_argument("what", choices=["model", "estimation", "stack"], help="which benchmark")
+    sub.add_argument(
+        "what", choices=["model", "estimation", "stack", "sysid"], help="which benchmark"
+    )
     sub.add_argument("--out", type=Path, help="also write the JSON to this file")
     sub.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     sub.add_argument(
         "--seeds",
         type=bounded_number("seeds", "", 0, 50, int),
         default=5,
-        help="estimation: seeds per row (default 5)",
+        help="estimation: seeds per row; sysid: seeds of the coverage study (default 5)",
     )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.add_argument(
@@ -628,6 +641,7 @@ def make_parser() -> argparse.ArgumentParser:
         help="echo, hz: give up after this many s without a message (default 5)",
     )
     sub.set_defaults(handler=ros_tool)
+    add_sysid_commands(commands)
     add_calibration_commands(commands)
     return parser
 

@@ -1,0 +1,257 @@
+"""Solve the FIE: initial guess from an estimator run, IPOPT, multi-start, the result.
+
+:func:`identify` is the entry point (``crs sysid``): it runs the EKF over the dataset with the
+prior parameters (the paper's advice for initialising the state trajectory), solves the FIE
+(:mod:`~crs_core.identification.problem`) with IPOPT, and adds the parameter covariance
+(:mod:`~crs_core.identification.uncertainty`).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from crs_core.dataset import Dataset
+from crs_core.estimation.offline import estimate_dataset
+from crs_core.identification.data import FieData
+from crs_core.identification.problem import FieProblem, FieSettings, check_fit
+from crs_core.identification.uncertainty import ParameterUncertainty, parameter_uncertainty
+from crs_core.model import CarModel
+from crs_core.parameters import ParameterSet
+
+
+class _IterationProgress(ca.Callback):
+    """IPOPT iteration callback: calls ``report(iteration, cost)`` once per iteration."""
+
+    def __init__(self, nz: int, report: Callable[[int, float], None]) -> None:
+        ca.Callback.__init__(self)
+        self.nz, self.report, self.iteration = nz, report, 0
+        self.construct("fie_progress", {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "ret"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nz)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        self.report(self.iteration, 2.0 * float(arg[ca.nlpsol_out().index("f")]))
+        self.iteration += 1
+        return [0]
+
+
+def stderr_progress(iteration: int, cost: float) -> None:
+    """One line per IPOPT iteration on stderr."""
+    print(f"sysid: iteration {iteration:3d}  cost {cost:.6g}", file=sys.stderr, flush=True)
+
+
+@dataclass
+class FieResult:
+    """What identification found.
+
+    Attributes
+    ----------
+    parameters : ParameterSet
+        The model's parameters with the identified values.
+    prior : ParameterSet
+        The prior (the model's parameters before identification).
+    fit : tuple of str
+    theta, theta_prior, theta_prior_std : arrays (n_theta,)
+    uncertainty : ParameterUncertainty
+    states : (N, nx) identified state trajectory on ``t``
+    t : (N,) stamps
+    outputs : (N, 13) model outputs of the identified trajectory (dataset columns)
+    data : FieData
+    cost : float, the paper's ``V`` (sum of squared weighted residuals) at the optimum
+    cost_initial : float, ``V`` at the initial guess
+    cost_terms : dict, ``V`` split into prior, initial state, process and measurement terms
+    iterations : int, IPOPT iterations (all starts)
+    time_s : float, wall time of :func:`identify` (estimator runs, building, solving, covariance)
+    build_s : float, building the problem and the solver (CasADi graphs and derivatives)
+    solver_status : str, IPOPT's return status of the best start
+    settings : FieSettings
+    starts : list of per-start summaries (cost, iterations, status, time_s)
+    """
+
+    parameters: ParameterSet
+    prior: ParameterSet
+    fit: tuple[str, ...]
+    theta: np.ndarray
+    theta_prior: np.ndarray
+    theta_prior_std: np.ndarray
+    uncertainty: ParameterUncertainty
+    states: np.ndarray
+    t: np.ndarray
+    outputs: np.ndarray
+    data: FieData
+    cost: float
+    cost_initial: float
+    cost_terms: dict[str, float]
+    iterations: int
+    time_s: float
+    build_s: float
+    solver_status: str
+    settings: FieSettings
+    starts: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def time_per_iteration_s(self) -> float:
+        return self.solve_s / max(self.iterations, 1)
+
+    @property
+    def solve_s(self) -> float:
+        return sum(s["time_s"] for s in self.starts)
+
+
+def initial_trajectory(
+    dataset: Dataset, model: CarModel, parameters: ParameterSet | None = None
+) -> np.ndarray:
+    """States ``(N, nx)`` from an EKF run with ``parameters`` (yaw unwrapped; the samples
+    before the first fix take the first fix; effect states at rest under the command)."""
+    base_model = CarModel(n_base_stations=model.n_base_stations)
+    values = parameters or model.parameters
+    base_model = CarModel(
+        n_base_stations=model.n_base_stations,
+        parameters=base_model.parameters.updated(
+            {n: values.value(n) for n in base_model.parameters}
+        ),
+    )
+    estimates = estimate_dataset(dataset, "ekf", model=base_model)
+    x = estimates.x.T.copy()
+    found = np.flatnonzero(estimates.status != "lost")
+    if not found.size:
+        raise ValueError("dataset: the estimator never found the car (no Lighthouse fix)")
+    first = found[0]
+    x[:first] = x[first]
+    lost = estimates.status == "lost"
+    for k in np.flatnonzero(lost)[np.flatnonzero(lost) > first]:
+        x[k] = x[k - 1]  # hold through a later loss
+    x[:, 2] = np.unwrap(x[:, 2])
+    u = dataset.u if dataset.u is not None else np.zeros((len(x), 2))
+    return np.stack([model.initial_state(row, command) for row, command in zip(x, u, strict=True)])
+
+
+def identify(
+    dataset: Dataset,
+    model: CarModel,
+    settings: FieSettings | None = None,
+    progress: Callable[[int, float], None] | None = None,
+) -> FieResult:
+    """Identify ``settings.fit`` from ``dataset``; ``model.parameters`` is the prior.
+
+    Raises ``ValueError`` (naming the field) for a dataset too short, without inputs or
+    measurements, and for unknown parameter names or bounds that exclude the prior.
+    """
+    settings = settings or FieSettings()
+    check_fit(model, settings.fit)
+    data = FieData.from_dataset(dataset, settings.noise)
+    started = time.perf_counter()
+    rng = np.random.default_rng(settings.seed)
+    problem: FieProblem | None = None
+    best: tuple[float, np.ndarray, dict[str, Any]] | None = None
+    starts: list[dict[str, Any]] = []
+    solver = callback = None
+    build_s = 0.0
+    for start in range(settings.starts):
+        theta0 = None
+        if start > 0 and problem is not None:
+            lo, hi = problem.bounds()
+            draw = rng.standard_normal(problem.n_theta)
+            draw = np.clip(draw, lo[: problem.n_theta] + 1e-3, hi[: problem.n_theta] - 1e-3)
+            theta0 = problem.theta_prior + problem.theta_std * draw
+        start_params = (
+            model.parameters
+            if theta0 is None
+            else model.parameters.updated(dict(zip(settings.fit, theta0, strict=True)))
+        )
+        states0 = initial_trajectory(dataset, model, start_params)
+        if start == 0:
+            prior_states = states0
+        if problem is None:
+            t_build = time.perf_counter()
+            problem = FieProblem(model, data, settings, states0[0])
+            callback = _IterationProgress(problem.nz, progress) if progress else None
+            solver = problem.solver(callback)  # keep ``callback`` alive while solving
+            build_s = time.perf_counter() - t_build
+            theta0 = problem.theta_prior
+        z0 = problem.pack(theta0, states0)
+        lo, hi = problem.bounds()
+        z0 = np.clip(z0, lo, hi)
+        t_solve = time.perf_counter()
+        solution = solver(x0=z0, lbx=lo, ubx=hi)
+        stats = solver.stats()
+        z = np.asarray(solution["x"]).ravel()
+        cost = 2.0 * float(solution["f"])
+        summary = {
+            "start": start,
+            "cost": cost,
+            "iterations": int(stats.get("iter_count", 0)),
+            "status": str(stats.get("return_status", "unknown")),
+            "time_s": time.perf_counter() - t_solve,
+        }
+        starts.append(summary)
+        if best is None or cost < best[0]:
+            best = (cost, z, summary)
+    assert problem is not None and best is not None
+    cost, z, summary = best
+    theta, states = problem.unpack(z)
+    z_init = problem.pack(problem.theta_prior, prior_states)
+    r0 = np.asarray(problem.residual_function(z_init)).ravel()
+    r = np.asarray(problem.residual_function(z)).ravel()
+    terms, offset = {}, 0
+    for name, size in problem.blocks.items():
+        terms[name] = float(np.sum(r[offset : offset + size] ** 2))
+        offset += size
+    jacobian = problem.jacobian_function()(z)
+    lo, hi = problem.bounds()
+    uncertainty = parameter_uncertainty(
+        jacobian.sparse(),
+        problem.fit,
+        theta,
+        problem.theta_std,
+        at_bound=(z[: problem.n_theta] <= lo[: problem.n_theta] + 1e-6)
+        | (z[: problem.n_theta] >= hi[: problem.n_theta] - 1e-6),
+    )
+    outputs = np.asarray(problem.output_function(z)).T
+    return FieResult(
+        parameters=model.parameters.updated(dict(zip(problem.fit, theta, strict=True))),
+        prior=model.parameters,
+        fit=problem.fit,
+        theta=theta,
+        theta_prior=problem.theta_prior,
+        theta_prior_std=problem.theta_std,
+        uncertainty=uncertainty,
+        states=states,
+        t=data.t,
+        outputs=outputs,
+        data=data,
+        cost=cost,
+        cost_initial=float(np.sum(r0**2)),
+        cost_terms=terms,
+        iterations=sum(s["iterations"] for s in starts),
+        time_s=time.perf_counter() - started,
+        build_s=build_s,
+        solver_status=summary["status"],
+        settings=settings,
+        starts=starts,
+    )

@@ -1,0 +1,205 @@
+"""Open-loop validation of identified parameters (paper, Sec. VII-B).
+
+From every sample ``j`` with a full horizon ahead (``t_j + horizon <= t_{L-1}``), the model is
+simulated open loop under the recorded commands (held between samples, RK4 substeps no longer
+than :data:`~crs_core.model.car_model.MAX_SUBSTEP`, aligned with the sample stamps), starting
+from the state an EKF with the same parameters estimated at ``t_j``. The prediction is compared
+at every sample inside the horizon ``(t_j, t_j + horizon]``:
+
+* **position RMSE** (the paper's metric): the square root of the mean, over every start ``j``
+  and every sample ``i`` inside its horizon, of the squared planar distance
+  ``|p_pred(t_i; j) - p_ref(t_i)|^2``; the reference ``p_ref`` is the dataset's ``x`` (simulation
+  truth, or on the real runs the car's own Lighthouse-based on-line estimate, *not* motion
+  capture). The RMSE at the horizon's end alone is reported too.
+* **per-channel RMS**: the same mean over the model's predicted sensor outputs minus the
+  measured ``y`` (NaN samples skipped), per dataset column.
+
+All starts are simulated at once (the model's RK4 step mapped over them).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from crs_core.codegen import compile_functions
+from crs_core.dataset import Y_CHANNELS, Dataset
+from crs_core.identification.data import Y_LAYOUT, input_segments
+from crs_core.identification.solve import initial_trajectory
+from crs_core.model import CarModel
+from crs_core.model.car_model import MAX_SUBSTEP
+from crs_core.parameters import ParameterSet
+
+#: The paper's open-loop horizon, s.
+DEFAULT_HORIZON_S = 2.0
+
+
+@dataclass
+class OpenLoopPrediction:
+    """Open-loop predictions from every start.
+
+    Attributes
+    ----------
+    horizon_s : float
+    starts : (S,) sample index of each start
+    steps : int, samples per horizon (the most any start has)
+    positions : (S, steps, 2) predicted x, y at samples ``start + 1 ... start + steps`` (NaN
+        beyond the horizon)
+    outputs : (S, steps, 13) predicted measurements (dataset columns), NaN beyond the horizon
+    """
+
+    horizon_s: float
+    starts: np.ndarray
+    steps: int
+    positions: np.ndarray
+    outputs: np.ndarray
+
+
+def predict_open_loop(
+    dataset: Dataset, model: CarModel, horizon_s: float = DEFAULT_HORIZON_S
+) -> OpenLoopPrediction:
+    """Predict from every start with ``model``'s parameters (initial states from its EKF)."""
+    if not horizon_s > 0:
+        raise ValueError(f"horizon: must be > 0 s, got {horizon_s}")
+    if dataset.u is None:
+        raise ValueError("dataset: has no inputs (u.npy); open-loop prediction needs them")
+    t = dataset.t
+    if t[-1] - t[0] < horizon_s:
+        raise ValueError(
+            f"horizon: {horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
+        )
+    states = initial_trajectory(dataset, model)
+    end = np.searchsorted(t, t + horizon_s + 1e-9, side="right") - 1  # last sample in horizon
+    starts = np.flatnonzero(t + horizon_s <= t[-1] + 1e-9)
+    steps = int(np.max(end[starts] - starts))
+    sub_u, sub_h = _substeps(dataset)
+    p = model.parameters.vector()
+    n = len(starts)
+    functions = compile_functions(
+        [
+            model.step_function(1, "rk4_validation").map("rk4_validation_map", "serial", n, [], []),
+            ca.Function(
+                "h_validation",
+                [model.x_sym, model.u_sym, model.p_sym],
+                [ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))],
+            ).map("h_validation_map", "serial", n, [], []),
+        ],
+        f"fie_validation_{model.tag}_{model.n_base_stations}bs_{n}",
+    )
+    step, output = functions["rk4_validation_map"], functions["h_validation_map"]
+    x = states[starts].T.copy()
+    p_all = np.tile(p[:, None], (1, len(starts)))
+    positions = np.full((len(starts), steps, 2), np.nan)
+    outputs = np.full((len(starts), steps, len(Y_CHANNELS)), np.nan)
+    for i in range(steps):
+        k = starts + i  # interval being integrated, per start
+        active = k + 1 <= end[starts]
+        kk = np.minimum(k, len(t) - 2)
+        for s in range(sub_h.shape[1]):
+            h_s = np.where(active, sub_h[kk, s], 0.0)
+            if not np.any(h_s > 0):
+                break
+            u = sub_u[kk, s].T
+            x = step(x, u, p_all, h_s)[0].reshape(model.nx, n, order="F")
+        positions[active, i] = x[:2, active].T
+        u_next = dataset.u[np.minimum(kk + 1, len(t) - 1)].T
+        predicted = output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), n, order="F").T
+        outputs[active, i] = predicted[active]
+    return OpenLoopPrediction(horizon_s, starts, steps, positions, outputs)
+
+
+def _substeps(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Per sample interval: RK4 substeps (command, length), padded with zero lengths, from the
+    same held-command segments as the FIE (:func:`~crs_core.identification.problem.
+    input_segments`), each substep no longer than ``MAX_SUBSTEP``."""
+    seg_u, seg_dt, seg_count = input_segments(dataset)
+    pieces = []
+    for k in range(len(seg_count)):
+        row = []
+        for j in range(seg_count[k]):
+            n = max(1, math.ceil(seg_dt[k, j] / MAX_SUBSTEP - 1e-9))
+            row += [(seg_u[k, j], seg_dt[k, j] / n)] * n
+        pieces.append(row)
+    width = max(len(r) for r in pieces)
+    sub_u, sub_h = np.zeros((len(pieces), width, 2)), np.zeros((len(pieces), width))
+    for k, row in enumerate(pieces):
+        for j, (value, h) in enumerate(row):
+            sub_u[k, j], sub_h[k, j] = value, h
+    return sub_u, sub_h
+
+
+def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
+    """Position RMSE (over the horizon and at its end) and per-channel RMS, JSON-ready."""
+    if dataset.x is None:
+        raise ValueError("dataset: has no reference states (x.npy) for the position RMSE")
+    index = prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :]
+    index = np.minimum(index, len(dataset.t) - 1)
+    reference = dataset.x[index, :2]
+    error = np.linalg.norm(prediction.positions - reference, axis=2)
+    valid = np.isfinite(error)
+    last = np.array([np.flatnonzero(row)[-1] for row in valid])
+    end_error = error[np.arange(len(last)), last]
+    measured = dataset.y[index]
+    channel_error = prediction.outputs - measured
+    channels = {}
+    for c, name in enumerate(Y_CHANNELS):
+        values = channel_error[..., c]
+        values = values[np.isfinite(values)]
+        channels[name] = float(np.sqrt(np.mean(values**2))) if values.size else None
+    return {
+        "position_rmse_m": float(np.sqrt(np.mean(error[valid] ** 2))),
+        "position_rmse_at_horizon_m": float(np.sqrt(np.mean(end_error**2))),
+        "channel_rms": channels,
+        "starts": len(prediction.starts),
+    }
+
+
+def validate(
+    dataset: Dataset,
+    model: CarModel,
+    identified: ParameterSet,
+    prior: ParameterSet | None = None,
+    horizon_s: float = DEFAULT_HORIZON_S,
+) -> tuple[dict, dict[str, OpenLoopPrediction]]:
+    """Open-loop validation of ``identified`` (and ``prior``, side by side) on ``dataset``.
+
+    ``model`` gives the structure (effects, stations); the parameter sets its values.
+    Returns the JSON-ready summary and the predictions by label.
+    """
+    candidates = {"identified": identified}
+    if prior is not None:
+        candidates = {"prior": prior, **candidates}
+    summary: dict = {
+        "horizon_s": horizon_s,
+        "reference": (
+            "simulation truth"
+            if dataset.meta.get("source") == "simulated"
+            else "the recording's own on-line estimate x.npy (Lighthouse-derived, not motion "
+            "capture)"
+        ),
+        "metric": (
+            "position RMSE: sqrt of the mean over every start and every sample within the "
+            "horizon of the squared planar distance between prediction and reference"
+        ),
+        "position_rmse_m": {},
+        "position_rmse_at_horizon_m": {},
+        "channel_rms": {},
+    }
+    predictions = {}
+    for label, parameters in candidates.items():
+        candidate = CarModel(
+            {e.name: None for e in model.effects},
+            n_base_stations=model.n_base_stations,
+            parameters=parameters,
+        )
+        prediction = predict_open_loop(dataset, candidate, horizon_s)
+        errors = validation_errors(dataset, prediction)
+        summary["position_rmse_m"][label] = errors["position_rmse_m"]
+        summary["position_rmse_at_horizon_m"][label] = errors["position_rmse_at_horizon_m"]
+        summary["channel_rms"][label] = errors["channel_rms"]
+        summary["starts"] = errors["starts"]
+        predictions[label] = prediction
+    return summary, predictions

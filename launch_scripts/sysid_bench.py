@@ -1,0 +1,184 @@
+"""The identification benchmark (``crs bench sysid``): speed, real-data cross-validation and
+the simulated coverage study, as one JSON-ready dict."""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crs_core.dataset import Dataset
+from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.model import CarModel
+from launch_scripts.sysid_command import ROUGH, identification_model
+
+#: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
+BENCHMARK_FIT = (*DYNAMICS_FIT, "r", "b_car")
+REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
+
+
+def simulate_dataset(duration: float, seed: int, model: CarModel | None = None) -> Dataset:
+    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos)."""
+    from crs_core.control.path_following import PathFollower, PathFollowerSettings
+    from crs_core.track import load_demo_track
+    from sim.sensors import SensorSuite
+    from sim.simulator import Simulator
+
+    model = model or CarModel()
+    track = load_demo_track()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    result = Simulator(model, SensorSuite(), seed=seed).run(controller, duration, x0)
+    return result.to_dataset()
+
+
+#: Process-noise scale of the simulated studies: the simulated truth has no process noise, so
+#: the FIE may trust the model more than on real data (the default 1.0 is for real data).
+SIM_PROCESS_SCALE = 0.1
+
+
+def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, Any]:
+    """Identify from the rough prior on simulated runs (truth: Chronos defaults).
+
+    Per seed: the parameters flagged identifiable within 3 sigma of the truth, and the share of
+    all (parameter, seed) pairs with the truth inside +-2 sigma; the first seed's run is
+    validated open loop (2 s) on the next seed's run (held out).
+    """
+    from crs_core.identification.solve import identify
+    from crs_core.identification.validation import validate
+
+    truth = CarModel().parameters
+    rows, inside2, total, identifiable_ok, identifiable_n = [], 0, 0, 0, 0
+    validation = None
+    for seed in seeds:
+        dataset = simulate_dataset(duration, seed)
+        model = identification_model(dataset, [], ROUGH)
+        settings = FieSettings(fit=BENCHMARK_FIT, process_scale=SIM_PROCESS_SCALE)
+        result = identify(dataset, model, settings)
+        z = (result.theta - np.array([truth.value(n) for n in result.fit])) / result.uncertainty.std
+        inside2 += int(np.sum(np.abs(z) <= 2))
+        total += len(z)
+        ok = result.uncertainty.identifiable
+        identifiable_ok += int(np.sum(np.abs(z[ok]) <= 3))
+        identifiable_n += int(ok.sum())
+        rows.append(
+            {
+                "seed": seed,
+                "samples": len(dataset.t),
+                "iterations": result.iterations,
+                "time_s": round(result.time_s, 2),
+                "z": {n: round(float(v), 2) for n, v in zip(result.fit, z, strict=True)},
+                "not_identifiable": [n for n, o in zip(result.fit, ok, strict=True) if not o],
+            }
+        )
+        if validation is None:
+            held_out = simulate_dataset(duration, seed + 1000)
+            summary, _ = validate(held_out, model, result.parameters, model.parameters)
+            validation = {
+                "position_rmse_m": summary["position_rmse_m"],
+                "position_rmse_at_horizon_m": summary["position_rmse_at_horizon_m"],
+            }
+        print(f"bench sysid: seed {seed} done", file=sys.stderr, flush=True)
+    return {
+        "duration_s": duration,
+        "seeds": list(seeds),
+        "truth_inside_2sigma_fraction": inside2 / max(total, 1),
+        "identifiable_within_3sigma": f"{identifiable_ok}/{identifiable_n}",
+        "open_loop_2s_held_out": validation,
+        "runs": rows,
+    }
+
+
+def real_study() -> dict[str, Any]:
+    """Identify on one real run, validate on the other, both ways (rough prior)."""
+    from crs_core.identification.solve import identify
+    from crs_core.identification.validation import validate
+
+    runs = [REAL_DATA / "fie_mpc_lighthouse_1", REAL_DATA / "fie_mpc_lighthouse_2"]
+    out = {}
+    for train, test in ((runs[0], runs[1]), (runs[1], runs[0])):
+        dataset = Dataset.load(train)
+        model = identification_model(dataset, [], ROUGH)
+        result = identify(dataset, model, FieSettings(fit=BENCHMARK_FIT))
+        summary, _ = validate(Dataset.load(test), model, result.parameters, model.parameters)
+        out[f"{train.name} -> {test.name}"] = {
+            "samples": len(dataset.t),
+            "iterations": result.iterations,
+            "time_s": round(result.time_s, 2),
+            "build_s": round(result.build_s, 2),
+            "time_per_iteration_s": round(result.time_per_iteration_s, 4),
+            "solver_status": result.solver_status,
+            "position_rmse_m": summary["position_rmse_m"],
+            "position_rmse_at_horizon_m": summary["position_rmse_at_horizon_m"],
+            "paper_position_rmse_m": {"prior": 0.24, "identified": 0.09},
+            "not_identifiable": result.uncertainty.warnings(),
+        }
+    return out
+
+
+def speed_study() -> dict[str, Any]:
+    """Wall time of one identification: a real run (17 parameters, all sensors) and 3000
+    simulated samples."""
+    from crs_core.identification.solve import identify
+
+    out = {}
+    cases = {
+        "real_run_1": Dataset.load(REAL_DATA / "fie_mpc_lighthouse_1"),
+        "simulated_3000": None,
+    }
+    for label, dataset in cases.items():
+        if dataset is None:
+            dataset = _first_samples(simulate_dataset(70.0, 7), 3000)
+        model = identification_model(dataset, [], ROUGH)
+        scale = SIM_PROCESS_SCALE if label.startswith("simulated") else 1.0
+        started = time.perf_counter()
+        result = identify(dataset, model, FieSettings(fit=BENCHMARK_FIT, process_scale=scale))
+        out[label] = {
+            "samples": len(dataset.t),
+            "parameters": len(BENCHMARK_FIT),
+            "time_s": round(time.perf_counter() - started, 2),
+            "build_s": round(result.build_s, 2),
+            "iterations": result.iterations,
+            "time_per_iteration_s": round(result.time_per_iteration_s, 4),
+            "solver_status": result.solver_status,
+        }
+    return out
+
+
+def _first_samples(dataset: Dataset, n: int) -> Dataset:
+    n = min(n, len(dataset.t))
+    return Dataset(
+        t=dataset.t[:n],
+        u=None if dataset.u is None else dataset.u[:n],
+        y=dataset.y[:n],
+        x=None if dataset.x is None else dataset.x[:n],
+        geometry=dataset.geometry,
+        meta=dataset.meta,
+        measurements=dataset.measurements,
+    )
+
+
+def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:
+    """``crs bench sysid``: speed, real-data cross-validation and the simulated coverage study.
+
+    Returns (and writes to ``out`` as JSON when given) a JSON-ready dict.
+    """
+    started = time.perf_counter()
+    result = {
+        "machine": {"platform": platform.platform(), "python": platform.python_version()},
+        "speed": speed_study(),
+        "real": real_study(),
+        "simulated": simulated_study(list(range(seeds))),
+    }
+    result["wall_time_s"] = round(time.perf_counter() - started, 1)
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(result, indent=2))
+    return result

@@ -1,0 +1,264 @@
+"""``crs sysid``, ``crs validate`` and the identification benchmark (``crs bench sysid``).
+
+Argument parsing and file handling only; the algorithms are in :mod:`crs_core.identification`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from crs_core.dataset import Dataset
+from crs_core.identification.data import FieData
+from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.model import EFFECTS, CarModel
+from crs_core.model.chronos import ROUGH_PRIOR
+from crs_core.model.effects import effect_spec, parse_effect
+from crs_core.parameters import ParameterSet
+from launch_scripts.output_folder import prepare_output
+
+#: ``--params rough``: the rougher prior of the real recordings' README.
+ROUGH = "rough"
+
+
+def _argument_type(parse):
+    def parse_argument(text: str):
+        try:
+            return parse(text)
+        except ValueError as error:
+            raise argparse.ArgumentTypeError(str(error)) from None
+
+    parse_argument.__name__ = parse.__name__
+    return parse_argument
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise ValueError(f"{text!r}: must be >= 1")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{text!r} is not a number") from None
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{text!r}: must be finite and > 0")
+    return value
+
+
+def effects_of_yaml(path: Path) -> list[str]:
+    """Effects whose parameters a parameter YAML names (so its model can be rebuilt)."""
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return []  # updated_from_yaml reports the problem with the file
+    names = (
+        set((document or {}).get("parameters", {}) or {}) if isinstance(document, dict) else set()
+    )
+    return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
+
+
+def identification_model(
+    dataset: Dataset,
+    effects: Sequence[tuple[str, str | None, float | None]] | Sequence[str] = (),
+    params: Path | str | None = None,
+) -> CarModel:
+    """The model with the dataset's Lighthouse geometry, effects and a parameter file
+    (``"rough"``: :data:`~crs_core.model.chronos.ROUGH_PRIOR`); errors name ``--params``."""
+    spec: dict[str, Any] = (
+        effect_spec(effects)  # type: ignore[arg-type]
+        if effects and not isinstance(effects[0], str)
+        else {name: None for name in effects}
+    )
+    n = len(dataset.geometry.base_stations)
+    base = CarModel(spec, n_base_stations=n)
+    geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
+    parameters: ParameterSet = base.parameters.updated(geometry)
+    if params is not None:
+        if str(params) == ROUGH:
+            parameters = parameters.updated(ROUGH_PRIOR)
+        else:
+            try:
+                parameters = parameters.updated_from_yaml(params)
+            except (ValueError, KeyError) as error:
+                message = error.args[0] if error.args else str(error)
+                raise ValueError(f"--params: {message}") from None
+    return CarModel(spec, n_base_stations=n, parameters=parameters)
+
+
+def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
+    """``--fit a,b,c`` (default: the 15 dynamics parameters and every effect parameter)."""
+    if text is None:
+        return DYNAMICS_FIT + tuple(p.name for e in model.effects for p in e.parameters)
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not names:
+        raise ValueError("--fit: name at least one parameter")
+    for name in names:
+        if name not in model.parameters:
+            raise ValueError(
+                f"--fit: unknown parameter {name!r} (the model has {', '.join(model.parameters)})"
+            )
+    if len(set(names)) != len(names):
+        raise ValueError("--fit: a parameter is named twice")
+    return names
+
+
+def _load(path: Path) -> Dataset:
+    try:
+        return Dataset.load(path)
+    except FileNotFoundError as error:
+        raise ValueError(f"DATASET: {error}") from None
+
+
+def run_sysid(args: argparse.Namespace) -> int:
+    """``crs sysid``: identify, write params.yaml, result.json, report.md and figures."""
+    from crs_core.identification.report import write_sysid_report
+    from crs_core.identification.solve import identify, stderr_progress
+
+    dataset = _load(args.dataset)
+    model = identification_model(dataset, args.effect or [], args.params)
+    settings = FieSettings(
+        fit=parse_fit(args.fit, model),
+        hessian=args.hessian,
+        starts=args.starts,
+        process_scale=args.process_scale,
+    )
+    FieData.from_dataset(dataset, settings.noise)  # refuse bad data before touching --out
+    out = prepare_output(Path(args.out), "sysid", args.overwrite)
+    result = identify(dataset, model, settings, progress=stderr_progress)
+    summary = write_sysid_report(result, out, str(args.dataset))
+    for warning in summary["warnings"]:
+        print(f"warning: {warning}", file=sys.stderr)
+    print(
+        f"sysid: {result.solver_status}, {result.iterations} iterations, {result.time_s:.1f} s; "
+        f"cost {result.cost_initial:.6g} -> {result.cost:.6g}; wrote {out}/params.yaml, "
+        "result.json, report.md"
+    )
+    return 0
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    """``crs validate``: open-loop predictions with --params (and --prior) on a dataset."""
+    from crs_core.identification.report import write_validation_report
+    from crs_core.identification.validation import validate
+
+    dataset = _load(args.dataset)
+    if dataset.x is None:
+        raise ValueError("DATASET: has no reference states (x.npy) to validate against")
+    effects = list(
+        dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_of_yaml(args.params)])
+    )
+    model = identification_model(dataset, effects, args.params)
+    prior = None
+    if args.prior is not None:
+        prior = identification_model(dataset, effects, args.prior).parameters
+    span = dataset.t[-1] - dataset.t[0] if len(dataset.t) else 0.0
+    if args.horizon > span:
+        raise ValueError(f"--horizon: {args.horizon:g} s is longer than the dataset ({span:.2f} s)")
+    out = prepare_output(Path(args.out), "validate", args.overwrite)
+    summary, predictions = validate(dataset, model, model.parameters, prior, args.horizon)
+    summary["dataset"] = str(args.dataset)
+    summary["params"] = str(args.params)
+    summary["prior"] = None if args.prior is None else str(args.prior)
+    write_validation_report(summary, predictions, dataset.x[:, :2], out)
+    rmse = summary["position_rmse_m"]
+    print(
+        f"validate: {summary['horizon_s']:g} s open-loop position RMSE "
+        + ", ".join(f"{k} {v:.3f} m" for k, v in rmse.items())
+        + f"; wrote {out}/validation.json"
+    )
+    return 0
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
+    overwrite = "replace an --out folder written by an earlier crs run"
+    effect = {
+        "type": _argument_type(parse_effect),
+        "action": "append",
+        "metavar": "NAME[.PARAM][=VALUE]",
+    }
+    sub = subparsers.add_parser(
+        "sysid",
+        help="identify model parameters from a dataset (FIE, IPOPT)",
+        description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
+        "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
+        "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
+        "--params of every command), result.json, report.md and figures; one progress line per "
+        "IPOPT iteration on stderr.",
+    )
+    sub.add_argument("dataset", type=Path, help="dataset folder (crs_core.dataset format)")
+    sub.add_argument("--out", required=True, help="output folder")
+    sub.add_argument(
+        "--params",
+        help="prior parameter YAML ('parameters:' mapping), or 'rough' for the rough prior of "
+        "the real recordings' README (default: the Chronos identified values)",
+    )
+    sub.add_argument(
+        "--fit",
+        help="comma-separated parameter names to identify (default: the 15 dynamics "
+        f"parameters {','.join(DYNAMICS_FIT)} plus every --effect parameter)",
+    )
+    sub.add_argument("--effect", help="add a model effect (repeatable)", **effect)
+    sub.add_argument(
+        "--starts",
+        type=_argument_type(_positive_int),
+        default=1,
+        help="solver starts: the prior, then draws from it (default 1)",
+    )
+    sub.add_argument(
+        "--hessian",
+        choices=["gauss-newton", "exact"],
+        default="gauss-newton",
+        help="IPOPT Hessian (default gauss-newton: faster here, see the README)",
+    )
+    sub.add_argument(
+        "--process-scale",
+        type=_argument_type(_positive_float),
+        default=1.0,
+        help="factor on the estimator's process noise std for the FIE's Q (default 1.0, best "
+        "on the real runs; 0.1 on simulated data, whose truth has no process noise)",
+    )
+    sub.add_argument("--overwrite", action="store_true", help=overwrite)
+    sub.set_defaults(handler=run_sysid)
+
+    sub = subparsers.add_parser(
+        "validate",
+        help="open-loop prediction error of parameters on a dataset",
+        description="Predict open loop over --horizon from every sample (start state from an "
+        "EKF with the same parameters) and compare with the dataset's reference positions "
+        "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
+        "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
+    )
+    sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("--params", required=True, help="parameter YAML to validate (or 'rough')")
+    sub.add_argument("--prior", help="a second parameter YAML shown side by side (or 'rough')")
+    sub.add_argument(
+        "--horizon",
+        type=_argument_type(_positive_float),
+        default=2.0,
+        help="open-loop horizon, s (default 2.0, the paper's)",
+    )
+    sub.add_argument("--effect", help="model effect (repeatable; inferred from --params)", **effect)
+    sub.add_argument("--out", required=True, help="output folder")
+    sub.add_argument("--overwrite", action="store_true", help=overwrite)
+    sub.set_defaults(handler=run_validate)
+
+
+def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:
+    """``crs bench sysid``: see :func:`launch_scripts.sysid_bench.sysid_benchmark`."""
+    from launch_scripts.sysid_bench import sysid_benchmark as run
+
+    return run(out, seeds)
