@@ -69,6 +69,7 @@ Any other keys (rates, noise settings, notes) are kept in :attr:`Dataset.meta`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -300,7 +301,7 @@ class Dataset:
             np.save(folder / "x.npy", self.x.T.copy())
         meta = {"format": FORMAT, **self.meta, "geometry": self.geometry.to_dict()}
         meta["y_channels"] = list(Y_CHANNELS)
-        (folder / "dataset.yaml").write_text(yaml.safe_dump(_plain(meta), sort_keys=False))
+        (folder / "dataset.yaml").write_text(yaml.safe_dump(plain(meta), sort_keys=False))
         if optional["stream.npz"]:
             write_stream(
                 folder / "stream.npz", self.measurements, self.inputs, self.truth_t, self.truth_x
@@ -338,16 +339,19 @@ def _check_array(name: str, array: np.ndarray, shape: tuple[int, ...], allow_nan
         raise ValueError(f"{name}: contains non-finite values")
 
 
-def _plain(value: Any) -> Any:
-    """Convert numpy scalars/arrays and tuples to YAML-safe builtins."""
+def plain(value: Any, nonfinite_as_none: bool = False) -> Any:
+    """Numpy scalars and arrays, tuples and mappings as YAML / JSON builtins (a non-finite float
+    as ``None`` with ``nonfinite_as_none``, for strict JSON)."""
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain(v, nonfinite_as_none) for k, v in value.items()}
     if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
+        return [plain(v, nonfinite_as_none) for v in value]
     if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
+        return plain(value.tolist(), nonfinite_as_none)
     if isinstance(value, np.generic):
-        return value.item()
+        value = value.item()
+    if nonfinite_as_none and isinstance(value, float) and not math.isfinite(value):
+        return None
     return value
 
 

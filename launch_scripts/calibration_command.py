@@ -12,40 +12,16 @@ Every mode writes ``geometry.yaml`` (the ``geometry`` block of ``dataset.yaml``)
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
 COMMAND = "calibrate-lighthouse"
-OVERWRITE_HELP = (
-    "replace an --out folder written by an earlier crs run (a folder holding other files is "
-    "always refused)"
-)
-
-
-def _bounded(name: str, unit: str, low: float, high: float, kind=float):
-    """argparse type: a finite ``kind`` in ``[low, high]``, the error naming ``name``."""
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{name}: {text!r} is not a number") from None
-        if not (math.isfinite(value) and low <= value <= high):
-            raise argparse.ArgumentTypeError(
-                f"{name}: must be >= {low:g} and <= {high:g} {unit}, got {text!r}".replace(
-                    "  ", " "
-                )
-            )
-        return value
-
-    parse.__name__ = name
-    return parse
 
 
 def add_commands(subparsers) -> None:
@@ -73,7 +49,7 @@ def add_commands(subparsers) -> None:
     static.add_argument("--out", type=Path, required=True, help="output folder")
     static.add_argument(
         "--stations",
-        type=_bounded("--stations", "", 1, 16, int),
+        type=bounded_number("stations", "", 1, 16, int, include_low=True),
         help="calibrate stations 0..N-1 (default: every station in the file)",
     )
     static.add_argument(
@@ -101,13 +77,13 @@ def add_commands(subparsers) -> None:
     )
     moving.add_argument(
         "--offset",
-        type=_bounded("--offset", "s", -1.0, 1.0),
+        type=bounded_number("offset", "s", -1.0, 1.0, include_low=True),
         default=0.0,
         help="clock offset, s: fixed, or the start with --fit-offset (default 0)",
     )
     moving.add_argument(
         "--max-offset",
-        type=_bounded("--max-offset", "s", 0.0, 1.0),
+        type=bounded_number("max-offset", "s", 0.0, 1.0, include_low=True),
         default=0.25,
         help="search range of --fit-offset, +-s (default 0.25)",
     )
@@ -131,25 +107,25 @@ def add_commands(subparsers) -> None:
     points.add_argument("file", type=Path, metavar="FILE", help="points YAML to write")
     points.add_argument(
         "--points",
-        type=_bounded("--points", "", 1, 1000, int),
+        type=bounded_number("points", "", 1, 1000, int, include_low=True),
         default=24,
         help="number of points (default 24)",
     )
     points.add_argument(
         "--stations",
-        type=_bounded("--stations", "", 1, 8, int),
+        type=bounded_number("stations", "", 1, 8, int, include_low=True),
         default=1,
         help="base stations, 1..8 (default 1: the recorded one)",
     )
     points.add_argument(
         "--sweeps",
-        type=_bounded("--sweeps", "", 1, 10000, int),
+        type=bounded_number("sweeps", "", 1, 10000, int, include_low=True),
         default=20,
         help="sweeps per plane at each point (default 20)",
     )
     points.add_argument(
         "--position-std",
-        type=_bounded("--position-std", "m", 0.0, 1.0),
+        type=bounded_number("position-std", "m", 0.0, 1.0, include_low=True),
         default=0.0,
         help="error of the written positions, m (default 0)",
     )
@@ -167,19 +143,19 @@ def add_commands(subparsers) -> None:
     recording.add_argument("--out", type=Path, required=True, help="dataset folder")
     recording.add_argument(
         "--duration",
-        type=_bounded("--duration", "s", 1.0, 600.0),
+        type=bounded_number("duration", "s", 1.0, 600.0, include_low=True),
         default=20.0,
         help="simulated time, s (default 20)",
     )
     recording.add_argument(
         "--offset",
-        type=_bounded("--offset", "s", -1.0, 1.0),
+        type=bounded_number("offset", "s", -1.0, 1.0, include_low=True),
         default=0.02,
         help="motion-capture clock minus car clock, s (default 0.02)",
     )
     recording.add_argument(
         "--stations",
-        type=_bounded("--stations", "", 1, 8, int),
+        type=bounded_number("stations", "", 1, 8, int, include_low=True),
         default=1,
         help="base stations, 1..8 (default 1)",
     )
@@ -198,7 +174,7 @@ def add_commands(subparsers) -> None:
     bench.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     bench.add_argument(
         "--seeds",
-        type=_bounded("--seeds", "", 1, 50, int),
+        type=bounded_number("seeds", "", 1, 50, int, include_low=True),
         default=5,
         help="static seeds per setting (default 5; moving uses min(seeds, 3))",
     )

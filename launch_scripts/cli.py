@@ -24,31 +24,14 @@ import yaml
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec, parse_effect
+from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
 from launch_scripts.calibration_command import add_commands as add_calibration_commands
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
 from launch_scripts.sysid_command import add_commands as add_sysid_commands
 from sim.sensors import SensorSuite, parse_blackout
 
-OVERWRITE_HELP = (
-    "replace an --out folder written by an earlier crs run (a folder holding other files is "
-    "always refused)"
-)
-
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
-
-
-def argument_type(parse):
-    """An argparse type from a parser raising ``ValueError`` (its message, one line)."""
-
-    def parse_argument(text: str):
-        try:
-            return parse(text)
-        except ValueError as error:
-            raise argparse.ArgumentTypeError(str(error)) from None
-
-    parse_argument.__name__ = parse.__name__
-    return parse_argument
 
 
 #: Longest simulation or launch the CLI accepts, s (the simulator keeps every sample).
@@ -60,23 +43,6 @@ EFFECTS_EPILOG = "effects (--effect NAME[.PARAM][=VALUE]; parameter, unit, defau
     + "; ".join(f"{p.name} [{p.unit}] {p.value:g}: {p.description}" for p in effect.parameters)
     for effect in EFFECTS.values()
 )
-
-
-def bounded_number(name: str, unit: str, low: float, high: float, kind=float):
-    """An argparse type: a finite ``kind`` in ``(low, high]`` (``low`` excluded), named."""
-
-    def parse(text: str):
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and low < value <= high):
-            raise argparse.ArgumentTypeError(
-                f"{text!r}: {name} must be > {low:g} and <= {high:g} {unit}".rstrip()
-            )
-        return value
-
-    return parse
 
 
 def build_model(

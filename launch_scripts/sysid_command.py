@@ -11,7 +11,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 from crs_core.dataset import Dataset
@@ -21,41 +20,11 @@ from crs_core.model import EFFECTS, CarModel
 from crs_core.model.chronos import ROUGH_PRIOR
 from crs_core.model.effects import effect_spec, parse_effect
 from crs_core.parameters import ParameterSet
+from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
 from launch_scripts.output_folder import prepare_output
 
 #: ``--params rough``: the rougher prior of the real recordings' README.
 ROUGH = "rough"
-
-
-def _argument_type(parse):
-    def parse_argument(text: str):
-        try:
-            return parse(text)
-        except ValueError as error:
-            raise argparse.ArgumentTypeError(str(error)) from None
-
-    parse_argument.__name__ = parse.__name__
-    return parse_argument
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise ValueError(f"{text!r} is not an integer") from None
-    if value < 1:
-        raise ValueError(f"{text!r}: must be >= 1")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{text!r} is not a number") from None
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"{text!r}: must be finite and > 0")
-    return value
 
 
 def effects_of_yaml(path: Path) -> list[str]:
@@ -184,9 +153,8 @@ def run_validate(args: argparse.Namespace) -> int:
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
-    overwrite = "replace an --out folder written by an earlier crs run"
     effect = {
-        "type": _argument_type(parse_effect),
+        "type": argument_type(parse_effect),
         "action": "append",
         "metavar": "NAME[.PARAM][=VALUE]",
     }
@@ -214,7 +182,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     sub.add_argument("--effect", help="add a model effect (repeatable)", **effect)
     sub.add_argument(
         "--starts",
-        type=_argument_type(_positive_int),
+        type=bounded_number("starts", "", 1, kind=int, include_low=True),
         default=1,
         help="solver starts: the prior, then draws from it (default 1)",
     )
@@ -226,12 +194,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     sub.add_argument(
         "--process-scale",
-        type=_argument_type(_positive_float),
+        type=bounded_number("process-scale", "", 0.0),
         default=1.0,
         help="factor on the estimator's process noise std for the FIE's Q (default 1.0, best "
         "on the real runs; 0.1 on simulated data, whose truth has no process noise)",
     )
-    sub.add_argument("--overwrite", action="store_true", help=overwrite)
+    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_sysid)
 
     sub = subparsers.add_parser(
@@ -247,13 +215,13 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     sub.add_argument("--prior", help="a second parameter YAML shown side by side (or 'rough')")
     sub.add_argument(
         "--horizon",
-        type=_argument_type(_positive_float),
+        type=bounded_number("horizon", "s", 0.0),
         default=2.0,
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
     sub.add_argument("--effect", help="model effect (repeatable; inferred from --params)", **effect)
     sub.add_argument("--out", required=True, help="output folder")
-    sub.add_argument("--overwrite", action="store_true", help=overwrite)
+    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_validate)
 
 

@@ -21,7 +21,7 @@ from crs_core.calibration.evaluation import MovingFixes, PointReport, SweepRow
 from crs_core.calibration.moving import MovingCalibration
 from crs_core.calibration.points import CalibrationPoints
 from crs_core.calibration.static import StaticCalibration
-from crs_core.dataset import Geometry
+from crs_core.dataset import Geometry, plain
 from crs_core.model.lighthouse import BaseStation
 
 
@@ -33,7 +33,11 @@ def write_geometry(
     text = (
         "# Lighthouse geometry from crs calibrate-lighthouse; the 'geometry' block of "
         "dataset.yaml\n"
-        + yaml.safe_dump({"geometry": _plain(block)}, sort_keys=False, default_flow_style=None)
+        + yaml.safe_dump(
+            {"geometry": plain(block, nonfinite_as_none=True)},
+            sort_keys=False,
+            default_flow_style=None,
+        )
     )
     path.write_text(text)
     return path
@@ -154,7 +158,9 @@ def moving_summary(
 
 
 def write_json(path: Path, summary: dict[str, Any]) -> Path:
-    path.write_text(json.dumps(_plain(summary), indent=2, allow_nan=True) + "\n")
+    path.write_text(
+        json.dumps(plain(summary, nonfinite_as_none=True), indent=2, allow_nan=True) + "\n"
+    )
     return path
 
 
@@ -285,17 +291,3 @@ def moving_markdown(summary: dict[str, Any], command: str) -> str:
         ]
     lines += ["Figures: `moving_residuals.png`, `offset_scan.png` (when the offset is fitted).", ""]
     return "\n".join(lines)
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value

@@ -218,10 +218,16 @@ def test_moving_bad_inputs(recording: Path, tmp_path: Path):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["static", "p.yaml", "--out", "o", "--stations", "0"], "--stations: must be >= 1"),
+        (
+            ["static", "p.yaml", "--out", "o", "--stations", "0"],
+            "--stations: '0': stations must be >= 1",
+        ),
         (["static", "p.yaml", "--out", "o", "--stations", "two"], "--stations: 'two' is not"),
-        (["moving", "d", "--out", "o", "--max-offset", "nan"], "--max-offset: must be"),
-        (["simulate-points", "p.yaml", "--sweeps", "0"], "--sweeps: must be >= 1"),
+        (
+            ["moving", "d", "--out", "o", "--max-offset", "nan"],
+            "--max-offset: 'nan': max-offset must be",
+        ),
+        (["simulate-points", "p.yaml", "--sweeps", "0"], "--sweeps: '0': sweeps must be >= 1"),
     ],
 )
 def test_argument_types_name_the_option(argv, message, capsys):
