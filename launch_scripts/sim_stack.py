@@ -167,21 +167,24 @@ def _progress(launcher: Launcher, duration: float, every: float = 5.0):
     return tick
 
 
+def rmse_text(rmse: dict[str, float] | None) -> str:
+    """``RMSE x 0.8 mm, y 1.0 mm, yaw 7.1 mrad`` from a report's ``estimation_rmse``."""
+    if not rmse:
+        return "no estimates"
+    return (
+        f"RMSE x {1e3 * rmse['x']:.1f} mm, y {1e3 * rmse['y']:.1f} mm, "
+        f"yaw {1e3 * rmse['yaw']:.1f} mrad"
+    )
+
+
 def summary(report: dict[str, Any], out: Path) -> str:
     """A few lines for a person: laps, errors, deadline misses, deaths, where the report is."""
     lines = []
     for car, c in report["cars"].items():
-        rmse = c.get("estimation_rmse") or {}
         times = ", ".join(f"{t:.1f}" for t in c.get("lap_times_s", []))
         laps = f"{c.get('laps_completed', 0)} laps" + (f" ({times} s)" if times else "")
-        errors = (
-            f"RMSE x {1e3 * rmse['x']:.1f} mm, y {1e3 * rmse['y']:.1f} mm, "
-            f"yaw {1e3 * rmse['yaw']:.1f} mrad"
-            if rmse
-            else "no estimates"
-        )
         lines.append(
-            f"{car}: {laps}; {errors}; "
+            f"{car}: {laps}; {rmse_text(c.get('estimation_rmse'))}; "
             f"{c.get('estimator_deadline_misses', 0)} deadline misses in "
             f"{c.get('estimator_updates', 0)} updates"
         )

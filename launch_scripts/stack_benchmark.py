@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from launch_scripts.sim_stack import run_stack
+from launch_scripts.sim_stack import rmse_text, run_stack
 
 #: A process that keeps one core busy until it is killed.
 BUSY_LOOP = "while True:\n    pass\n"
@@ -95,13 +95,7 @@ def format_table(result: dict[str, Any]) -> str:
     ]
     for k, run in enumerate(result["runs"], start=1):
         for car, c in run["cars"].items():
-            rmse = c.get("estimation_rmse") or {}
-            errors = (
-                f"RMSE x {1e3 * rmse['x']:.1f} mm, y {1e3 * rmse['y']:.1f} mm, "
-                f"yaw {1e3 * rmse['yaw']:.1f} mrad"
-                if rmse
-                else "no estimates"
-            )
+            errors = rmse_text(c.get("estimation_rmse"))
             lines.append(
                 f"  repeat {k} {car}: {c.get('laps_completed', 0)} laps; {errors}; "
                 f"{c.get('estimator_deadline_misses', 0)} misses, "

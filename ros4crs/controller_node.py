@@ -24,12 +24,12 @@ from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
+    CheckedSubscription,
     declare,
     declare_model,
     declare_track,
     positive,
     run,
-    subscribe_checked,
 )
 
 STOP = np.array([0.0, 0.0])
@@ -65,7 +65,7 @@ class ControllerNode(Node):
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_QOS
         )
-        self._estimates = subscribe_checked(
+        self._estimates = CheckedSubscription(
             self,
             CarState,
             conversions.TOPICS["state"],

@@ -44,6 +44,7 @@ from crs_core.measurements import InputSample, Measurement, from_start
 from ros4crs import conversions
 from ros4crs.node_support import (
     LOG_QOS,
+    CheckedSubscription,
     ParameterError,
     declare,
     declare_model,
@@ -55,7 +56,6 @@ from ros4crs.node_support import (
     parsed_with,
     positive,
     run,
-    subscribe_checked,
     throttled_warning,
 )
 
@@ -115,7 +115,7 @@ class EstimatorNode(Node):
         for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
         self._checked_subscriptions.append(
-            subscribe_checked(
+            CheckedSubscription(
                 self,
                 CarInput,
                 conversions.TOPICS["input"],
@@ -154,7 +154,7 @@ class EstimatorNode(Node):
             self._deliver(measurement)
 
         self._checked_subscriptions.append(
-            subscribe_checked(
+            CheckedSubscription(
                 self,
                 msg_type,
                 conversions.TOPICS[family],

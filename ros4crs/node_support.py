@@ -253,18 +253,6 @@ class CheckedSubscription:
                 taken += 1
 
 
-def subscribe_checked(
-    node: Node,
-    msg_type: type,
-    topic: str,
-    parse: Callable[[Any], Any],
-    handle: Callable[[Any], None],
-    what: str,
-) -> CheckedSubscription:
-    """Subscribe raw to ``topic``, every message validated (see :class:`CheckedSubscription`)."""
-    return CheckedSubscription(node, msg_type, topic, parse, handle, what)
-
-
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:
     """Initialise rclpy, spin the node until Ctrl-C / SIGTERM / shutdown, clean up.
 

@@ -27,6 +27,7 @@ from crs_core.model.effects import effect_spec, parse_effect
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
+    CheckedSubscription,
     declare,
     declare_model,
     declare_track,
@@ -36,7 +37,6 @@ from ros4crs.node_support import (
     parsed_with,
     positive,
     run,
-    subscribe_checked,
 )
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
@@ -109,7 +109,7 @@ class SimulatorNode(Node):
         from chronos_msgs.msg import CarInput, CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
-        self._inputs = subscribe_checked(
+        self._inputs = CheckedSubscription(
             self,
             CarInput,
             conversions.TOPICS["input"],
