@@ -88,13 +88,8 @@ class SweepModel:
             np.asarray(diodes, float).reshape(-1),
             np.asarray(rotation0, float),
         )
-        for begin in range(0, n, CHUNK):
-            count = min(CHUNK, n - begin)
-            block = np.zeros((3, CHUNK))
-            block[:, :count] = poses[begin : begin + count].T
-            block[:, count:] = block[:, :1]  # padding: any valid pose
+        for part, count, block in _chunks(poses):
             out = self._full(block, *shared)
-            part = slice(begin, begin + count)
             y[part] = out[0].T[:count]
             for target, jac in ((jq, out[1]), (jt, out[2]), (jd, out[3])):
                 width = target.shape[2]
@@ -113,12 +108,8 @@ class SweepModel:
             np.asarray(diodes, float).reshape(-1),
             np.asarray(rotation0, float),
         )
-        for begin in range(0, n, CHUNK):
-            count = min(CHUNK, n - begin)
-            block = np.zeros((3, CHUNK))
-            block[:, :count] = poses[begin : begin + count].T
-            block[:, count:] = block[:, :1]
-            y[begin : begin + count] = self._values(block, *shared)[0].T[:count]
+        for part, count, block in _chunks(poses):
+            y[part] = self._values(block, *shared)[0].T[:count]
         return y
 
 
@@ -198,3 +189,14 @@ def station_from_bearings(
     m = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     position = -m.T @ h[:, 2]
     return m.T, position
+
+
+def _chunks(poses: np.ndarray):
+    """``(rows, count, block)`` per ``CHUNK`` poses: the (3, CHUNK) input of the compiled
+    functions, padded past ``count`` with its first pose (any valid pose)."""
+    for begin in range(0, poses.shape[0], CHUNK):
+        count = min(CHUNK, poses.shape[0] - begin)
+        block = np.zeros((3, CHUNK))
+        block[:, :count] = poses[begin : begin + count].T
+        block[:, count:] = block[:, :1]
+        yield slice(begin, begin + count), count, block
