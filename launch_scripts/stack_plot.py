@@ -39,26 +39,26 @@ class StateTrack:
 def read_states(bag: Path, topic: str) -> StateTrack:
     """Every ``CarState`` on ``topic`` (absolute, e.g. ``/car1/estimate/state``) with its
     covariance; messages with a non-finite state are skipped."""
-    from rosbags.rosbag2 import Reader
-
-    from ros4crs.conversions import seconds_from_stamp
+    from ros4crs.bag_repair import open_bag
+    from ros4crs.conversions import state_from_msg
     from ros4crs.interfaces import typestore
 
     store = typestore()
     stamps, states, sigmas = [], [], []
-    with Reader(bag) as reader:
+    with open_bag(bag) as reader:  # a cut-off bag up to its last complete message
         connections = [c for c in reader.connections if c.topic == topic]
         # (an empty list would mean every message to rosbags)
         for connection, _, data in reader.messages(connections) if connections else ():
             msg = store.deserialize_cdr(bytes(data), connection.msgtype)
-            x = np.array([msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega], dtype=float)
-            if not np.all(np.isfinite(x)):
+            try:
+                stamp, x = state_from_msg(msg)
+            except ValueError:
                 continue
             covariance = np.asarray(msg.covariance, dtype=float).reshape(6, 6)
             variance = np.diag(covariance).copy()
             if not np.any(covariance) or not np.all(np.isfinite(variance)):
                 variance[:] = np.nan
-            stamps.append(seconds_from_stamp(msg.header.stamp))
+            stamps.append(stamp)
             states.append(x)
             sigmas.append(np.sqrt(np.clip(variance, 0.0, None)))
     order = np.argsort(stamps, kind="stable")
