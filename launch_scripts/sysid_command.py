@@ -14,12 +14,12 @@ from typing import Any
 import yaml
 
 from crs_core.dataset import Dataset
+from crs_core.estimation.offline import dataset_model
 from crs_core.identification.data import FieData
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.chronos import ROUGH_PRIOR
 from crs_core.model.effects import effect_spec, parse_effect
-from crs_core.parameters import ParameterSet
 from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
 from launch_scripts.output_folder import prepare_output
 
@@ -51,20 +51,12 @@ def identification_model(
         if effects and not isinstance(effects[0], str)
         else {name: None for name in effects}
     )
-    n = len(dataset.geometry.base_stations)
-    base = CarModel(spec, n_base_stations=n)
-    geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
-    parameters: ParameterSet = base.parameters.updated(geometry)
-    if params is not None:
-        if str(params) == ROUGH:
-            parameters = parameters.updated(ROUGH_PRIOR)
-        else:
-            try:
-                parameters = parameters.updated_from_yaml(params)
-            except (ValueError, KeyError) as error:
-                message = error.args[0] if error.args else str(error)
-                raise ValueError(f"--params: {message}") from None
-    return CarModel(spec, n_base_stations=n, parameters=parameters)
+    rough = params is not None and str(params) == ROUGH
+    try:
+        return dataset_model(dataset, None if rough else params, spec, ROUGH_PRIOR if rough else {})
+    except (ValueError, KeyError) as error:
+        message = error.args[0] if error.args else str(error)
+        raise ValueError(f"--params: {message}") from None
 
 
 def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:

@@ -25,9 +25,10 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -59,18 +60,26 @@ AUTO_SENSOR_GROUPS = ("lh", "imu", "gyro", "we")
 SETTLING_S = 2.0
 
 
-def dataset_model(dataset: Dataset, parameters_yaml: str | Path | None = None) -> CarModel:
+def dataset_model(
+    dataset: Dataset,
+    parameters_yaml: str | Path | None = None,
+    effects: Mapping[str, Any] = MappingProxyType({}),
+    values: Mapping[str, float] = MappingProxyType({}),
+) -> CarModel:
     """The Chronos model with the dataset's Lighthouse geometry (stations, photodiodes).
 
-    ``parameters_yaml`` (a parameter file, :meth:`~crs_core.parameters.ParameterSet.
-    updated_from_yaml`) is applied last, so it may also override the geometry.
+    ``effects`` (the ``CarModel`` effects mapping) are switched on; ``values`` (parameter
+    values by name) and then ``parameters_yaml`` (a parameter file,
+    :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`) are applied last, so they may
+    also override the geometry.
     """
     n = len(dataset.geometry.base_stations)
     geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
-    parameters = CarModel(n_base_stations=n).parameters.updated(geometry)
+    parameters = CarModel(effects, n_base_stations=n).parameters.updated(geometry)
+    parameters = parameters.updated(dict(values))
     if parameters_yaml is not None:
         parameters = parameters.updated_from_yaml(parameters_yaml)
-    return CarModel(n_base_stations=n, parameters=parameters)
+    return CarModel(effects, n_base_stations=n, parameters=parameters)
 
 
 def dataset_stream(dataset: Dataset) -> tuple[list[Measurement], list[InputSample], str]:
