@@ -119,8 +119,28 @@ def real_study() -> dict[str, Any]:
             "position_rmse_at_horizon_m": summary["position_rmse_at_horizon_m"],
             "paper_position_rmse_m": {"prior": 0.24, "identified": 0.09},
             "not_identifiable": result.uncertainty.warnings(),
+            "prediction_error_floor": prediction_error_floor(dataset, Dataset.load(test), model),
         }
     return out
+
+
+def prediction_error_floor(train: Dataset, test: Dataset, model: CarModel) -> dict[str, Any]:
+    """The 15 dynamics parameters fitted to the validation metric itself on ``train``
+    (:mod:`crs_core.identification.prediction_error`), validated on ``test``: the held-out error
+    no parameter vector of this model structure is expected to beat."""
+    from crs_core.identification.prediction_error import fit_prediction_error
+    from crs_core.identification.validation import validate
+
+    fitted = fit_prediction_error(train, model, DYNAMICS_FIT)
+    summary, _ = validate(test, model, fitted.parameters)
+    return {
+        "fit": list(fitted.fit),
+        "train_position_rmse_m": {"prior": fitted.rmse_initial_m, "fitted": fitted.rmse_m},
+        "held_out_position_rmse_m": summary["position_rmse_m"]["identified"],
+        "evaluations": fitted.evaluations,
+        "time_s": round(fitted.time_s, 1),
+        "values": {name: fitted.parameters.value(name) for name in fitted.fit},
+    }
 
 
 def speed_study() -> dict[str, Any]:

@@ -58,57 +58,85 @@ class OpenLoopPrediction:
     outputs: np.ndarray
 
 
+class OpenLoopPredictor:
+    """Open-loop predictions over ``horizon_s`` from every ``every``-th start of ``dataset``.
+
+    The start states are fixed at construction (an EKF run with ``model``'s parameters, or
+    ``states``); the compiled RK4 step is built once, so :meth:`predict` can be called with many
+    parameter vectors (the prediction-error fit does).
+    """
+
+    def __init__(
+        self,
+        dataset: Dataset,
+        model: CarModel,
+        horizon_s: float = DEFAULT_HORIZON_S,
+        states: np.ndarray | None = None,
+        every: int = 1,
+    ) -> None:
+        if not horizon_s > 0:
+            raise ValueError(f"horizon: must be > 0 s, got {horizon_s}")
+        if dataset.u is None:
+            raise ValueError("dataset: has no inputs (u.npy); open-loop prediction needs them")
+        t = dataset.t
+        if t[-1] - t[0] < horizon_s:
+            raise ValueError(
+                f"horizon: {horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
+            )
+        self.dataset, self.model, self.horizon_s = dataset, model, horizon_s
+        self.states = initial_trajectory(dataset, model) if states is None else states
+        self.end = np.searchsorted(t, t + horizon_s + 1e-9, side="right") - 1  # last in horizon
+        self.starts = np.flatnonzero(t + horizon_s <= t[-1] + 1e-9)[::every]
+        self.steps = int(np.max(self.end[self.starts] - self.starts))
+        self._sub_u, self._sub_h = _substeps(dataset)
+        n = len(self.starts)
+        functions = compile_functions(
+            [
+                model.step_function(1, "rk4_validation").map(
+                    "rk4_validation_map", "serial", n, [], []
+                ),
+                ca.Function(
+                    "h_validation",
+                    [model.x_sym, model.u_sym, model.p_sym],
+                    [ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))],
+                ).map("h_validation_map", "serial", n, [], []),
+            ],
+            f"fie_validation_{model.tag}_{model.n_base_stations}bs_{n}",
+        )
+        self._step, self._output = functions["rk4_validation_map"], functions["h_validation_map"]
+
+    def predict(self, p: np.ndarray | None = None, outputs: bool = True) -> OpenLoopPrediction:
+        """Predict with the model's parameter vector ``p`` (default: the model's own)."""
+        t, u, starts, n = self.dataset.t, self.dataset.u, self.starts, len(self.starts)
+        p = self.model.parameters.vector() if p is None else np.asarray(p, dtype=float)
+        p_all = np.tile(p[:, None], (1, n))
+        x = self.states[starts].T.copy()
+        positions = np.full((n, self.steps, 2), np.nan)
+        predicted = np.full((n, self.steps, len(Y_CHANNELS)), np.nan)
+        for i in range(self.steps):
+            k = starts + i  # interval being integrated, per start
+            active = k + 1 <= self.end[starts]
+            kk = np.minimum(k, len(t) - 2)
+            for s in range(self._sub_h.shape[1]):
+                h_s = np.where(active, self._sub_h[kk, s], 0.0)
+                if not np.any(h_s > 0):
+                    break
+                x = self._step(x, self._sub_u[kk, s].T, p_all, h_s)[0].reshape(
+                    self.model.nx, n, order="F"
+                )
+            positions[active, i] = x[:2, active].T
+            if outputs:
+                u_next = u[np.minimum(kk + 1, len(t) - 1)].T
+                y = self._output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), n, order="F").T
+                predicted[active, i] = y[active]
+        return OpenLoopPrediction(self.horizon_s, starts, self.steps, positions, predicted)
+
+
 def predict_open_loop(
     dataset: Dataset, model: CarModel, horizon_s: float = DEFAULT_HORIZON_S
 ) -> OpenLoopPrediction:
     """Predict from every start with ``model``'s parameters (initial states from its EKF)."""
-    if not horizon_s > 0:
-        raise ValueError(f"horizon: must be > 0 s, got {horizon_s}")
-    if dataset.u is None:
-        raise ValueError("dataset: has no inputs (u.npy); open-loop prediction needs them")
-    t = dataset.t
-    if t[-1] - t[0] < horizon_s:
-        raise ValueError(
-            f"horizon: {horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
-        )
-    states = initial_trajectory(dataset, model)
-    end = np.searchsorted(t, t + horizon_s + 1e-9, side="right") - 1  # last sample in horizon
-    starts = np.flatnonzero(t + horizon_s <= t[-1] + 1e-9)
-    steps = int(np.max(end[starts] - starts))
-    sub_u, sub_h = _substeps(dataset)
-    p = model.parameters.vector()
-    n = len(starts)
-    functions = compile_functions(
-        [
-            model.step_function(1, "rk4_validation").map("rk4_validation_map", "serial", n, [], []),
-            ca.Function(
-                "h_validation",
-                [model.x_sym, model.u_sym, model.p_sym],
-                [ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))],
-            ).map("h_validation_map", "serial", n, [], []),
-        ],
-        f"fie_validation_{model.tag}_{model.n_base_stations}bs_{n}",
-    )
-    step, output = functions["rk4_validation_map"], functions["h_validation_map"]
-    x = states[starts].T.copy()
-    p_all = np.tile(p[:, None], (1, len(starts)))
-    positions = np.full((len(starts), steps, 2), np.nan)
-    outputs = np.full((len(starts), steps, len(Y_CHANNELS)), np.nan)
-    for i in range(steps):
-        k = starts + i  # interval being integrated, per start
-        active = k + 1 <= end[starts]
-        kk = np.minimum(k, len(t) - 2)
-        for s in range(sub_h.shape[1]):
-            h_s = np.where(active, sub_h[kk, s], 0.0)
-            if not np.any(h_s > 0):
-                break
-            u = sub_u[kk, s].T
-            x = step(x, u, p_all, h_s)[0].reshape(model.nx, n, order="F")
-        positions[active, i] = x[:2, active].T
-        u_next = dataset.u[np.minimum(kk + 1, len(t) - 1)].T
-        predicted = output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), n, order="F").T
-        outputs[active, i] = predicted[active]
-    return OpenLoopPrediction(horizon_s, starts, steps, positions, outputs)
+    return OpenLoopPredictor(dataset, model, horizon_s).predict()
 
 
 def _substeps(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
@@ -131,14 +159,23 @@ def _substeps(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
     return sub_u, sub_h
 
 
-def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
-    """Position RMSE (over the horizon and at its end) and per-channel RMS, JSON-ready."""
+def _horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
+    """Sample index of every prediction step, ``(S, steps)`` (clipped at the last sample)."""
+    index = prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :]
+    return np.minimum(index, len(dataset.t) - 1)
+
+
+def position_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
+    """Predicted minus reference position, ``(S, steps, 2)`` m (NaN beyond the horizon)."""
     if dataset.x is None:
         raise ValueError("dataset: has no reference states (x.npy) for the position RMSE")
-    index = prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :]
-    index = np.minimum(index, len(dataset.t) - 1)
-    reference = dataset.x[index, :2]
-    error = np.linalg.norm(prediction.positions - reference, axis=2)
+    return prediction.positions - dataset.x[_horizon_index(dataset, prediction), :2]
+
+
+def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
+    """Position RMSE (over the horizon and at its end) and per-channel RMS, JSON-ready."""
+    index = _horizon_index(dataset, prediction)
+    error = np.linalg.norm(position_errors(dataset, prediction), axis=2)
     valid = np.isfinite(error)
     last = np.array([np.flatnonzero(row)[-1] for row in valid])
     end_error = error[np.arange(len(last)), last]
