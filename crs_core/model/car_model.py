@@ -38,7 +38,14 @@ MAX_SUBSTEP = 0.004
 #: States of the input-free model (``estimated_inputs=True``): name, unit.
 ESTIMATED_INPUT_STATES = (("steer_estimated", "rad"), ("torque_estimated", "-"))
 #: Effects that act on the command or the actuators (undefined without commands).
-COMMAND_EFFECTS = ("steering_offset", "input_delay", "steering_lag", "motor_lag")
+COMMAND_EFFECTS = (
+    "steering_offset",
+    "input_delay",
+    "steering_lag",
+    "motor_lag",
+    "steering_gain",
+    "torque_deadzone",
+)
 
 
 def effect_names_and_values(

@@ -2,9 +2,19 @@
 
 An effect adds parameters and may act at three places of the signal chain, in this order:
 
-1. on the **command** before the actuators (``steering_offset``);
+1. on the **command** before the actuators (``steering_offset``, ``steering_gain``,
+   ``torque_deadzone``);
 2. as an **actuator** with its own states (``steering_lag``, ``motor_lag``);
-3. on a **sensor** output (``gyro_bias``, ``wheel_radius_error``).
+3. on a **sensor** output (``gyro_bias``, ``wheel_radius_error``, ``gyro_scale``,
+   ``lighthouse_offset``).
+
+Effects at the same place compose in registry order, so with both switched on the steering
+angle is ``(1 + k) (delta_cmd + delta0)`` and the gyro reads ``(1 + s) (omega + b)`` (a
+reparametrisation of the bias).
+
+Every effect is nested in the base model: with its parameters at 0 the model is exactly the base
+model (the lags only in the limit of a time constant going to 0). Every hook is a smooth CasADi
+expression.
 
 ``input_delay`` is a pure transport delay of both inputs. It has no state-space form: the
 simulator applies it exactly to the input history, and model users read it from
@@ -116,6 +126,56 @@ class WheelRadiusError(Effect):
         return y * P("r") / (P("r") + P("wheel_radius_error"))
 
 
+@dataclass(frozen=True)
+class GyroScale(Effect):
+    """Gyroscope scale-factor error: the IMU yaw rate reads ``(1 + gyro_scale_error) omega``."""
+
+    def output(self, sensor: str, y: ca.SX, P: ParameterAccess) -> ca.SX:
+        if sensor != "imu":
+            return y
+        return ca.vertcat(y[0], y[1], (1 + P("gyro_scale_error")) * y[2])
+
+
+@dataclass(frozen=True)
+class SteeringGain(Effect):
+    """Servo linkage calibration error: the wheels sit at ``(1 + steering_gain_error) delta``."""
+
+    def command(self, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        return ca.vertcat((1 + P("steering_gain_error")) * u[0], u[1])
+
+
+#: Keeps the dead band's ``tanh`` argument finite at ``torque_deadzone = 0`` (bounds >= 0).
+DEADZONE_EPS = 1e-6
+
+
+@dataclass(frozen=True)
+class TorqueDeadzone(Effect):
+    """Motor/ESC dead band of half-width ``T0``, smoothed: ``T - T0 tanh(T / (T0 + eps))``.
+
+    About 0 for ``|T| << T0``, about ``T - T0 sign(T)`` for ``|T| >> T0``, exactly ``T`` at
+    ``T0 = 0``; smooth in ``T`` and ``T0`` (``T0`` is bounded below by 0, so the denominator
+    stays >= ``eps``).
+    """
+
+    def command(self, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        t0 = P("torque_deadzone")
+        return ca.vertcat(u[0], u[1] - t0 * ca.tanh(u[1] / (t0 + DEADZONE_EPS)))
+
+
+@dataclass(frozen=True)
+class LighthouseOffset(Effect):
+    """Constant sweep-timing offset per light plane: every angle of plane k reads ``+ offset_k``.
+
+    Acts on the sensors ``lighthouse/<station>/1`` and ``lighthouse/<station>/2`` of all stations.
+    """
+
+    def output(self, sensor: str, y: ca.SX, P: ParameterAccess) -> ca.SX:
+        kind, _, plane = sensor.rpartition("/")
+        if not kind.startswith("lighthouse/") or plane not in ("1", "2"):
+            return y
+        return y + P(f"lh_plane{plane}_offset")
+
+
 EFFECTS: dict[str, Effect] = {
     e.name: e
     for e in (
@@ -187,6 +247,67 @@ EFFECTS: dict[str, Effect] = {
                     0.005,
                     "true minus nominal wheel radius",
                 ),
+            ),
+        ),
+        GyroScale(
+            "gyro_scale",
+            "scale-factor error of the IMU gyroscope: yaw rate reads (1 + s) omega",
+            (
+                _parameter(
+                    "gyro_scale",
+                    "gyro_scale_error",
+                    0.05,
+                    "-",
+                    -0.3,
+                    0.3,
+                    "gyro scale-factor error s",
+                ),
+            ),
+        ),
+        SteeringGain(
+            "steering_gain",
+            "servo linkage calibration error: applied angle = (1 + k) command",
+            (
+                _parameter(
+                    "steering_gain",
+                    "steering_gain_error",
+                    0.1,
+                    "-",
+                    -0.5,
+                    0.5,
+                    "steering gain error k",
+                ),
+            ),
+        ),
+        TorqueDeadzone(
+            "torque_deadzone",
+            "motor/ESC dead band: small torque commands do not reach the motor",
+            (
+                _parameter(
+                    "torque_deadzone",
+                    "torque_deadzone",
+                    0.05,
+                    "-",
+                    0.0,
+                    0.3,
+                    "dead-band half-width T0 (normalised torque command)",
+                ),
+            ),
+        ),
+        LighthouseOffset(
+            "lighthouse_offset",
+            "constant sweep-timing offset of each light plane in the receiver's angle conversion",
+            tuple(
+                _parameter(
+                    "lighthouse_offset",
+                    f"lh_plane{plane}_offset",
+                    0.003,
+                    "rad",
+                    -0.05,
+                    0.05,
+                    f"angle offset of light plane {plane} (all stations)",
+                )
+                for plane in (1, 2)
             ),
         ),
     )

@@ -6,6 +6,7 @@ import re
 
 import pytest
 
+from crs_core.model import CarModel
 from crs_core.model.effects import effect_spec, parse_effect
 
 
@@ -16,6 +17,14 @@ from crs_core.model.effects import effect_spec, parse_effect
         ("steering_lag=0.08", ("steering_lag", "tau_steer", 0.08)),
         ("steering_lag.tau_steer=0.1", ("steering_lag", "tau_steer", 0.1)),
         ("input_delay=0", ("input_delay", "input_delay", 0.0)),
+        ("gyro_scale=0.1", ("gyro_scale", "gyro_scale_error", 0.1)),
+        ("steering_gain=-0.2", ("steering_gain", "steering_gain_error", -0.2)),
+        ("torque_deadzone", ("torque_deadzone", None, None)),
+        ("lighthouse_offset=0.02", ("lighthouse_offset", "lh_plane1_offset", 0.02)),
+        (
+            "lighthouse_offset.lh_plane2_offset=0.01",
+            ("lighthouse_offset", "lh_plane2_offset", 0.01),
+        ),
     ],
 )
 def test_parse_effect_forms(text: str, expected: tuple):
@@ -50,3 +59,15 @@ def test_effect_spec_merges_parameters_per_effect():
         "steering_lag": {"tau_steer": 0.1},
         "motor_lag": None,
     }
+
+
+def test_parsed_lighthouse_offset_builds_a_model_with_both_plane_offsets():
+    """Both parameters of a two-parameter effect can be set from the command-line form."""
+    spec = effect_spec(
+        parse_effect(t)
+        for t in ("lighthouse_offset=0.02", "lighthouse_offset.lh_plane2_offset=-0.01")
+    )
+    assert spec == {"lighthouse_offset": {"lh_plane1_offset": 0.02, "lh_plane2_offset": -0.01}}
+    model = CarModel(spec)
+    assert model.parameters.value("lh_plane1_offset") == 0.02
+    assert model.parameters.value("lh_plane2_offset") == -0.01
