@@ -309,6 +309,37 @@ class Dataset:
         return folder
 
     # --- views --------------------------------------------------------------------------
+    def samples(self, start: int, stop: int) -> Dataset:
+        """Samples ``start:stop`` as a dataset of their own (a time split for training and
+        held-out data). The full-rate stream keeps what falls within the kept stamps, and the
+        command in force at the first kept stamp."""
+        n = len(self.t)
+        start, stop, _ = slice(start, stop).indices(n)
+        if stop - start < 2:
+            raise ValueError(f"samples: {start}:{stop} keeps fewer than 2 of {n} samples")
+        first, last = self.t[start], self.t[stop - 1]
+        measurements = inputs = truth_t = truth_x = None
+        if self.measurements is not None:
+            measurements = [m for m in self.measurements if first <= m.stamp <= last]
+        if self.inputs is not None:
+            before = [s for s in self.inputs if s.stamp <= first]
+            inputs = before[-1:] + [s for s in self.inputs if first < s.stamp <= last]
+        if self.truth_t is not None and self.truth_x is not None:
+            keep = (self.truth_t >= first) & (self.truth_t <= last)
+            truth_t, truth_x = self.truth_t[keep], self.truth_x[keep]
+        return Dataset(
+            t=self.t[start:stop],
+            u=None if self.u is None else self.u[start:stop],
+            y=self.y[start:stop],
+            x=None if self.x is None else self.x[start:stop],
+            geometry=self.geometry,
+            meta=self.meta,
+            measurements=measurements,
+            inputs=inputs,
+            truth_t=truth_t,
+            truth_x=truth_x,
+        )
+
     def sample_stream(self) -> list[Measurement]:
         """The 13-channel samples as a measurement stream (for datasets without ``stream.npz``).
 

@@ -155,7 +155,7 @@ def speed_study() -> dict[str, Any]:
     }
     for label, dataset in cases.items():
         if dataset is None:
-            dataset = _first_samples(simulate_dataset(70.0, 7), 3000)
+            dataset = simulate_dataset(70.0, 7).samples(0, 3000)
         model = identification_model(dataset, [], ROUGH)
         scale = SIM_PROCESS_SCALE if label.startswith("simulated") else 1.0
         started = time.perf_counter()
@@ -170,19 +170,6 @@ def speed_study() -> dict[str, Any]:
             "solver_status": result.solver_status,
         }
     return out
-
-
-def _first_samples(dataset: Dataset, n: int) -> Dataset:
-    n = min(n, len(dataset.t))
-    return Dataset(
-        t=dataset.t[:n],
-        u=None if dataset.u is None else dataset.u[:n],
-        y=dataset.y[:n],
-        x=None if dataset.x is None else dataset.x[:n],
-        geometry=dataset.geometry,
-        meta=dataset.meta,
-        measurements=dataset.measurements,
-    )
 
 
 def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:

@@ -126,17 +126,16 @@ class FieResult:
 def initial_trajectory(
     dataset: Dataset, model: CarModel, parameters: ParameterSet | None = None
 ) -> np.ndarray:
-    """States ``(N, nx)`` from an EKF run with ``parameters`` (yaw unwrapped; the samples
-    before the first fix take the first fix; effect states at rest under the command)."""
-    base_model = CarModel(n_base_stations=model.n_base_stations)
-    values = parameters or model.parameters
-    base_model = CarModel(
-        n_base_stations=model.n_base_stations,
-        parameters=base_model.parameters.updated(
-            {n: values.value(n) for n in base_model.parameters}
-        ),
-    )
-    estimates = estimate_dataset(dataset, "ekf", model=base_model)
+    """States ``(N, nx)`` from an EKF run with ``model`` (its effects included) and
+    ``parameters`` (default the model's): yaw unwrapped; the samples before the first fix take
+    the first fix; effect states at rest under the command."""
+    if parameters is not None:
+        model = CarModel(
+            {e.name: None for e in model.effects},
+            n_base_stations=model.n_base_stations,
+            parameters=parameters,
+        )
+    estimates = estimate_dataset(dataset, "ekf", model=model)
     x = estimates.x.T.copy()
     found = np.flatnonzero(estimates.status != "lost")
     if not found.size:
@@ -151,16 +150,47 @@ def initial_trajectory(
     return np.stack([model.initial_state(row, command) for row, command in zip(x, u, strict=True)])
 
 
+@dataclass(frozen=True)
+class WarmStart:
+    """An initial guess for the first start instead of the prior and an estimator run.
+
+    Attributes
+    ----------
+    values : mapping of parameter name to value; fitted parameters named here start there (the
+        prior stays the model's)
+    states : (N, >= 6) state trajectory on the dataset's stamps; its base six states are used,
+        effect states start at rest under the command
+    """
+
+    values: dict[str, float]
+    states: np.ndarray
+
+
+def _warm_states(dataset: Dataset, model: CarModel, states: np.ndarray) -> np.ndarray:
+    """``states``' base six columns, effect states at rest under the command."""
+    if states.shape[0] != len(dataset.t) or states.shape[1] < 6:
+        raise ValueError(
+            f"warm_start.states: expected ({len(dataset.t)}, >= 6), got {states.shape}"
+        )
+    u = dataset.u if dataset.u is not None else np.zeros((len(states), 2))
+    return np.stack(
+        [model.initial_state(row[:6], command) for row, command in zip(states, u, strict=True)]
+    )
+
+
 def identify(
     dataset: Dataset,
     model: CarModel,
     settings: FieSettings | None = None,
     progress: Callable[[int, float], None] | None = None,
+    warm_start: WarmStart | None = None,
 ) -> FieResult:
     """Identify ``settings.fit`` from ``dataset``; ``model.parameters`` is the prior.
 
-    Raises ``ValueError`` (naming the field) for a dataset too short, without inputs or
-    measurements, and for unknown parameter names or bounds that exclude the prior.
+    ``warm_start`` (for example an earlier result of a nested model) replaces the estimator run
+    and the prior as the first start's guess. Raises ``ValueError`` (naming the field) for a
+    dataset too short, without inputs or measurements, and for unknown parameter names or
+    bounds that exclude the prior.
     """
     settings = settings or FieSettings()
     check_fit(model, settings.fit)
@@ -184,7 +214,10 @@ def identify(
             if theta0 is None
             else model.parameters.updated(dict(zip(settings.fit, theta0, strict=True)))
         )
-        states0 = initial_trajectory(dataset, model, start_params)
+        if start == 0 and warm_start is not None:
+            states0 = _warm_states(dataset, model, warm_start.states)
+        else:
+            states0 = initial_trajectory(dataset, model, start_params)
         if start == 0:
             prior_states = states0
         if problem is None:
@@ -193,7 +226,11 @@ def identify(
             callback = _IterationProgress(problem.nz, progress) if progress else None
             solver = problem.solver(callback)  # keep ``callback`` alive while solving
             build_s = time.perf_counter() - t_build
-            theta0 = problem.theta_prior
+            theta0 = problem.theta_prior.copy()
+            if warm_start is not None:
+                for j, name in enumerate(problem.fit):
+                    if name in warm_start.values:
+                        theta0[j] = warm_start.values[name]
         z0 = problem.pack(theta0, states0)
         lo, hi = problem.bounds()
         z0 = np.clip(z0, lo, hi)

@@ -522,3 +522,17 @@ def test_truncated_stream_is_a_one_line_error(corruptible: Path):
     (corruptible / "stream.npz").write_bytes(data[:1000])
     with pytest.raises(ValueError, match=r"^stream\.npz: not a readable \.npz archive"):
         Dataset.load(corruptible)
+
+
+def test_samples_view_keeps_the_stream_inside_and_the_command_in_force():
+    from launch_scripts.sysid_bench import simulate_dataset
+
+    dataset = simulate_dataset(4.0, 3)
+    part = dataset.samples(50, 120)
+    assert len(part.t) == 70 and part.t[0] == dataset.t[50] and part.t[-1] == dataset.t[119]
+    np.testing.assert_array_equal(part.y, dataset.y[50:120])
+    assert all(part.t[0] <= m.stamp <= part.t[-1] for m in part.measurements)
+    assert part.inputs[0].stamp <= part.t[0] < part.inputs[1].stamp
+    assert all(s.stamp <= part.t[-1] for s in part.inputs)
+    with pytest.raises(ValueError, match="samples"):
+        dataset.samples(10, 11)
