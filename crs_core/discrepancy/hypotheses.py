@@ -1,0 +1,377 @@
+r"""Hypotheses: the model extended by registry effects, fitted, and tested on held-out data.
+
+A hypothesis is a set of effects of :data:`~crs_core.model.effects.EFFECTS` added to the current
+model. Each is *nested*: with its parameters at their null value (:func:`null_value`, 0 or the
+lower bound of a time constant) the extended model is the current one, so the prior of every
+effect parameter is centred on "no effect" and the fit starts from the current model's fit
+(:class:`~crs_core.identification.solve.WarmStart`).
+
+The held-out test (:func:`compare_held_out`) needs no noise model. On held-out data both models
+predict open loop over ``test_horizon_s`` from every sample (start states from an EKF run with
+each model's parameters); per start, the mean squared error of every channel group (position
+against the reference when the dataset has one, each Lighthouse plane, the wheel speeds, the
+yaw rate) is divided by the current model's mean for that group and summed, so every group
+weighs the same whatever its units. Starts are gathered into blocks of twice the horizon (blocks
+overlap in no predicted sample but the edges), and the per-block differences
+:math:`d_b = s_b^\mathrm{current} - s_b^\mathrm{candidate}` go into a one-sided paired t-test.
+A hypothesis is a finding when all three hold:
+
+* the test's p-value is below ``false_alarm_rate / K`` (Bonferroni over the ``K`` hypotheses
+  of a round: on data that need none of them, a finding is made with probability at most
+  ``false_alarm_rate`` per round);
+* the relative improvement of the mean score is at least ``min_improvement`` (practically
+  significant, not only statistically);
+* every parameter of the effect is at least ``min_z`` standard deviations (the FIE's Laplace
+  covariance on the training data) from its null value.
+
+``input_delay`` has no state-space form: it is fitted by identifying on the training data with
+the commands delayed (:func:`delayed_inputs`) over a grid of delays; the best delay and the
+curvature of the FIE cost around it give the value and its standard deviation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from crs_core.dataset import Dataset
+from crs_core.identification.problem import FieSettings
+from crs_core.identification.solve import FieResult, WarmStart, identify
+from crs_core.identification.validation import OpenLoopPredictor
+from crs_core.measurements import InputSample
+from crs_core.model import EFFECTS, CarModel
+from crs_core.parameters import Parameter
+
+#: Effects fitted through the data rather than the model (no state-space form).
+DELAY_EFFECT = "input_delay"
+#: Delays tried for ``input_delay``, s.
+DELAY_GRID_S = (0.0, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15)
+#: Channel groups of the held-out score: name -> dataset columns (position is separate).
+SCORE_GROUPS = {
+    "lighthouse_plane1": slice(0, 4),
+    "lighthouse_plane2": slice(4, 8),
+    "wheel_speeds": slice(8, 12),
+    "yaw_rate": slice(12, 13),
+}
+
+
+@dataclass(frozen=True)
+class TestSettings:
+    """How a hypothesis is judged.
+
+    Attributes
+    ----------
+    false_alarm_rate : float
+        Designed probability of a finding per round on data that need none of the effects.
+    min_improvement : float
+        Smallest relative improvement of the held-out score that counts (0.03 = 3 %).
+    min_z : float
+        Smallest distance of every effect parameter from its null value, in its std.
+    test_horizon_s : float
+        Open-loop horizon of the held-out score, s.
+    """
+
+    false_alarm_rate: float = 0.01
+    min_improvement: float = 0.03
+    min_z: float = 3.0
+    test_horizon_s: float = 1.0
+
+
+@dataclass
+class HeldOutScores:
+    """Per-start normalisable errors of one model on held-out data.
+
+    ``mse`` is ``(S, G)``: per start, the mean squared error of each group in :attr:`groups`
+    over the horizon; ``t`` the start stamps.
+    """
+
+    t: np.ndarray
+    groups: tuple[str, ...]
+    mse: np.ndarray
+
+
+@dataclass
+class HeldOutComparison:
+    """The paired block test of a candidate against the current model (see the module)."""
+
+    improvement: float
+    t_statistic: float
+    p_value: float
+    blocks: int
+    group_improvement: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "improvement": self.improvement,
+            "t_statistic": self.t_statistic,
+            "p_value": self.p_value,
+            "blocks": self.blocks,
+            "group_improvement": self.group_improvement,
+        }
+
+
+@dataclass
+class Hypothesis:
+    """A fitted hypothesis and its verdict.
+
+    Attributes
+    ----------
+    effects : the effects added (to the current model)
+    result : the FIE result of the extended model on the training data
+    model : the extended model (structure; parameters = the fit)
+    delay_s : the fitted input delay (``input_delay`` only), s
+    parameters : effect -> parameter -> {value, std, unit, z}
+    comparison : the held-out test
+    significant : a finding (see the module)
+    reasons : why not, when not
+    """
+
+    effects: tuple[str, ...]
+    result: FieResult
+    model: CarModel
+    delay_s: float = 0.0
+    parameters: dict[str, dict[str, dict[str, float | str]]] = field(default_factory=dict)
+    comparison: HeldOutComparison | None = None
+    significant: bool = False
+    reasons: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "effects": list(self.effects),
+            "parameters": self.parameters,
+            "held_out": self.comparison.to_dict() if self.comparison else None,
+            "significant": self.significant,
+            "reasons": self.reasons,
+            "train_cost": self.result.cost,
+        }
+
+
+def null_value(parameter: Parameter) -> float:
+    """The value at which an effect parameter means "no effect": 0, or the lower bound of a
+    parameter that cannot be 0 (a time constant)."""
+    return 0.0 if parameter.lower <= 0.0 <= parameter.upper else parameter.lower
+
+
+def start_value(parameter: Parameter) -> float:
+    """Where the fit of an effect parameter starts: its null value, or for a time constant
+    (null at its lower bound, where the dynamics are stiff and the fit crawls) four times it."""
+    null = null_value(parameter)
+    return null if null == 0.0 else min(4.0 * null, parameter.upper)
+
+
+def extended_model(model: CarModel, effects: Sequence[str]) -> CarModel:
+    """``model`` with ``effects`` added at their null values; every other value kept."""
+    spec: dict[str, dict[str, float] | None] = {e.name: None for e in model.effects}
+    for name in effects:
+        if name not in EFFECTS:
+            raise ValueError(f"effects: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+        spec[name] = {p.name: null_value(p) for p in EFFECTS[name].parameters}
+    skeleton = CarModel(spec, n_base_stations=model.n_base_stations)
+    values = {n: model.parameters.value(n) for n in model.parameters.names}
+    return CarModel(
+        spec,
+        n_base_stations=model.n_base_stations,
+        parameters=skeleton.parameters.updated(values),
+    )
+
+
+def delayed_inputs(dataset: Dataset, delay_s: float) -> Dataset:
+    """``dataset`` with its commands applied ``delay_s`` later (held commands shifted; the
+    full-rate input stream, when present, shifted by the same amount)."""
+    if dataset.u is None or delay_s == 0.0:
+        return dataset
+    index = np.searchsorted(dataset.t, dataset.t - delay_s, side="right") - 1
+    u = dataset.u[np.clip(index, 0, None)]
+    inputs = None
+    if dataset.inputs:
+        inputs = [InputSample(s.stamp + delay_s, s.u) for s in dataset.inputs]
+    return replace(dataset, u=u, inputs=inputs)
+
+
+def held_out_scores(
+    dataset: Dataset, model: CarModel, horizon_s: float, delay_s: float = 0.0
+) -> HeldOutScores:
+    """Open-loop predictions of ``model`` on ``dataset`` over ``horizon_s``: per start and
+    group, the mean squared error over the horizon (NaN where a group was not measured)."""
+    data = delayed_inputs(dataset, delay_s)
+    prediction = OpenLoopPredictor(data, model, horizon_s).predict()
+    index = np.minimum(
+        prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :], len(data.t) - 1
+    )
+    groups, columns = [], []
+    if data.x is not None:
+        error = prediction.positions - data.x[index, :2]
+        groups.append("position")
+        columns.append(np.nanmean(np.sum(error**2, axis=2), axis=1))
+    residual = prediction.outputs - data.y[index]
+    for name, cols in SCORE_GROUPS.items():
+        squared = residual[..., cols] ** 2
+        if not np.isfinite(squared).any():
+            continue
+        flat = squared.reshape(len(squared), -1)
+        counts = np.sum(np.isfinite(flat), axis=1)
+        sums = np.nansum(flat, axis=1)
+        columns.append(np.where(counts > 0, sums / np.maximum(counts, 1), np.nan))
+        groups.append(name)
+    return HeldOutScores(data.t[prediction.starts], tuple(groups), np.stack(columns, axis=1))
+
+
+def compare_held_out(
+    current: HeldOutScores, candidate: HeldOutScores, horizon_s: float
+) -> HeldOutComparison:
+    """The paired one-sided block t-test of ``candidate`` against ``current`` (the module)."""
+    groups = [g for g in current.groups if g in candidate.groups]
+    a = current.mse[:, [current.groups.index(g) for g in groups]]
+    b = candidate.mse[:, [candidate.groups.index(g) for g in groups]]
+    valid = np.all(np.isfinite(a), axis=1) & np.all(np.isfinite(b), axis=1)
+    a, b, t = a[valid], b[valid], current.t[valid]
+    scale = np.mean(a, axis=0)
+    scale[scale <= 0] = 1.0
+    score_a, score_b = np.sum(a / scale, axis=1), np.sum(b / scale, axis=1)
+    block = np.floor((t - t[0]) / (2.0 * horizon_s)).astype(int)
+    labels = np.unique(block)
+    d = np.array([np.mean(score_a[block == k] - score_b[block == k]) for k in labels])
+    improvement = float(1.0 - np.mean(score_b) / np.mean(score_a))
+    if len(d) < 3 or not np.any(d):
+        t_stat, p = 0.0, 1.0
+    else:
+        spread = np.std(d, ddof=1)
+        t_stat = float(np.mean(d) / (spread / math.sqrt(len(d)))) if spread > 0 else math.inf
+        p = float(stats.t.sf(t_stat, df=len(d) - 1)) if math.isfinite(t_stat) else 0.0
+    per_group = {g: float(1.0 - np.mean(b[:, i]) / np.mean(a[:, i])) for i, g in enumerate(groups)}
+    return HeldOutComparison(improvement, t_stat, p, len(d), per_group)
+
+
+def fit_hypothesis(
+    train: Dataset,
+    model: CarModel,
+    current: FieResult,
+    effects: Sequence[str],
+    settings: FieSettings,
+    progress: Callable[[int, float], None] | None = None,
+) -> Hypothesis:
+    """Fit ``model`` (the current structure, its *prior* values) extended by ``effects`` on
+    ``train``, warm-started at ``current`` (the current model's fit)."""
+    effects = tuple(effects)
+    state_effects = [e for e in effects if e != DELAY_EFFECT]
+    extended = extended_model(model, state_effects)
+    added = tuple(p.name for e in state_effects for p in EFFECTS[e].parameters)
+    fit = tuple(settings.fit) + tuple(n for n in added if n not in settings.fit)
+    values = {n: current.parameters.value(n) for n in current.fit}
+    for name in state_effects:
+        for p in EFFECTS[name].parameters:
+            values.setdefault(p.name, start_value(p))
+    warm = WarmStart(values, current.states[:, :6].copy())
+    fit_settings = replace(settings, fit=fit, starts=1)
+    delay = 0.0
+    if DELAY_EFFECT in effects:
+        result, delay, delay_std = _fit_delay(train, extended, fit_settings, warm, progress)
+    else:
+        result = identify(train, extended, fit_settings, progress, warm_start=warm)
+    fitted_model = CarModel(
+        {e.name: None for e in extended.effects},
+        n_base_stations=extended.n_base_stations,
+        parameters=result.parameters,
+    )
+    parameters: dict[str, dict[str, dict[str, float | str]]] = {}
+    for name in state_effects:
+        parameters[name] = {}
+        for p in EFFECTS[name].parameters:
+            j = result.fit.index(p.name)
+            value, std = float(result.theta[j]), float(result.uncertainty.std[j])
+            parameters[name][p.name] = {
+                "value": value,
+                "std": std,
+                "unit": p.unit,
+                "z": abs(value - null_value(p)) / std if std > 0 else math.inf,
+            }
+    if DELAY_EFFECT in effects:
+        unit = EFFECTS[DELAY_EFFECT].parameters[0].unit
+        parameters[DELAY_EFFECT] = {
+            "input_delay": {
+                "value": delay,
+                "std": delay_std,
+                "unit": unit,
+                "z": delay / delay_std if delay_std > 0 else math.inf,
+            }
+        }
+    return Hypothesis(effects, result, fitted_model, delay, parameters)
+
+
+def _fit_delay(
+    train: Dataset,
+    model: CarModel,
+    settings: FieSettings,
+    warm: WarmStart,
+    progress: Callable[[int, float], None] | None,
+) -> tuple[FieResult, float, float]:
+    """Identify with the commands delayed over :data:`DELAY_GRID_S`; the best delay (refined by
+    a parabola through its neighbours) and its std from the cost's curvature."""
+    costs, results = [], []
+    for delay in DELAY_GRID_S:
+        result = identify(delayed_inputs(train, delay), model, settings, progress, warm)
+        costs.append(result.cost)
+        results.append(result)
+    k = int(np.argmin(costs))
+    best, std = DELAY_GRID_S[k], math.inf
+    if 0 < k < len(DELAY_GRID_S) - 1:
+        x = np.array(DELAY_GRID_S[k - 1 : k + 2])
+        a, b, _ = np.polyfit(x, np.array(costs[k - 1 : k + 2]), 2)
+        if a > 0:
+            best = float(np.clip(-b / (2 * a), x[0], x[2]))
+            std = math.sqrt(2.0 / (2.0 * a))  # V = -2 log L: var = 2 / V''
+    elif k == 0:
+        # at the grid's start: the one-sided curvature from the next two points
+        x = np.array(DELAY_GRID_S[:3])
+        a, _, _ = np.polyfit(x, np.array(costs[:3]), 2)
+        std = math.sqrt(2.0 / (2.0 * a)) if a > 0 else math.inf
+    if best not in DELAY_GRID_S:
+        results[k] = identify(delayed_inputs(train, best), model, settings, progress, warm)
+    return results[k], float(best), float(std)
+
+
+def judge(
+    hypothesis: Hypothesis,
+    current_scores: HeldOutScores,
+    validation: Dataset,
+    settings: TestSettings,
+    tests: int,
+) -> Hypothesis:
+    """Score ``hypothesis`` on ``validation`` against the current model's scores and decide."""
+    scores = held_out_scores(
+        validation, hypothesis.model, settings.test_horizon_s, hypothesis.delay_s
+    )
+    comparison = compare_held_out(current_scores, scores, settings.test_horizon_s)
+    reasons = []
+    threshold = settings.false_alarm_rate / max(tests, 1)
+    if not comparison.p_value < threshold:
+        reasons.append(f"held-out p = {comparison.p_value:.2g} (needs < {threshold:.2g})")
+    if comparison.improvement < settings.min_improvement:
+        reasons.append(
+            f"held-out improvement {100 * comparison.improvement:.1f} % "
+            f"(needs >= {100 * settings.min_improvement:.0f} %)"
+        )
+    for effect, values in hypothesis.parameters.items():
+        for name, entry in values.items():
+            if not float(entry["z"]) >= settings.min_z:
+                reasons.append(f"{effect}.{name} is {float(entry['z']):.1f} std from no effect")
+    hypothesis.comparison = comparison
+    hypothesis.reasons = reasons
+    hypothesis.significant = not reasons
+    return hypothesis
+
+
+def parameter_table(hypotheses: Sequence[Hypothesis]) -> dict[str, dict[str, Any]]:
+    """Effect -> parameter -> {value, std, unit} of the given hypotheses (JSON-ready)."""
+    table: dict[str, dict[str, Any]] = {}
+    for h in hypotheses:
+        for effect, values in h.parameters.items():
+            table[effect] = {
+                n: {k: v for k, v in entry.items() if k != "z"} for n, entry in values.items()
+            }
+    return table

@@ -1,0 +1,336 @@
+"""The discrepancy workflow: fit, look at what is left, test every effect, name the winner.
+
+:func:`find_discrepancy` runs the steps of ``crs discrepancy``:
+
+1. identify the current model on the training data (the FIE);
+2. diagnose its residuals channel by channel (:mod:`~crs_core.discrepancy.residuals`);
+3. fit every candidate effect of the registry on the training data and test it on held-out
+   data (:mod:`~crs_core.discrepancy.hypotheses`); held-out data are the validation dataset,
+   or without one the last :attr:`DiscrepancySettings.held_out_fraction` of the training run;
+4. name the winner (the finding with the largest held-out improvement), then test the other
+   findings of the first round on top of it (two effects at once are reported when both are
+   significant); no finding: ``none``, or ``unexplained`` when the residuals of the current
+   model stay structured (with the channel and regime where the misfit lives);
+5. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
+   horizon and the per-channel RMS, with the final model's parameters.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from crs_core.dataset import Dataset
+from crs_core.discrepancy.hypotheses import (
+    DELAY_EFFECT,
+    Hypothesis,
+    TestSettings,
+    delayed_inputs,
+    fit_hypothesis,
+    held_out_scores,
+    judge,
+    parameter_table,
+)
+from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
+from crs_core.identification.problem import FieSettings, check_fit
+from crs_core.identification.solve import FieResult, identify
+from crs_core.identification.validation import DEFAULT_HORIZON_S, validate
+from crs_core.model import EFFECTS, CarModel
+
+#: Verdicts of the workflow.
+VERDICTS = ("effect", "none", "unexplained")
+
+
+@dataclass(frozen=True)
+class DiscrepancySettings:
+    """Settings of :func:`find_discrepancy`.
+
+    Attributes
+    ----------
+    identification : FieSettings
+        The FIE of the current model (its ``fit`` is refitted in every hypothesis, together
+        with the effect's parameters).
+    test : TestSettings
+        How a hypothesis is judged (false-alarm rate, minimum improvement, parameter z).
+    candidates : tuple of str or None
+        Effects to try (default: every registry effect the model does not have).
+    held_out_fraction : float
+        Without a validation dataset: the last fraction of the training run is held out.
+    horizon_s : float
+        Horizon of the reported gap (the paper's 2 s open-loop position RMSE).
+    max_effects : int
+        Most effects named at once.
+    """
+
+    identification: FieSettings = field(default_factory=FieSettings)
+    test: TestSettings = field(default_factory=TestSettings)
+    candidates: tuple[str, ...] | None = None
+    held_out_fraction: float = 0.3
+    horizon_s: float = DEFAULT_HORIZON_S
+    max_effects: int = 2
+
+    def __post_init__(self) -> None:
+        if not 0.1 <= self.held_out_fraction <= 0.7:
+            raise ValueError(
+                f"held_out_fraction: must be within [0.1, 0.7], got {self.held_out_fraction}"
+            )
+        if self.max_effects < 1:
+            raise ValueError(f"max_effects: must be >= 1, got {self.max_effects}")
+        for name in self.candidates or ():
+            if name not in EFFECTS:
+                raise ValueError(
+                    f"candidates: unknown effect {name!r}; known: {', '.join(EFFECTS)}"
+                )
+
+
+@dataclass
+class DiscrepancyResult:
+    """What the workflow found (see :meth:`summary` for the JSON report).
+
+    Attributes
+    ----------
+    verdict : one of :data:`VERDICTS`
+    effects : the named effects (empty for ``none`` / ``unexplained``)
+    final : the final model's FIE result (the current model's when nothing was named)
+    final_model : the final model (structure and fitted parameters)
+    delay_s : the named input delay, s (0 without)
+    current : the current model's FIE result
+    hypotheses : every hypothesis tried, in order
+    diagnostics_before, diagnostics_after : residual diagnoses of the current / final fit
+    gap : {"before": m, "after": m} held-out open-loop position RMSE (None without a reference)
+    channel_rms : {"before": {...}, "after": {...}} held-out per-channel RMS
+    where : the channel and regime of the misfit (``unexplained``), else None
+    train_samples, held_out_samples : int
+    held_out : "validation dataset" or "last N % of the training run"
+    time_s : float
+    """
+
+    verdict: str
+    effects: tuple[str, ...]
+    final: FieResult
+    final_model: CarModel
+    delay_s: float
+    current: FieResult
+    hypotheses: list[Hypothesis]
+    diagnostics_before: list[ChannelDiagnosis]
+    diagnostics_after: list[ChannelDiagnosis]
+    gap: dict[str, float | None]
+    channel_rms: dict[str, dict[str, float | None]]
+    where: dict[str, Any] | None
+    train_samples: int
+    held_out_samples: int
+    held_out: str
+    time_s: float
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON report (``report.json``)."""
+        named = [
+            h for h in self.hypotheses if h.significant and set(h.effects) <= set(self.effects)
+        ]
+        return {
+            "verdict": self.verdict,
+            "effects": list(self.effects),
+            "parameters": parameter_table(named[-1:]) if named else {},
+            "gap_before": self.gap["before"],
+            "gap_after": self.gap["after"],
+            "gap_horizon_s": self.gap["horizon_s"],
+            "residual_rms_before": self.channel_rms["before"],
+            "residual_rms_after": self.channel_rms["after"],
+            "where": self.where,
+            "held_out": self.held_out,
+            "train_samples": self.train_samples,
+            "held_out_samples": self.held_out_samples,
+            "hypotheses": [h.to_dict() for h in self.hypotheses],
+            "diagnostics_before": [d.to_dict() for d in self.diagnostics_before],
+            "diagnostics_after": [d.to_dict() for d in self.diagnostics_after],
+            "time_s": self.time_s,
+        }
+
+
+def split_held_out(
+    train: Dataset, validation: Dataset | None, fraction: float
+) -> tuple[Dataset, Dataset, str]:
+    """Training and held-out data: ``validation`` when given, else a time split of ``train``."""
+    if validation is not None:
+        return train, validation, "validation dataset"
+    n = len(train.t)
+    cut = round(n * (1.0 - fraction))
+    return (
+        train.samples(0, cut),
+        train.samples(cut, n),
+        f"last {100 * fraction:.0f} % of the training run",
+    )
+
+
+def find_discrepancy(
+    train: Dataset,
+    model: CarModel,
+    validation: Dataset | None = None,
+    settings: DiscrepancySettings | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> DiscrepancyResult:
+    """Run the workflow on ``train`` (held out: ``validation`` or a time split); ``model`` is
+    the current model with its prior values; ``progress`` gets one line per step."""
+    settings = settings or DiscrepancySettings()
+    say = progress or (lambda line: None)
+    started = time.perf_counter()
+    check_fit(model, settings.identification.fit)
+    fit_data, held_out, held_out_label = split_held_out(
+        train, validation, settings.held_out_fraction
+    )
+    candidates = [
+        name
+        for name in (settings.candidates or tuple(EFFECTS))
+        if name not in {e.name for e in model.effects}
+    ]
+    say(f"fitting the current model ({len(fit_data.t)} samples) ...")
+    current = identify(fit_data, model, settings.identification)
+    current_model = _fitted(model, current)
+    diagnostics_before = diagnose(current)
+    current_scores = held_out_scores(held_out, current_model, settings.test.test_horizon_s)
+    say(f"current model: FIE cost {current.cost:.6g}; {len(candidates)} hypotheses to test")
+
+    hypotheses: list[Hypothesis] = []
+    first_round = []
+    for i, name in enumerate(candidates, 1):
+        hypothesis = fit_hypothesis(fit_data, model, current, (name,), settings.identification)
+        judge(hypothesis, current_scores, held_out, settings.test, len(candidates))
+        hypotheses.append(hypothesis)
+        first_round.append(hypothesis)
+        say(_line(i, len(candidates), hypothesis))
+    findings = sorted(
+        (h for h in first_round if h.significant),
+        key=lambda h: h.comparison.improvement if h.comparison else 0.0,
+        reverse=True,
+    )
+    chosen: Hypothesis | None = findings[0] if findings else None
+    if chosen is not None:
+        others = findings[1:]
+        while others and len(chosen.effects) < settings.max_effects:
+            base, base_data, base_held_out = chosen, fit_data, held_out
+            if chosen.delay_s:
+                base_data = delayed_inputs(fit_data, chosen.delay_s)
+                base_held_out = delayed_inputs(held_out, chosen.delay_s)
+            base_scores = held_out_scores(base_held_out, base.model, settings.test.test_horizon_s)
+            say(f"on top of {'+'.join(base.effects)}: {len(others)} more to test")
+            joint = []
+            for i, other in enumerate(others, 1):
+                h = _joint_hypothesis(model, base, other, base_data, settings)
+                judge(h, base_scores, base_held_out, settings.test, len(others))
+                hypotheses.append(h)
+                joint.append(h)
+                say(_line(i, len(others), h))
+            joint_findings = [h for h in joint if h.significant]
+            if not joint_findings:
+                break
+            chosen = max(joint_findings, key=lambda h: h.comparison.improvement)
+            others = [o for o in others if o.effects[0] not in chosen.effects]
+
+    if chosen is not None:
+        verdict, effects = "effect", chosen.effects
+        final, final_model, delay = chosen.result, chosen.model, chosen.delay_s
+    else:
+        final, final_model, delay, effects = current, current_model, 0.0, ()
+        verdict = "none"
+    diagnostics_after = diagnose(final) if chosen is not None else diagnostics_before
+    where = None
+    if verdict == "none":
+        where = where_misfit(diagnostics_before)
+        if where is not None:
+            verdict = "unexplained"
+    say("gap on the held-out data ...")
+    gap, channel_rms = _gap(held_out, current_model, final_model, delay, settings.horizon_s)
+    return DiscrepancyResult(
+        verdict=verdict,
+        effects=tuple(effects),
+        final=final,
+        final_model=final_model,
+        delay_s=delay,
+        current=current,
+        hypotheses=hypotheses,
+        diagnostics_before=diagnostics_before,
+        diagnostics_after=diagnostics_after,
+        gap=gap,
+        channel_rms=channel_rms,
+        where=where,
+        train_samples=len(fit_data.t),
+        held_out_samples=len(held_out.t),
+        held_out=held_out_label,
+        time_s=time.perf_counter() - started,
+    )
+
+
+def _joint_hypothesis(
+    model: CarModel,
+    base: Hypothesis,
+    other: Hypothesis,
+    data: Dataset,
+    settings: DiscrepancySettings,
+) -> Hypothesis:
+    """``other``'s effect on top of ``base`` (the input delay, when part of either, kept at
+    its fitted value: ``data`` is already delayed by ``base``'s)."""
+    state_effects = tuple(e for e in base.effects if e != DELAY_EFFECT)
+    new = other.effects[0]
+    if new == DELAY_EFFECT:
+        data = delayed_inputs(data, other.delay_s)
+        joint = fit_hypothesis(data, model, base.result, state_effects, settings.identification)
+        joint.delay_s = other.delay_s
+        joint.parameters = {**joint.parameters, **other.parameters}
+    else:
+        joint = fit_hypothesis(
+            data, model, base.result, (*state_effects, new), settings.identification
+        )
+        if base.delay_s:
+            joint.delay_s = base.delay_s
+            joint.parameters = {**joint.parameters, DELAY_EFFECT: base.parameters[DELAY_EFFECT]}
+    joint.effects = (*base.effects, new)
+    return joint
+
+
+def _fitted(model: CarModel, result: FieResult) -> CarModel:
+    return CarModel(
+        {e.name: None for e in model.effects},
+        n_base_stations=model.n_base_stations,
+        parameters=result.parameters,
+    )
+
+
+def _gap(
+    held_out: Dataset,
+    current: CarModel,
+    final: CarModel,
+    delay_s: float,
+    horizon_s: float,
+) -> tuple[dict[str, float | None], dict[str, dict[str, float | None]]]:
+    """Held-out open-loop position RMSE and per-channel RMS of the current and final models."""
+    horizon = min(horizon_s, 0.5 * float(held_out.t[-1] - held_out.t[0]))
+    before, _ = validate(held_out, current, current.parameters, horizon_s=horizon)
+    after, _ = validate(
+        delayed_inputs(held_out, delay_s), final, final.parameters, horizon_s=horizon
+    )
+    position = held_out.x is not None
+    return (
+        {
+            "before": before["position_rmse_m"]["identified"] if position else None,
+            "after": after["position_rmse_m"]["identified"] if position else None,
+            "horizon_s": horizon,
+        },
+        {
+            "before": before["channel_rms"]["identified"],
+            "after": after["channel_rms"]["identified"],
+        },
+    )
+
+
+def _line(i: int, n: int, h: Hypothesis) -> str:
+    c = h.comparison
+    verdict = "FINDING" if h.significant else "no"
+    values = ", ".join(
+        f"{p} = {float(e['value']):.4g} ± {float(e['std']):.2g} {e['unit']}"
+        for effect in h.parameters.values()
+        for p, e in effect.items()
+    )
+    held = f"held-out {100 * c.improvement:+.1f} %, p = {c.p_value:.2g}" if c is not None else ""
+    return f"discrepancy: [{i}/{n}] {'+'.join(h.effects):28s} {values}; {held} -> {verdict}"
