@@ -17,26 +17,11 @@ from crs_core.dataset import Dataset
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
 from launch_scripts.sysid_command import ROUGH, identification_model
+from sim.scenarios import simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
 BENCHMARK_FIT = (*DYNAMICS_FIT, "r", "b_car")
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
-
-
-def simulate_dataset(duration: float, seed: int, model: CarModel | None = None) -> Dataset:
-    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos)."""
-    from crs_core.control.path_following import PathFollower, PathFollowerSettings
-    from crs_core.track import load_demo_track
-    from sim.sensors import SensorSuite
-    from sim.simulator import Simulator
-
-    model = model or CarModel()
-    track = load_demo_track()
-    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
-    controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
-    result = Simulator(model, SensorSuite(), seed=seed).run(controller, duration, x0)
-    return result.to_dataset()
 
 
 #: Process-noise scale of the simulated studies: the simulated truth has no process noise, so

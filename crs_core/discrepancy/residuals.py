@@ -338,7 +338,7 @@ def is_structured(diagnosis: ChannelDiagnosis) -> bool:
     autocorrelation about -0.35, Ljung-Box p down to 1e-87 on a 60 s run).
 
     Calibration (FIE with ``fit=("Cm1", "Df", "Dr", "Iz")``, ``process_scale=0.1`` on
-    :func:`launch_scripts.sysid_bench.simulate_dataset` runs, ``CarModel()`` as the model).
+    :func:`sim.scenarios.simulate_dataset` runs, ``CarModel()`` as the model).
     Clean data (the model is the truth; 16 seeds of 20 s, 2 of 60 s): nothing structured;
     largest ``regime_r2`` 0.031 (wheel speeds; 0.025 yaw rate, 0.007 Lighthouse), smallest
     ``regime_p`` 6e-8 (wheel speeds, 60 s, at :math:`R^2` 0.018: hence the :math:`R^2` floor as

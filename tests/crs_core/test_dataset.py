@@ -525,7 +525,7 @@ def test_truncated_stream_is_a_one_line_error(corruptible: Path):
 
 
 def test_samples_view_keeps_the_stream_inside_and_the_command_in_force():
-    from launch_scripts.sysid_bench import simulate_dataset
+    from sim.scenarios import simulate_dataset
 
     dataset = simulate_dataset(4.0, 3)
     part = dataset.samples(50, 120)

@@ -17,7 +17,7 @@ from crs_core.model import CarModel
 from launch_scripts import sysid_command
 from launch_scripts.cli import OneLineParser
 from launch_scripts.output_folder import MARKER
-from launch_scripts.sysid_bench import simulate_dataset
+from sim.scenarios import simulate_dataset
 
 
 def run(argv: list[str]) -> tuple[int, str, str]:

@@ -23,7 +23,8 @@ from crs_core.discrepancy.residuals import (
 )
 from crs_core.identification import FieSettings, identify
 from crs_core.model import CarModel
-from launch_scripts.sysid_bench import SIM_PROCESS_SCALE, simulate_dataset
+from launch_scripts.sysid_bench import SIM_PROCESS_SCALE
+from sim.scenarios import simulate_dataset
 
 DURATION = 20.0
 FIT = ("Cm1", "Df", "Dr", "Iz")

@@ -14,8 +14,8 @@ from crs_core.identification.uncertainty import MAX_CORRELATION, parameter_uncer
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
 from crs_core.model.chronos import ROUGH_PRIOR
-from launch_scripts.sysid_bench import simulate_dataset
 from launch_scripts.sysid_command import ROUGH, identification_model
+from sim.scenarios import simulate_dataset
 
 #: A subset the data of a short drive determine well, plus two they do not.
 FIT = ("Iz", "Df", "Dr", "Br", "Cm1", "Cd0", "Cd1", "r", "b_car")

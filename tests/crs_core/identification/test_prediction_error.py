@@ -12,7 +12,7 @@ from crs_core.identification.validation import (
     validation_errors,
 )
 from crs_core.model import CarModel
-from launch_scripts.sysid_bench import simulate_dataset
+from sim.scenarios import simulate_dataset
 
 
 @pytest.fixture(scope="module")
