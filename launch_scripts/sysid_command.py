@@ -76,11 +76,12 @@ def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
     return names
 
 
-def _load(path: Path) -> Dataset:
+def load_dataset(path: Path, option: str = "DATASET") -> Dataset:
+    """``Dataset.load``; a missing folder is a ``ValueError`` naming ``option``."""
     try:
         return Dataset.load(path)
     except FileNotFoundError as error:
-        raise ValueError(f"DATASET: {error}") from None
+        raise ValueError(f"{option}: {error}") from None
 
 
 def run_sysid(args: argparse.Namespace) -> int:
@@ -88,7 +89,7 @@ def run_sysid(args: argparse.Namespace) -> int:
     from crs_core.identification.report import write_sysid_report
     from crs_core.identification.solve import identify, stderr_progress
 
-    dataset = _load(args.dataset)
+    dataset = load_dataset(args.dataset)
     model = identification_model(dataset, args.effect or [], args.params)
     settings = FieSettings(
         fit=parse_fit(args.fit, model),
@@ -115,7 +116,7 @@ def run_validate(args: argparse.Namespace) -> int:
     from crs_core.identification.report import write_validation_report
     from crs_core.identification.validation import validate
 
-    dataset = _load(args.dataset)
+    dataset = load_dataset(args.dataset)
     if dataset.x is None:
         raise ValueError("DATASET: has no reference states (x.npy) to validate against")
     effects = list(

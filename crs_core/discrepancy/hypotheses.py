@@ -21,12 +21,16 @@ A hypothesis is a finding when all three hold:
   ``false_alarm_rate`` per round);
 * the relative improvement of the mean score is at least ``min_improvement`` (practically
   significant, not only statistically);
-* every parameter of the effect is at least ``min_z`` standard deviations (the FIE's Laplace
-  covariance on the training data) from its null value.
+* some parameter of every effect added is at least ``min_z`` standard deviations (the FIE's
+  Laplace covariance on the training data) from its null value.
 
-``input_delay`` has no state-space form: it is fitted by identifying on the training data with
-the commands delayed (:func:`delayed_inputs`) over a grid of delays; the best delay and the
-curvature of the FIE cost around it give the value and its standard deviation.
+``input_delay`` has no state-space form: it is fitted through the data, with the commands
+delayed (:func:`delayed_inputs`): the FIE's cost as a function of the delay (a profile: the
+other parameters and the states refitted at each) is walked up from no delay, and a parabola
+through the lowest cost and its neighbours gives the value and, from the curvature, its
+standard deviation. The fitted model
+carries the ``input_delay`` effect with that value (the simulator applies it; predictions here
+delay the commands).
 """
 
 from __future__ import annotations
@@ -49,8 +53,8 @@ from crs_core.parameters import Parameter
 
 #: Effects fitted through the data rather than the model (no state-space form).
 DELAY_EFFECT = "input_delay"
-#: Delays tried for ``input_delay``, s.
-DELAY_GRID_S = (0.0, 0.01, 0.02, 0.035, 0.05, 0.075, 0.1, 0.15)
+#: Spacing of the delays the FIE tries for ``input_delay``, s.
+DELAY_STEP_S = 0.04
 #: Channel groups of the held-out score: name -> dataset columns (position is separate).
 SCORE_GROUPS = {
     "lighthouse_plane1": slice(0, 4),
@@ -71,7 +75,8 @@ class TestSettings:
     min_improvement : float
         Smallest relative improvement of the held-out score that counts (0.03 = 3 %).
     min_z : float
-        Smallest distance of every effect parameter from its null value, in its std.
+        Smallest distance from its null value, in its std, of an added effect's farthest
+        parameter.
     test_horizon_s : float
         Open-loop horizon of the held-out score, s.
     """
@@ -79,7 +84,7 @@ class TestSettings:
     false_alarm_rate: float = 0.01
     min_improvement: float = 0.03
     min_z: float = 3.0
-    test_horizon_s: float = 1.0
+    test_horizon_s: float = 0.5
 
 
 @dataclass
@@ -196,8 +201,9 @@ def delayed_inputs(dataset: Dataset, delay_s: float) -> Dataset:
 def held_out_scores(
     dataset: Dataset, model: CarModel, horizon_s: float, delay_s: float = 0.0
 ) -> HeldOutScores:
-    """Open-loop predictions of ``model`` on ``dataset`` over ``horizon_s``: per start and
-    group, the mean squared error over the horizon (NaN where a group was not measured)."""
+    """Open-loop predictions of ``model`` on ``dataset`` (commands delayed by ``delay_s``) over
+    ``horizon_s`` from every sample: per start and group, the mean squared error over the
+    horizon (NaN where not measured)."""
     data = delayed_inputs(dataset, delay_s)
     prediction = OpenLoopPredictor(data, model, horizon_s).predict()
     index = np.minimum(
@@ -270,13 +276,20 @@ def fit_hypothesis(
     fit_settings = replace(settings, fit=fit, starts=1)
     delay = 0.0
     if DELAY_EFFECT in effects:
-        result, delay, delay_std = _fit_delay(train, extended, fit_settings, warm, progress)
+        result, delay, delay_std = _fit_delay(
+            train, extended, current, fit_settings, warm, progress
+        )
     else:
         result = identify(train, extended, fit_settings, progress, warm_start=warm)
+    spec: dict[str, dict[str, float] | None] = {e.name: None for e in extended.effects}
+    values = {n: result.parameters.value(n) for n in result.parameters.names}
+    if DELAY_EFFECT in effects:
+        spec[DELAY_EFFECT] = {DELAY_EFFECT: delay}
+    skeleton = CarModel(spec, n_base_stations=extended.n_base_stations)
     fitted_model = CarModel(
-        {e.name: None for e in extended.effects},
+        spec,
         n_base_stations=extended.n_base_stations,
-        parameters=result.parameters,
+        parameters=skeleton.parameters.updated(values),
     )
     parameters: dict[str, dict[str, dict[str, float | str]]] = {}
     for name in state_effects:
@@ -306,33 +319,44 @@ def fit_hypothesis(
 def _fit_delay(
     train: Dataset,
     model: CarModel,
+    current: FieResult,
     settings: FieSettings,
     warm: WarmStart,
     progress: Callable[[int, float], None] | None,
 ) -> tuple[FieResult, float, float]:
-    """Identify with the commands delayed over :data:`DELAY_GRID_S`; the best delay (refined by
-    a parabola through its neighbours) and its std from the cost's curvature."""
-    costs, results = [], []
-    for delay in DELAY_GRID_S:
-        result = identify(delayed_inputs(train, delay), model, settings, progress, warm)
-        costs.append(result.cost)
-        results.append(result)
-    k = int(np.argmin(costs))
-    best, std = DELAY_GRID_S[k], math.inf
-    if 0 < k < len(DELAY_GRID_S) - 1:
-        x = np.array(DELAY_GRID_S[k - 1 : k + 2])
-        a, b, _ = np.polyfit(x, np.array(costs[k - 1 : k + 2]), 2)
-        if a > 0:
-            best = float(np.clip(-b / (2 * a), x[0], x[2]))
-            std = math.sqrt(2.0 / (2.0 * a))  # V = -2 log L: var = 2 / V''
-    elif k == 0:
-        # at the grid's start: the one-sided curvature from the next two points
-        x = np.array(DELAY_GRID_S[:3])
-        a, _, _ = np.polyfit(x, np.array(costs[:3]), 2)
-        std = math.sqrt(2.0 / (2.0 * a)) if a > 0 else math.inf
-    if best not in DELAY_GRID_S:
-        results[k] = identify(delayed_inputs(train, best), model, settings, progress, warm)
-    return results[k], float(best), float(std)
+    """The input delay by the FIE's profile cost: fits at delays :data:`DELAY_STEP_S` apart
+    (no delay: the current fit) walking up while the cost falls, then a parabola through the
+    lowest and its neighbours gives the delay and, from the curvature, its std; the FIE at that
+    delay is the result."""
+    upper = EFFECTS[DELAY_EFFECT].parameters[0].upper
+    results = {0.0: current}
+
+    def fit(delay: float) -> float:
+        if delay not in results:
+            data = delayed_inputs(train, delay)
+            results[delay] = identify(data, model, settings, progress, warm)
+        return results[delay].cost
+
+    delay = DELAY_STEP_S
+    while fit(delay) < fit(round(delay - DELAY_STEP_S, 6)) and delay + DELAY_STEP_S <= upper:
+        delay = round(delay + DELAY_STEP_S, 6)
+    if min(results, key=lambda d: results[d].cost) == 0.0:
+        fit(DELAY_STEP_S / 2)  # resolve the curvature next to "no delay"
+    delays = sorted(results)
+    k = min(range(len(delays)), key=lambda i: results[delays[i]].cost)
+    k = min(max(k, 1), len(delays) - 2)
+    x = np.array(delays[k - 1 : k + 2])
+    a, b, _ = np.polyfit(x, [results[d].cost for d in x], 2)
+    if a > 0:
+        best = float(np.clip(-b / (2 * a), 0.0, upper))
+        std = math.sqrt(1.0 / a)  # V = -2 log L + c: var = 2 / V'' = 1 / a
+    else:
+        best, std = float(min(results, key=lambda d: results[d].cost)), math.inf
+    nearest = min(results, key=lambda d: abs(d - best))
+    if abs(nearest - best) > 0.1 * DELAY_STEP_S:
+        fit(best)
+        nearest = best
+    return results[nearest], best, std
 
 
 def judge(
@@ -357,9 +381,10 @@ def judge(
             f"(needs >= {100 * settings.min_improvement:.0f} %)"
         )
     for effect, values in hypothesis.parameters.items():
-        for name, entry in values.items():
-            if not float(entry["z"]) >= settings.min_z:
-                reasons.append(f"{effect}.{name} is {float(entry['z']):.1f} std from no effect")
+        z = {name: float(entry["z"]) for name, entry in values.items()}
+        if not max(z.values()) >= settings.min_z:
+            far = ", ".join(f"{name} {value:.1f}" for name, value in z.items())
+            reasons.append(f"{effect}: no parameter {settings.min_z:g} std from no effect ({far})")
     hypothesis.comparison = comparison
     hypothesis.reasons = reasons
     hypothesis.significant = not reasons

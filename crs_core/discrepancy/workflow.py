@@ -209,16 +209,15 @@ def find_discrepancy(
     if chosen is not None:
         others = findings[1:]
         while others and len(chosen.effects) < settings.max_effects:
-            base, base_data, base_held_out = chosen, fit_data, held_out
-            if chosen.delay_s:
-                base_data = delayed_inputs(fit_data, chosen.delay_s)
-                base_held_out = delayed_inputs(held_out, chosen.delay_s)
-            base_scores = held_out_scores(base_held_out, base.model, settings.test.test_horizon_s)
+            base, base_data = chosen, delayed_inputs(fit_data, chosen.delay_s)
+            base_scores = held_out_scores(
+                held_out, base.model, settings.test.test_horizon_s, base.delay_s
+            )
             say(f"on top of {'+'.join(base.effects)}: {len(others)} more to test")
             joint = []
             for i, other in enumerate(others, 1):
                 h = _joint_hypothesis(model, base, other, base_data, settings)
-                judge(h, base_scores, base_held_out, settings.test, len(others))
+                judge(h, base_scores, held_out, settings.test, len(others))
                 hypotheses.append(h)
                 joint.append(h)
                 say(_line(i, len(others), h))
@@ -310,11 +309,10 @@ def _gap(
     after, _ = validate(
         delayed_inputs(held_out, delay_s), final, final.parameters, horizon_s=horizon
     )
-    position = held_out.x is not None
     return (
         {
-            "before": before["position_rmse_m"]["identified"] if position else None,
-            "after": after["position_rmse_m"]["identified"] if position else None,
+            "before": before["position_rmse_m"]["identified"],
+            "after": after["position_rmse_m"]["identified"],
             "horizon_s": horizon,
         },
         {

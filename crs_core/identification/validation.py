@@ -173,12 +173,21 @@ def position_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndar
 
 
 def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
-    """Position RMSE (over the horizon and at its end) and per-channel RMS, JSON-ready."""
+    """Position RMSE (over the horizon and at its end; None without reference states) and
+    per-channel RMS, JSON-ready."""
     index = _horizon_index(dataset, prediction)
-    error = np.linalg.norm(position_errors(dataset, prediction), axis=2)
-    valid = np.isfinite(error)
-    last = np.array([np.flatnonzero(row)[-1] for row in valid])
-    end_error = error[np.arange(len(last)), last]
+    position: dict[str, float | None] = dict.fromkeys(
+        ("position_rmse_m", "position_rmse_at_horizon_m")
+    )
+    if dataset.x is not None:
+        error = np.linalg.norm(position_errors(dataset, prediction), axis=2)
+        valid = np.isfinite(error)
+        last = np.array([np.flatnonzero(row)[-1] for row in valid])
+        end_error = error[np.arange(len(last)), last]
+        position = {
+            "position_rmse_m": float(np.sqrt(np.mean(error[valid] ** 2))),
+            "position_rmse_at_horizon_m": float(np.sqrt(np.mean(end_error**2))),
+        }
     measured = dataset.y[index]
     channel_error = prediction.outputs - measured
     channels = {}
@@ -187,8 +196,7 @@ def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
         values = values[np.isfinite(values)]
         channels[name] = float(np.sqrt(np.mean(values**2))) if values.size else None
     return {
-        "position_rmse_m": float(np.sqrt(np.mean(error[valid] ** 2))),
-        "position_rmse_at_horizon_m": float(np.sqrt(np.mean(end_error**2))),
+        **position,
         "channel_rms": channels,
         "starts": len(prediction.starts),
     }

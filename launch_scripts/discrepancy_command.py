@@ -1,0 +1,127 @@
+"""``crs discrepancy``: which physical effect the model misses (argument handling only; the
+workflow is :mod:`crs_core.discrepancy`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from crs_core.identification.data import FieData
+from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.model import EFFECTS
+from crs_core.model.effects import parse_effect
+from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
+from launch_scripts.output_folder import prepare_output
+from launch_scripts.sysid_command import identification_model, load_dataset, parse_fit
+
+
+def parse_candidates(text: str | None) -> tuple[str, ...] | None:
+    """``--candidates a,b`` -> effect names (None: every registry effect)."""
+    if text is None:
+        return None
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    if not names:
+        raise ValueError("--candidates: name at least one effect")
+    for name in names:
+        if name not in EFFECTS:
+            raise ValueError(f"--candidates: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+    return names
+
+
+def run_discrepancy(args: argparse.Namespace) -> int:
+    """Fit, diagnose, test every effect, write DIR/report.json, report.md, params.yaml, PNGs."""
+    from crs_core.discrepancy.report import write_discrepancy_report
+
+    from crs_core.discrepancy.hypotheses import TestSettings
+    from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
+
+    train = load_dataset(args.train, "TRAIN")
+    validation = load_dataset(args.validate, "--validate") if args.validate else None
+    model = identification_model(train, args.effect or [], args.params)
+    identification = FieSettings(fit=parse_fit(args.fit, model), process_scale=args.process_scale)
+    FieData.from_dataset(train, identification.noise)  # refuse bad data before touching --out
+    if validation is not None:
+        FieData.from_dataset(validation, identification.noise)
+    settings = DiscrepancySettings(
+        identification=identification,
+        test=TestSettings(false_alarm_rate=args.false_alarm_rate),
+        candidates=parse_candidates(args.candidates),
+    )
+    out = prepare_output(Path(args.out), "discrepancy", args.overwrite)
+    started = time.perf_counter()
+
+    def progress(line: str) -> None:
+        print(f"[{time.perf_counter() - started:6.1f} s] {line}", file=sys.stderr, flush=True)
+
+    result = find_discrepancy(train, model, validation, settings, progress)
+    summary = write_discrepancy_report(
+        result, out, str(args.train), str(args.validate) if args.validate else None
+    )
+    gap = (
+        f"; held-out {result.gap['horizon_s']:g} s position RMSE "
+        f"{summary['gap_before']:.3f} -> {summary['gap_after']:.3f} m"
+        if summary["gap_before"] is not None
+        else ""
+    )
+    named = ", ".join(result.effects) if result.effects else ""
+    print(
+        f"discrepancy: {result.verdict}{' ' + named if named else ''}{gap}; "
+        f"{result.time_s:.0f} s; wrote {out}/report.json, report.md, params.yaml"
+    )
+    return 0
+
+
+def add_commands(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``discrepancy`` to the ``crs`` sub-commands."""
+    sub = subparsers.add_parser(
+        "discrepancy",
+        help="find the physical effect the model misses, add it, show the gap shrink",
+        description="Identify the current model on TRAIN, diagnose its residuals channel by "
+        "channel, fit every effect of the registry as a hypothesis and test it on held-out "
+        "data (--validate, or the last 30 %% of TRAIN) with a test designed for a false-alarm "
+        "rate of --false-alarm-rate per round; name the winner (or 'none', or 'unexplained' "
+        "with the channel and regime of the misfit), and report the held-out gap before and "
+        "after. Writes OUT/report.json, report.md, params.yaml (the final model: --params "
+        "everywhere) and figures; one progress line per step on stderr.",
+    )
+    sub.add_argument("train", type=Path, help="training dataset folder")
+    sub.add_argument("--validate", type=Path, help="held-out dataset folder")
+    sub.add_argument("--out", required=True, help="output folder")
+    sub.add_argument(
+        "--params",
+        help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
+    )
+    sub.add_argument(
+        "--effect",
+        type=argument_type(parse_effect),
+        action="append",
+        metavar="NAME[.PARAM][=VALUE]",
+        help="an effect the current model already has (repeatable)",
+    )
+    sub.add_argument(
+        "--fit",
+        help="parameters identified in every fit (default: the 15 dynamics parameters "
+        f"{','.join(DYNAMICS_FIT)} plus every --effect parameter)",
+    )
+    sub.add_argument(
+        "--candidates",
+        help=f"comma-separated effects to test (default: all: {','.join(EFFECTS)})",
+    )
+    sub.add_argument(
+        "--false-alarm-rate",
+        type=bounded_number("false-alarm-rate", "", 0.0, 0.5),
+        default=0.01,
+        help="designed probability of a finding per round on data that need no effect "
+        "(default 0.01)",
+    )
+    sub.add_argument(
+        "--process-scale",
+        type=bounded_number("process-scale", "", 0.0),
+        default=1.0,
+        help="factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits "
+        "simulated data, whose truth has no process noise)",
+    )
+    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    sub.set_defaults(handler=run_discrepancy)
