@@ -231,6 +231,8 @@ def compare_held_out(
     current: HeldOutScores, candidate: HeldOutScores, horizon_s: float
 ) -> HeldOutComparison:
     """The paired one-sided block t-test of ``candidate`` against ``current`` (the module)."""
+    if current.t.shape != candidate.t.shape or not np.allclose(current.t, candidate.t):
+        raise ValueError("scores: the two models were scored from different starts")
     groups = [g for g in current.groups if g in candidate.groups]
     a = current.mse[:, [current.groups.index(g) for g in groups]]
     b = candidate.mse[:, [candidate.groups.index(g) for g in groups]]

@@ -124,10 +124,11 @@ def run_case(case: dict[str, Any]) -> dict[str, Any]:
 
 def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]:
     """The case list: every effect at both magnitudes for ``seeds`` seeds, and the clean runs;
-    odd seeds are read as an independent source."""
+    every other case is read as an independent source (alternating over effects, magnitudes
+    and seeds)."""
     out = []
-    for effect, magnitudes in MAGNITUDES.items():
-        for level, values in zip(("small", "large"), magnitudes, strict=True):
+    for e, (effect, magnitudes) in enumerate(MAGNITUDES.items()):
+        for m, (level, values) in enumerate(zip(("small", "large"), magnitudes, strict=True)):
             for seed in range(seeds):
                 out.append(
                     {
@@ -135,7 +136,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
                         "magnitude": level,
                         "values": values,
                         "seed": 100 + seed,
-                        "independent": bool(seed % 2),
+                        "independent": bool((e + m + seed) % 2),
                         "duration_s": duration,
                     }
                 )
