@@ -1,0 +1,112 @@
+"""Tests of ``crs discrepancy``: a run in the real recordings' layout (no dataset.yaml, no
+stream), the report contract, and one-line input errors that write nothing."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from crs_core.model import CarModel
+from launch_scripts import discrepancy_command
+from launch_scripts.cli import OneLineParser
+from sim.scenarios import simulate_dataset
+
+STEERING_OFFSET = 0.03
+
+
+def run(argv: list[str]) -> tuple[int, str, str]:
+    """Parse with the discrepancy sub-command and run like ``crs`` does."""
+    parser = OneLineParser(prog="crs")
+    discrepancy_command.add_commands(parser.add_subparsers(dest="command", required=True))
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            args = parser.parse_args(argv)
+            code = args.handler(args)
+        except SystemExit as exit_:
+            code = int(exit_.code or 0)
+        except (ValueError, KeyError, FileNotFoundError) as error:
+            print(f"crs {argv[0]}: error: {error}", file=err)
+            code = 2
+    return code, out.getvalue(), err.getvalue()
+
+
+def save_like_the_real_recordings(dataset, folder: Path) -> Path:
+    """Only t, u (torque first), y and x as .npy: read back with the recordings' geometry."""
+    folder.mkdir(parents=True)
+    np.save(folder / "t.npy", dataset.t)
+    np.save(folder / "u.npy", dataset.u[:, ::-1].T)
+    np.save(folder / "y.npy", dataset.y.T)
+    np.save(folder / "x.npy", dataset.x.T)
+    return folder
+
+
+@pytest.fixture(scope="module")
+def recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    truth = CarModel({"steering_offset": {"steering_offset": STEERING_OFFSET}})
+    root = tmp_path_factory.mktemp("discrepancy")
+    train = simulate_dataset(20.0, 31, truth, driver="joystick")
+    held_out = simulate_dataset(12.0, 32, truth, driver="joystick")
+    return (
+        save_like_the_real_recordings(train, root / "train"),
+        save_like_the_real_recordings(held_out, root / "held_out"),
+    )
+
+
+@pytest.mark.slow
+def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recordings, tmp_path):
+    train, held_out = recordings
+    out = tmp_path / "result"
+    code, stdout, stderr = run(
+        [
+            "discrepancy",
+            str(train),
+            "--validate",
+            str(held_out),
+            "--out",
+            str(out),
+            "--fit",
+            "Iz,Df,Dr,Cm1",
+            "--candidates",
+            "steering_offset,gyro_bias,steering_gain",
+            "--process-scale",
+            "0.1",
+        ]
+    )
+    assert code == 0, stderr
+    assert "[1/3] steering_offset" in stderr  # one progress line per hypothesis
+    report = json.loads((out / "report.json").read_text())
+    assert report["verdict"] == "effect" and report["effects"] == ["steering_offset"]
+    fitted = report["parameters"]["steering_offset"]["steering_offset"]
+    assert fitted["value"] == pytest.approx(STEERING_OFFSET, rel=0.15)
+    assert fitted["unit"] == "rad" and fitted["std"] > 0
+    assert report["gap_after"] < report["gap_before"]
+    assert set(report["residual_rms_before"]) == set(report["residual_rms_after"])
+    assert "steering_offset" in (out / "params.yaml").read_text()
+    assert (out / "report.md").read_text().startswith("**Finding: steering_offset**")
+    assert "effect steering_offset" in stdout
+
+
+@pytest.mark.parametrize(
+    ("extra", "expected"),
+    [
+        (["--candidates", "nope"], "--candidates: unknown effect 'nope'"),
+        (["--fit", "Cm1,nope"], "--fit: unknown parameter 'nope'"),
+        (["--false-alarm-rate", "0"], "false-alarm-rate"),
+        (["--validate", "/nonexistent/folder"], "--validate: dataset folder"),
+        (["--params", "/nonexistent.yaml"], "--params"),
+    ],
+)
+def test_bad_input_is_one_line_error_and_writes_nothing(recordings, tmp_path, extra, expected):
+    train, _ = recordings
+    out = tmp_path / "never"
+    code, _, stderr = run(["discrepancy", str(train), "--out", str(out), *extra])
+    assert code == 2
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and expected in lines[0], stderr
+    assert not out.exists()
