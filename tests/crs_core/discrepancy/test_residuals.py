@@ -16,11 +16,10 @@ from crs_core.discrepancy.residuals import (
     diagnose,
     diagnose_residual,
     fie_residuals,
-    ljung_box,
-    regime_regression,
     regime_regressors,
     where_misfit,
 )
+from crs_core.discrepancy.statistics import ljung_box, regime_regression
 from crs_core.identification import FieSettings, identify
 from crs_core.model import CarModel
 from launch_scripts.sysid_bench import SIM_PROCESS_SCALE
