@@ -241,8 +241,8 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         "Each candidate effect is added to the current model, fitted on the training data (FIE) "
         "and tested on the held-out data: improvement = relative decrease of the open-loop "
         "prediction error (every channel group weighted equally), p = one-sided paired block "
-        "t-test. A finding needs a small p, a practical improvement and every effect parameter "
-        "clearly away from 'no effect'.",
+        "t-test. A finding needs a small p, a practical improvement and, for every effect "
+        "added, a parameter clearly away from 'no effect'.",
         "",
         "| effects | fitted parameters (± std) | held-out improvement | p | verdict |",
         "|---|---|---|---|---|",

@@ -58,6 +58,11 @@ CHANNEL_UNITS: dict[str, str] = {
 REGIME_P_MAX = 1e-6
 #: ... and the regression must explain at least this share of the residual's variance.
 REGIME_R2_MIN = 0.05
+#: A significant regime regression explaining at least this share of the variance is structure
+#: whatever its size against the assumed noise floor (that sigma is the estimator's tuning and
+#: may be far from a recording's real noise, e.g. pre-filtered signals); clean data stay
+#: below 0.031.
+REGIME_R2_DOMINANT = 0.2
 #: Offset evidence: the residual mean is at least this many standard errors from 0.
 MEAN_Z_MIN = 8.0
 #: Non-negligible: the structured part (offset and regime-explained part, RMS) is at least
@@ -324,7 +329,7 @@ def is_structured(diagnosis: ChannelDiagnosis) -> bool:
     .. math::
 
         \text{structured} = \big[(E_{regime} \lor E_{offset}) \land M\big] \lor
-        \big[\text{rms} / \sigma \ge \text{NORMALIZED\_RMS\_MAX}\big]
+        \big[\text{rms} / \sigma \ge \text{NORMALIZED\_RMS\_MAX}\big] \lor D_{regime}
 
     * :math:`E_{regime}`: the regime regression is significant and explains a real share,
       ``regime_p < REGIME_P_MAX`` and ``regime_r2 >= REGIME_R2_MIN``. A regression with an
@@ -339,6 +344,9 @@ def is_structured(diagnosis: ChannelDiagnosis) -> bool:
       significant; it only matters when it is a visible part of the sensor's noise.
     * ``rms / sigma >= NORMALIZED_RMS_MAX``: a residual this large is a misfit by itself, white
       or not (or the sensor sigma is badly wrong, which is worth knowing too).
+    * :math:`D_{regime}`: the regime regression is significant and explains at least
+      ``REGIME_R2_DOMINANT`` of the variance: most of the residual follows the operating
+      regime, however small it is against an assumed sigma that may not be the recording's.
 
     Non-whiteness alone (``whiteness_p``, ``lag1_autocorrelation``) is reported but not used:
     the FIE's own smoothing colours the residuals even on exact-model data (yaw rate lag-1
@@ -363,7 +371,9 @@ def is_structured(diagnosis: ChannelDiagnosis) -> bool:
     regime = diagnosis.regime_p < REGIME_P_MAX and diagnosis.regime_r2 >= REGIME_R2_MIN
     offset = diagnosis.mean_z >= MEAN_Z_MIN
     visible = diagnosis.structure_rms >= STRUCTURE_MIN * floor
-    return bool(((regime or offset) and visible) or diagnosis.normalized_rms >= NORMALIZED_RMS_MAX)
+    dominant = diagnosis.regime_p < REGIME_P_MAX and diagnosis.regime_r2 >= REGIME_R2_DOMINANT
+    large = diagnosis.normalized_rms >= NORMALIZED_RMS_MAX
+    return bool(((regime or offset) and visible) or large or dominant)
 
 
 def where_misfit(diagnoses: list[ChannelDiagnosis]) -> dict[str, Any] | None:
@@ -381,8 +391,8 @@ def where_misfit(diagnoses: list[ChannelDiagnosis]) -> dict[str, Any] | None:
     -------
     dict or None
         ``{"channel", "regressor", "low", "high", "rms", "normalized_rms", "regime_r2",
-        "mean"}`` (the worst regime's regressor, bin and residual RMS, channel units), or
-        None when no channel is structured.
+        "mean", "also_structured"}`` (the worst regime's regressor, bin and residual RMS,
+        channel units; the other structured channels), or None when no channel is structured.
     """
     structured = [d for d in diagnoses if d.structured]
     if not structured:
@@ -398,6 +408,7 @@ def where_misfit(diagnoses: list[ChannelDiagnosis]) -> dict[str, Any] | None:
         "normalized_rms": float(best.normalized_rms),
         "regime_r2": float(best.regime_r2),
         "mean": float(best.mean),
+        "also_structured": [d.channel for d in structured if d is not best],
     }
 
 

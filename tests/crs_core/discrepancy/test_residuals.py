@@ -115,6 +115,19 @@ def test_residual_following_speed_is_found_at_high_speed():
     assert d.structured
 
 
+def test_regime_dominated_residual_is_structured_under_a_too_large_sigma():
+    """A residual that mostly follows the regime counts even when the assumed sigma (here 10x
+    the residual) would call it negligible: a recording's noise need not be the tuning's."""
+    rng = np.random.default_rng(5)
+    regressors = _regressors(rng)
+    e = 0.05 * regressors["vx"] + rng.normal(0.0, 0.02, N)
+    d = diagnose_residual("x", e, 1.0, regressors)
+    assert d.normalized_rms < 0.2 and d.regime_r2 > 0.2
+    assert d.structured
+    white = diagnose_residual("x", rng.normal(0.0, 0.02, N), 1.0, regressors)
+    assert not white.structured
+
+
 def test_constant_offset_is_structured_through_the_mean():
     """An intercept-only regression sees no offset; the mean test does."""
     rng = np.random.default_rng(3)
