@@ -484,7 +484,7 @@ def make_parser() -> argparse.ArgumentParser:
         "discrepancy: every registry effect hidden at two magnitudes (--seeds runs each; the "
         "README figures use 2) and --clean-seeds clean runs: the "
         "confusion table, false-alarm rate, parameter accuracy, gap before / after, and the time "
-        "of one run on 60 s of data; ~1 h with 2 seeds.",
+        "of one run on 60 s of data; ~1 h with --seeds 1 (40 cases, 20 s training runs).",
     )
     sub.add_argument(
         "what",
