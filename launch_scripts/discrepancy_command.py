@@ -4,6 +4,7 @@ workflow is :mod:`crs_core.discrepancy`)."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -32,9 +33,8 @@ def parse_candidates(text: str | None) -> tuple[str, ...] | None:
 
 def run_discrepancy(args: argparse.Namespace) -> int:
     """Fit, diagnose, test every effect, write DIR/report.json, report.md, params.yaml, PNGs."""
-    from crs_core.discrepancy.report import write_discrepancy_report
-
     from crs_core.discrepancy.hypotheses import TestSettings
+    from crs_core.discrepancy.report import write_discrepancy_report
     from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
 
     train = load_dataset(args.train, "TRAIN")
@@ -48,6 +48,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         identification=identification,
         test=TestSettings(false_alarm_rate=args.false_alarm_rate),
         candidates=parse_candidates(args.candidates),
+        workers=args.workers,
     )
     out = prepare_output(Path(args.out), "discrepancy", args.overwrite)
     started = time.perf_counter()
@@ -122,6 +123,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default=1.0,
         help="factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits "
         "simulated data, whose truth has no process noise)",
+    )
+    sub.add_argument(
+        "--workers",
+        type=bounded_number("workers", "", 0, 64, int),
+        default=min(2, os.cpu_count() or 1),
+        help="processes fitting hypotheses at once (default: 2, or 1 on a one-core machine)",
     )
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_discrepancy)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -62,6 +63,8 @@ class DiscrepancySettings:
         Horizon of the reported gap (the paper's 2 s open-loop position RMSE).
     max_effects : int
         Most effects named at once.
+    workers : int
+        Processes fitting hypotheses at once (1: in this process).
     """
 
     identification: FieSettings = field(default_factory=FieSettings)
@@ -70,12 +73,15 @@ class DiscrepancySettings:
     held_out_fraction: float = 0.3
     horizon_s: float = DEFAULT_HORIZON_S
     max_effects: int = 2
+    workers: int = 1
 
     def __post_init__(self) -> None:
         if not 0.1 <= self.held_out_fraction <= 0.7:
             raise ValueError(
                 f"held_out_fraction: must be within [0.1, 0.7], got {self.held_out_fraction}"
             )
+        if self.workers < 1:
+            raise ValueError(f"workers: must be >= 1, got {self.workers}")
         if self.max_effects < 1:
             raise ValueError(f"max_effects: must be >= 1, got {self.max_effects}")
         for name in self.candidates or ():
@@ -192,14 +198,12 @@ def find_discrepancy(
     current_scores = held_out_scores(held_out, current_model, settings.test.test_horizon_s)
     say(f"current model: FIE cost {current.cost:.6g}; {len(candidates)} hypotheses to test")
 
-    hypotheses: list[Hypothesis] = []
-    first_round = []
-    for i, name in enumerate(candidates, 1):
-        hypothesis = fit_hypothesis(fit_data, model, current, (name,), settings.identification)
-        judge(hypothesis, current_scores, held_out, settings.test, len(candidates))
-        hypotheses.append(hypothesis)
-        first_round.append(hypothesis)
-        say(_line(i, len(candidates), hypothesis))
+    tasks = [
+        (fit_data, model, current, (name,), settings, current_scores, held_out, len(candidates))
+        for name in candidates
+    ]
+    first_round = _run_hypotheses(tasks, settings.workers, say)
+    hypotheses: list[Hypothesis] = list(first_round)
     findings = sorted(
         (h for h in first_round if h.significant),
         key=lambda h: h.comparison.improvement if h.comparison else 0.0,
@@ -259,6 +263,33 @@ def find_discrepancy(
         held_out=held_out_label,
         time_s=time.perf_counter() - started,
     )
+
+
+def _fit_and_judge(task: tuple) -> Hypothesis:
+    """Fit one hypothesis and judge it (a top-level function: it runs in worker processes)."""
+    data, model, current, effects, settings, scores, held_out, tests = task
+    hypothesis = fit_hypothesis(data, model, current, effects, settings.identification)
+    return judge(hypothesis, scores, held_out, settings.test, tests)
+
+
+def _run_hypotheses(
+    tasks: list[tuple], workers: int, say: Callable[[str], None]
+) -> list[Hypothesis]:
+    """:func:`_fit_and_judge` over ``tasks`` on ``workers`` processes, in task order; one
+    progress line per hypothesis as it finishes."""
+    if workers <= 1 or len(tasks) <= 1:
+        done = []
+        for i, task in enumerate(tasks, 1):
+            done.append(_fit_and_judge(task))
+            say(_line(i, len(tasks), done[-1]))
+        return done
+    results: dict[int, Hypothesis] = {}
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
+        futures = {pool.submit(_fit_and_judge, task): k for k, task in enumerate(tasks)}
+        for i, future in enumerate(as_completed(futures), 1):
+            results[futures[future]] = future.result()
+            say(_line(i, len(tasks), results[futures[future]]))
+    return [results[k] for k in range(len(tasks))]
 
 
 def _joint_hypothesis(

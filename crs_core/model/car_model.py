@@ -175,6 +175,12 @@ class CarModel:
         self.nx, self.nu, self.np = len(self.state_names), 2, len(self.parameters)
         self._build_symbolic()
 
+    def __reduce__(self):
+        """Pickle by the constructor arguments (the CasADi graph is rebuilt, not serialised):
+        a model crosses into worker processes."""
+        names = [e.name for e in self.effects]
+        return (CarModel, (names, self.n_base_stations, self.parameters, self.estimated_inputs))
+
     # --- symbolic model ------------------------------------------------------------------
     def _build_symbolic(self) -> None:
         x = ca.SX.sym("x", self.nx)

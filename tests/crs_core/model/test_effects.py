@@ -330,3 +330,22 @@ def test_simulated_lighthouse_angles_carry_the_plane_offsets():
             for x in truth_at(result, stamps)
         ]
         np.testing.assert_allclose(angles - np.array(expected), offset, rtol=0, atol=1e-12)
+
+
+def test_model_pickles_by_its_constructor_arguments():
+    """A model with effects and changed values crosses a process boundary unchanged."""
+    import pickle
+
+    model = CarModel({"gyro_bias": {"gyro_bias": 0.07}, "steering_lag": None}, n_base_stations=2)
+    model = CarModel(
+        {"gyro_bias": None, "steering_lag": None},
+        n_base_stations=2,
+        parameters=model.parameters.updated({"Cm1": 0.9}),
+    )
+    copy = pickle.loads(pickle.dumps(model))
+    assert copy.tag == model.tag and copy.nx == model.nx
+    np.testing.assert_array_equal(copy.parameters.vector(), model.parameters.vector())
+    x = model.initial_state([0.1, 0.2, 0.3, 1.0, 0.05, 0.4], [0.1, 0.3])
+    f_copy = copy.dynamics_function(x, [0.1, 0.3], copy.parameters.vector())
+    f_model = model.dynamics_function(x, [0.1, 0.3], model.parameters.vector())
+    np.testing.assert_array_equal(np.asarray(f_copy), np.asarray(f_model))
