@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -79,7 +80,7 @@ def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recording
         ]
     )
     assert code == 0, stderr
-    assert "[1/3] steering_offset" in stderr  # one progress line per hypothesis
+    assert len(re.findall(r"\[\d/3\] (steering_offset|gyro_bias|steering_gain) ", stderr)) == 3
     report = json.loads((out / "report.json").read_text())
     assert report["verdict"] == "effect" and report["effects"] == ["steering_offset"]
     fitted = report["parameters"]["steering_offset"]["steering_offset"]
