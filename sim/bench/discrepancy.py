@@ -212,7 +212,13 @@ def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
         },
         workers,
     )
-    return {"workers": workers, "train_s": duration, "held_out_s": duration / 2, "time_s": row["time_s"], **row}
+    return {
+        "workers": workers,
+        "train_s": duration,
+        "held_out_s": duration / 2,
+        "time_s": row["time_s"],
+        **row,
+    }
 
 
 def discrepancy_benchmark(
