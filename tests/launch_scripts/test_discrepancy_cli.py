@@ -3,8 +3,6 @@ stream), the report contract, and one-line input errors that write nothing."""
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 from pathlib import Path
@@ -13,28 +11,9 @@ import numpy as np
 import pytest
 
 from crs_core.model import CarModel
-from launch_scripts import discrepancy_command
-from launch_scripts.cli import OneLineParser
 from sim.scenarios import simulate_dataset
 
 STEERING_OFFSET = 0.03
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    """Parse with the discrepancy sub-command and run like ``crs`` does."""
-    parser = OneLineParser(prog="crs")
-    discrepancy_command.add_commands(parser.add_subparsers(dest="command", required=True))
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            args = parser.parse_args(argv)
-            code = args.handler(args)
-        except SystemExit as exit_:
-            code = int(exit_.code or 0)
-        except (ValueError, KeyError, FileNotFoundError) as error:
-            print(f"crs {argv[0]}: error: {error}", file=err)
-            code = 2
-    return code, out.getvalue(), err.getvalue()
 
 
 def save_like_the_real_recordings(dataset, folder: Path) -> Path:
@@ -60,10 +39,10 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 
 
 @pytest.mark.slow
-def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recordings, tmp_path):
+def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recordings, tmp_path, crs):
     train, held_out = recordings
     out = tmp_path / "result"
-    code, stdout, stderr = run(
+    code, stdout, stderr = crs(
         [
             "discrepancy",
             str(train),
@@ -103,10 +82,10 @@ def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recording
         (["--params", "/nonexistent.yaml"], "--params"),
     ],
 )
-def test_bad_input_is_one_line_error_and_writes_nothing(recordings, tmp_path, extra, expected):
+def test_bad_input_is_one_line_error_and_writes_nothing(recordings, tmp_path, extra, expected, crs):
     train, _ = recordings
     out = tmp_path / "never"
-    code, _, stderr = run(["discrepancy", str(train), "--out", str(out), *extra])
+    code, _, stderr = crs(["discrepancy", str(train), "--out", str(out), *extra])
     assert code == 2
     lines = [line for line in stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and expected in lines[0], stderr

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
 import json
 from pathlib import Path
 
@@ -15,26 +13,8 @@ import yaml
 from crs_core.dataset import Dataset
 from crs_core.model import CarModel
 from launch_scripts import sysid_command
-from launch_scripts.cli import OneLineParser
 from launch_scripts.output_folder import MARKER
 from sim.scenarios import simulate_dataset
-
-
-def run(argv: list[str]) -> tuple[int, str, str]:
-    """Parse with the sub-commands of sysid_command and run like ``crs`` does."""
-    parser = OneLineParser(prog="crs")
-    sysid_command.add_commands(parser.add_subparsers(dest="command", required=True))
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            args = parser.parse_args(argv)
-            code = args.handler(args)
-        except SystemExit as exit_:
-            code = int(exit_.code or 0)
-        except (ValueError, KeyError, FileNotFoundError) as error:
-            print(f"crs {argv[0]}: error: {error}", file=err)
-            code = 2
-    return code, out.getvalue(), err.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -45,9 +25,11 @@ def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def sysid_out(drive: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[int, str, str, Path]:
+def sysid_out(
+    drive: Path, tmp_path_factory: pytest.TempPathFactory, crs
+) -> tuple[int, str, str, Path]:
     out = tmp_path_factory.mktemp("sysid") / "result"
-    code, _, stderr = run(
+    code, _, stderr = crs(
         ["sysid", str(drive), "--out", str(out), "--params", "rough", "--fit", "Cm1,Iz,b_car"]
     )
     return code, _, stderr, out
@@ -82,9 +64,9 @@ def test_sysid_writes_loadable_parameters_and_a_report(sysid_out):
     assert "EXIT" not in stderr and "Ipopt" not in stderr
 
 
-def test_validate_compares_prior_and_identified(drive: Path, sysid_out, tmp_path: Path):
+def test_validate_compares_prior_and_identified(drive: Path, sysid_out, tmp_path: Path, crs):
     params = sysid_out[3] / "params.yaml"
-    code, _, stderr = run(
+    code, _, stderr = crs(
         [
             "validate",
             str(drive),
@@ -126,7 +108,7 @@ def _short(drive: Path, folder: Path, n: int = 10, nan: bool = False) -> Path:
         ("horizon_too_long", "--horizon: 50 s is longer than the dataset"),
     ],
 )
-def test_bad_input_is_one_line_error(case: str, expected: str, drive: Path, tmp_path: Path):
+def test_bad_input_is_one_line_error(case: str, expected: str, drive: Path, tmp_path: Path, crs):
     out = str(tmp_path / "out")
     argv = {
         "too_short": ["sysid", str(_short(drive, tmp_path / "short")), "--out", out],
@@ -150,7 +132,7 @@ def test_bad_input_is_one_line_error(case: str, expected: str, drive: Path, tmp_
         path = tmp_path / "bounds.yaml"
         path.write_text(yaml.safe_dump({"parameters": {"m": {"value": 0.3, "upper": 0.2}}}))
         argv[argv.index("BOUNDS")] = str(path)
-    code, _, stderr = run(argv)
+    code, _, stderr = crs(argv)
     assert code == 2
     lines = stderr.strip().splitlines()
     assert len(lines) == 1 and expected in lines[0], stderr
