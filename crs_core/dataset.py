@@ -281,8 +281,10 @@ class Dataset:
             dataset.truth_t, dataset.truth_x = stream.truth_t, stream.truth_x
         return dataset
 
-    def save(self, folder: str | Path) -> Path:
-        """Write the dataset folder; returns its path."""
+    def save(self, folder: str | Path, metadata: bool = True) -> Path:
+        """Write the dataset folder; returns its path. ``metadata=False`` writes the layout of
+        the real recordings: the ``.npy`` files only (no ``dataset.yaml``, no stream), read back
+        with the recordings' geometry."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         np.save(folder / "t.npy", self.t)
@@ -292,13 +294,16 @@ class Dataset:
         optional = {
             "u.npy": self.u is not None,
             "x.npy": self.x is not None,
-            "stream.npz": bool(self.measurements or self.inputs),
+            "stream.npz": metadata and bool(self.measurements or self.inputs),
+            "dataset.yaml": metadata,
         }
         for name, present in optional.items():
             if not present:
                 (folder / name).unlink(missing_ok=True)  # no stale file from an earlier save
         if self.x is not None:
             np.save(folder / "x.npy", self.x.T.copy())
+        if not metadata:
+            return folder
         meta = {"format": FORMAT, **self.meta, "geometry": self.geometry.to_dict()}
         meta["y_channels"] = list(Y_CHANNELS)
         (folder / "dataset.yaml").write_text(yaml.safe_dump(plain(meta), sort_keys=False))

@@ -44,9 +44,14 @@ import numpy as np
 from scipy import stats
 
 from crs_core.dataset import Dataset
+from crs_core.discrepancy.residuals import CHANNEL_GROUPS
 from crs_core.identification.problem import FieSettings
 from crs_core.identification.solve import FieResult, WarmStart, identify
-from crs_core.identification.validation import OpenLoopPredictor
+from crs_core.identification.validation import (
+    OpenLoopPredictor,
+    horizon_index,
+    position_errors,
+)
 from crs_core.measurements import InputSample
 from crs_core.model import EFFECTS, CarModel
 from crs_core.parameters import Parameter
@@ -55,13 +60,6 @@ from crs_core.parameters import Parameter
 DELAY_EFFECT = "input_delay"
 #: Spacing of the delays the FIE tries for ``input_delay``, s.
 DELAY_STEP_S = 0.04
-#: Channel groups of the held-out score: name -> dataset columns (position is separate).
-SCORE_GROUPS = {
-    "lighthouse_plane1": slice(0, 4),
-    "lighthouse_plane2": slice(4, 8),
-    "wheel_speeds": slice(8, 12),
-    "yaw_rate": slice(12, 13),
-}
 
 
 @dataclass(frozen=True)
@@ -202,21 +200,20 @@ def held_out_scores(
     dataset: Dataset, model: CarModel, horizon_s: float, delay_s: float = 0.0
 ) -> HeldOutScores:
     """Open-loop predictions of ``model`` on ``dataset`` (commands delayed by ``delay_s``) over
-    ``horizon_s`` from every sample: per start and group, the mean squared error over the
-    horizon (NaN where not measured)."""
+    ``horizon_s`` from every sample: per start and group (position, and the channel groups of
+    the residual diagnosis), the mean squared error over the horizon (NaN where not
+    measured)."""
     data = delayed_inputs(dataset, delay_s)
     prediction = OpenLoopPredictor(data, model, horizon_s).predict()
-    index = np.minimum(
-        prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :], len(data.t) - 1
-    )
+    index = horizon_index(data, prediction)
     groups, columns = [], []
     if data.x is not None:
-        error = prediction.positions - data.x[index, :2]
+        error = position_errors(data, prediction)
         groups.append("position")
         columns.append(np.nanmean(np.sum(error**2, axis=2), axis=1))
     residual = prediction.outputs - data.y[index]
-    for name, cols in SCORE_GROUPS.items():
-        squared = residual[..., cols] ** 2
+    for name, cols in CHANNEL_GROUPS.items():
+        squared = residual[..., list(cols)] ** 2
         if not np.isfinite(squared).any():
             continue
         flat = squared.reshape(len(squared), -1)

@@ -159,7 +159,7 @@ def _substeps(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
     return sub_u, sub_h
 
 
-def _horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
+def horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
     """Sample index of every prediction step, ``(S, steps)`` (clipped at the last sample)."""
     index = prediction.starts[:, None] + 1 + np.arange(prediction.steps)[None, :]
     return np.minimum(index, len(dataset.t) - 1)
@@ -169,13 +169,13 @@ def position_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndar
     """Predicted minus reference position, ``(S, steps, 2)`` m (NaN beyond the horizon)."""
     if dataset.x is None:
         raise ValueError("dataset: has no reference states (x.npy) for the position RMSE")
-    return prediction.positions - dataset.x[_horizon_index(dataset, prediction), :2]
+    return prediction.positions - dataset.x[horizon_index(dataset, prediction), :2]
 
 
 def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
     """Position RMSE (over the horizon and at its end; None without reference states) and
     per-channel RMS, JSON-ready."""
-    index = _horizon_index(dataset, prediction)
+    index = horizon_index(dataset, prediction)
     position: dict[str, float | None] = dict.fromkeys(
         ("position_rmse_m", "position_rmse_at_horizon_m")
     )

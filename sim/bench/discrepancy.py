@@ -24,8 +24,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from crs_core.dataset import Dataset
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
@@ -66,13 +64,7 @@ def _case_datasets(
     with tempfile.TemporaryDirectory() as folder:
         loaded = []
         for name, dataset in (("train", train), ("held_out", held_out)):
-            path = Path(folder) / name
-            path.mkdir()
-            np.save(path / "t.npy", dataset.t)
-            np.save(path / "u.npy", dataset.u[:, ::-1].T)  # torque first, as recorded
-            np.save(path / "y.npy", dataset.y.T)
-            np.save(path / "x.npy", dataset.x.T)
-            loaded.append(Dataset.load(path))
+            loaded.append(Dataset.load(dataset.save(Path(folder) / name, metadata=False)))
     return loaded[0], loaded[1]
 
 

@@ -536,3 +536,16 @@ def test_samples_view_keeps_the_stream_inside_and_the_command_in_force():
     assert all(s.stamp <= part.t[-1] for s in part.inputs)
     with pytest.raises(ValueError, match="samples"):
         dataset.samples(10, 11)
+
+
+def test_save_without_metadata_writes_the_recordings_layout(tmp_path):
+    from sim.scenarios import simulate_dataset
+
+    dataset = simulate_dataset(2.0, 4)
+    folder = dataset.save(tmp_path / "d")
+    dataset.save(folder, metadata=False)  # over an earlier full save: nothing stale stays
+    assert sorted(p.name for p in folder.iterdir()) == ["t.npy", "u.npy", "x.npy", "y.npy"]
+    loaded = Dataset.load(folder)
+    assert loaded.meta == {"source": "real"} and loaded.measurements is None
+    np.testing.assert_array_equal(loaded.u, dataset.u)
+    np.testing.assert_array_equal(loaded.y, dataset.y)

@@ -7,23 +7,12 @@ import json
 import re
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from crs_core.model import CarModel
 from sim.scenarios import simulate_dataset
 
 STEERING_OFFSET = 0.03
-
-
-def save_like_the_real_recordings(dataset, folder: Path) -> Path:
-    """Only t, u (torque first), y and x as .npy: read back with the recordings' geometry."""
-    folder.mkdir(parents=True)
-    np.save(folder / "t.npy", dataset.t)
-    np.save(folder / "u.npy", dataset.u[:, ::-1].T)
-    np.save(folder / "y.npy", dataset.y.T)
-    np.save(folder / "x.npy", dataset.x.T)
-    return folder
 
 
 @pytest.fixture(scope="module")
@@ -33,8 +22,8 @@ def recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     train = simulate_dataset(20.0, 31, truth, driver="joystick")
     held_out = simulate_dataset(12.0, 32, truth, driver="joystick")
     return (
-        save_like_the_real_recordings(train, root / "train"),
-        save_like_the_real_recordings(held_out, root / "held_out"),
+        train.save(root / "train", metadata=False),
+        held_out.save(root / "held_out", metadata=False),
     )
 
 
