@@ -36,8 +36,9 @@ delay the commands).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -167,13 +168,16 @@ def start_value(parameter: Parameter) -> float:
     return null if null == 0.0 else min(4.0 * null, parameter.upper)
 
 
-def extended_model(model: CarModel, effects: Sequence[str]) -> CarModel:
-    """``model`` with ``effects`` added at their null values; every other value kept."""
+def extended_model(
+    model: CarModel, effects: Sequence[str], values: Mapping[str, float] = MappingProxyType({})
+) -> CarModel:
+    """``model`` with ``effects`` added, their parameters at ``values`` or else their null
+    values; every other value kept."""
     spec: dict[str, dict[str, float] | None] = {e.name: None for e in model.effects}
     for name in effects:
         if name not in EFFECTS:
             raise ValueError(f"effects: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
-        spec[name] = {p.name: null_value(p) for p in EFFECTS[name].parameters}
+        spec[name] = {p.name: values.get(p.name, null_value(p)) for p in EFFECTS[name].parameters}
     skeleton = CarModel(spec, n_base_stations=model.n_base_stations)
     values = {n: model.parameters.value(n) for n in model.parameters.names}
     return CarModel(
@@ -280,15 +284,14 @@ def fit_hypothesis(
         )
     else:
         result = identify(train, extended, fit_settings, progress, warm_start=warm)
-    spec: dict[str, dict[str, float] | None] = {e.name: None for e in extended.effects}
-    values = {n: result.parameters.value(n) for n in result.parameters.names}
-    if DELAY_EFFECT in effects:
-        spec[DELAY_EFFECT] = {DELAY_EFFECT: delay}
-    skeleton = CarModel(spec, n_base_stations=extended.n_base_stations)
-    fitted_model = CarModel(
-        spec,
-        n_base_stations=extended.n_base_stations,
-        parameters=skeleton.parameters.updated(values),
+    fitted_model = extended_model(
+        CarModel(
+            {e.name: None for e in extended.effects},
+            n_base_stations=extended.n_base_stations,
+            parameters=result.parameters,
+        ),
+        [DELAY_EFFECT] if DELAY_EFFECT in effects else [],
+        {DELAY_EFFECT: delay},
     )
     parameters: dict[str, dict[str, dict[str, float | str]]] = {}
     for name in state_effects:
