@@ -12,10 +12,14 @@ from pathlib import Path
 from crs_core.identification.data import FieData
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS
-from crs_core.model.effects import parse_effect
-from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
+from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
 from launch_scripts.output_folder import prepare_output
-from launch_scripts.sysid_command import identification_model, load_dataset, parse_fit
+from launch_scripts.sysid_command import (
+    EFFECT_OPTION,
+    identification_model,
+    load_dataset,
+    parse_fit,
+)
 
 
 def parse_candidates(text: str | None) -> tuple[str, ...] | None:
@@ -95,11 +99,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
     )
     sub.add_argument(
-        "--effect",
-        type=argument_type(parse_effect),
-        action="append",
-        metavar="NAME[.PARAM][=VALUE]",
-        help="an effect the current model already has (repeatable)",
+        "--effect", help="an effect the current model already has (repeatable)", **EFFECT_OPTION
     )
     sub.add_argument(
         "--fit",

@@ -144,13 +144,16 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
+#: ``add_argument`` keywords of ``--effect`` (every command that builds a model takes it).
+EFFECT_OPTION: dict[str, Any] = {
+    "type": argument_type(parse_effect),
+    "action": "append",
+    "metavar": "NAME[.PARAM][=VALUE]",
+}
+
+
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
-    effect = {
-        "type": argument_type(parse_effect),
-        "action": "append",
-        "metavar": "NAME[.PARAM][=VALUE]",
-    }
     sub = subparsers.add_parser(
         "sysid",
         help="identify model parameters from a dataset (FIE, IPOPT)",
@@ -172,7 +175,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="comma-separated parameter names to identify (default: the 15 dynamics "
         f"parameters {','.join(DYNAMICS_FIT)} plus every --effect parameter)",
     )
-    sub.add_argument("--effect", help="add a model effect (repeatable)", **effect)
+    sub.add_argument("--effect", help="add a model effect (repeatable)", **EFFECT_OPTION)
     sub.add_argument(
         "--starts",
         type=bounded_number("starts", "", 1, kind=int, include_low=True),
@@ -212,7 +215,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default=2.0,
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
-    sub.add_argument("--effect", help="model effect (repeatable; inferred from --params)", **effect)
+    sub.add_argument(
+        "--effect", help="model effect (repeatable; inferred from --params)", **EFFECT_OPTION
+    )
     sub.add_argument("--out", required=True, help="output folder")
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_validate)
