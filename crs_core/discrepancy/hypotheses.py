@@ -393,6 +393,16 @@ def judge(
     return hypothesis
 
 
+def information_criterion(hypothesis: Hypothesis) -> float:
+    r"""Akaike's criterion of a fitted hypothesis on the training data: the FIE cost
+    (:math:`-2 \log L` up to a constant shared by every hypothesis) plus twice the number of
+    effect parameters. It ranks findings that compete for the same misfit (a steering lag and an
+    input delay both explain late steering): the held-out test decides *whether* an effect is
+    needed, the training likelihood, on more data and weighted by the noise, *which*."""
+    added = sum(len(values) for values in hypothesis.parameters.values())
+    return hypothesis.result.cost + 2.0 * added
+
+
 def parameter_table(hypotheses: Sequence[Hypothesis]) -> dict[str, dict[str, Any]]:
     """Effect -> parameter -> {value, std, unit} of the given hypotheses (JSON-ready)."""
     table: dict[str, dict[str, Any]] = {}

@@ -29,7 +29,7 @@ from crs_core.discrepancy.figures import (
     hypotheses_figure,
     residuals_figure,
 )
-from crs_core.discrepancy.hypotheses import DELAY_EFFECT, Hypothesis
+from crs_core.discrepancy.hypotheses import DELAY_EFFECT, Hypothesis, information_criterion
 from crs_core.discrepancy.residuals import CHANNEL_UNITS
 from crs_core.discrepancy.workflow import DiscrepancyResult
 from crs_core.identification.report import write_params_yaml
@@ -242,10 +242,13 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         "and tested on the held-out data: improvement = relative decrease of the open-loop "
         "prediction error (every channel group weighted equally), p = one-sided paired block "
         "t-test. A finding needs a small p, a practical improvement and, for every effect "
-        "added, a parameter clearly away from 'no effect'.",
+        "added, a parameter clearly away from 'no effect'. Of competing findings the one with the "
+        "lowest Akaike criterion on the training data (ΔAIC: FIE cost plus twice the number of "
+        "effect parameters, against the current model) is named.",
         "",
-        "| effects | fitted parameters (± std) | held-out improvement | p | verdict |",
-        "|---|---|---|---|---|",
+        "| effects | fitted parameters (± std) | ΔAIC (train) | held-out improvement | p "
+        "| verdict |",
+        "|---|---|---|---|---|---|",
     ]
     chosen = _chosen(result)
     for h, entry in zip(result.hypotheses, summary["hypotheses"], strict=True):
@@ -259,8 +262,9 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         verdict = "**finding**" if h.significant else "no: " + "; ".join(h.reasons)
         if h is chosen:
             verdict += " (named)"
+        aic = information_criterion(h) - result.current.cost
         lines.append(
-            f"| {' + '.join(h.effects)} | {values or '—'} | "
+            f"| {' + '.join(h.effects)} | {values or '—'} | {format_number(aic, '+.1f')} | "
             f"{format_number(None if improvement is None else 100 * improvement, '+.1f')} % | "
             f"{format_number(held.get('p_value'), '.2g')} | {verdict} |"
         )

@@ -7,10 +7,13 @@
 3. fit every candidate effect of the registry on the training data and test it on held-out
    data (:mod:`~crs_core.discrepancy.hypotheses`); held-out data are the validation dataset,
    or without one the last :attr:`DiscrepancySettings.held_out_fraction` of the training run;
-4. name the winner (the finding with the largest held-out improvement), then test the other
-   findings of the first round on top of it (two effects at once are reported when both are
-   significant); no finding: ``none``, or ``unexplained`` when the residuals of the current
-   model stay structured (with the channel and regime where the misfit lives);
+4. name the winner (of the findings, the one the training data explain best:
+   :func:`~crs_core.discrepancy.hypotheses.information_criterion`), then test on top of it the
+   other findings of the first round and the effects whose fitted parameter was clear of "no
+   effect" although the held-out test refused them (one effect can hide another); two effects
+   at once are reported when both are significant; no finding: ``none``, or ``unexplained``
+   when the residuals of the current model stay structured (with the channel and regime where
+   the misfit lives);
 5. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
    horizon and the per-channel RMS, with the final model's parameters.
 """
@@ -31,6 +34,7 @@ from crs_core.discrepancy.hypotheses import (
     delayed_inputs,
     fit_hypothesis,
     held_out_scores,
+    information_criterion,
     judge,
     parameter_table,
 )
@@ -202,33 +206,34 @@ def find_discrepancy(
         (fit_data, model, current, (name,), settings, current_scores, held_out, len(candidates))
         for name in candidates
     ]
-    first_round = _run_hypotheses(tasks, settings.workers, say)
+    first_round = _run_hypotheses(_fit_and_judge, tasks, settings.workers, say)
     hypotheses: list[Hypothesis] = list(first_round)
-    findings = sorted(
-        (h for h in first_round if h.significant),
-        key=lambda h: h.comparison.improvement if h.comparison else 0.0,
-        reverse=True,
-    )
+    findings = sorted((h for h in first_round if h.significant), key=information_criterion)
     chosen: Hypothesis | None = findings[0] if findings else None
     if chosen is not None:
-        others = findings[1:]
+        # on top of the winner: the other findings, and the effects the training data asked
+        # for but the held-out test refused (a second effect can hide behind the first)
+        others = [
+            h
+            for h in first_round
+            if h is not chosen and (h.significant or _asked_for(h, settings.test.min_z))
+        ]
         while others and len(chosen.effects) < settings.max_effects:
-            base, base_data = chosen, delayed_inputs(fit_data, chosen.delay_s)
+            base_data = delayed_inputs(fit_data, chosen.delay_s)
             base_scores = held_out_scores(
-                held_out, base.model, settings.test.test_horizon_s, base.delay_s
+                held_out, chosen.model, settings.test.test_horizon_s, chosen.delay_s
             )
-            say(f"on top of {'+'.join(base.effects)}: {len(others)} more to test")
-            joint = []
-            for i, other in enumerate(others, 1):
-                h = _joint_hypothesis(model, base, other, base_data, settings)
-                judge(h, base_scores, held_out, settings.test, len(others))
-                hypotheses.append(h)
-                joint.append(h)
-                say(_line(i, len(others), h))
+            say(f"on top of {'+'.join(chosen.effects)}: {len(others)} more to test")
+            tasks = [
+                (model, chosen, other, base_data, settings, base_scores, held_out, len(others))
+                for other in others
+            ]
+            joint = _run_hypotheses(_fit_joint_and_judge, tasks, settings.workers, say)
+            hypotheses += joint
             joint_findings = [h for h in joint if h.significant]
             if not joint_findings:
                 break
-            chosen = max(joint_findings, key=lambda h: h.comparison.improvement)
+            chosen = min(joint_findings, key=information_criterion)
             others = [o for o in others if o.effects[0] not in chosen.effects]
 
     if chosen is not None:
@@ -272,20 +277,38 @@ def _fit_and_judge(task: tuple) -> Hypothesis:
     return judge(hypothesis, scores, held_out, settings.test, tests)
 
 
+def _fit_joint_and_judge(task: tuple) -> Hypothesis:
+    """Fit one effect on top of the base hypothesis and judge it against the base."""
+    model, base, other, data, settings, scores, held_out, tests = task
+    hypothesis = _joint_hypothesis(model, base, other, data, settings)
+    return judge(hypothesis, scores, held_out, settings.test, tests)
+
+
+def _asked_for(hypothesis: Hypothesis, min_z: float) -> bool:
+    """Every effect added has a parameter at least ``min_z`` std from its null value."""
+    return all(
+        max(float(entry["z"]) for entry in values.values()) >= min_z
+        for values in hypothesis.parameters.values()
+    )
+
+
 def _run_hypotheses(
-    tasks: list[tuple], workers: int, say: Callable[[str], None]
+    work: Callable[[tuple], Hypothesis],
+    tasks: list[tuple],
+    workers: int,
+    say: Callable[[str], None],
 ) -> list[Hypothesis]:
-    """:func:`_fit_and_judge` over ``tasks`` on ``workers`` processes, in task order; one
-    progress line per hypothesis as it finishes."""
+    """``work`` over ``tasks`` on ``workers`` processes, in task order; one progress line per
+    hypothesis as it finishes."""
     if workers <= 1 or len(tasks) <= 1:
         done = []
         for i, task in enumerate(tasks, 1):
-            done.append(_fit_and_judge(task))
+            done.append(work(task))
             say(_line(i, len(tasks), done[-1]))
         return done
     results: dict[int, Hypothesis] = {}
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks))) as pool:
-        futures = {pool.submit(_fit_and_judge, task): k for k, task in enumerate(tasks)}
+        futures = {pool.submit(work, task): k for k, task in enumerate(tasks)}
         for i, future in enumerate(as_completed(futures), 1):
             results[futures[future]] = future.result()
             say(_line(i, len(tasks), results[futures[future]]))

@@ -48,17 +48,24 @@ MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
 SIM_PROCESS_SCALE = 0.1
 #: A named parameter counts as recovered within this relative error.
 RELATIVE_TOLERANCE = 0.15
+#: Length of every held-out run, s (the test's power grows with it; scoring costs little).
+HELD_OUT_S = 30.0
 
 
 def _case_datasets(
-    effect: str | None, values: dict[str, float], seed: int, duration: float, independent: bool
+    effect: str | None,
+    values: dict[str, float],
+    seed: int,
+    duration: float,
+    held_out_s: float,
+    independent: bool,
 ) -> tuple[Dataset, Dataset]:
     from sim.scenarios import simulate_dataset
 
     truth = CarModel({effect: values}) if effect else CarModel()
     driver = "joystick" if independent else "path"
     train = simulate_dataset(duration, seed, truth, driver)
-    held_out = simulate_dataset(duration / 2, seed + 1000, truth, driver)
+    held_out = simulate_dataset(held_out_s, seed + 1000, truth, driver)
     if not independent:
         return train, held_out
     with tempfile.TemporaryDirectory() as folder:
@@ -75,7 +82,7 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
 
     effect, values = case["effect"], case["values"]
     train, held_out = _case_datasets(
-        effect, values, case["seed"], case["duration_s"], case["independent"]
+        effect, values, case["seed"], case["duration_s"], case["held_out_s"], case["independent"]
     )
     settings = DiscrepancySettings(
         identification=FieSettings(fit=DYNAMICS_FIT, process_scale=SIM_PROCESS_SCALE),
@@ -132,6 +139,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
                         "seed": 100 + seed,
                         "independent": bool((e + m + seed) % 2),
                         "duration_s": duration,
+                        "held_out_s": HELD_OUT_S,
                     }
                 )
     clean = [
@@ -142,6 +150,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
             "seed": 200 + seed,
             "independent": bool(seed % 2),
             "duration_s": duration,
+            "held_out_s": HELD_OUT_S,
         }
         for seed in range(clean_seeds)
     ]
@@ -201,13 +210,14 @@ def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
             "seed": 300,
             "independent": False,
             "duration_s": duration,
+            "held_out_s": HELD_OUT_S,
         },
         workers,
     )
     return {
         "workers": workers,
         "train_s": duration,
-        "held_out_s": duration / 2,
+        "held_out_s": HELD_OUT_S,
         "time_s": row["time_s"],
         **row,
     }
@@ -223,7 +233,7 @@ def discrepancy_benchmark(
 ) -> dict[str, Any]:
     """Run the 60 s speed run (hypotheses on ``workers`` processes) and then every case
     (``workers`` at once, each in one process; training runs of
-    ``duration`` s, held-out runs half as long); JSON to ``out``, written again after every
+    ``duration`` s, held-out runs of :data:`HELD_OUT_S`); JSON to ``out``, written again after every
     case so a stopped run keeps what it measured."""
     say = progress or (lambda line: None)
     started = time.perf_counter()
@@ -232,7 +242,7 @@ def discrepancy_benchmark(
         "machine": {"platform": platform.platform(), "python": platform.python_version()},
         "settings": {
             "duration_s": duration,
-            "held_out_s": duration / 2,
+            "held_out_s": HELD_OUT_S,
             "fit": list(DYNAMICS_FIT),
             "false_alarm_rate_designed": 0.01,
             "effects": list(EFFECTS),
