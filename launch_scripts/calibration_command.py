@@ -320,12 +320,12 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
 
 
 def run_bench(args: argparse.Namespace) -> int:
-    """The ``bench`` mode: print (and save) the JSON of :mod:`sim.calibration_benchmark`."""
+    """The ``bench`` mode: print (and save) the JSON of :mod:`sim.bench.calibration`."""
     import json
     import platform
     import time
 
-    from sim.calibration_benchmark import moving_study, static_study
+    from sim.bench.calibration import moving_study, static_study
 
     if args.out is not None:
         prepare_output_file(args.out, args.overwrite)

@@ -214,7 +214,8 @@ def consistency(args: argparse.Namespace) -> None:
 
 def bench(args: argparse.Namespace) -> None:
     """``crs bench model|estimation|stack``: JSON to ``--out`` and stdout."""
-    from sim.benchmarks import machine, model_benchmark
+    from sim.bench.machine import machine
+    from sim.bench.model import model_benchmark
 
     if args.out:
         prepare_output_file(args.out, args.overwrite)
@@ -223,7 +224,7 @@ def bench(args: argparse.Namespace) -> None:
         text = json.dumps(result, indent=2)
         print(text)
     elif args.what == "sysid":
-        from launch_scripts.sysid_command import sysid_benchmark
+        from sim.bench.sysid import sysid_benchmark
 
         result = {"command": "crs " + " ".join(sys.argv[1:]), **sysid_benchmark(None, args.seeds)}
         result["machine"] = machine()
@@ -256,7 +257,7 @@ def bench(args: argparse.Namespace) -> None:
         print(format_table(result))
         print(f"runs (reports, figures, bags): {work}")
     else:
-        from sim.estimation_benchmark import format_table, run_all
+        from sim.bench.estimation import format_table, run_all
 
         folders = sorted(p for p in REAL_DATA.iterdir() if p.is_dir()) if REAL_DATA.is_dir() else []
         plots = Path(args.out).parent / "estimation_plots" if args.out else None

@@ -43,7 +43,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
     train = load_dataset(args.train, "TRAIN")
     validation = load_dataset(args.validate, "--validate") if args.validate else None
-    model = identification_model(train, args.effect or [], args.params)
+    model = identification_model(train, args.effect or [], args.params, "--params")
     identification = FieSettings(fit=parse_fit(args.fit, model), process_scale=args.process_scale)
     FieData.from_dataset(train, identification.noise)  # refuse bad data before touching --out
     if validation is not None:
@@ -85,7 +85,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="find the physical effect the model misses, add it, show the gap shrink",
         description="Identify the current model on TRAIN, diagnose its residuals channel by "
         "channel, fit every effect of the registry as a hypothesis and test it on held-out "
-        "data (--validate, or the last 30 %% of TRAIN) with a test designed for a false-alarm "
+        "data (--validate, or the last 30 % of TRAIN) with a test designed for a false-alarm "
         "rate of --false-alarm-rate per round; name the winner (or 'none', or 'unexplained' "
         "with the channel and regime of the misfit), and report the held-out gap before and "
         "after. Writes OUT/report.json, report.md, params.yaml (the final model: --params "

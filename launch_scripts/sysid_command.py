@@ -7,56 +7,17 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from crs_core.dataset import Dataset
-from crs_core.estimation.offline import dataset_model
 from crs_core.identification.data import FieData
+from crs_core.identification.models import effects_of_yaml, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
-from crs_core.model import EFFECTS, CarModel
-from crs_core.model.chronos import ROUGH_PRIOR
-from crs_core.model.effects import effect_spec, parse_effect
+from crs_core.model import CarModel
+from crs_core.model.effects import parse_effect
 from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
 from launch_scripts.output_folder import prepare_output
-
-#: ``--params rough``: the rougher prior of the real recordings' README.
-ROUGH = "rough"
-
-
-def effects_of_yaml(path: Path) -> list[str]:
-    """Effects whose parameters a parameter YAML names (so its model can be rebuilt)."""
-    try:
-        document = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
-        return []  # updated_from_yaml reports the problem with the file
-    names = (
-        set((document or {}).get("parameters", {}) or {}) if isinstance(document, dict) else set()
-    )
-    return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
-
-
-def identification_model(
-    dataset: Dataset,
-    effects: Sequence[tuple[str, str | None, float | None]] | Sequence[str] = (),
-    params: Path | str | None = None,
-) -> CarModel:
-    """The model with the dataset's Lighthouse geometry, effects and a parameter file
-    (``"rough"``: :data:`~crs_core.model.chronos.ROUGH_PRIOR`); errors name ``--params``."""
-    spec: dict[str, Any] = (
-        effect_spec(effects)  # type: ignore[arg-type]
-        if effects and not isinstance(effects[0], str)
-        else {name: None for name in effects}
-    )
-    rough = params is not None and str(params) == ROUGH
-    try:
-        return dataset_model(dataset, None if rough else params, spec, ROUGH_PRIOR if rough else {})
-    except (ValueError, KeyError) as error:
-        message = error.args[0] if error.args else str(error)
-        raise ValueError(f"--params: {message}") from None
 
 
 def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
@@ -90,7 +51,7 @@ def run_sysid(args: argparse.Namespace) -> int:
     from crs_core.identification.solve import identify, stderr_progress
 
     dataset = load_dataset(args.dataset)
-    model = identification_model(dataset, args.effect or [], args.params)
+    model = identification_model(dataset, args.effect or [], args.params, "--params")
     settings = FieSettings(
         fit=parse_fit(args.fit, model),
         hessian=args.hessian,
@@ -122,10 +83,10 @@ def run_validate(args: argparse.Namespace) -> int:
     effects = list(
         dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_of_yaml(args.params)])
     )
-    model = identification_model(dataset, effects, args.params)
+    model = identification_model(dataset, effects, args.params, "--params")
     prior = None
     if args.prior is not None:
-        prior = identification_model(dataset, effects, args.prior).parameters
+        prior = identification_model(dataset, effects, args.prior, "--prior").parameters
     span = dataset.t[-1] - dataset.t[0] if len(dataset.t) else 0.0
     if args.horizon > span:
         raise ValueError(f"--horizon: {args.horizon:g} s is longer than the dataset ({span:.2f} s)")
@@ -221,10 +182,3 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     sub.add_argument("--out", required=True, help="output folder")
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_validate)
-
-
-def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:
-    """``crs bench sysid``: see :func:`launch_scripts.sysid_bench.sysid_benchmark`."""
-    from launch_scripts.sysid_bench import sysid_benchmark as run
-
-    return run(out, seeds)

@@ -57,6 +57,9 @@ class JoystickDriver:
 
 #: Drivers of :func:`simulate_dataset`.
 DRIVERS = ("path", "joystick")
+#: Process-noise scale of an FIE on data from :func:`simulate_dataset`: the simulated truth has
+#: no process noise, so the fit may trust the model more than on real data (whose default is 1).
+SIM_PROCESS_SCALE = 0.1
 
 
 def simulate_dataset(

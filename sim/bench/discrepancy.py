@@ -27,6 +27,7 @@ from typing import Any
 from crs_core.dataset import Dataset
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
+from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: Hidden magnitudes per effect: {effect: ({parameter: value}, {parameter: value})}.
 MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
@@ -44,8 +45,6 @@ MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
         {"lh_plane1_offset": 0.006, "lh_plane2_offset": -0.004},
     ),
 }
-#: Process-noise scale of the FIE on simulated data (its truth has no process noise).
-SIM_PROCESS_SCALE = 0.1
 #: A named parameter counts as recovered within this relative error.
 RELATIVE_TOLERANCE = 0.15
 #: Length of every held-out run, s (the test's power grows with it; scoring costs little).
@@ -60,8 +59,6 @@ def _case_datasets(
     held_out_s: float,
     independent: bool,
 ) -> tuple[Dataset, Dataset]:
-    from sim.scenarios import simulate_dataset
-
     truth = CarModel({effect: values}) if effect else CarModel()
     driver = "joystick" if independent else "path"
     train = simulate_dataset(duration, seed, truth, driver)
@@ -203,7 +200,6 @@ def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
     """Wall time of one workflow run on a ``duration`` s recording as ``crs discrepancy REC``
     runs it by default: the last 30 % held out, every hypothesis, ``workers`` processes."""
     from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
-    from sim.scenarios import simulate_dataset
 
     values = MAGNITUDES["gyro_bias"][1]
     recording = simulate_dataset(duration, 300, CarModel({"gyro_bias": values}))

@@ -13,7 +13,7 @@ from crs_core.estimation import ExtendedKalmanFilter
 from crs_core.estimation.base import Estimate
 from crs_core.estimation.ekf import EkfSettings
 from crs_core.model import CarModel
-from sim.estimation_benchmark import replay, rmse, standard_drive, start_state
+from sim.bench.estimation import replay, rmse, standard_drive, start_state
 from sim.peers import PEERS, DoMpcMhe, FilterpyEkf, make_peer
 
 SENSORS = "lh+imu+we"

@@ -14,9 +14,9 @@ import pytest
 from crs_core.dataset import Dataset
 from crs_core.discrepancy.report import write_discrepancy_report
 from crs_core.discrepancy.workflow import DiscrepancyResult, DiscrepancySettings, find_discrepancy
+from crs_core.identification.models import effects_of_yaml, identification_model
 from crs_core.identification.problem import FieSettings
 from crs_core.model import CarModel
-from launch_scripts.sysid_command import effects_of_yaml, identification_model
 from sim.scenarios import simulate_dataset
 
 #: Every test uses the module's workflow run (about 15 s).

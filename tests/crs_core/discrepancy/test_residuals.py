@@ -22,8 +22,7 @@ from crs_core.discrepancy.residuals import (
 from crs_core.discrepancy.statistics import ljung_box, regime_regression
 from crs_core.identification import FieSettings, identify
 from crs_core.model import CarModel
-from launch_scripts.sysid_bench import SIM_PROCESS_SCALE
-from sim.scenarios import simulate_dataset
+from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 DURATION = 20.0
 FIT = ("Cm1", "Df", "Dr", "Iz")

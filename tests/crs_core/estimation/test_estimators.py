@@ -7,7 +7,7 @@ from crs_core.estimation import ExtendedKalmanFilter
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
-from sim.estimation_benchmark import (
+from sim.bench.estimation import (
     SENSOR_SETS,
     SETTLING_S,
     errors,

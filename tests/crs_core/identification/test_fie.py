@@ -9,19 +9,18 @@ import scipy.sparse as sp
 from crs_core.dataset import Dataset
 from crs_core.identification import FieData, FieProblem, FieSettings, identify
 from crs_core.identification.data import Y_LAYOUT
+from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import check_fit, substeps_for
 from crs_core.identification.uncertainty import MAX_CORRELATION, parameter_uncertainty
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
 from crs_core.model.chronos import ROUGH_PRIOR
-from launch_scripts.sysid_command import ROUGH, identification_model
-from sim.scenarios import simulate_dataset
+from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: A subset the data of a short drive determine well, plus two they do not.
 FIT = ("Iz", "Df", "Dr", "Br", "Cm1", "Cd0", "Cd1", "r", "b_car")
 DURATION = 15.0
 #: The simulated truth has no process noise: trust the model more than on real data.
-SIM_PROCESS_SCALE = 0.1
 
 
 @pytest.fixture(scope="module")

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from crs_core.estimation import make_estimator
-from sim.estimation_benchmark import STATES, format_table, replay, standard_drive
-from sim.robust_estimation_benchmark import (
+from sim.bench.estimation import STATES, format_table, replay, standard_drive
+from sim.bench.robust_estimation import (
     INPUT_VARIANTS,
     TIMING_PATTERNS,
     inputs_withheld_rows,

@@ -1,12 +1,9 @@
-"""Speed benchmarks that print JSON: model evaluation and simulator real-time factor."""
+"""``crs bench model``: model evaluation speed and the simulator's real-time factor (JSON)."""
 
 from __future__ import annotations
 
-import os
-import platform
 import sys
 import time
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -15,40 +12,9 @@ from crs_core.control.path_following import PathFollower
 from crs_core.model import CarModel
 from crs_core.model.car_model import NumericModel
 from crs_core.track import load_demo_track
+from sim.bench.machine import machine, timing
 from sim.sensors import SensorSuite
 from sim.simulator import Simulator
-
-
-def machine() -> dict[str, Any]:
-    """Where a figure was measured."""
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as info:
-            cpu = next(line.split(":", 1)[1].strip() for line in info if "model name" in line)
-    except (OSError, StopIteration):
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-    }
-
-
-def timing(call: Callable[[], object], repeats: int) -> dict[str, float]:
-    """Median, p95 and max wall time of ``call`` in microseconds."""
-    call()
-    samples = np.empty(repeats)
-    for k in range(repeats):
-        start = time.perf_counter()
-        call()
-        samples[k] = time.perf_counter() - start
-    us = samples * 1e6
-    return {
-        "median_us": round(float(np.median(us)), 2),
-        "p95_us": round(float(np.percentile(us, 95)), 2),
-        "max_us": round(float(us.max()), 2),
-    }
 
 
 def model_benchmark(repeats: int = 20000, sim_duration: float = 60.0) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Benchmarks of robust estimation (part of ``crs bench estimation``).
 
-Three row kinds, all on the standard drive (:func:`~sim.estimation_benchmark.standard_drive`)
+Three row kinds, all on the standard drive (:func:`~sim.bench.estimation.standard_drive`)
 with its simulated truth:
 
 ``inputs_withheld``
@@ -28,7 +28,7 @@ from crs_core.estimation import LighthousePoseSolver, SweepPairer, make_estimato
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
-from sim.estimation_benchmark import (
+from sim.bench.estimation import (
     SETTLING_S,
     STATES,
     Run,

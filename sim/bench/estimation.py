@@ -3,7 +3,7 @@
 Every row is computed on simulated data with known truth, except the real-data rows, whose
 reference is the car's own on-line estimate (not ground truth). The rows of robust estimation
 (inputs withheld and blind start, the Lighthouse pose solver, pathological timing) live in
-:mod:`sim.robust_estimation_benchmark`; :func:`run_all` and :func:`format_table` include them.
+:mod:`sim.bench.robust_estimation`; :func:`run_all` and :func:`format_table` include them.
 """
 
 from __future__ import annotations
@@ -468,7 +468,7 @@ def run_all(
 ) -> list[dict]:
     """Every estimation benchmark, in the order of the issue: accuracy, blackout, speed, peers,
     real data; then (``robust``) inputs withheld with a blind start, the Lighthouse pose
-    solver and pathological timing (:mod:`sim.robust_estimation_benchmark`)."""
+    solver and pathological timing (:mod:`sim.bench.robust_estimation`)."""
     from tqdm import tqdm
 
     bar = tqdm(total=2 * len(SENSOR_SETS) * len(seeds), desc="accuracy", leave=False)
@@ -480,7 +480,7 @@ def run_all(
         rows += peer_rows(seeds[:2])
     rows += real_rows(real_folders, plot_dir)
     if robust:
-        from sim.robust_estimation_benchmark import (
+        from sim.bench.robust_estimation import (
             inputs_withheld_rows,
             pose_solver_rows,
             timing_robustness_rows,
@@ -544,7 +544,7 @@ def format_table(rows: list[dict]) -> str:
                 f" {r['vx'] * 1e3:.0f} mm/s; LH residual median {lh['median'] * 1e3:.2f} mrad,"
                 f" p95 {lh['p95'] * 1e3:.2f} mrad"
             )
-    from sim.robust_estimation_benchmark import format_rows
+    from sim.bench.robust_estimation import format_rows
 
     lines += format_rows(rows)
     return "\n".join(lines)

@@ -14,19 +14,14 @@ from typing import Any
 import numpy as np
 
 from crs_core.dataset import Dataset
+from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
-from launch_scripts.sysid_command import ROUGH, identification_model
-from sim.scenarios import simulate_dataset
+from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
 BENCHMARK_FIT = (*DYNAMICS_FIT, "r", "b_car")
 REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
-
-
-#: Process-noise scale of the simulated studies: the simulated truth has no process noise, so
-#: the FIE may trust the model more than on real data (the default 1.0 is for real data).
-SIM_PROCESS_SCALE = 0.1
 
 
 def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, Any]:

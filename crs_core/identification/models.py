@@ -1,0 +1,55 @@
+"""The model an identification starts from: the dataset's geometry, effects, a parameter file.
+
+Shared by ``crs sysid``, ``crs validate``, ``crs discrepancy`` and the identification benchmark.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from crs_core.dataset import Dataset
+from crs_core.estimation.offline import dataset_model
+from crs_core.model import EFFECTS, CarModel
+from crs_core.model.chronos import ROUGH_PRIOR
+from crs_core.model.effects import effect_spec
+
+#: ``--params rough``: the rougher prior of the real recordings' README.
+ROUGH = "rough"
+
+
+def effects_of_yaml(path: Path) -> list[str]:
+    """Effects whose parameters a parameter YAML names (so its model can be rebuilt)."""
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return []  # updated_from_yaml reports the problem with the file
+    names = (
+        set((document or {}).get("parameters", {}) or {}) if isinstance(document, dict) else set()
+    )
+    return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
+
+
+def identification_model(
+    dataset: Dataset,
+    effects: Sequence[tuple[str, str | None, float | None]] | Sequence[str] = (),
+    params: Path | str | None = None,
+    field: str = "params",
+) -> CarModel:
+    """The model with the dataset's Lighthouse geometry, effects and a parameter file
+    (``"rough"``: :data:`~crs_core.model.chronos.ROUGH_PRIOR`); a ``ValueError`` names
+    ``field`` (the command-line option, for example)."""
+    spec: dict[str, Any] = (
+        effect_spec(effects)  # type: ignore[arg-type]
+        if effects and not isinstance(effects[0], str)
+        else {name: None for name in effects}
+    )
+    rough = params is not None and str(params) == ROUGH
+    try:
+        return dataset_model(dataset, None if rough else params, spec, ROUGH_PRIOR if rough else {})
+    except (ValueError, KeyError) as error:
+        message = error.args[0] if error.args else str(error)
+        raise ValueError(f"{field}: {message}") from None
