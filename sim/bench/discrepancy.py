@@ -25,6 +25,11 @@ from pathlib import Path
 from typing import Any
 
 from crs_core.dataset import Dataset
+from crs_core.discrepancy.workflow import (
+    DiscrepancyResult,
+    DiscrepancySettings,
+    find_discrepancy,
+)
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
@@ -72,27 +77,33 @@ def _case_datasets(
     return loaded[0], loaded[1]
 
 
-def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
-    """One case: simulate, run the workflow (hypotheses on ``workers`` processes), compare with
-    the truth (JSON-ready)."""
-    from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
-
-    effect, values = case["effect"], case["values"]
-    train, held_out = _case_datasets(
-        effect, values, case["seed"], case["duration_s"], case["held_out_s"], case["independent"]
-    )
+def _workflow(
+    train: Dataset, held_out: Dataset | None, workers: int
+) -> tuple[DiscrepancyResult, dict[str, Any], float]:
+    """The workflow on simulated data as the benchmark runs it: the result, its summary and the
+    wall time (s)."""
     settings = DiscrepancySettings(
         identification=FieSettings(fit=DYNAMICS_FIT, process_scale=SIM_PROCESS_SCALE),
         workers=workers,
     )
     started = time.perf_counter()
     result = find_discrepancy(train, CarModel(), held_out, settings)
-    summary = result.summary()
+    return result, result.summary(), round(time.perf_counter() - started, 1)
+
+
+def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
+    """One case: simulate, run the workflow (hypotheses on ``workers`` processes), compare with
+    the truth (JSON-ready)."""
+    effect, values = case["effect"], case["values"]
+    train, held_out = _case_datasets(
+        effect, values, case["seed"], case["duration_s"], case["held_out_s"], case["independent"]
+    )
+    result, summary, seconds = _workflow(train, held_out, workers)
     row = {
         **case,
         "verdict": result.verdict,
         "named": list(result.effects),
-        "time_s": round(time.perf_counter() - started, 1),
+        "time_s": seconds,
         "gap_before_m": summary["gap_before"],
         "gap_after_m": summary["gap_after"],
         "parameters": summary["parameters"],
@@ -199,22 +210,14 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
 def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
     """Wall time of one workflow run on a ``duration`` s recording as ``crs discrepancy REC``
     runs it by default: the last 30 % held out, every hypothesis, ``workers`` processes."""
-    from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
-
     values = MAGNITUDES["gyro_bias"][1]
     recording = simulate_dataset(duration, 300, CarModel({"gyro_bias": values}))
-    settings = DiscrepancySettings(
-        identification=FieSettings(fit=DYNAMICS_FIT, process_scale=SIM_PROCESS_SCALE),
-        workers=workers,
-    )
-    started = time.perf_counter()
-    result = find_discrepancy(recording, CarModel(), None, settings)
-    summary = result.summary()
+    result, summary, seconds = _workflow(recording, None, workers)
     return {
         "workers": workers,
         "recording_s": duration,
         "held_out": summary["held_out"],
-        "time_s": round(time.perf_counter() - started, 1),
+        "time_s": seconds,
         "truth": {"gyro_bias": values},
         "verdict": result.verdict,
         "named": list(result.effects),
