@@ -322,17 +322,17 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
 def run_bench(args: argparse.Namespace) -> int:
     """The ``bench`` mode: print (and save) the JSON of :mod:`sim.bench.calibration`."""
     import json
-    import platform
     import time
 
     from sim.bench.calibration import moving_study, static_study
+    from sim.bench.machine import machine
 
     if args.out is not None:
         prepare_output_file(args.out, args.overwrite)
     started = time.perf_counter()
     result = {
         "command": _command_line(),
-        "machine": {"python": platform.python_version(), "processor": platform.machine()},
+        "machine": machine(),
         "static": static_study(seeds=args.seeds),
         "moving": moving_study(seeds=min(args.seeds, 3)),
     }

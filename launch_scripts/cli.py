@@ -227,7 +227,6 @@ def bench(args: argparse.Namespace) -> None:
         from sim.bench.sysid import sysid_benchmark
 
         result = {"command": "crs " + " ".join(sys.argv[1:]), **sysid_benchmark(None, args.seeds)}
-        result["machine"] = machine()
         text = json.dumps(result, indent=2)
         print(text)
     elif args.what == "discrepancy":

@@ -361,6 +361,12 @@ def _fit_delay(
     return results[nearest], best, std
 
 
+def clear_of_null(values: Mapping[str, Mapping[str, Any]], min_z: float) -> bool:
+    """Some parameter of one effect's ``{parameter: {value, std, unit, z}}`` is at least
+    ``min_z`` std from its null value."""
+    return max(float(entry["z"]) for entry in values.values()) >= min_z
+
+
 def judge(
     hypothesis: Hypothesis,
     current_scores: HeldOutScores,
@@ -383,9 +389,8 @@ def judge(
             f"(needs >= {100 * settings.min_improvement:.0f} %)"
         )
     for effect, values in hypothesis.parameters.items():
-        z = {name: float(entry["z"]) for name, entry in values.items()}
-        if not max(z.values()) >= settings.min_z:
-            far = ", ".join(f"{name} {value:.1f}" for name, value in z.items())
+        if not clear_of_null(values, settings.min_z):
+            far = ", ".join(f"{name} {float(entry['z']):.1f}" for name, entry in values.items())
             reasons.append(f"{effect}: no parameter {settings.min_z:g} std from no effect ({far})")
     hypothesis.comparison = comparison
     hypothesis.reasons = reasons

@@ -15,7 +15,6 @@ seeds, and the speed of one run on 60 s of data.
 from __future__ import annotations
 
 import json
-import platform
 import tempfile
 import time
 from collections import Counter
@@ -32,6 +31,7 @@ from crs_core.discrepancy.workflow import (
 )
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
+from sim.bench.machine import machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: Hidden magnitudes per effect: {effect: ({parameter: value}, {parameter: value})}.
@@ -243,7 +243,7 @@ def discrepancy_benchmark(
     started = time.perf_counter()
     todo = cases(seeds, clean_seeds, duration)
     result: dict[str, Any] = {
-        "machine": {"platform": platform.platform(), "python": platform.python_version()},
+        "machine": machine(),
         "settings": {
             "duration_s": duration,
             "held_out_s": HELD_OUT_S,

@@ -4,7 +4,6 @@ the simulated coverage study, as one JSON-ready dict."""
 from __future__ import annotations
 
 import json
-import platform
 import sys
 import time
 from collections.abc import Sequence
@@ -17,6 +16,7 @@ from crs_core.dataset import Dataset
 from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
+from sim.bench.machine import machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
@@ -159,7 +159,7 @@ def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:
     """
     started = time.perf_counter()
     result = {
-        "machine": {"platform": platform.platform(), "python": platform.python_version()},
+        "machine": machine(),
         "speed": speed_study(),
         "real": real_study(),
         "simulated": simulated_study(list(range(seeds))),
