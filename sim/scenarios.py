@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.dataset import Dataset
 from crs_core.model import CarModel
 from crs_core.track import Track, load_demo_track
+
+if TYPE_CHECKING:
+    from sim.sensors import SensorSuite
 
 
 class SmoothNoise:
@@ -63,9 +68,14 @@ SIM_PROCESS_SCALE = 0.1
 
 
 def simulate_dataset(
-    duration: float, seed: int, model: CarModel | None = None, driver: str = "path"
+    duration: float,
+    seed: int,
+    model: CarModel | None = None,
+    driver: str = "path",
+    sensors: SensorSuite | None = None,
 ) -> Dataset:
-    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos).
+    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos;
+    ``sensors``, default :class:`~sim.sensors.SensorSuite`).
 
     ``driver``: ``"path"`` the path follower at 1 m/s, ``"joystick"`` a
     :class:`JoystickDriver` (jittery steering and throttle, 1.3 m/s, seeded by ``seed``).
@@ -83,5 +93,5 @@ def simulate_dataset(
     else:
         controller = JoystickDriver(track, wheelbase, seed)
     x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
-    result = Simulator(model, SensorSuite(), seed=seed).run(controller, duration, x0)
+    result = Simulator(model, sensors or SensorSuite(), seed=seed).run(controller, duration, x0)
     return result.to_dataset()

@@ -129,6 +129,7 @@ class Hypothesis:
     result : the FIE result of the extended model on the training data
     model : the extended model (structure; parameters = the fit)
     delay_s : the fitted input delay (``input_delay`` only), s
+    start : start values given for added parameters (others started at their first start value)
     parameters : effect -> parameter -> {value, std, unit, z}
     comparison : the held-out test
     significant : a finding (see the module)
@@ -140,6 +141,7 @@ class Hypothesis:
     model: CarModel
     delay_s: float = 0.0
     parameters: dict[str, dict[str, dict[str, float | str]]] = field(default_factory=dict)
+    start: dict[str, float] = field(default_factory=dict)
     comparison: HeldOutComparison | None = None
     significant: bool = False
     reasons: list[str] = field(default_factory=list)
@@ -148,6 +150,7 @@ class Hypothesis:
         return {
             "effects": list(self.effects),
             "parameters": self.parameters,
+            "start": self.start,
             "held_out": self.comparison.to_dict() if self.comparison else None,
             "significant": self.significant,
             "reasons": self.reasons,
@@ -161,11 +164,39 @@ def null_value(parameter: Parameter) -> float:
     return 0.0 if parameter.lower <= 0.0 <= parameter.upper else parameter.lower
 
 
-def start_value(parameter: Parameter) -> float:
-    """Where the fit of an effect parameter starts: its null value, or for a time constant
-    (null at its lower bound, where the dynamics are stiff and the fit crawls) four times it."""
+#: Starts of a time constant's fit, in multiples of its null value (its lower bound). Near the
+#: bound the lag dynamics are stiff and IPOPT creeps along the time constant for 100+
+#: iterations; from the nearer of two starts a fit converges in 30-70 (a 100 ms steering lag:
+#: 138 iterations from 20 ms, 32 from 100 ms; none: 69 from 20 ms, 158 from 50 ms).
+TIME_CONSTANT_STARTS = (4.0, 20.0)
+
+
+def start_values(parameter: Parameter) -> tuple[float, ...]:
+    """Where the fit of an effect parameter starts: its null value, or for a time constant (null
+    at its lower bound) each of :data:`TIME_CONSTANT_STARTS` times it (fit from each, keep the
+    lower cost: :func:`best_fit`)."""
     null = null_value(parameter)
-    return null if null == 0.0 else min(4.0 * null, parameter.upper)
+    if null == 0.0:
+        return (0.0,)
+    return tuple(min(k * null, parameter.upper) for k in TIME_CONSTANT_STARTS)
+
+
+def start_points(effects: Sequence[str]) -> list[dict[str, float]]:
+    """Every combination of :func:`start_values` of the parameters of ``effects`` (one dict of
+    start values per fit; a single one when no parameter has several)."""
+    points: list[dict[str, float]] = [{}]
+    for name in effects:
+        for p in EFFECTS[name].parameters if name != DELAY_EFFECT else ():
+            points = [{**point, p.name: v} for point in points for v in start_values(p)]
+    return points
+
+
+def best_fit(fits: Sequence[Hypothesis]) -> Hypothesis:
+    """Of fits of the same hypothesis from different starts, the one with the lowest training
+    cost (the held-out test is not consulted: the choice costs no test)."""
+    if len({h.effects for h in fits}) != 1:
+        raise ValueError("fits: must all be of the same hypothesis")
+    return min(fits, key=lambda h: h.result.cost)
 
 
 def extended_model(
@@ -263,9 +294,11 @@ def fit_hypothesis(
     effects: Sequence[str],
     settings: FieSettings,
     progress: Callable[[int, float], None] | None = None,
+    start: Mapping[str, float] = MappingProxyType({}),
 ) -> Hypothesis:
     """Fit ``model`` (the current structure, its *prior* values) extended by ``effects`` on
-    ``train``, warm-started at ``current`` (the current model's fit)."""
+    ``train``, warm-started at ``current`` (the current model's fit); an added parameter starts
+    at ``start`` or else its first :func:`start_values`."""
     effects = tuple(effects)
     state_effects = [e for e in effects if e != DELAY_EFFECT]
     extended = extended_model(model, state_effects)
@@ -274,7 +307,7 @@ def fit_hypothesis(
     values = {n: current.parameters.value(n) for n in current.fit}
     for name in state_effects:
         for p in EFFECTS[name].parameters:
-            values.setdefault(p.name, start_value(p))
+            values.setdefault(p.name, start.get(p.name, start_values(p)[0]))
     warm = WarmStart(values, current.states[:, :6].copy())
     fit_settings = replace(settings, fit=fit, starts=1)
     delay = 0.0
@@ -315,7 +348,8 @@ def fit_hypothesis(
                 "z": delay / delay_std if delay_std > 0 else math.inf,
             }
         }
-    return Hypothesis(effects, result, fitted_model, delay, parameters)
+    start = {n: start[n] for n in added if n in start}
+    return Hypothesis(effects, result, fitted_model, delay, parameters, start=start)
 
 
 def _fit_delay(

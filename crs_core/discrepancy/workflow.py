@@ -31,6 +31,7 @@ from crs_core.discrepancy.hypotheses import (
     DELAY_EFFECT,
     Hypothesis,
     TestSettings,
+    best_fit,
     clear_of_null,
     delayed_inputs,
     fit_hypothesis,
@@ -39,6 +40,7 @@ from crs_core.discrepancy.hypotheses import (
     judge,
     null_value,
     parameter_table,
+    start_points,
 )
 from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
 from crs_core.identification.problem import FieSettings, check_fit
@@ -228,11 +230,14 @@ def find_discrepancy(
         max_iter=min(settings.identification.max_iter, settings.hypothesis_max_iter),
     )
     fit_settings = replace(settings, identification=hypothesis_fie)
+    tests = len(candidates)
     tasks = [
-        (fit_data, model, current, (name,), fit_settings, current_scores, held_out, len(candidates))
+        (fit_data, model, current, (name,), start, fit_settings, current_scores, held_out, tests)
         for name in candidates
+        for start in start_points((name,))
     ]
-    first_round = _run_hypotheses(_fit_and_judge, tasks, settings.workers, say)
+    fits = _run_hypotheses(_fit_and_judge, tasks, settings.workers, say)
+    first_round = [best_fit([h for h in fits if h.effects == (name,)]) for name in candidates]
     hypotheses: list[Hypothesis] = list(first_round)
     findings = sorted((h for h in first_round if h.significant), key=information_criterion)
     chosen: Hypothesis | None = findings[0] if findings else None
@@ -298,8 +303,8 @@ def find_discrepancy(
 
 def _fit_and_judge(task: tuple) -> Hypothesis:
     """Fit one hypothesis and judge it (a top-level function: it runs in worker processes)."""
-    data, model, current, effects, settings, scores, held_out, tests = task
-    hypothesis = fit_hypothesis(data, model, current, effects, settings.identification)
+    data, model, current, effects, start, settings, scores, held_out, tests = task
+    hypothesis = fit_hypothesis(data, model, current, effects, settings.identification, start=start)
     return judge(hypothesis, scores, held_out, settings.test, tests)
 
 
@@ -351,8 +356,9 @@ def _joint_hypothesis(
     data: Dataset,
     settings: DiscrepancySettings,
 ) -> Hypothesis:
-    """``other``'s effect on top of ``base`` (the input delay, when part of either, kept at
-    its fitted value: ``data`` is already delayed by ``base``'s)."""
+    """``other``'s effect on top of ``base``, its parameters starting at ``other``'s fit (the
+    input delay, when part of either, kept at its fitted value: ``data`` is already delayed by
+    ``base``'s)."""
     state_effects = tuple(e for e in base.effects if e != DELAY_EFFECT)
     new = other.effects[0]
     if new == DELAY_EFFECT:
@@ -361,8 +367,9 @@ def _joint_hypothesis(
         joint.delay_s = other.delay_s
         joint.parameters = {**joint.parameters, **other.parameters}
     else:
+        start = {p: float(e["value"]) for p, e in other.parameters[new].items()}
         joint = fit_hypothesis(
-            data, model, base.result, (*state_effects, new), settings.identification
+            data, model, base.result, (*state_effects, new), settings.identification, start=start
         )
         if base.delay_s:
             joint.delay_s = base.delay_s

@@ -128,7 +128,8 @@ def initial_trajectory(
 ) -> np.ndarray:
     """States ``(N, nx)`` from an EKF run with ``model`` (its effects included) and
     ``parameters`` (default the model's): yaw unwrapped; the samples before the first fix take
-    the first fix; effect states at rest under the command."""
+    the first fix; effect states (an actuator lag's output) at rest under the first command and
+    then run through the commands (:func:`effect_state_trajectory`)."""
     if parameters is not None:
         model = CarModel(
             {e.name: None for e in model.effects},
@@ -147,7 +148,29 @@ def initial_trajectory(
         x[k] = x[k - 1]  # hold through a later loss
     x[:, 2] = np.unwrap(x[:, 2])
     u = dataset.u if dataset.u is not None else np.zeros((len(x), 2))
-    return np.stack([model.initial_state(row, command) for row, command in zip(x, u, strict=True)])
+    states = np.stack([model.initial_state(row, cmd) for row, cmd in zip(x, u, strict=True)])
+    return effect_state_trajectory(dataset.t, u, model, states)
+
+
+def effect_state_trajectory(
+    t: np.ndarray, u: np.ndarray, model: CarModel, states: np.ndarray
+) -> np.ndarray:
+    """``states`` ``(N, nx)`` with the effect states (after the six base states) integrated
+    through the held commands ``u`` ``(N, 2)`` from their value at the first sample, the base
+    states kept. At rest under the command is wrong where commands change faster than an
+    actuator follows: a lag's output trails its command by up to the time constant, and a
+    prediction started from the command would carry that error."""
+    n_effect = sum(len(e.initial_states([0.0, 0.0])) for e in model.effects)
+    if n_effect == 0:
+        return states
+    base = len(states[0]) - n_effect - (2 if model.estimated_inputs else 0)
+    effect = slice(base, base + n_effect)
+    numeric, p = model.numeric, model.parameters.vector()
+    out = states.copy()
+    for k in range(len(t) - 1):
+        x = np.concatenate([states[k, :base], out[k, effect], states[k, effect.stop :]])
+        out[k + 1, effect] = np.asarray(numeric.step(x, u[k], p, t[k + 1] - t[k])).ravel()[effect]
+    return out
 
 
 @dataclass(frozen=True)

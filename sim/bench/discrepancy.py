@@ -1,7 +1,8 @@
 """``crs bench discrepancy``: does the workflow name the right effect, and never one on clean data?
 
-Cases: every registry effect hidden in the simulated car at two magnitudes, and clean runs (no
-effect), each a training run and a held-out run of another seed. Half of the cases are read as
+Cases: every registry effect hidden in the simulated car at two magnitudes (three for the steering
+gain), and clean runs (no effect; every third with sensor noise the estimator does not assume),
+each a training run and a held-out run of another seed. Half of the cases are read as
 an *independent source*: a joystick driver instead of the path follower, and the datasets saved
 in the layout of the real recordings (``t.npy``, ``u.npy``, ``y.npy``, ``x.npy`` only: no
 ``dataset.yaml``, no full-rate stream, so the geometry is the real recordings' and the first
@@ -33,9 +34,13 @@ from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
 from sim.bench.machine import machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
+from sim.sensors import SensorSpec, SensorSuite
 
-#: Hidden magnitudes per effect: {effect: ({parameter: value}, {parameter: value})}.
-MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
+#: Names of the hidden magnitudes, smallest first.
+LEVELS = ("small", "large", "larger")
+#: Hidden magnitudes per effect, one ``{parameter: value}`` per level of :data:`LEVELS`
+#: (steering gain errors up to 20 % were absorbed by the fitted front tire: a third level).
+MAGNITUDES: dict[str, tuple[dict[str, float], ...]] = {
     "steering_offset": ({"steering_offset": 0.01}, {"steering_offset": 0.03}),
     "input_delay": ({"input_delay": 0.03}, {"input_delay": 0.06}),
     "steering_lag": ({"tau_steer": 0.05}, {"tau_steer": 0.1}),
@@ -43,7 +48,11 @@ MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
     "gyro_bias": ({"gyro_bias": 0.02}, {"gyro_bias": 0.05}),
     "wheel_radius_error": ({"wheel_radius_error": 0.0005}, {"wheel_radius_error": 0.001}),
     "gyro_scale": ({"gyro_scale_error": 0.03}, {"gyro_scale_error": 0.08}),
-    "steering_gain": ({"steering_gain_error": 0.1}, {"steering_gain_error": 0.2}),
+    "steering_gain": (
+        {"steering_gain_error": 0.1},
+        {"steering_gain_error": 0.2},
+        {"steering_gain_error": 0.4},
+    ),
     "torque_deadzone": ({"torque_deadzone": 0.05}, {"torque_deadzone": 0.1}),
     "lighthouse_offset": (
         {"lh_plane1_offset": 0.003, "lh_plane2_offset": -0.002},
@@ -54,6 +63,13 @@ MAGNITUDES: dict[str, tuple[dict[str, float], dict[str, float]]] = {
 RELATIVE_TOLERANCE = 0.15
 #: Length of every held-out run, s (the test's power grows with it; scoring costs little).
 HELD_OUT_S = 30.0
+#: Every third clean run is simulated with these sensors, not the ones the estimator assumes:
+#: twice the noise on every channel, three times the Lighthouse drop-outs, more jitter.
+MISMATCHED_SENSORS = SensorSuite(
+    imu=SensorSpec(250.0, (1.0, 1.0, 0.1)),
+    wheel_encoders=SensorSpec(250.0, (4.0,) * 4),
+    lighthouse=SensorSpec(50.0, (2e-3,) * 4, dropout_probability=0.15, jitter_std_s=5e-4),
+)
 
 
 def _case_datasets(
@@ -63,11 +79,13 @@ def _case_datasets(
     duration: float,
     held_out_s: float,
     independent: bool,
+    noise: str,
 ) -> tuple[Dataset, Dataset]:
     truth = CarModel({effect: values}) if effect else CarModel()
     driver = "joystick" if independent else "path"
-    train = simulate_dataset(duration, seed, truth, driver)
-    held_out = simulate_dataset(held_out_s, seed + 1000, truth, driver)
+    sensors = MISMATCHED_SENSORS if noise == "mismatched" else None
+    train = simulate_dataset(duration, seed, truth, driver, sensors)
+    held_out = simulate_dataset(held_out_s, seed + 1000, truth, driver, sensors)
     if not independent:
         return train, held_out
     with tempfile.TemporaryDirectory() as folder:
@@ -96,7 +114,13 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
     the truth (JSON-ready)."""
     effect, values = case["effect"], case["values"]
     train, held_out = _case_datasets(
-        effect, values, case["seed"], case["duration_s"], case["held_out_s"], case["independent"]
+        effect,
+        values,
+        case["seed"],
+        case["duration_s"],
+        case["held_out_s"],
+        case["independent"],
+        case["noise"],
     )
     result, summary, seconds = _workflow(train, held_out, workers)
     row = {
@@ -132,12 +156,12 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
 
 
 def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]:
-    """The case list: every effect at both magnitudes for ``seeds`` seeds, and the clean runs;
-    every other case is read as an independent source (alternating over effects, magnitudes
-    and seeds)."""
+    """The case list: every effect at every magnitude for ``seeds`` seeds, and the clean runs
+    (every third with :data:`MISMATCHED_SENSORS`); every other case is read as an independent
+    source (alternating over effects, magnitudes and seeds)."""
     out = []
     for e, (effect, magnitudes) in enumerate(MAGNITUDES.items()):
-        for m, (level, values) in enumerate(zip(("small", "large"), magnitudes, strict=True)):
+        for m, (level, values) in enumerate(zip(LEVELS, magnitudes, strict=False)):
             for seed in range(seeds):
                 out.append(
                     {
@@ -146,6 +170,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
                         "values": values,
                         "seed": 100 + seed,
                         "independent": bool((e + m + seed) % 2),
+                        "noise": "nominal",
                         "duration_s": duration,
                         "held_out_s": HELD_OUT_S,
                     }
@@ -157,6 +182,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
             "values": {},
             "seed": 200 + seed,
             "independent": bool(seed % 2),
+            "noise": "mismatched" if seed % 3 == 2 else "nominal",
             "duration_s": duration,
             "held_out_s": HELD_OUT_S,
         }
@@ -178,7 +204,7 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
         confusion.setdefault(truth, Counter())[answer] += 1
     detection = {}
     for effect in MAGNITUDES:
-        for level in ("small", "large"):
+        for level in LEVELS:
             hits = [r for r in rows if r["effect"] == effect and r["magnitude"] == level]
             if hits:
                 detection[f"{effect}/{level}"] = {
@@ -198,6 +224,10 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "findings": len(alarms),
             "rate": len(alarms) / len(clean) if clean else None,
             "verdicts": dict(Counter(r["verdict"] for r in clean)),
+            "mismatched_noise": {
+                "runs": sum(r["noise"] == "mismatched" for r in clean),
+                "findings": sum(r["noise"] == "mismatched" for r in alarms),
+            },
         },
         "wrong_names": [
             {"truth": r["effect"], "magnitude": r["magnitude"], "named": r["named"]}
@@ -250,7 +280,11 @@ def discrepancy_benchmark(
             "fit": list(DYNAMICS_FIT),
             "false_alarm_rate_designed": 0.01,
             "effects": list(EFFECTS),
-            "magnitudes": MAGNITUDES,
+            "magnitudes": {
+                effect: dict(zip(LEVELS, levels, strict=False))
+                for effect, levels in MAGNITUDES.items()
+            },
+            "mismatched_sensors": MISMATCHED_SENSORS.to_dict(),
         },
         "cases": [],
     }

@@ -181,3 +181,22 @@ def test_input_delay_cannot_be_fitted():
     model = CarModel(["input_delay"])
     with pytest.raises(ValueError, match="fit: 'input_delay'"):
         check_fit(model, ("input_delay",))
+
+
+def test_lag_states_run_through_the_commands():
+    """An actuator lag's state trails a step of its command as 1 - exp(-t / tau) (analytic),
+    not at rest under the new command from the step on."""
+    from crs_core.identification.solve import effect_state_trajectory
+
+    tau = 0.08
+    model = CarModel({"steering_lag": {"tau_steer": tau}})
+    t = np.arange(0.0, 1.0, 0.01)
+    u = np.stack([np.where(t >= 0.5, 0.2, 0.0), np.full_like(t, 0.1)], axis=1)
+    at_rest = np.stack([model.initial_state([0, 0, 0, 0.5, 0, 0], c) for c in u])
+    states = effect_state_trajectory(t, u, model, at_rest)
+    lag = states[:, 6]
+    expected = np.where(t > 0.5, 0.2 * (1.0 - np.exp(-(t - 0.5) / tau)), 0.0)
+    np.testing.assert_allclose(lag, expected, atol=1e-6)
+    np.testing.assert_array_equal(states[:, :6], at_rest[:, :6])
+    base = at_rest[:, :6]
+    np.testing.assert_array_equal(effect_state_trajectory(t, u, CarModel(), base), base)
