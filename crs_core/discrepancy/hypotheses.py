@@ -129,7 +129,6 @@ class Hypothesis:
     result : the FIE result of the extended model on the training data
     model : the extended model (structure; parameters = the fit)
     delay_s : the fitted input delay (``input_delay`` only), s
-    start : start values given for added parameters (others started at their first start value)
     parameters : effect -> parameter -> {value, std, unit, z}
     comparison : the held-out test
     significant : a finding (see the module)
@@ -141,7 +140,6 @@ class Hypothesis:
     model: CarModel
     delay_s: float = 0.0
     parameters: dict[str, dict[str, dict[str, float | str]]] = field(default_factory=dict)
-    start: dict[str, float] = field(default_factory=dict)
     comparison: HeldOutComparison | None = None
     significant: bool = False
     reasons: list[str] = field(default_factory=list)
@@ -150,7 +148,6 @@ class Hypothesis:
         return {
             "effects": list(self.effects),
             "parameters": self.parameters,
-            "start": self.start,
             "held_out": self.comparison.to_dict() if self.comparison else None,
             "significant": self.significant,
             "reasons": self.reasons,
@@ -164,39 +161,12 @@ def null_value(parameter: Parameter) -> float:
     return 0.0 if parameter.lower <= 0.0 <= parameter.upper else parameter.lower
 
 
-#: Starts of a time constant's fit, in multiples of its null value (its lower bound). Near the
-#: bound the lag dynamics are stiff and IPOPT creeps along the time constant for 100+
-#: iterations; from the nearer of two starts a fit converges in 30-70 (a 100 ms steering lag:
-#: 138 iterations from 20 ms, 32 from 100 ms; none: 69 from 20 ms, 158 from 50 ms).
-TIME_CONSTANT_STARTS = (4.0, 20.0)
-
-
-def start_values(parameter: Parameter) -> tuple[float, ...]:
-    """Where the fit of an effect parameter starts: its null value, or for a time constant (null
-    at its lower bound) each of :data:`TIME_CONSTANT_STARTS` times it (fit from each, keep the
-    lower cost: :func:`best_fit`)."""
-    null = null_value(parameter)
-    if null == 0.0:
-        return (0.0,)
-    return tuple(min(k * null, parameter.upper) for k in TIME_CONSTANT_STARTS)
-
-
-def start_points(effects: Sequence[str]) -> list[dict[str, float]]:
-    """Every combination of :func:`start_values` of the parameters of ``effects`` (one dict of
-    start values per fit; a single one when no parameter has several)."""
-    points: list[dict[str, float]] = [{}]
-    for name in effects:
-        for p in EFFECTS[name].parameters if name != DELAY_EFFECT else ():
-            points = [{**point, p.name: v} for point in points for v in start_values(p)]
-    return points
-
-
-def best_fit(fits: Sequence[Hypothesis]) -> Hypothesis:
-    """Of fits of the same hypothesis from different starts, the one with the lowest training
-    cost (the held-out test is not consulted: the choice costs no test)."""
-    if len({h.effects for h in fits}) != 1:
-        raise ValueError("fits: must all be of the same hypothesis")
-    return min(fits, key=lambda h: h.result.cost)
+#: Time constants tried by the profile of a lag's fit, in multiples of its null value (its lower
+#: bound). Started near its null value, where the lag dynamics are stiff, IPOPT creeps along
+#: the time constant for 100+ iterations (a 100 ms steering lag in 20 s of joystick data: 138
+#: iterations from 20 ms); with the time constant held fixed a fit converges in 7-20, and the
+#: free fit started at the best of them in about 30.
+TIME_CONSTANT_GRID = (2.0, 4.0, 10.0, 20.0, 40.0, 100.0)
 
 
 def extended_model(
@@ -297,17 +267,23 @@ def fit_hypothesis(
     start: Mapping[str, float] = MappingProxyType({}),
 ) -> Hypothesis:
     """Fit ``model`` (the current structure, its *prior* values) extended by ``effects`` on
-    ``train``, warm-started at ``current`` (the current model's fit); an added parameter starts
-    at ``start`` or else its first :func:`start_values`."""
+    ``train``, warm-started at ``current`` (the current model's fit). The added parameters
+    start at ``start``, or else at their null value; a single added time constant at the best
+    point of its profile (:func:`_profile_time_constant`)."""
     effects = tuple(effects)
     state_effects = [e for e in effects if e != DELAY_EFFECT]
     extended = extended_model(model, state_effects)
     added = tuple(p.name for e in state_effects for p in EFFECTS[e].parameters)
     fit = tuple(settings.fit) + tuple(n for n in added if n not in settings.fit)
     values = {n: current.parameters.value(n) for n in current.fit}
+    lags = [p for e in state_effects for p in EFFECTS[e].parameters if null_value(p) != 0.0]
     for name in state_effects:
         for p in EFFECTS[name].parameters:
-            values.setdefault(p.name, start.get(p.name, start_values(p)[0]))
+            values.setdefault(p.name, start.get(p.name, null_value(p)))
+    if not start and len(added) == 1 and len(lags) == 1:
+        values[lags[0].name] = _profile_time_constant(
+            train, extended, current, lags[0], replace(settings, starts=1), progress
+        )
     warm = WarmStart(values, current.states[:, :6].copy())
     fit_settings = replace(settings, fit=fit, starts=1)
     delay = 0.0
@@ -348,8 +324,36 @@ def fit_hypothesis(
                 "z": delay / delay_std if delay_std > 0 else math.inf,
             }
         }
-    start = {n: start[n] for n in added if n in start}
-    return Hypothesis(effects, result, fitted_model, delay, parameters, start=start)
+    return Hypothesis(effects, result, fitted_model, delay, parameters)
+
+
+def _profile_time_constant(
+    train: Dataset,
+    model: CarModel,
+    current: FieResult,
+    tau: Parameter,
+    settings: FieSettings,
+    progress: Callable[[int, float], None] | None,
+) -> float:
+    """Where the free fit of time constant ``tau`` starts: the FIE's profile cost (``tau`` held
+    at :data:`TIME_CONSTANT_GRID` multiples of its null value, the other parameters and the
+    states refitted, warm started at ``current``) walked up from no effect while it falls; its
+    lowest point, or the first grid point when that is no effect."""
+    null = null_value(tau)
+    grid = sorted({min(k * null, tau.upper) for k in TIME_CONSTANT_GRID})
+    warm = WarmStart({n: current.parameters.value(n) for n in current.fit}, current.states)
+    best, best_cost = grid[0], current.cost
+    for value in grid:
+        fixed = CarModel(
+            {e.name: None for e in model.effects},
+            n_base_stations=model.n_base_stations,
+            parameters=model.parameters.updated({tau.name: value}),
+        )
+        cost = identify(train, fixed, settings, progress, warm_start=warm).cost
+        if cost >= best_cost:
+            break
+        best, best_cost = value, cost
+    return best
 
 
 def _fit_delay(

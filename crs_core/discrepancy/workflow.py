@@ -31,7 +31,6 @@ from crs_core.discrepancy.hypotheses import (
     DELAY_EFFECT,
     Hypothesis,
     TestSettings,
-    best_fit,
     clear_of_null,
     delayed_inputs,
     fit_hypothesis,
@@ -40,7 +39,6 @@ from crs_core.discrepancy.hypotheses import (
     judge,
     null_value,
     parameter_table,
-    start_points,
 )
 from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
 from crs_core.identification.problem import FieSettings, check_fit
@@ -78,11 +76,12 @@ class DiscrepancySettings:
         on top of the named effect.
     hypothesis_max_iter : int
         IPOPT iteration limit of a hypothesis' fit (warm started at the current fit), a
-        compromise for speed: a time constant converges slowly from its start (100+ iterations).
-        On the 60 s benchmark run the steering lag's cost at 60 iterations is within 0.2 of its
-        value at convergence (112 iterations); on a 100 ms lag hidden in 20 s of joystick data
-        it is not (cost 4006 at 60, 3251 at convergence after 138), and that lag loses to an
-        input delay it would beat converged.
+        compromise for speed. Offsets, gains and fits with the delay or a time constant held
+        fixed converge in 5-20 iterations. A free time constant converges slowly from a start
+        far from its value (a 100 ms steering lag in 20 s of joystick data: 138 iterations from
+        20 ms), so it starts at the lowest point of its profile
+        (:data:`~crs_core.discrepancy.hypotheses.TIME_CONSTANT_GRID`; from 100 ms that lag
+        converges in 32) and is stopped here: within a grid step of its optimum.
     workers : int
         Processes fitting hypotheses at once (1: in this process).
     """
@@ -94,7 +93,7 @@ class DiscrepancySettings:
     horizon_s: float = DEFAULT_HORIZON_S
     max_effects: int = 2
     hidden_candidates: int = 2
-    hypothesis_max_iter: int = 60
+    hypothesis_max_iter: int = 30
     workers: int = 1
 
     def __post_init__(self) -> None:
@@ -230,14 +229,11 @@ def find_discrepancy(
         max_iter=min(settings.identification.max_iter, settings.hypothesis_max_iter),
     )
     fit_settings = replace(settings, identification=hypothesis_fie)
-    tests = len(candidates)
     tasks = [
-        (fit_data, model, current, (name,), start, fit_settings, current_scores, held_out, tests)
+        (fit_data, model, current, (name,), fit_settings, current_scores, held_out, len(candidates))
         for name in candidates
-        for start in start_points((name,))
     ]
-    fits = _run_hypotheses(_fit_and_judge, tasks, settings.workers, say)
-    first_round = [best_fit([h for h in fits if h.effects == (name,)]) for name in candidates]
+    first_round = _run_hypotheses(_fit_and_judge, tasks, settings.workers, say)
     hypotheses: list[Hypothesis] = list(first_round)
     findings = sorted((h for h in first_round if h.significant), key=information_criterion)
     chosen: Hypothesis | None = findings[0] if findings else None
@@ -257,7 +253,7 @@ def find_discrepancy(
             say(f"on top of {'+'.join(chosen.effects)}: {len(others)} more to test")
             tasks = [
                 (model, chosen, other, base_data, fit_settings, base_scores, held_out, len(others))
-                for other in others
+                for other in sorted(others, key=lambda h: not _slow_to_fit(h.effects[0]))
             ]
             joint = _run_hypotheses(_fit_joint_and_judge, tasks, settings.workers, say)
             hypotheses += joint
@@ -303,8 +299,8 @@ def find_discrepancy(
 
 def _fit_and_judge(task: tuple) -> Hypothesis:
     """Fit one hypothesis and judge it (a top-level function: it runs in worker processes)."""
-    data, model, current, effects, start, settings, scores, held_out, tests = task
-    hypothesis = fit_hypothesis(data, model, current, effects, settings.identification, start=start)
+    data, model, current, effects, settings, scores, held_out, tests = task
+    hypothesis = fit_hypothesis(data, model, current, effects, settings.identification)
     return judge(hypothesis, scores, held_out, settings.test, tests)
 
 

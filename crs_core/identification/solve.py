@@ -153,19 +153,25 @@ def initial_trajectory(
 
 
 def effect_state_trajectory(
-    t: np.ndarray, u: np.ndarray, model: CarModel, states: np.ndarray
+    t: np.ndarray,
+    u: np.ndarray,
+    model: CarModel,
+    states: np.ndarray,
+    p: np.ndarray | None = None,
 ) -> np.ndarray:
     """``states`` ``(N, nx)`` with the effect states (after the six base states) integrated
-    through the held commands ``u`` ``(N, 2)`` from their value at the first sample, the base
-    states kept. At rest under the command is wrong where commands change faster than an
-    actuator follows: a lag's output trails its command by up to the time constant, and a
-    prediction started from the command would carry that error."""
+    through the held commands ``u`` ``(N, 2)`` from their value at the first sample with
+    parameter vector ``p`` (default the model's), the base states kept. At rest under the
+    command is wrong where commands change faster than an actuator follows: a lag's output
+    trails its command by up to the time constant, and a prediction started from the command
+    would carry that error."""
     n_effect = sum(len(e.initial_states([0.0, 0.0])) for e in model.effects)
     if n_effect == 0:
         return states
     base = len(states[0]) - n_effect - (2 if model.estimated_inputs else 0)
     effect = slice(base, base + n_effect)
-    numeric, p = model.numeric, model.parameters.vector()
+    numeric = model.numeric
+    p = model.parameters.vector() if p is None else p
     out = states.copy()
     for k in range(len(t) - 1):
         x = np.concatenate([states[k, :base], out[k, effect], states[k, effect.stop :]])
@@ -182,23 +188,34 @@ class WarmStart:
     values : mapping of parameter name to value; fitted parameters named here start there (the
         prior stays the model's)
     states : (N, >= 6) state trajectory on the dataset's stamps; its base six states are used,
-        effect states start at rest under the command
+        effect states are run through the commands (:func:`effect_state_trajectory`)
     """
 
     values: dict[str, float]
     states: np.ndarray
 
 
-def _warm_states(dataset: Dataset, model: CarModel, states: np.ndarray) -> np.ndarray:
-    """``states``' base six columns, effect states at rest under the command."""
+def _warm_states(
+    dataset: Dataset, model: CarModel, states: np.ndarray, p: np.ndarray
+) -> np.ndarray:
+    """``states``' base six columns, effect states run through the commands with parameter
+    vector ``p``."""
     if states.shape[0] != len(dataset.t) or states.shape[1] < 6:
         raise ValueError(
             f"warm_start.states: expected ({len(dataset.t)}, >= 6), got {states.shape}"
         )
     u = dataset.u if dataset.u is not None else np.zeros((len(states), 2))
-    return np.stack(
+    at_rest = np.stack(
         [model.initial_state(row[:6], command) for row, command in zip(states, u, strict=True)]
     )
+    return effect_state_trajectory(dataset.t, u, model, at_rest, p)
+
+
+def _warm_vector(model: CarModel, values: dict[str, float]) -> np.ndarray:
+    """The model's parameter vector with the warm start's values."""
+    return model.parameters.updated(
+        {n: v for n, v in values.items() if n in model.parameters.names}
+    ).vector()
 
 
 def identify(
@@ -238,7 +255,9 @@ def identify(
             else model.parameters.updated(dict(zip(settings.fit, theta0, strict=True)))
         )
         if start == 0 and warm_start is not None:
-            states0 = _warm_states(dataset, model, warm_start.states)
+            states0 = _warm_states(
+                dataset, model, warm_start.states, _warm_vector(model, warm_start.values)
+            )
         else:
             states0 = initial_trajectory(dataset, model, start_params)
         if start == 0:
@@ -254,9 +273,8 @@ def identify(
                 for j, name in enumerate(problem.fit):
                     if name in warm_start.values:
                         theta0[j] = warm_start.values[name]
-        z0 = problem.pack(theta0, states0)
         lo, hi = problem.bounds()
-        z0 = np.clip(z0, lo, hi)
+        z0 = np.clip(problem.pack(theta0, states0), lo, hi)
         t_solve = time.perf_counter()
         solution = solver(x0=z0, lbx=lo, ubx=hi)
         stats = solver.stats()

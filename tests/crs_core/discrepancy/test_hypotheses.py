@@ -3,8 +3,6 @@ synthetic scores, nested extended models, delayed commands, null and start value
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
@@ -12,14 +10,10 @@ from crs_core.dataset import Dataset
 from crs_core.discrepancy.hypotheses import (
     DELAY_EFFECT,
     HeldOutScores,
-    Hypothesis,
-    best_fit,
     compare_held_out,
     delayed_inputs,
     extended_model,
     null_value,
-    start_points,
-    start_values,
 )
 from crs_core.model import EFFECTS, CarModel
 
@@ -142,35 +136,10 @@ def test_extended_model_keeps_the_current_values_and_sets_the_given_ones():
         extended_model(current, ["wind"])
 
 
-def test_null_and_start_values():
+def test_null_values():
     tau = EFFECTS["steering_lag"].parameters[0]
     assert null_value(tau) == tau.lower > 0
-    starts = start_values(tau)
-    assert len(starts) == 2 and tau.lower < starts[0] < starts[1] <= tau.upper
-    bias = EFFECTS["gyro_bias"].parameters[0]
-    assert null_value(bias) == 0.0 and start_values(bias) == (0.0,)
-
-
-def test_start_points_cover_every_time_constant_start():
-    assert start_points(("gyro_bias",)) == [{"gyro_bias": 0.0}]
-    assert start_points(("input_delay",)) == [{}]
-    both = start_points(("steering_lag", "motor_lag"))
-    assert len(both) == 4
-    assert {(p["tau_steer"], p["tau_motor"]) for p in both} == {
-        (a, b)
-        for a in start_values(EFFECTS["steering_lag"].parameters[0])
-        for b in start_values(EFFECTS["motor_lag"].parameters[0])
-    }
-
-
-def test_best_fit_keeps_the_lowest_training_cost():
-    def fit(effects, cost):
-        return Hypothesis(effects, SimpleNamespace(cost=cost), CarModel())
-
-    low, high = fit(("steering_lag",), 3251.0), fit(("steering_lag",), 4006.0)
-    assert best_fit([high, low]) is low
-    with pytest.raises(ValueError, match="same hypothesis"):
-        best_fit([low, fit(("motor_lag",), 1.0)])
+    assert null_value(EFFECTS["gyro_bias"].parameters[0]) == 0.0
 
 
 def test_delayed_inputs_apply_each_command_later():
