@@ -8,6 +8,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import rclpy
@@ -259,8 +260,28 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
     A node that cannot start (a bad parameter, an unreadable file, a broken ``--params-file``)
     prints one line, ``<node>: error: <parameter or file>: <reason>``, on stderr and exits with
     code 2 (no traceback). Discovery stays on this machine and uses the suite's Fast DDS profile
-    unless the environment says otherwise (:mod:`ros4crs.discovery`).
+    unless the environment says otherwise (:mod:`ros4crs.discovery`). With ``CRS_PROFILE=DIR``
+    in the environment the node runs under :mod:`cProfile` and writes
+    ``DIR/<ns>_<node>_<pid>.prof`` when it stops (``python -m pstats FILE``).
     """
+    folder = os.environ.get("CRS_PROFILE")
+    if folder:
+        import cProfile
+
+        profiler = cProfile.Profile()
+        profiler.enable()
+        try:
+            return _run(make_node, argv)
+        finally:
+            profiler.disable()
+            Path(folder).mkdir(parents=True, exist_ok=True)
+            label = _node_name(list(argv) if argv is not None else sys.argv, make_node)
+            stem = label.strip("/").replace("/", "_") or "node"
+            profiler.dump_stats(str(Path(folder) / f"{stem}_{os.getpid()}.prof"))
+    return _run(make_node, argv)
+
+
+def _run(make_node: Callable[[], Node], argv: Sequence[str] | None) -> int:
     from rclpy._rclpy_pybind11 import RCLError
 
     set_discovery_environment()
