@@ -239,6 +239,7 @@ def bench(args: argparse.Namespace) -> None:
                 seeds=args.seeds,
                 clean_seeds=args.clean_seeds,
                 progress=lambda line: print(f"discrepancy bench: {line}", file=sys.stderr),
+                speed_run=not args.no_speed,
             ),
         }
         text = json.dumps(result, indent=2)
@@ -481,10 +482,11 @@ def make_parser() -> argparse.ArgumentParser:
         "sysid: identification speed (a real run, 3000 simulated samples), real-data "
         "cross-validation (run 1 <-> run 2) and the simulated coverage study (--seeds, "
         "default 5; 10 for the README figures); ~10 min. "
-        "discrepancy: every registry effect hidden at two magnitudes (--seeds runs each; the "
-        "README figures use 2) and --clean-seeds clean runs: the "
-        "confusion table, false-alarm rate, parameter accuracy, gap before / after, and the time "
-        "of one run on 60 s of data; ~1 h with --seeds 1 (40 cases, 20 s training runs).",
+        "discrepancy: every registry effect hidden at two magnitudes, the steering gain at "
+        "three (--seeds runs each, every effect once before any twice) and --clean-seeds clean "
+        "runs (every third with mismatched sensor noise): the confusion table, false-alarm "
+        "rate, parameter accuracy, gap before / after, and the time of one run on 60 s of data "
+        "(--no-speed skips it); ~1 h with --seeds 1 (41 cases, 20 s training runs).",
     )
     sub.add_argument(
         "what",
@@ -506,6 +508,7 @@ def make_parser() -> argparse.ArgumentParser:
         help="discrepancy: clean runs for the false-alarm rate (default 20)",
     )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
+    sub.add_argument("--no-speed", action="store_true", help="discrepancy: skip the 60 s speed run")
     sub.add_argument(
         "--cars",
         type=bounded_number("cars", "", 0, 8, int),
