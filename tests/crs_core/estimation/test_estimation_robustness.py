@@ -12,7 +12,7 @@ from crs_core.estimation import (
     MheSettings,
     make_estimator,
 )
-from crs_core.measurements import Measurement, in_stamp_order
+from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim.bench.estimation import standard_drive, start_state
@@ -369,3 +369,37 @@ def test_a_runaway_without_lighthouse_restarts_instead_of_failing(drive, kind):
         assert estimator.diagnostics.reinitializations >= 1
     else:
         assert abs(estimate.x[3]) <= 10.0
+
+
+@pytest.mark.parametrize(("kind", "minutes"), [("ekf", 6.0), ("mhe", 2.0)])
+def test_memory_stays_flat_over_a_long_stream(kind, minutes):
+    """A long stream (a car circling; sensors at their real rates, queries at 20 Hz) in bounded
+    memory: from a third of the run on, the memory the estimator holds (sampled every 10 s)
+    never rises more than 64 kB above its peak of the middle third (a leak of 1 kB per second
+    would add 40-120 kB there; the EKF's window of past states and the MHE's horizon are a
+    sawtooth, not a ramp)."""
+    import tracemalloc
+
+    session = Simulator(CarModel(), SensorSuite(), seed=5).session(
+        np.array([0.0, 0.0, 0.0, 0.8, 0.0, 0.0]), keep_history=False
+    )
+    estimator = make_estimator(kind, "lh+imu+we")
+    estimator.reset(0.0, session.base_state.copy())
+    command = np.array([0.15, 0.12])
+    session.command(command)
+    estimator.add(InputSample(0.0, command))
+    end = 60.0 * minutes
+    held = []
+    for k, t in enumerate(np.arange(0.05, end, 0.05), 1):
+        for item in session.advance(t):
+            estimator.add(item)
+        estimate = estimator.estimate(t - 0.02)
+        assert np.all(np.isfinite(estimate.x))
+        if k == round(end / 3 / 0.05):
+            tracemalloc.start()
+        if tracemalloc.is_tracing() and k % 200 == 0:
+            held.append(tracemalloc.get_traced_memory()[0])
+    tracemalloc.stop()
+    middle, last = held[: len(held) // 2], held[len(held) // 2 :]
+    assert len(middle) >= 3 and len(last) >= 3
+    assert max(last) <= max(middle) + 64_000, (middle, last)
