@@ -147,9 +147,7 @@ def initial_trajectory(
     for k in np.flatnonzero(lost)[np.flatnonzero(lost) > first]:
         x[k] = x[k - 1]  # hold through a later loss
     x[:, 2] = np.unwrap(x[:, 2])
-    u = dataset.u if dataset.u is not None else np.zeros((len(x), 2))
-    states = np.stack([model.initial_state(row, cmd) for row, cmd in zip(x, u, strict=True)])
-    return effect_state_trajectory(dataset.t, u, model, states)
+    return _with_effect_states(dataset, model, x, model.parameters.vector())
 
 
 def effect_state_trajectory(
@@ -204,10 +202,16 @@ def _warm_states(
         raise ValueError(
             f"warm_start.states: expected ({len(dataset.t)}, >= 6), got {states.shape}"
         )
-    u = dataset.u if dataset.u is not None else np.zeros((len(states), 2))
-    at_rest = np.stack(
-        [model.initial_state(row[:6], command) for row, command in zip(states, u, strict=True)]
-    )
+    return _with_effect_states(dataset, model, states[:, :6], p)
+
+
+def _with_effect_states(
+    dataset: Dataset, model: CarModel, base: np.ndarray, p: np.ndarray
+) -> np.ndarray:
+    """Model states ``(N, nx)`` from base states ``(N, 6)``: effect states at rest under the
+    first command, then run through the commands with parameter vector ``p``."""
+    u = dataset.u if dataset.u is not None else np.zeros((len(base), 2))
+    at_rest = np.stack([model.initial_state(row, cmd) for row, cmd in zip(base, u, strict=True)])
     return effect_state_trajectory(dataset.t, u, model, at_rest, p)
 
 
