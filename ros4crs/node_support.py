@@ -296,11 +296,11 @@ def _run(make_node: Callable[[], Node], argv: Sequence[str] | None) -> int:
     node = None
     try:
         try:
+            executor = make_executor()  # a bad CRS_EXECUTOR is a start-up error too
             node = make_node()
         except (ValueError, KeyError, OSError) as error:  # what a user can give wrong
             message = error.args[0] if isinstance(error, KeyError) else str(error)
             return _start_failure(name, " ".join(str(message).split()))
-        executor = make_executor()
         executor.add_node(node)
         while rclpy.ok():
             executor.spin_once(timeout_sec=0.1)

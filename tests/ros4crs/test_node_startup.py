@@ -92,3 +92,19 @@ def test_nothing_was_written_or_deleted(outcomes):
     """The refused recorder (an existing ``output``) and the others left the folder as it was."""
     tmp, _ = outcomes
     assert sorted(p.name for p in tmp.iterdir()) == ["bad.yaml"]
+
+
+def test_unknown_executor_is_a_start_up_error():
+    """``CRS_EXECUTOR`` is read before the node is built: a bad value is one line, exit code 2."""
+    env = {
+        **os.environ,
+        "ROS_DOMAIN_ID": "171",
+        "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+        "CRS_EXECUTOR": "multi",
+    }
+    command = [sys.executable, "-m", "ros4crs.controller_node", "--ros-args", "-r", "__ns:=/car1"]
+    result = subprocess.run(command, capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr, result.stderr
+    (line,) = [line for line in result.stderr.splitlines() if "error:" in line]
+    assert line == "/car1/controller: error: CRS_EXECUTOR: one of events, single, got 'multi'"
