@@ -217,8 +217,13 @@ def bench(args: argparse.Namespace) -> None:
     from sim.bench.machine import machine
     from sim.bench.model import model_benchmark
 
+    resume = args.what == "discrepancy" and args.resume
+    if args.resume and args.what != "discrepancy":
+        raise ValueError("--resume: only for the discrepancy benchmark")
+    if resume and not args.out:
+        raise ValueError("--resume: needs --out FILE (the run to continue)")
     if args.out:
-        prepare_output_file(args.out, args.overwrite)
+        prepare_output_file(args.out, args.overwrite or resume)
     if args.what == "model":
         result = model_benchmark()
         text = json.dumps(result, indent=2)
@@ -240,6 +245,7 @@ def bench(args: argparse.Namespace) -> None:
                 clean_seeds=args.clean_seeds,
                 progress=lambda line: print(f"discrepancy bench: {line}", file=sys.stderr),
                 speed_run=not args.no_speed,
+                resume=resume,
             ),
         }
         text = json.dumps(result, indent=2)
@@ -509,6 +515,11 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument("--no-peers", action="store_true", help="estimation: skip filterpy/do-mpc")
     sub.add_argument("--no-speed", action="store_true", help="discrepancy: skip the 60 s speed run")
+    sub.add_argument(
+        "--resume",
+        action="store_true",
+        help="discrepancy: continue the run in --out (keep its cases, run the missing ones)",
+    )
     sub.add_argument(
         "--cars",
         type=bounded_number("cars", "", 0, 8, int),

@@ -189,12 +189,14 @@ def extended_model(
 
 
 def delayed_inputs(dataset: Dataset, delay_s: float) -> Dataset:
-    """``dataset`` with its commands applied ``delay_s`` later (held commands shifted; the
-    full-rate input stream, when present, shifted by the same amount)."""
+    """``dataset`` with its commands applied ``delay_s`` later: the sampled command signal read
+    ``delay_s`` earlier (linear interpolation, the first sample before the start), and the
+    full-rate input stream, when present, shifted by the same amount. Continuous in
+    ``delay_s``, not rounded to whole sample intervals."""
     if dataset.u is None or delay_s == 0.0:
         return dataset
-    index = np.searchsorted(dataset.t, dataset.t - delay_s, side="right") - 1
-    u = dataset.u[np.clip(index, 0, None)]
+    t = dataset.t
+    u = np.stack([np.interp(t - delay_s, t, column) for column in dataset.u.T], axis=1)
     inputs = None
     if dataset.inputs:
         inputs = [InputSample(s.stamp + delay_s, s.u) for s in dataset.inputs]

@@ -88,15 +88,20 @@ def input_segments(dataset: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray
     """The commands held over each sample interval, split where the command changes.
 
     With the full-rate input stream (``stream.npz``: the simulator's commands at the controller
-    rate) an interval ``[t_k, t_{k+1}]`` is split at every command stamp inside it; without
-    one the sample's own ``u_k`` is held over the whole interval. Returns ``u`` ``(K, M, 2)``,
+    rate) an interval ``[t_k, t_{k+1}]`` is split at every command stamp inside it. Without one,
+    ``u`` holds samples of the command signal at the sample stamps (the real recordings
+    interpolate it onto them), not commands held from them: the interval holds the signal's
+    value at its middle, :math:`(u_k + u_{k+1}) / 2`. Holding :math:`u_k` instead would act
+    half a sample interval (about 10 ms) late on average, and a fitted input delay or actuator
+    lag would come out short by as much. Returns ``u`` ``(K, M, 2)``,
     segment lengths ``(K, M)`` (0 beyond the interval's count) and counts ``(K,)``, with
     ``K = N - 1`` intervals and ``M`` the most segments of any interval.
     """
     t, u = dataset.t, np.asarray(dataset.u, dtype=float)
     k_count = len(t) - 1
     if not dataset.inputs:
-        return u[:-1, None, :].copy(), np.diff(t)[:, None], np.ones(k_count, dtype=int)
+        middle = 0.5 * (u[:-1] + u[1:])
+        return middle[:, None, :], np.diff(t)[:, None], np.ones(k_count, dtype=int)
     stamps = np.array([s.stamp for s in dataset.inputs])
     order = np.argsort(stamps, kind="stable")
     stamps = stamps[order]

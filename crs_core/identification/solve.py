@@ -19,7 +19,7 @@ import numpy as np
 
 from crs_core.dataset import Dataset
 from crs_core.estimation.offline import estimate_dataset
-from crs_core.identification.data import FieData
+from crs_core.identification.data import FieData, input_segments
 from crs_core.identification.problem import FieProblem, FieSettings, check_fit
 from crs_core.identification.uncertainty import ParameterUncertainty, parameter_uncertainty
 from crs_core.model import CarModel
@@ -151,15 +151,15 @@ def initial_trajectory(
 
 
 def effect_state_trajectory(
-    t: np.ndarray,
-    u: np.ndarray,
+    dataset: Dataset,
     model: CarModel,
     states: np.ndarray,
     p: np.ndarray | None = None,
 ) -> np.ndarray:
     """``states`` ``(N, nx)`` with the effect states (after the six base states) integrated
-    through the held commands ``u`` ``(N, 2)`` from their value at the first sample with
-    parameter vector ``p`` (default the model's), the base states kept. At rest under the
+    through ``dataset``'s commands (the FIE's held-command segments,
+    :func:`~crs_core.identification.data.input_segments`) from their value at the first sample
+    with parameter vector ``p`` (default the model's), the base states kept. At rest under the
     command is wrong where commands change faster than an actuator follows: a lag's output
     trails its command by up to the time constant, and a prediction started from the command
     would carry that error."""
@@ -170,10 +170,13 @@ def effect_state_trajectory(
     effect = slice(base, base + n_effect)
     numeric = model.numeric
     p = model.parameters.vector() if p is None else p
+    seg_u, seg_dt, seg_count = input_segments(dataset)
     out = states.copy()
-    for k in range(len(t) - 1):
+    for k in range(len(dataset.t) - 1):
         x = np.concatenate([states[k, :base], out[k, effect], states[k, effect.stop :]])
-        out[k + 1, effect] = np.asarray(numeric.step(x, u[k], p, t[k + 1] - t[k])).ravel()[effect]
+        for j in range(seg_count[k]):
+            x = np.asarray(numeric.step(x, seg_u[k, j], p, seg_dt[k, j])).ravel()
+        out[k + 1, effect] = x[effect]
     return out
 
 
@@ -212,7 +215,7 @@ def _with_effect_states(
     first command, then run through the commands with parameter vector ``p``."""
     u = dataset.u if dataset.u is not None else np.zeros((len(base), 2))
     at_rest = np.stack([model.initial_state(row, cmd) for row, cmd in zip(base, u, strict=True)])
-    return effect_state_trajectory(dataset.t, u, model, at_rest, p)
+    return effect_state_trajectory(dataset, model, at_rest, p)
 
 
 def _warm_vector(model: CarModel, values: dict[str, float]) -> np.ndarray:

@@ -257,6 +257,29 @@ def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
     }
 
 
+#: What identifies a case across runs of the benchmark (``--resume``).
+CASE_KEY = ("effect", "magnitude", "seed", "independent", "noise")
+
+
+def _case_key(case: dict[str, Any]) -> tuple:
+    return tuple(case[name] for name in CASE_KEY)
+
+
+def _resumed(out: Path, settings: dict[str, Any]) -> dict[str, Any]:
+    """The earlier result in ``out`` to continue; ``ValueError`` when it was measured with other
+    settings (its cases would not be comparable)."""
+    try:
+        earlier = json.loads(Path(out).read_text())
+    except (OSError, ValueError) as error:
+        raise ValueError(f"--resume: cannot read {out} ({error})") from None
+    if not isinstance(earlier, dict) or earlier.get("settings") != json.loads(json.dumps(settings)):
+        raise ValueError(
+            f"--resume: {out} was measured with other settings (durations, fit, magnitudes or "
+            "sensors); start a new file"
+        )
+    return earlier
+
+
 def discrepancy_benchmark(
     out: Path | None,
     seeds: int = 2,
@@ -265,12 +288,14 @@ def discrepancy_benchmark(
     workers: int = 2,
     progress: Callable[[str], None] | None = None,
     speed_run: bool = True,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Run the 60 s speed run (hypotheses on ``workers`` processes; unless not ``speed_run``)
     and then every case
     (``workers`` at once, each in one process; training runs of
     ``duration`` s, held-out runs of :data:`HELD_OUT_S`); JSON to ``out``, written again after every
-    case so a stopped run keeps what it measured."""
+    case so a stopped run keeps what it measured. With ``resume`` an existing ``out`` is
+    continued: its cases (and speed run) are kept, only the missing ones are run."""
     say = progress or (lambda line: None)
     started = time.perf_counter()
     todo = cases(seeds, clean_seeds, duration)
@@ -296,16 +321,28 @@ def discrepancy_benchmark(
             Path(out).parent.mkdir(parents=True, exist_ok=True)
             Path(out).write_text(json.dumps(result, indent=2))
 
-    if speed_run:
+    if resume and out is not None and Path(out).exists():
+        earlier = _resumed(out, result["settings"])
+        wanted = {_case_key(case) for case in todo}
+        result["cases"] = [row for row in earlier.get("cases", []) if _case_key(row) in wanted]
+        if "speed_60s" in earlier:
+            result["speed_60s"] = earlier["speed_60s"]
+        done = {_case_key(row) for row in result["cases"]}
+        todo = [case for case in todo if _case_key(case) not in done]
+        say(f"resuming {out}: {len(done)} cases kept, {len(todo)} to run")
+        if result["cases"]:
+            result["summary"] = tabulate(result["cases"])
+    if speed_run and "speed_60s" not in result:
         say("speed: one run on a 60 s recording, alone on the machine ...")
         result["speed_60s"] = speed(workers=workers)
         save()
+    first = len(result["cases"])
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        for i, row in enumerate(pool.map(run_case, todo), 1):
+        for i, row in enumerate(pool.map(run_case, todo), first + 1):
             result["cases"].append(row)
             result["summary"] = tabulate(result["cases"])
             say(
-                f"[{i}/{len(todo)}] {row['effect'] or 'clean'} {row['magnitude'] or ''} "
+                f"[{i}/{first + len(todo)}] {row['effect'] or 'clean'} {row['magnitude'] or ''} "
                 f"seed {row['seed']}: {row['verdict']} {'+'.join(row['named'])} "
                 f"({row['time_s']:.0f} s)"
             )

@@ -147,10 +147,11 @@ def test_delayed_inputs_apply_each_command_later():
     u = np.stack([np.where(t >= 0.3, 0.2, 0.0), np.where(t >= 0.5, 0.4, 0.1)], axis=1)
     y = np.full((100, 13), np.nan)
     data = Dataset(t=t, u=u, y=y)
-    shifted = delayed_inputs(data, 0.05)
+    shifted = delayed_inputs(data, 0.025)
     np.testing.assert_array_equal(shifted.t, t)
-    # the step at 0.3 s now arrives at 0.35 s; before the first command, the first one is held
-    assert shifted.u[34, 0] == 0.0 and shifted.u[35, 0] == 0.2
-    assert shifted.u[54, 1] == 0.1 and shifted.u[55, 1] == 0.4
-    assert shifted.u[0, 1] == 0.1
+    # the sampled signal read 25 ms earlier: the step between 0.29 and 0.30 s now lies between
+    # 0.315 and 0.325 s, not rounded to whole samples; before the first sample, the first value
+    np.testing.assert_allclose(shifted.u[31:35, 0], [0.0, 0.1, 0.2, 0.2], atol=1e-12)
+    np.testing.assert_allclose(shifted.u[51:55, 1], [0.1, 0.25, 0.4, 0.4], atol=1e-12)
+    assert shifted.u[0, 1] == 0.1 and shifted.u[2, 1] == 0.1
     assert delayed_inputs(data, 0.0) is data

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from crs_core.dataset import Dataset
+from crs_core.dataset import Y_CHANNELS, Dataset
 from crs_core.identification import FieData, FieProblem, FieSettings, identify
 from crs_core.identification.data import Y_LAYOUT
 from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import check_fit, substeps_for
 from crs_core.identification.uncertainty import MAX_CORRELATION, parameter_uncertainty
+from crs_core.measurements import InputSample
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
 from crs_core.model.chronos import ROUGH_PRIOR
@@ -192,11 +193,34 @@ def test_lag_states_run_through_the_commands():
     model = CarModel({"steering_lag": {"tau_steer": tau}})
     t = np.arange(0.0, 1.0, 0.01)
     u = np.stack([np.where(t >= 0.5, 0.2, 0.0), np.full_like(t, 0.1)], axis=1)
+    held = [InputSample(0.0, u[0]), InputSample(0.5, u[-1])]  # the step held from 0.5 s on
+    dataset = Dataset(t=t, u=u, y=np.full((len(t), len(Y_CHANNELS)), np.nan), inputs=held)
     at_rest = np.stack([model.initial_state([0, 0, 0, 0.5, 0, 0], c) for c in u])
-    states = effect_state_trajectory(t, u, model, at_rest)
+    states = effect_state_trajectory(dataset, model, at_rest)
     lag = states[:, 6]
     expected = np.where(t > 0.5, 0.2 * (1.0 - np.exp(-(t - 0.5) / tau)), 0.0)
     np.testing.assert_allclose(lag, expected, atol=1e-6)
     np.testing.assert_array_equal(states[:, :6], at_rest[:, :6])
     base = at_rest[:, :6]
-    np.testing.assert_array_equal(effect_state_trajectory(t, u, CarModel(), base), base)
+    np.testing.assert_array_equal(effect_state_trajectory(dataset, CarModel(), base), base)
+
+
+def test_sampled_commands_hold_their_interval_middle_held_commands_split_it():
+    """Without a command stream ``u`` samples the command signal: an interval holds its value at
+    the middle, (u_k + u_k+1) / 2, so a ramp is followed without the half-interval lag of
+    holding u_k. With the stream, each command is held from its stamp."""
+    from crs_core.identification.data import input_segments
+
+    t = np.array([0.0, 0.02, 0.04, 0.06])
+    u = np.stack([t * 10.0, np.full(4, 0.3)], axis=1)  # a steering ramp, 10 rad/s
+    y = np.full((4, len(Y_CHANNELS)), np.nan)
+    seg_u, seg_dt, count = input_segments(Dataset(t=t, u=u, y=y))
+    np.testing.assert_array_equal(count, [1, 1, 1])
+    np.testing.assert_allclose(seg_u[:, 0, 0], [0.1, 0.3, 0.5])
+    np.testing.assert_allclose(seg_dt[:, 0], 0.02)
+    held = [InputSample(0.0, [0.0, 0.3]), InputSample(0.03, [0.5, 0.3])]
+    seg_u, seg_dt, count = input_segments(Dataset(t=t, u=u, y=y, inputs=held))
+    np.testing.assert_array_equal(count, [1, 2, 1])
+    np.testing.assert_allclose(seg_u[1, :2, 0], [0.0, 0.5])
+    np.testing.assert_allclose(seg_dt[1, :2], [0.01, 0.01])
+    np.testing.assert_allclose(seg_u[2, 0, 0], 0.5)
