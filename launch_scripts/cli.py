@@ -30,10 +30,8 @@ from launch_scripts.discrepancy_command import add_commands as add_discrepancy_c
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
 from launch_scripts.sysid_command import add_commands as add_sysid_commands
+from sim.bench.machine import REAL_DATA
 from sim.sensors import SensorSuite, parse_blackout
-
-REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
-
 
 #: Longest simulation or launch the CLI accepts, s (the simulator keeps every sample).
 MAX_DURATION_S = 3600.0

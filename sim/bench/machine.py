@@ -6,9 +6,13 @@ import os
 import platform
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+#: The two real Chronos recordings, in the shared data beside the project folder (read-only).
+REAL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "chronos_real"
 
 
 def machine() -> dict[str, Any]:

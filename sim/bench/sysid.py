@@ -16,12 +16,11 @@ from crs_core.dataset import Dataset
 from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
-from sim.bench.machine import machine
+from sim.bench.machine import REAL_DATA, machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
 BENCHMARK_FIT = (*DYNAMICS_FIT, "r", "b_car")
-REAL_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "chronos_real"
 
 
 def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, Any]:

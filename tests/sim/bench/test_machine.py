@@ -1,0 +1,15 @@
+"""The benchmarks find the shared data where the project's layout puts it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sim.bench.machine import REAL_DATA
+
+PROJECT = Path(__file__).resolve().parents[3]
+
+
+def test_real_recordings_are_looked_for_beside_the_project_folder():
+    """``../shared/data/chronos_real`` from the project root (a wrong ``parents[...]`` once made
+    ``crs bench sysid`` look inside the project and fail)."""
+    assert REAL_DATA == PROJECT.parent / "shared" / "data" / "chronos_real"
