@@ -176,17 +176,26 @@ class Launcher:
             while time.monotonic() < deadline and any(p.poll() is None for p in running):
                 time.sleep(0.05)
 
-    def run(self, duration: float | None, on_exit=None, until=None) -> list[Exited]:
+    def run(
+        self, duration: float | None, on_exit=None, until=None, settle_s: float | None = None
+    ) -> list[Exited]:
         """Start, watch until ``duration`` s passed, ``until()`` is true or Ctrl-C, then stop.
 
-        ``on_exit(exited)`` is called for every node that dies while running. Returns all
+        ``on_exit(exited)`` is called for every node that dies while running. With ``settle_s``
+        the CPU times are also taken that long after the start (:attr:`cpu_at_settle`), so
+        that the cost of the running stack can be told from its start-up. Returns all
         processes that died before the stop.
         """
         self.start()
         deaths: list[Exited] = []
         started = time.monotonic()
+        self.cpu_at_settle: dict[str, float] | None = None
+        self.wall_at_settle = 0.0
         try:
             while duration is None or time.monotonic() - started < duration:
+                elapsed = time.monotonic() - started
+                if settle_s is not None and self.cpu_at_settle is None and elapsed >= settle_s:
+                    self.cpu_at_settle, self.wall_at_settle = self.cpu_seconds(), elapsed
                 for exited in self.poll():
                     deaths.append(exited)
                     if on_exit:

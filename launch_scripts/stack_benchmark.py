@@ -34,8 +34,9 @@ def stack_benchmark(
     """Run the stack ``repeats`` times with ``load`` busy processes beside it.
 
     Returns a JSON-ready dict: the settings, ``runs`` (per repeat: ``cars`` as in
-    ``report.json``, ``cpu_percent``, ``peak_memory_mib``, ``node_deaths``) and ``worst`` (per
-    car over the repeats: fewest laps, largest position RMSE, most deadline misses).
+    ``report.json``, ``cpu_percent``, ``cpu_percent_running``, ``peak_memory_mib``,
+    ``node_deaths``) and ``worst`` (per car over the repeats: fewest laps, largest position
+    RMSE, most deadline misses).
     """
     busy = [
         subprocess.Popen([sys.executable, "-c", BUSY_LOOP], start_new_session=True)
@@ -48,12 +49,8 @@ def stack_benchmark(
             report = run_stack(
                 cars, estimator, duration, work_dir / f"run{repeat}", domain_id, seed=repeat
             )
-            runs.append(
-                {
-                    key: report[key]
-                    for key in ("cars", "cpu_percent", "peak_memory_mib", "node_deaths")
-                }
-            )
+            keys = ("cars", "cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
+            runs.append({key: report[key] for key in keys if key in report})
     finally:
         for process in busy:
             os.killpg(process.pid, signal.SIGKILL)
