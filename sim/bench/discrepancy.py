@@ -321,7 +321,7 @@ def discrepancy_benchmark(
             Path(out).parent.mkdir(parents=True, exist_ok=True)
             Path(out).write_text(json.dumps(result, indent=2))
 
-    if resume and out is not None and Path(out).exists():
+    if resume and out is not None and Path(out).exists() and Path(out).stat().st_size > 0:
         earlier = _resumed(out, result["settings"])
         wanted = {_case_key(case) for case in todo}
         result["cases"] = [row for row in earlier.get("cases", []) if _case_key(row) in wanted]

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from concurrent.futures import Executor
+from dataclasses import dataclass, field
 
 import pytest
 
@@ -28,16 +29,17 @@ class _InProcess(Executor):
         return map(fn, *iterables)
 
 
-@pytest.fixture
-def ran(monkeypatch) -> list[tuple]:
-    """The keys of the cases the benchmark ran, in order."""
-    keys: list[tuple] = []
-    stopped: list[bool] = []
+@dataclass
+class _Runs:
+    """The keys of the cases run, in order; with ``stop_at`` set, that call is "stopped"."""
 
-    def stand_in(case):
-        keys.append(bench._case_key(case))
-        if len(keys) == 3 and not stopped:  # the first run "is stopped" at its third case
-            stopped.append(True)
+    keys: list[tuple] = field(default_factory=list)
+    stop_at: int | None = None
+
+    def __call__(self, case: dict) -> dict:
+        self.keys.append(bench._case_key(case))
+        if len(self.keys) == self.stop_at:
+            self.stop_at = None
             raise _StoppedError
         return {
             **case,
@@ -51,29 +53,41 @@ def ran(monkeypatch) -> list[tuple]:
             "hypotheses": {},
         }
 
+
+@pytest.fixture
+def runs(monkeypatch) -> _Runs:
+    stand_in = _Runs()
     monkeypatch.setattr(bench, "run_case", stand_in)
     monkeypatch.setattr(bench, "ProcessPoolExecutor", _InProcess)
-    return keys
+    return stand_in
 
 
-def test_a_stopped_run_is_continued_with_the_missing_cases_only(ran, tmp_path):
+def test_a_stopped_run_is_continued_with_the_missing_cases_only(runs, tmp_path):
     out = tmp_path / "bench.json"
+    runs.stop_at = 3
     with pytest.raises(_StoppedError):
         bench.discrepancy_benchmark(out, seeds=1, clean_seeds=2, speed_run=False)
     kept = json.loads(out.read_text())["cases"]
-    assert len(kept) == 2
-    ran.clear()
+    runs.keys.clear()
     result = bench.discrepancy_benchmark(out, seeds=1, clean_seeds=2, speed_run=False, resume=True)
     everything = [bench._case_key(c) for c in bench.cases(1, 2, 20.0)]
     assert [bench._case_key(c) for c in kept] == everything[:2]
-    assert ran == everything[2:]  # the kept cases were not run again
+    assert runs.keys == everything[2:]  # the kept cases were not run again
     assert [bench._case_key(c) for c in result["cases"]] == everything
     assert json.loads(out.read_text())["summary"]["false_alarms"]["runs"] == 2
 
 
-def test_resume_refuses_a_file_measured_with_other_settings(ran, tmp_path):
+def test_resume_refuses_a_file_measured_with_other_settings(runs, tmp_path):
     out = tmp_path / "bench.json"
     out.write_text(json.dumps({"settings": {"duration_s": 5.0}, "cases": []}))
     with pytest.raises(ValueError, match=r"--resume: .* other settings"):
         bench.discrepancy_benchmark(out, seeds=1, clean_seeds=1, speed_run=False, resume=True)
-    assert ran == []
+    assert runs.keys == []
+
+
+def test_resume_on_an_empty_file_runs_everything(runs, tmp_path):
+    """``--resume`` on the empty file that checking ``--out`` creates starts afresh."""
+    out = tmp_path / "bench.json"
+    out.touch()
+    result = bench.discrepancy_benchmark(out, seeds=1, clean_seeds=0, speed_run=False, resume=True)
+    assert len(result["cases"]) == len(bench.cases(1, 0, 20.0))
