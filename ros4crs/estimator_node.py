@@ -61,6 +61,8 @@ from ros4crs.node_support import (
 
 #: A clock that goes back by more than this (s) restarts the estimator (a looped replay).
 CLOCK_JUMP_S = 0.5
+#: A query this close (in periods) before the next grid time is asked at that time.
+GRID_TOLERANCE = 0.05
 
 
 class EstimatorNode(Node):
@@ -141,7 +143,8 @@ class EstimatorNode(Node):
         self.restarts = 0
         self._buffer: list[Measurement | InputSample] = []
         self._last_query = -np.inf
-        self.create_timer(1.0 / self.rate_hz, self._update)
+        self._grid_origin = 0.0
+        self._timer = self.create_timer(1.0 / self.rate_hz, self._update)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
 
@@ -194,8 +197,26 @@ class EstimatorNode(Node):
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def _query_time(self) -> float:
+        """``now - lag`` on the grid of the timer's schedule: the MHE's nodes sit on a grid
+        anchored at its start, and a query between two nodes costs an EKF pass over the data
+        since the newer one (whose length would otherwise be set by how late the start's tick
+        happened to fire: up to a whole period, a quarter of the estimator's CPU). The start is
+        therefore taken at its tick's scheduled time (``now`` minus the tick's lateness), and
+        every query at the newest grid time by ``now - lag``: on a node, never later than
+        before by more than :data:`GRID_TOLERANCE` of a period, earlier only by the tick's
+        lateness."""
+        period = 1.0 / self.rate_hz
+        raw = self._now() - self.lag
+        if not self._started:
+            until = self._timer.time_until_next_call()
+            late = period - 1e-9 * until if until is not None else 0.0
+            return raw - min(max(late, 0.0), period)
+        steps = np.floor((raw - self._grid_origin) / period + GRID_TOLERANCE)
+        return self._grid_origin + steps * period
+
     def _update(self) -> None:
-        t = self._now() - self.lag
+        t = self._query_time()
         if self._started and t < self._last_query - CLOCK_JUMP_S:
             self._restart(f"the clock jumped back by {self._last_query - t:.2f} s")
         # everything that has arrived first (rclpy runs a due timer before queued messages)
@@ -207,6 +228,7 @@ class EstimatorNode(Node):
             blind = self.blind_start or self.restarts > 0
             self.estimator.reset(t, None if blind else self.initial)
             self._started = True
+            self._grid_origin = t
             self._last_query = t
             # data still in flight from before a clock jump lie in the future: not ours
             arrived = [i for i in self._buffer if i.stamp <= t + self.lag + CLOCK_JUMP_S]

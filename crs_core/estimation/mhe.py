@@ -73,6 +73,10 @@ EXTRA_STATE_BOUNDS: dict[str, tuple[float, float]] = {
     "torque_estimated": (-1.5, 1.5),
 }
 _UNBOUNDED = 1e6
+#: A query this close (in grid steps) before a node creates it: a query on a node, computed as
+#: ``anchor + k / rate_hz`` like the node, can come out a rounding error (about 2e-7 s at Unix
+#: times) short of it, and without the tolerance it would read out from the node before.
+GRID_TOLERANCE = 1e-3
 #: Backtracking of the Gauss-Newton step: the first fraction that lowers the cost is taken.
 #: Down to 2^-11: with the input-free model on the real recordings, steps cut to 2^-5 still
 #: failed hundreds of times, and keeping the prediction each time let the window drift away
@@ -368,7 +372,7 @@ class MovingHorizonEstimator(Estimator):
             for j in range(len(self._times) - 1):
                 if self._times[j + 1] > late_input:
                     self._U[:, j] = self._command_average(self._times[j], self._times[j + 1])
-        due = math.floor((t - self._anchor) / self._dt + 1e-9) - self._newest
+        due = math.floor((t - self._anchor) / self._dt + GRID_TOLERANCE) - self._newest
         if due > self._max_catch_up:
             self._skip_ahead(t, due)
             due = self._max_catch_up
