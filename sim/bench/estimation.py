@@ -415,7 +415,7 @@ def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
     do-mpc averages the samples of an interval like our MHE (``combine="mean"``). Each peer row
     carries ``ratio_to_ours``: its RMSE and median time divided by ours (time > 1: slower).
     """
-    from sim.peers import DoMpcMhe, FilterpyEkf
+    from sim.bench.peers import DoMpcMhe, FilterpyEkf
 
     drives = [standard_drive(seed) for seed in seeds]
     makers = {
