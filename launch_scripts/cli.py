@@ -233,7 +233,7 @@ def bench(args: argparse.Namespace) -> None:
         text = json.dumps(result, indent=2)
         print(text)
     elif args.what == "discrepancy":
-        from sim.bench.discrepancy import discrepancy_benchmark
+        from sim.bench.discrepancy import discrepancy_benchmark, markdown
 
         result = {
             "command": "crs " + " ".join(sys.argv[1:]),
@@ -248,6 +248,7 @@ def bench(args: argparse.Namespace) -> None:
         }
         text = json.dumps(result, indent=2)
         print(json.dumps({k: result[k] for k in ("summary", "wall_time_s") if k in result}))
+        print(markdown(result["cases"]))
     elif args.what == "stack":
         from launch_scripts.stack_benchmark import format_table, stack_benchmark
 

@@ -237,6 +237,47 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def markdown(rows: list[dict[str, Any]]) -> str:
+    """The README's table of the hidden-effect cases (one line each, effects in registry order,
+    then magnitude and seed) and a line on the clean runs."""
+    order = list(MAGNITUDES)
+    lines = [
+        "| hidden effect | truth | seed, source | named | fitted ± σ | held-out test of that "
+        "effect | gap before → after (m) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    hidden = [r for r in rows if r["effect"]]
+    hidden.sort(key=lambda r: (order.index(r["effect"]), LEVELS.index(r["magnitude"]), r["seed"]))
+    for r in hidden:
+        truth = ", ".join(f"{name} {value:g}" for name, value in r["values"].items())
+        source = f"{r['seed']}, {'independent' if r['independent'] else 'simulator'}"
+        named = "+".join(r["named"]) if r["named"] else f"*{r['verdict']}*"
+        fitted = "; ".join(
+            f"{p['value']:.4g} ± {p['std']:.2g}"
+            for p in r["parameters"].get(r["effect"], {}).values()
+        )
+        test = r["hypotheses"].get(r["effect"]) or {}
+        held_out = (
+            f"{100 * test['improvement']:+.0f} %, p {test['p_value']:.1g}"
+            if test.get("improvement") is not None
+            else "—"
+        )
+        lines.append(
+            f"| {r['effect']} | {truth} | {source} | {named} | {fitted or '—'} | {held_out} | "
+            f"{r['gap_before_m']:.3f} → {r['gap_after_m']:.3f} |"
+        )
+    clean = [r for r in rows if not r["effect"]]
+    verdicts = Counter(r["verdict"] for r in clean)
+    mismatched = [r for r in clean if r["noise"] == "mismatched"]
+    lines.append("")
+    lines.append(
+        f"Clean runs: {len(clean)} ({', '.join(f'{v} {n}' for v, n in verdicts.items())}); "
+        f"{len(mismatched)} with mismatched sensor noise "
+        f"({sum(r['verdict'] != 'none' for r in mismatched)} not `none`)."
+    )
+    return "\n".join(lines)
+
+
 def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
     """Wall time of one workflow run on a ``duration`` s recording as ``crs discrepancy REC``
     runs it by default: the last 30 % held out, every hypothesis, ``workers`` processes."""

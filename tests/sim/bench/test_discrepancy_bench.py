@@ -91,3 +91,28 @@ def test_resume_on_an_empty_file_runs_everything(runs, tmp_path):
     out.touch()
     result = bench.discrepancy_benchmark(out, seeds=1, clean_seeds=0, speed_run=False, resume=True)
     assert len(result["cases"]) == len(bench.cases(1, 0, 20.0))
+
+
+def test_markdown_table_has_a_line_per_hidden_effect_and_counts_the_clean_runs():
+    hidden = {
+        "effect": "gyro_bias",
+        "magnitude": "large",
+        "values": {"gyro_bias": 0.05},
+        "seed": 100,
+        "independent": True,
+        "noise": "nominal",
+        "verdict": "effect",
+        "named": ["gyro_bias"],
+        "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0493, "std": 0.0024}}},
+        "hypotheses": {"gyro_bias": {"improvement": 0.21, "p_value": 3e-5}},
+        "gap_before_m": 0.037,
+        "gap_after_m": 0.028,
+    }
+    clean = {"effect": None, "verdict": "none", "noise": "mismatched"}
+    text = bench.markdown([clean, hidden])
+    line = next(ln for ln in text.splitlines() if ln.startswith("| gyro_bias"))
+    assert line == (
+        "| gyro_bias | gyro_bias 0.05 | 100, independent | gyro_bias | 0.0493 ± 0.0024 | "
+        "+21 %, p 3e-05 | 0.037 → 0.028 |"
+    )
+    assert "Clean runs: 1 (none 1); 1 with mismatched sensor noise (0 not `none`)." in text
