@@ -215,13 +215,12 @@ def bench(args: argparse.Namespace) -> None:
     from sim.bench.machine import machine
     from sim.bench.model import model_benchmark
 
-    resume = args.what == "discrepancy" and args.resume
     if args.resume and args.what != "discrepancy":
         raise ValueError("--resume: only for the discrepancy benchmark")
-    if resume and not args.out:
+    if args.resume and not args.out:
         raise ValueError("--resume: needs --out FILE (the run to continue)")
     if args.out:
-        prepare_output_file(args.out, args.overwrite or resume)
+        prepare_output_file(args.out, args.overwrite or args.resume)
     if args.what == "model":
         result = model_benchmark()
         text = json.dumps(result, indent=2)
@@ -243,7 +242,7 @@ def bench(args: argparse.Namespace) -> None:
                 clean_seeds=args.clean_seeds,
                 progress=lambda line: print(f"discrepancy bench: {line}", file=sys.stderr),
                 speed_run=not args.no_speed,
-                resume=resume,
+                resume=args.resume,
             ),
         }
         text = json.dumps(result, indent=2)
