@@ -7,6 +7,11 @@ advances step by step (the real-time simulator node drives one); :meth:`Simulato
 one with a controller that sees the true base state. Everything random is drawn from
 generators seeded by ``(seed, sensor name)``, so a run is reproducible and changing one
 sensor's settings does not reshuffle another's noise.
+
+Optionally (``Simulator(..., onboard=OnboardSettings())``, off by default) the car's onboard
+250 Hz loop runs in the simulation (:mod:`sim.onboard`): commands are then references for its
+steering and velocity PIDs, ``[delta, T]`` (``mode="torque"``) or ``[delta, v_x]``
+(``mode="velocity"``), and the car steers with the simulated steering actuator's angle.
 """
 
 from __future__ import annotations
@@ -14,20 +19,20 @@ from __future__ import annotations
 import hashlib
 import heapq
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
-from crs_core.dataset import Y_CHANNELS, Dataset, Geometry
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
+from sim.onboard import MODES, OnboardLoop, OnboardSettings
+from sim.result import SimulationResult
 from sim.sensors import SensorSpec, SensorSuite
 
 Controller = Callable[[float, np.ndarray], np.ndarray]
 
 # event kinds, in the order they are handled at equal times
-_APPLY, _SENSOR = 0, 1
+_APPLY, _TICK, _SENSOR = 0, 1, 2
 
 
 #: Sweep angles beyond this (rad) are out of the base station's view; the host drops them.
@@ -46,100 +51,6 @@ def _rng(seed: int, name: str) -> np.random.Generator:
     return np.random.default_rng([seed, digest])
 
 
-@dataclass
-class SimulationResult:
-    """What a run produced: truth, commanded inputs and the measurement stream (by stamp)."""
-
-    model: CarModel
-    sensors: SensorSuite
-    seed: int
-    duration: float
-    truth_t: np.ndarray
-    truth_x: np.ndarray
-    inputs: list[InputSample]
-    measurements: list[Measurement]
-    extra_meta: dict = field(default_factory=dict)
-
-    def measurements_of(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
-        """Stamps ``(n,)`` and values ``(n, size)`` of one sensor."""
-        items = [m for m in self.measurements if m.sensor == sensor]
-        if not items:
-            return np.zeros(0), np.zeros((0, 0))
-        return np.array([m.stamp for m in items]), np.stack([m.values for m in items])
-
-    def input_at(self, t: np.ndarray) -> np.ndarray:
-        """Commanded input (zero-order hold) at times ``t``, shape ``(len(t), 2)``."""
-        stamps = np.array([s.stamp for s in self.inputs])
-        values = np.stack([s.u for s in self.inputs])
-        index = np.clip(np.searchsorted(stamps, t, side="right") - 1, 0, len(stamps) - 1)
-        return values[index]
-
-    def truth_at(self, t: np.ndarray) -> np.ndarray:
-        """True base state at times ``t`` (linear interpolation of the dense truth)."""
-        return np.stack([np.interp(t, self.truth_t, self.truth_x[:, i]) for i in range(6)], axis=1)
-
-    def to_dataset(self) -> Dataset:
-        """Samples at the stamps of station 0's second-plane sweeps, like the real recordings.
-
-        A sample holds the sweep pair of one rotation (both planes present), wheel speeds and yaw
-        rate linearly interpolated to the stamp, the commanded input and the true state.
-        """
-        t1, a1 = self.measurements_of(lighthouse_sensor(0, 1))
-        t2, a2 = self.measurements_of(lighthouse_sensor(0, 2))
-        period = 1.0 / self.sensors.lighthouse.rate_hz
-        stamps, rows = [], []
-        if t1.size and t2.size:
-            previous = np.searchsorted(t1, t2, side="right") - 1
-            for k, j in enumerate(previous):
-                if j >= 0 and t2[k] - t1[j] < period * 0.75:
-                    stamps.append(t2[k])
-                    rows.append(np.concatenate([a1[j], a2[k]]))
-        stamps_arr = np.array(stamps)
-        y = np.full((stamps_arr.size, len(Y_CHANNELS)), np.nan)
-        if stamps_arr.size:
-            y[:, :8] = np.stack(rows)
-            for sensor, columns, source in (
-                ("wheel_encoders", slice(8, 12), slice(0, 4)),
-                ("imu", slice(12, 13), slice(2, 3)),
-            ):
-                ts, values = self.measurements_of(sensor)
-                if ts.size:
-                    picked = values[:, source]
-                    y[:, columns] = np.stack(
-                        [np.interp(stamps_arr, ts, picked[:, i]) for i in range(picked.shape[1])],
-                        axis=1,
-                    )
-                    # no values invented across a gap (drop-out, blackout): NaN there
-                    gap = 1.5 / self.sensors.spec(sensor).rate_hz
-                    after = np.clip(np.searchsorted(ts, stamps_arr), 1, ts.size - 1)
-                    bracket = ts[after] - ts[after - 1] if ts.size > 1 else np.zeros(1)
-                    outside = (stamps_arr < ts[0]) | (stamps_arr > ts[-1])
-                    y[(bracket > gap) | outside, columns] = np.nan
-        meta = {
-            "source": "simulated",
-            "seed": self.seed,
-            "duration_s": self.duration,
-            "truth": {
-                "effects": [e.name for e in self.model.effects],
-                "parameters": {n: self.model.parameters.value(n) for n in self.model.parameters},
-            },
-            "sensors": self.sensors.to_dict(),
-            **self.extra_meta,
-        }
-        return Dataset(
-            t=stamps_arr,
-            u=self.input_at(stamps_arr) if stamps_arr.size else np.zeros((0, 2)),
-            y=y,
-            x=self.truth_at(stamps_arr) if stamps_arr.size else np.zeros((0, 6)),
-            geometry=Geometry.from_parameters(self.model.parameters, self.model.n_base_stations),
-            meta=meta,
-            measurements=self.measurements,
-            inputs=self.inputs,
-            truth_t=self.truth_t,
-            truth_x=self.truth_x,
-        )
-
-
 class Simulator:
     """Simulate a car model with a sensor suite.
 
@@ -151,12 +62,26 @@ class Simulator:
         Rates and imperfections; ``SensorSuite().ideal()`` for noise-free sensors.
     seed : int
         Seed of every random draw.
+    onboard : OnboardSettings, optional
+        Run the car's onboard low-level loop (steering actuator, steering and velocity PIDs;
+        :mod:`sim.onboard`). Default ``None``: commands act on the model directly.
     """
 
-    def __init__(self, model: CarModel, sensors: SensorSuite | None = None, seed: int = 0):
+    def __init__(
+        self,
+        model: CarModel,
+        sensors: SensorSuite | None = None,
+        seed: int = 0,
+        onboard: OnboardSettings | None = None,
+    ):
+        if onboard is not None and not isinstance(onboard, OnboardSettings):
+            raise ValueError(f"onboard: must be an OnboardSettings or None, got {onboard!r}")
+        if onboard is not None and model.estimated_inputs:
+            raise ValueError("onboard: the input-free model takes no commands")
         self.model = model
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)
+        self.onboard = onboard
 
     def session(self, x0: np.ndarray, keep_history: bool = True) -> SimulationSession:
         """A running simulation from base state ``x0`` (6,) at t = 0, advanced step by step.
@@ -174,10 +99,12 @@ class Simulator:
         x0: np.ndarray,
         control_rate_hz: float = 50.0,
         progress: bool = False,
+        mode: str = "torque",
     ) -> SimulationResult:
         """Simulate ``duration`` s from base state ``x0`` (6,) under ``controller(t, x) -> u``.
 
-        ``u`` is ``[steer (rad), torque (-)]``, held between controller ticks and delayed by the
+        ``u`` is ``[steer (rad), torque (-)]`` (``mode="velocity"``, with the onboard loop:
+        ``[steer (rad), v_x (m/s)]``), held between controller ticks and delayed by the
         model's ``input_delay``; the controller is called with the true base state.
         """
         if not duration > 0:
@@ -186,7 +113,7 @@ class Simulator:
         with tqdm(total=duration, unit="sim s", disable=not progress, leave=False) as bar:
             for t in np.arange(0.0, duration, 1.0 / control_rate_hz):
                 session.advance(t)
-                session.command(controller(t, session.base_state))
+                session.command(controller(t, session.base_state), mode)
                 bar.n = t
                 bar.refresh()
             session.advance(duration)
@@ -257,6 +184,19 @@ class SimulationSession:
         self.truth_x: list[np.ndarray] = [self._x[:6].copy()]
         self.inputs: list[InputSample] = []
         self.measurements: list[Measurement] = []
+        self.applied_inputs: list[InputSample] = []
+        self.reference_modes: list[str] = []
+        #: The onboard loop (None unless the simulator has ``onboard`` settings).
+        self.onboard: OnboardLoop | None = None
+        if simulator.onboard is not None:
+            self.onboard = OnboardLoop(
+                simulator.onboard,
+                self._noise["wheel_encoders"],
+                self._bias["wheel_encoders"],
+                _rng(seed, "onboard/potentiometer"),
+                _rng(seed, "onboard/wheel_encoders"),
+            )
+            self._push(0.0, _TICK, None)
 
     @property
     def time(self) -> float:
@@ -270,23 +210,57 @@ class SimulationSession:
 
     @property
     def applied_command(self) -> np.ndarray:
-        """The command acting on the car now (after any input delay)."""
+        """The input acting on the car now (after any input delay; with the onboard loop, the
+        ``[delta, T]`` it applies)."""
         return self._u.copy()
 
     def _push(self, t: float, kind: int, payload: object) -> None:
         heapq.heappush(self._heap, (t, kind, self._counter, payload))
         self._counter += 1
 
-    def command(self, u: np.ndarray) -> InputSample:
-        """Issue command ``[steer, torque]`` now (validated); returns the logged sample."""
+    def command(self, u: np.ndarray, mode: str = "torque") -> InputSample:
+        """Issue command ``u`` now (validated); returns the logged sample.
+
+        ``mode="torque"``: ``u = [steer (rad), torque (-)]``; ``mode="velocity"`` (needs the
+        onboard loop): ``u = [steer (rad), v_x (m/s)]``, a reference for the velocity PID.
+        """
+        if mode not in MODES:
+            raise ValueError(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
+        if mode != "torque" and self.onboard is None:
+            raise ValueError(
+                f"mode: {mode!r} references need the onboard loop "
+                "(Simulator(..., onboard=OnboardSettings()))"
+            )
         sample = InputSample(self._now, np.asarray(u, dtype=float))
         if self.keep_history:
             self.inputs.append(sample)
+            if self.onboard is not None:
+                self.reference_modes.append(mode)
+        payload = sample.u if self.onboard is None else (sample.u, mode)
         if self._delay > 0:
-            self._push(self._now + self._delay, _APPLY, sample.u)
+            self._push(self._now + self._delay, _APPLY, payload)
         else:
-            self._u = sample.u
+            self._apply(payload)
         return sample
+
+    def _apply(self, payload: object) -> None:
+        """A command reaches the car (or, with the onboard loop, its controllers)."""
+        if self.onboard is None:
+            self._u = payload
+            return
+        self._u = self.onboard.set_reference(*payload)
+        self._log_applied()
+
+    def _tick(self) -> None:
+        """One step of the onboard loop at the current time; schedules the next one."""
+        wheels = self._numeric.outputs(self._x, self._u, self._p)["wheel_encoders"]
+        self._u = self.onboard.tick(self._now, wheels)
+        self._log_applied()
+        self._push(self.onboard.next_tick(), _TICK, None)
+
+    def _log_applied(self) -> None:
+        if self.keep_history:
+            self.applied_inputs.append(InputSample(self._now, self._u))
 
     def advance(self, t: float) -> list[Measurement]:
         """Run every event before ``t`` and integrate to ``t``; returns the new measurements."""
@@ -297,7 +271,9 @@ class SimulationSession:
             event_time, kind, _, payload = heapq.heappop(self._heap)
             self._integrate_to(event_time)
             if kind == _APPLY:
-                self._u = payload
+                self._apply(payload)
+            elif kind == _TICK:
+                self._tick()
             else:
                 measurement = self._acquire(payload)
                 self._push(self._clocks[payload].next(), _SENSOR, payload)
@@ -342,4 +318,9 @@ class SimulationSession:
             truth_x=np.array(self.truth_x),
             inputs=list(self.inputs),
             measurements=sorted(self.measurements, key=lambda m: (m.stamp, m.sensor)),
+            extra_meta=(
+                {"onboard": self.simulator.onboard.to_dict()} if self.onboard is not None else {}
+            ),
+            applied_inputs=list(self.applied_inputs),
+            reference_modes=list(self.reference_modes),
         )
