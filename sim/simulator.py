@@ -259,8 +259,12 @@ class SimulationSession:
         self._push(self.onboard.next_tick(), _TICK, None)
 
     def _log_applied(self) -> None:
-        if self.keep_history:
-            self.applied_inputs.append(InputSample(self._now, self._u))
+        """Log the applied input; one sample per stamp (a tick after an application wins)."""
+        if not self.keep_history:
+            return
+        if self.applied_inputs and self.applied_inputs[-1].stamp == self._now:
+            self.applied_inputs.pop()
+        self.applied_inputs.append(InputSample(self._now, self._u))
 
     def advance(self, t: float) -> list[Measurement]:
         """Run every event before ``t`` and integrate to ``t``; returns the new measurements."""
