@@ -146,8 +146,9 @@ class SimulationSession:
     """A simulation in progress: issue commands, advance time, collect measurements.
 
     Events between calls are handled in time order: application of (delayed) commands first,
-    then sensor acquisitions. A command takes effect at the time it is issued (plus the model's
-    input delay); a sensor sample at exactly that time already sees it.
+    then the onboard loop's ticks (if any), then sensor acquisitions. A command takes effect at
+    the time it is issued (plus the model's input delay); a sensor sample at exactly that time
+    already sees it.
     """
 
     def __init__(self, simulator: Simulator, x0: np.ndarray, keep_history: bool = True) -> None:
