@@ -171,6 +171,24 @@ def compile_functions(
     return {f.name(): CompiledFunction(f, library) for f in functions}
 
 
+def external_functions(
+    functions: Sequence[ca.Function], library_name: str, backend: str | None = None
+) -> dict[str, ca.Function]:
+    """CasADi functions that run the gcc-compiled code of ``functions`` (``casadi.external``),
+    to be embedded in a larger CasADi graph (such as one around a QP solver); without a
+    compiler (or with ``backend="vm"`` / ``CRS_CODEGEN=vm``) the functions themselves.
+    Outputs may be sparse. Keyed by function name."""
+    backend = (
+        backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
+    )
+    if backend == "vm":
+        return {f.name(): f for f in functions}
+    if backend != "compiled":
+        raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
+    path = _build_library(functions, library_name, ["-O2", "-fPIC", "-shared"])
+    return {f.name(): ca.external(f.name(), str(path)) for f in functions}
+
+
 def _build_library(functions: Sequence[ca.Function], library_name: str, flags: list[str]) -> Path:
     with tempfile.TemporaryDirectory() as scratch:
         generator = ca.CodeGenerator(

@@ -1,0 +1,313 @@
+"""Model predictive contouring control in real-time iterations (the CRS racing controller).
+
+:class:`Mpcc` turns a state estimate into the car input: per call one Gauss-Newton SQP iteration
+(real-time iteration) of the problem in :mod:`~crs_core.control.mpcc_problem`, warm-started from
+the previous plan shifted by one stage, its QP solved by HPIPM (:mod:`~crs_core.control.ocp_qp`).
+
+Fallback: a failed or non-finite solve serves the shifted previous plan's next input; after
+``max_failures`` of them in a row, or on an estimate that is stale or unusable, the car is
+stopped (straight wheels, braking torque until it stands). A command is never NaN.
+
+Conventions: state ``[x_p, y_p, psi, v_x, v_y, omega]`` (+ the model's effect states), input
+``[delta, T]`` (rad, normalised torque); with ``output="velocity"`` the command is
+``[delta, v_x]`` (rad, m/s) for cars that track speed on board.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, MpccProblem, MpccSettings
+from crs_core.control.reference_path import ReferencePath
+from crs_core.model import CarModel
+from crs_core.parameters import ParameterSet
+from crs_core.track import Track
+
+__all__ = ["Mpcc", "MpccStatus"]
+
+#: Outputs of the controller.
+OUTPUTS = ("torque", "velocity")
+
+
+@dataclass(frozen=True)
+class _Iterate:
+    """One SQP iteration's plan and how it went."""
+
+    Z: np.ndarray
+    V: np.ndarray
+    success: bool
+    violation: float
+    iterations: int
+    status: str
+
+
+@dataclass(frozen=True)
+class MpccStatus:
+    """What :class:`Mpcc` did at its last call.
+
+    Attributes
+    ----------
+    mode : str
+        ``"solved"`` (the plan's first input), ``"fallback"`` (the shifted previous plan after a
+        failed solve) or ``"stop"`` (safe stop).
+    solve_time_s : float
+        Wall time of the whole call, s (linearisation, QP, bookkeeping).
+    qp_iterations : int
+        Iterations of the QP solver (-1 when not solved).
+    progress : float
+        Arc length of the car's projection (laps unwrapped), m.
+    contouring_error : float
+        Signed distance of the car to the right of the reference path, m.
+    max_slack : float
+        Largest track-boundary slack of the plan, m (0: the plan keeps the margin).
+    failures : int
+        Failed solves in a row.
+    reason : str
+        Why the mode is not ``solved``.
+    """
+
+    mode: str
+    solve_time_s: float
+    qp_iterations: int
+    progress: float
+    contouring_error: float
+    max_slack: float
+    failures: int
+    reason: str = ""
+
+
+class Mpcc:
+    """MPCC on a track with the one car model.
+
+    Parameters
+    ----------
+    track : Track
+        The track to race on, in the direction of increasing arc length.
+    model : CarModel, optional
+        Prediction model (effects included); default the Chronos model.
+    settings : MpccSettings, optional
+        Horizon, rate, weights, limits.
+    parameters : ParameterSet, optional
+        Model parameter values; default the model's.
+    output : {"torque", "velocity"}
+        Command ``[delta, T]`` or ``[delta, v_x]``.
+    """
+
+    def __init__(
+        self,
+        track: Track,
+        model: CarModel | None = None,
+        settings: MpccSettings | None = None,
+        parameters: ParameterSet | None = None,
+        output: str = "torque",
+    ) -> None:
+        if output not in OUTPUTS:
+            raise ValueError(f"output: one of {OUTPUTS}, got {output!r}")
+        self.model = model or CarModel()
+        self.settings = settings or MpccSettings()
+        self.settings.validate()
+        self.output = output
+        self.path = ReferencePath(track)
+        self.problem = MpccProblem(self.model, self.settings)
+        self.p = (parameters or self.model.parameters).vector()
+        s = self.settings
+        self._rti = self.problem.real_time_iteration()
+        self._nxc = self.model.nx
+        self._v_lower = np.array([-s.steer_max, s.torque_min, 0.0, 0.0])
+        self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
+        self._half_width = self.path.half_width - s.track_margin
+        self._weights = s.weights()
+        self.reset()
+
+    # --- public --------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget the plan (the next call starts cold)."""
+        self._Z: np.ndarray | None = None
+        self._V: np.ndarray | None = None
+        self._failures = 0
+        self._command = np.zeros(2)
+        self._progress_speed = 0.0
+        self.status: MpccStatus | None = None
+
+    @property
+    def plan(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The current plan: stage states ``(N+1, nz)`` and inputs ``(N, nv)``, or None."""
+        if self._Z is None or self._V is None:
+            return None
+        return self._Z.copy(), self._V.copy()
+
+    def stop(self, x: ArrayLike | None = None, reason: str = "stop requested") -> np.ndarray:
+        """The safe-stop command for state ``x`` (straight wheels, brake until standing);
+        forgets the plan."""
+        vx = 0.0
+        if x is not None:
+            state = np.asarray(x, dtype=float).ravel()
+            if state.size > 3 and math.isfinite(state[3]):
+                vx = float(state[3])
+        s = self.settings
+        torque = min(max(-s.brake_gain * vx, s.torque_min), 0.0) if vx > 0.05 else 0.0
+        self.reset()
+        self.status = MpccStatus("stop", 0.0, -1, math.nan, math.nan, 0.0, 0, reason)
+        return self._out(np.array([0.0, torque]), None)
+
+    def __call__(self, x: ArrayLike) -> np.ndarray:
+        """The command for state ``x`` (the car's state now).
+
+        Parameters
+        ----------
+        x : array_like
+            ``[x_p, y_p, psi, v_x, v_y, omega]`` (m, rad, m/s, rad/s), optionally followed by
+            the model's effect states (else they are taken from the plan, or at rest).
+
+        Returns
+        -------
+        numpy.ndarray, shape (2,)
+            ``[delta, T]`` (or ``[delta, v_x]``), finite and within the limits.
+        """
+        started = time.perf_counter()
+        state = np.asarray(x, dtype=float).ravel()
+        if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
+            return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
+        z0 = self._initial_stage_state(state)
+        cold = self._Z is None
+        Z, V = self._guess(z0)
+        iterations, reason = 0, ""
+        for _ in range(self.settings.cold_start_iterations if cold else 1):
+            refs = self._references(Z[:, self._nxc])
+            try:
+                solution = self._solve_qp(Z, V, refs)
+            except (RuntimeError, ValueError) as error:  # a solver that raised has failed
+                reason = f"QP solver error: {error}"
+                break
+            if not solution.success:
+                reason = (
+                    f"QP not solved (status {solution.status}, constraint violation "
+                    f"{solution.violation:.3g})"
+                )
+                break
+            Z, V = solution.Z, solution.V
+            iterations += solution.iterations
+        if not reason:
+            return self._accept(Z, V, z0, refs, iterations, started)
+        if cold and iterations:  # some iterations of a cold start succeeded: use them
+            return self._accept(Z, V, z0, refs, iterations, started)
+        return self._fall_back(Z, V, z0, refs, started, reason)
+
+    # --- steps ---------------------------------------------------------------------------
+    def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
+        nxc = self._nxc
+        if state.size == nxc:
+            car = state
+        elif self._Z is not None:  # effect states from the plan
+            car = np.concatenate((state, self._Z[1, 6:nxc]))
+        else:
+            car = self.model.initial_state(state, self._command)
+        near = None if self._Z is None else float(self._Z[1, nxc])
+        theta = self.path.progress(car[0], car[1], near)
+        return np.concatenate((car, [theta], self._command, [self._progress_speed]))
+
+    def _guess(self, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The previous plan shifted by one stage, or a cold start: hold the last command
+        with progress at the car's speed."""
+        N, nxc = self.problem.N, self._nxc
+        dt = self.settings.dt
+        if self._Z is not None and self._V is not None:
+            V = np.vstack((self._V[1:], self._V[-1:]))
+            Z = np.vstack((self._Z[1:], self._Z[-1:]))
+            Z[-1] = np.asarray(self.problem.dynamics(Z[-2], V[-1], self.p)).ravel()
+            Z[0] = z0
+            return Z, V
+        speed = max(float(z0[3]), 0.5)
+        V = np.tile([0.0, 0.0, speed, 0.0], (N, 1))
+        V[:, :2] = self._command
+        Z = np.empty((N + 1, self.problem.nz))
+        Z[0] = z0
+        for k in range(N):
+            Z[k + 1] = np.asarray(self.problem.dynamics(Z[k], V[k], self.p)).ravel()
+            Z[k + 1, nxc] = z0[nxc] + (k + 1) * dt * speed
+        return Z, V
+
+    def _references(self, theta: np.ndarray) -> np.ndarray:
+        """Linearisation points ``[X, Y, heading, theta]`` of the path at the guessed progress."""
+        point = self.path.evaluate(theta)
+        return np.column_stack((point.x, point.y, point.heading, theta))
+
+    def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> _Iterate:
+        """One SQP iteration from the guess; the new plan and whether it is usable."""
+        rti = self._rti
+        guess = (Z.T, V.T, refs.T, Z[0], self._weights, self.p)
+        data = rti.data(*guess, self._v_lower, self._v_upper, self._half_width)
+        w_opt = rti.solver(**dict(zip(QP_ARGUMENTS, data, strict=True)))["x"]
+        violation = float(rti.violation(w_opt, *data[2:7]))
+        w = np.asarray(w_opt, dtype=float).ravel()
+        stats = rti.solver.stats()
+        N, nz, nv = self.problem.N, self.problem.nz, self.problem.nv
+        stages = w[: N * (nz + nv)].reshape(N, nz + nv)
+        return _Iterate(
+            np.vstack((stages[:, :nz], w[N * (nz + nv) :])),
+            stages[:, nz:],
+            bool(np.all(np.isfinite(w))) and violation <= self.settings.feasibility_tolerance,
+            violation,
+            int(stats.get("iter_count", -1)),
+            str(stats.get("return_status", "")),
+        )
+
+    def _accept(self, Z, V, z0, refs, iterations, started) -> np.ndarray:
+        s = self.settings
+        V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
+        V[:, 1] = np.clip(V[:, 1], s.torque_min, s.torque_max)
+        self._Z, self._V, self._failures = Z, V, 0
+        self._command = V[0, :2].copy()
+        self._progress_speed = float(V[0, 2])
+        contour = float(np.asarray(self.problem.contouring_error(z0, refs[0])).ravel()[0])
+        self.status = MpccStatus(
+            "solved",
+            time.perf_counter() - started,
+            iterations,
+            float(z0[self._nxc]),
+            contour,
+            float(np.max(V[:, 3])),
+            0,
+        )
+        return self._out(self._command, Z)
+
+    def _fall_back(self, Z, V, z0, refs, started, reason: str) -> np.ndarray:
+        self._failures += 1
+        if self._failures > self.settings.max_failures or self._Z is None:
+            command = self.stop(z0, f"{reason}; {self._failures} failed solves in a row")
+            self.status = MpccStatus(
+                "stop",
+                time.perf_counter() - started,
+                -1,
+                float(z0[self._nxc]),
+                math.nan,
+                0.0,
+                self._failures,
+                self.status.reason if self.status else reason,
+            )
+            return command
+        # the shifted previous plan: its guess is already shifted by one stage
+        self._Z, self._V = Z, V
+        self._command = V[0, :2].copy()
+        self.status = MpccStatus(
+            "fallback",
+            time.perf_counter() - started,
+            -1,
+            float(z0[self._nxc]),
+            math.nan,
+            float(np.max(V[:, 3])),
+            self._failures,
+            reason,
+        )
+        return self._out(self._command, Z)
+
+    def _out(self, command: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
+        if self.output == "torque":
+            return command.copy()
+        speed = 0.0 if Z is None else float(Z[1, 3])
+        return np.array([command[0], max(speed, 0.0)])
