@@ -122,6 +122,7 @@ class Mpcc:
         self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
         self._half_width = self.path.half_width - s.track_margin
         self._weights = s.weights()
+        self._velocity_stage = min(max(1, round(s.velocity_lead_s * s.rate_hz)), s.horizon)
         self.reset()
 
     # --- public --------------------------------------------------------------------------
@@ -133,6 +134,8 @@ class Mpcc:
         self._command = np.zeros(2)
         self._progress_speed = 0.0
         self.status: MpccStatus | None = None
+        #: The guess ``(Z, V, refs)`` the last call started from (for comparisons).
+        self.last_guess: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def plan(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -176,9 +179,12 @@ class Mpcc:
         z0 = self._initial_stage_state(state)
         cold = self._Z is None
         Z, V = self._guess(z0)
+        refs = self._references(Z[:, self._nxc])
+        self.last_guess = (Z.copy(), V.copy(), refs)
         iterations, reason = 0, ""
-        for _ in range(self.settings.cold_start_iterations if cold else 1):
-            refs = self._references(Z[:, self._nxc])
+        for iteration in range(self.settings.cold_start_iterations if cold else 1):
+            if iteration:
+                refs = self._references(Z[:, self._nxc])
             try:
                 solution = self._solve_qp(Z, V, refs)
             except (RuntimeError, ValueError) as error:  # a solver that raised has failed
@@ -309,5 +315,5 @@ class Mpcc:
     def _out(self, command: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
         if self.output == "torque":
             return command.copy()
-        speed = 0.0 if Z is None else float(Z[1, 3])
+        speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
         return np.array([command[0], max(speed, 0.0)])

@@ -109,6 +109,9 @@ class MpccSettings:
     feasibility_tolerance : float
         Largest constraint violation of a QP solution that is used (a solver stopped at its
         iteration limit with a feasible point counts: the next iteration continues from it).
+    velocity_lead_s : float
+        Velocity output: the reference is the plan's speed this far ahead, s (rounded to a
+        stage, at least one), ahead of the car's velocity loop's lag.
     """
 
     horizon: int = 40
@@ -136,6 +139,7 @@ class MpccSettings:
     qp_max_iter: int = 50
     cold_start_iterations: int = 10
     feasibility_tolerance: float = 1e-6
+    velocity_lead_s: float = 0.15
 
     def __post_init__(self) -> None:
         self.validate()

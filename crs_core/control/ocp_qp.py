@@ -98,7 +98,15 @@ def qp_solver(
     elif solver == "qrqp":
         options.update(max_iter=max_iter, print_iter=False, print_header=False, print_info=False)
     elif solver == "osqp":
-        options.update(osqp={"max_iter": 100 * max_iter, "verbose": False})
+        options.update(
+            osqp={
+                "max_iter": 100 * max_iter,
+                "verbose": False,
+                "eps_abs": 1e-8,
+                "eps_rel": 1e-8,
+                "polish": True,
+            }
+        )
     else:
         options.update(printLevel="none", nWSR=100 * max_iter)
     return ca.conic(name, solver, {"h": h, "a": a}, options)

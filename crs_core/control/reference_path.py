@@ -1,7 +1,8 @@
 r"""A smooth arc-length parametrisation of a closed track centreline, for contouring control.
 
-The track's centreline samples are joined by periodic cubic splines :math:`X(\theta)`,
-:math:`Y(\theta)` in the arc length :math:`\theta` (m) of the samples, so position, tangent angle
+The track's centreline samples are joined by periodic cubic splines, re-parametrised by their
+own arc length :math:`\theta` (m) into :math:`X(\theta)`, :math:`Y(\theta)` (unit speed to
+about 1e-4), so position, tangent angle
 :math:`\varphi(\theta)` and curvature :math:`\kappa(\theta)` are continuous (C² position) around
 the whole loop, including across the start line. :math:`\theta` may be any real number (laps
 unwrapped); it is reduced modulo the lap length for evaluation.
@@ -16,6 +17,9 @@ from scipy.interpolate import CubicSpline
 from crs_core.track import Track
 
 __all__ = ["PathPoint", "ReferencePath"]
+
+#: Points per track sample used to measure the spline's arc length.
+_DENSITY = 20
 
 
 class PathPoint:
@@ -54,7 +58,7 @@ class ReferencePath:
     Attributes
     ----------
     length : float
-        Lap length, m.
+        Lap length along the spline, m (within a fraction of a percent of the track's).
     half_width : float
         Half the drivable track width, m.
     """
@@ -63,11 +67,20 @@ class ReferencePath:
         if not isinstance(track, Track):
             raise TypeError(f"track: expected a Track, got {type(track).__name__}")
         self.track = track
-        self.length = float(track.length)
         self.half_width = 0.5 * float(track.width)
         s = np.append(track.arc_length, track.length)
-        self._x = CubicSpline(s, np.append(track.x, track.x[0]), bc_type="periodic")
-        self._y = CubicSpline(s, np.append(track.y, track.y[0]), bc_type="periodic")
+        through_x = CubicSpline(s, np.append(track.x, track.x[0]), bc_type="periodic")
+        through_y = CubicSpline(s, np.append(track.y, track.y[0]), bc_type="periodic")
+        # re-parametrise by the spline's own arc length (the samples' spacing is not exactly
+        # the curve's length between them): dense points, their cumulative length, splines again
+        u = np.linspace(0.0, track.length, _DENSITY * track.num_points + 1)
+        speed = np.hypot(through_x(u, 1), through_y(u, 1))
+        sigma = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u))))
+        self.length = float(sigma[-1])
+        self._x = CubicSpline(sigma, through_x(u), bc_type="periodic")
+        self._y = CubicSpline(sigma, through_y(u), bc_type="periodic")
+        # arc length on the spline of each track sample, to map the track's projection
+        self._sample_s, self._sample_sigma = s, np.interp(s, u, sigma)
 
     def evaluate(self, theta: ArrayLike) -> PathPoint:
         """Position, tangent angle and curvature at arc length(s) ``theta`` (m, any real).
@@ -97,8 +110,11 @@ class ReferencePath:
         With ``near`` (an unwrapped arc length, m) the result is the lap-unwrapped value closest
         to it, and the search is local to it; without, it lies in ``[0, length)``.
         """
-        hint = None if near is None else float(self.track.wrap_s(near))
-        s = float(self.track.project(x, y, s_hint=hint).s)
+        hint = None
+        if near is not None:
+            hint = float(np.interp(near % self.length, self._sample_sigma, self._sample_s))
+        projected = float(self.track.project(x, y, s_hint=hint).s)
+        s = float(np.interp(projected, self._sample_s, self._sample_sigma))
         if near is None:
             return s
         return s + self.length * round((near - s) / self.length)

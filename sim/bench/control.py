@@ -1,0 +1,237 @@
+"""``crs bench control``: MPCC solve time against an IPOPT peer, QP solvers, closed-loop racing.
+
+Measured in one run on this machine:
+
+- **Solve time** of the real-time-iteration MPCC (N = 40, 30 Hz; the whole call from Python:
+  guess, path linearisation, compiled linearisation, QP, checks), over a 5-lap race on the true
+  state, with its QP iterations and fallbacks; the **peer** (:class:`~sim.bench.control_peers.
+  IpoptMpcc`, the same problem solved to convergence by IPOPT) on every ``peer_every``-th tick of
+  the same race, from the same guess: the ratio of the medians.
+- **QP solvers**: the same race with each CasADi QP plugin (HPIPM, qpOASES, OSQP, qrqp).
+- **Closed loop**: 5 laps on the true state and with the MHE in the loop, each without and with
+  a 1.127 s Lighthouse blackout every lap; then the MHE races a car the model does not know
+  exactly (the onboard steering servo and a 20 ms input delay hidden in the truth), and the
+  velocity-reference output through the onboard loop.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from crs_core.control.mpcc import Mpcc
+from crs_core.control.mpcc_problem import MpccSettings
+from crs_core.estimation.factory import make_estimator
+from crs_core.model import CarModel
+from crs_core.track import Track, load_demo_track
+from sim.bench.control_peers import IpoptMpcc
+from sim.bench.machine import machine
+from sim.closed_loop import ClosedLoopResult, run_closed_loop
+from sim.onboard import OnboardSettings
+from sim.sensors import SensorSuite
+from sim.simulator import Simulator
+
+#: The paper's Lighthouse blackout in closed loop, s.
+BLACKOUT_S = 1.127
+#: Truth effects of the mismatched run: a radio / firmware delay the controller does not know.
+MISMATCH_EFFECTS = {"input_delay": 0.02}
+
+
+def _stats_ms(seconds: np.ndarray) -> dict[str, float]:
+    ms = np.asarray(seconds) * 1e3
+    return {
+        "median": round(float(np.median(ms)), 3),
+        "p95": round(float(np.percentile(ms, 95)), 3),
+        "p99": round(float(np.percentile(ms, 99)), 3),
+        "max": round(float(np.max(ms)), 3),
+        "calls": int(ms.size),
+    }
+
+
+def _race(
+    mpcc: Mpcc,
+    track: Track,
+    *,
+    estimator: str | None = None,
+    blackout: bool = False,
+    laps: int = 5,
+    seed: int = 1,
+    truth_effects: dict[str, float] | None = None,
+    onboard: bool = False,
+    command_mode: str = "torque",
+    after_call: Callable[[], None] | None = None,
+) -> tuple[ClosedLoopResult, np.ndarray]:
+    """A race; the result and the controller's own call times (s, without ``after_call``)."""
+    truth = CarModel(truth_effects or {})
+    simulator = Simulator(
+        truth, SensorSuite(), seed=seed, onboard=OnboardSettings() if onboard else None
+    )
+    mpcc.reset()
+    observer = make_estimator(estimator, "lh+imu+we", CarModel()) if estimator else None
+
+    times: list[float] = []
+
+    def control(t: float, x: np.ndarray) -> np.ndarray:
+        u = mpcc(x)
+        times.append(mpcc.status.solve_time_s)
+        if after_call is not None:
+            after_call()
+        return u
+
+    result = run_closed_loop(
+        simulator,
+        track,
+        control,
+        mpcc.stop,
+        mpcc.settings.rate_hz,
+        laps=laps,
+        max_duration=12.0 * laps,
+        estimator=observer,
+        blackout_s=BLACKOUT_S if blackout else 0.0,
+        status_of=lambda: mpcc.status.mode,
+        command_mode=command_mode,
+    )
+    return result, np.array(times)
+
+
+def _row(race: tuple[ClosedLoopResult, np.ndarray], **labels: Any) -> dict[str, Any]:
+    result, times = race
+    return {**labels, **result.summary(), "solve_ms": _stats_ms(times[1:])}
+
+
+def control_benchmark(
+    laps: int = 5, peer_every: int = 3, progress: Callable[[str], None] | None = None
+) -> dict[str, Any]:
+    """Run every measurement (about 3 min on 2 cores); JSON-ready."""
+    say = progress or (lambda _: None)
+    track = load_demo_track()
+    settings = MpccSettings()
+    mpcc = Mpcc(track, settings=settings)
+    peer = IpoptMpcc(mpcc.problem)
+    started = time.perf_counter()
+
+    # solve time and the peer, in one race on the true state
+    say("solve time and IPOPT peer (true state)")
+    iterations: list[int] = []
+    peer_times: list[float] = []
+    peer_iterations: list[int] = []
+    peer_converged: list[bool] = []
+    calls = [0]
+
+    def after_call() -> None:
+        status = mpcc.status
+        if status.mode == "solved":
+            iterations.append(status.qp_iterations)
+        calls[0] += 1
+        if calls[0] % peer_every or mpcc.last_guess is None:
+            return
+        Z, V, refs = mpcc.last_guess
+        begun = time.perf_counter()
+        _, _, ok, count = peer.solve(
+            Z,
+            V,
+            refs,
+            settings.weights(),
+            mpcc.p,
+            mpcc._v_lower,
+            mpcc._v_upper,
+            mpcc._half_width,
+        )
+        peer_times.append(time.perf_counter() - begun)
+        peer_iterations.append(count)
+        peer_converged.append(ok)
+
+    timed, times = _race(mpcc, track, laps=laps, after_call=after_call)
+    solve = _stats_ms(times[1:])  # the first call is the cold start (several iterations)
+    peer_solve = _stats_ms(np.array(peer_times))
+    modes = timed.summary()["controller_modes"]
+
+    say("QP solvers")
+    solvers = []
+    for name in ("hpipm", "qpoases", "osqp", "qrqp"):
+        variant = Mpcc(track, settings=MpccSettings(solver=name, qp_max_iter=200))
+        counts: list[int] = []
+
+        def count(v: Mpcc = variant, out: list[int] = counts) -> None:
+            if v.status.mode == "solved":
+                out.append(v.status.qp_iterations)
+
+        result, times = _race(variant, track, laps=2, after_call=count)
+        summary = result.summary()
+        solvers.append(
+            {
+                "solver": name,
+                "solve_ms": _stats_ms(times[1:]),
+                "qp_iterations_median": float(np.median(counts)) if counts else None,
+                "laps": summary["laps"],
+                "lap_times_s": summary["lap_times_s"],
+                "controller_modes": summary["controller_modes"],
+            }
+        )
+
+    closed_loop = []
+    for state in ("true", "mhe"):
+        for blackout in (False, True):
+            say(f"closed loop: {state} state, blackout {blackout}")
+            race = _race(
+                mpcc,
+                track,
+                estimator=None if state == "true" else "mhe",
+                blackout=blackout,
+                laps=laps,
+            )
+            closed_loop.append(_row(race, state=state, blackout=blackout, truth="nominal"))
+    say("closed loop: MHE, truth with onboard steering servo and a 20 ms input delay")
+    race = _race(
+        mpcc,
+        track,
+        estimator="mhe",
+        blackout=True,
+        laps=laps,
+        truth_effects=MISMATCH_EFFECTS,
+        onboard=True,
+    )
+    closed_loop.append(
+        _row(race, state="mhe", blackout=True, truth="onboard servo + 20 ms input delay")
+    )
+    say("closed loop: velocity references through the onboard loop")
+    velocity = Mpcc(track, settings=settings, output="velocity")
+    race = _race(velocity, track, laps=laps, onboard=True, command_mode="velocity")
+    closed_loop.append(
+        _row(race, state="true", blackout=False, truth="onboard loop, velocity references")
+    )
+
+    true_mean = closed_loop[0]["mean_lap_s"]
+    mhe_mean = closed_loop[2]["mean_lap_s"]
+    return {
+        "machine": machine(),
+        "settings": {
+            "horizon": settings.horizon,
+            "rate_hz": settings.rate_hz,
+            "solver": settings.solver,
+            "laps": laps,
+            "blackout_s": BLACKOUT_S,
+        },
+        "solve_ms": solve,
+        "qp_iterations": {
+            "median": float(np.median(iterations)),
+            "p95": float(np.percentile(iterations, 95)),
+            "max": int(np.max(iterations)),
+        },
+        "fallbacks": int(modes.get("fallback", 0)),
+        "stops": int(modes.get("stop", 0)),
+        "peer": {
+            "name": "ipopt (casadi nlpsol, exact Hessian, same problem and guess)",
+            "solve_ms": peer_solve,
+            "iterations_median": float(np.median(peer_iterations)),
+            "converged_fraction": round(float(np.mean(peer_converged)), 3),
+        },
+        "speedup_median": round(peer_solve["median"] / solve["median"], 1),
+        "qp_solvers": solvers,
+        "closed_loop": closed_loop,
+        "mhe_vs_true_lap_ratio": round(mhe_mean / true_mean, 4) if true_mean and mhe_mean else None,
+        "wall_time_s": round(time.perf_counter() - started, 1),
+    }

@@ -1,0 +1,243 @@
+"""MPCC: its linearisation, its QP's constraints, safe commands from bad starts, fallbacks."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from crs_core.control.mpcc import Mpcc
+from crs_core.control.mpcc_problem import QP_ARGUMENTS, MpccProblem, MpccSettings
+from crs_core.control.ocp_qp import SparseAssembly
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+
+
+@pytest.fixture(scope="module")
+def track():
+    return load_demo_track()
+
+
+@pytest.fixture(scope="module")
+def mpcc(track) -> Mpcc:
+    return Mpcc(track)
+
+
+def _start(track, speed: float = 1.0) -> np.ndarray:
+    return np.array([track.start_x, track.start_y, track.start_yaw, speed, 0.0, 0.0])
+
+
+def _within_limits(u: np.ndarray, settings: MpccSettings) -> bool:
+    return (
+        bool(np.all(np.isfinite(u)))
+        and abs(u[0]) <= settings.steer_max + 1e-9
+        and settings.torque_min - 1e-9 <= u[1] <= settings.torque_max + 1e-9
+    )
+
+
+# --- settings ---------------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("horizon", 0),
+        ("rate_hz", 0.0),
+        ("q_lag", math.nan),
+        ("steer_max", 2.0),
+        ("torque_max", -2.0),
+        ("solver", "gurobi"),
+        ("max_failures", 1.5),
+    ],
+)
+def test_bad_settings_name_the_field(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=field):
+        MpccSettings(**{field: value})
+
+
+# --- the problem ------------------------------------------------------------------------------
+def test_stage_dynamics_linearisation_matches_finite_differences() -> None:
+    problem = MpccProblem(CarModel(["steering_lag"]), MpccSettings(horizon=3))
+    p = problem.model.parameters.vector()
+    rng = np.random.default_rng(0)
+    z = np.concatenate(([0.3, -0.2, 0.4, 1.2, 0.05, 0.8, 0.1], rng.normal(0, 0.1, 4)))
+    v = np.array([0.15, 0.4, 1.1, 0.0])
+    stage = problem._stage_linearization()
+    A, B, c = (np.asarray(o) for o in stage(z, v, np.zeros(4), MpccSettings().weights(), p)[:3])
+    f = problem.dynamics
+
+    def step(zz, vv):
+        return np.asarray(f(zz, vv, p)).ravel()
+
+    eps = 1e-6
+    A_fd = np.column_stack(
+        [(step(z + eps * e, v) - step(z - eps * e, v)) / (2 * eps) for e in np.eye(z.size)]
+    )
+    B_fd = np.column_stack(
+        [(step(z, v + eps * e) - step(z, v - eps * e)) / (2 * eps) for e in np.eye(v.size)]
+    )
+    assert np.max(np.abs(A - A_fd)) < 1e-6
+    assert np.max(np.abs(B - B_fd)) < 1e-6
+    assert np.max(np.abs(A @ z + B @ v + c.ravel() - step(z, v))) < 1e-12
+    # the progress integrates the progress speed; the input memory holds the inputs
+    nxc = problem.nx_car
+    assert step(z, v)[nxc] == pytest.approx(z[nxc] + v[2] / 30.0)
+    assert step(z, v)[nxc + 1 :] == pytest.approx(v[:3])
+
+
+def test_contouring_and_lag_errors_are_distances_along_the_path_normal_and_tangent() -> None:
+    problem = MpccProblem(CarModel(), MpccSettings(horizon=2))
+    heading = 0.7
+    ref = np.array([1.0, 2.0, heading, 5.0])
+    tangent = np.array([math.cos(heading), math.sin(heading)])
+    left = np.array([-math.sin(heading), math.cos(heading)])
+    z = np.zeros(problem.nz)
+    z[:2] = ref[:2] + 0.03 * left + 0.2 * tangent
+    z[problem.nx_car] = 5.2
+    # e_c: distance to the right of the path
+    assert float(problem.contouring_error(z, ref)) == pytest.approx(-0.03)
+    cost_terms = problem._least_squares[0]
+    lag = ca.Function("lag", [problem.z_sym, problem.v_sym, problem.ref_sym], [cost_terms[1]])
+    assert float(lag(z, np.zeros(problem.nv), ref)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_qp_solution_satisfies_the_constraints_it_is_accepted_with(mpcc: Mpcc, track) -> None:
+    """Checked independently of the solver: the linearised dynamics, the input bounds and the
+    boundary rows, stage by stage, from the stage functions."""
+    mpcc.reset()
+    x = _start(track, 1.2)
+    mpcc(x)
+    for _ in range(3):
+        x = np.asarray(
+            mpcc.problem.dynamics(
+                np.concatenate((x, [0, 0, 0, 0])), np.r_[mpcc._command, 1.0, 0.0], mpcc.p
+            )
+        ).ravel()[:6]
+        mpcc(x)
+    Z, V, refs = mpcc.last_guess
+    solution = mpcc._solve_qp(Z, V, refs)
+    assert solution.success and solution.violation <= 1e-6
+    problem, s = mpcc.problem, mpcc.settings
+    stage = problem._stage_linearization()
+    for k in range(problem.N):
+        A, B, c, _, _, C, e0 = (
+            np.asarray(o) for o in stage(Z[k], V[k], refs[k], s.weights(), mpcc.p)
+        )
+        predicted = A @ solution.Z[k] + B @ solution.V[k] + c.ravel()
+        assert np.max(np.abs(predicted - solution.Z[k + 1])) < 1e-5
+        steer, torque, progress_speed, slack = solution.V[k]
+        assert abs(steer) <= s.steer_max + 1e-6
+        assert s.torque_min - 1e-6 <= torque <= s.torque_max + 1e-6
+        assert -1e-6 <= progress_speed <= s.progress_speed_max + 1e-6
+        assert slack >= -1e-6
+        if k >= 1:
+            contour = float(C.ravel() @ solution.Z[k] + e0.ravel()[0])
+            assert abs(contour) <= mpcc._half_width + slack + 1e-5
+    assert solution.Z[0] == pytest.approx(Z[0])
+
+
+def test_a_solution_that_breaks_its_constraints_is_not_accepted(mpcc: Mpcc, track) -> None:
+    mpcc.reset()
+    mpcc(_start(track))
+    Z, V, refs = mpcc.last_guess
+    data = mpcc._rti.data(
+        Z.T,
+        V.T,
+        refs.T,
+        Z[0],
+        mpcc._weights,
+        mpcc.p,
+        mpcc._v_lower,
+        mpcc._v_upper,
+        mpcc._half_width,
+    )
+    solved = mpcc._rti.solver(**dict(zip(QP_ARGUMENTS, data, strict=True)))["x"]
+    assert float(mpcc._rti.violation(solved, *data[2:7])) <= 1e-6
+    broken = np.asarray(solved).ravel().copy()
+    broken[mpcc.problem.nz] = 1.0  # stage 0's steering: 1 rad, beyond the 0.34 rad bound
+    # beyond the bound by 0.66 rad, and the dynamics rows break too
+    assert float(mpcc._rti.violation(broken, *data[2:7])) >= 1.0 - 0.34 - 1e-9
+
+
+def test_sparse_assembly_places_values_and_refuses_duplicates() -> None:
+    assembly = SparseAssembly((3, 4))
+    assembly.add(ca.DM([1.0, 2.0]), np.array([0, 2]), np.array([3, 0]))
+    assembly.add(ca.DM([5.0]), np.array([1]), np.array([1]))
+    dense = np.array(ca.DM(ca.evalf(assembly.build())))
+    expected = np.zeros((3, 4))
+    expected[0, 3], expected[2, 0], expected[1, 1] = 1.0, 2.0, 5.0
+    assert dense == pytest.approx(expected)
+    assembly.add(ca.DM([7.0]), np.array([0]), np.array([3]))
+    with pytest.raises(ValueError, match="same position"):
+        assembly.build()
+
+
+# --- commands from bad starts -----------------------------------------------------------------
+@pytest.mark.parametrize(
+    "case",
+    ["standstill", "off the track", "backwards", "sliding sideways", "far away"],
+)
+def test_an_infeasible_or_odd_start_gives_a_safe_finite_command(mpcc: Mpcc, track, case: str):
+    x = _start(track, 0.0)
+    if case == "off the track":
+        x[1] -= 0.6  # 0.6 m outside the right edge
+    elif case == "backwards":
+        x[2] += math.pi
+        x[3] = 0.5
+    elif case == "sliding sideways":
+        x[3:] = [1.5, 1.0, 6.0]
+    elif case == "far away":
+        x[:2] = [25.0, -40.0]
+    mpcc.reset()
+    for _ in range(5):
+        u = mpcc(x)
+        assert _within_limits(u, mpcc.settings), (case, u, mpcc.status)
+    assert mpcc.status.mode in ("solved", "fallback", "stop")
+
+
+def test_a_nan_state_stops_the_car(mpcc: Mpcc, track) -> None:
+    mpcc.reset()
+    mpcc(_start(track, 1.0))
+    x = _start(track, 1.0)
+    x[4] = math.nan
+    u = mpcc(x)
+    assert mpcc.status.mode == "stop" and "finite" in mpcc.status.reason
+    assert u == pytest.approx([0.0, 0.0])
+    braking = mpcc.stop(_start(track, 1.5))
+    assert braking[0] == 0.0 and braking[1] < 0.0
+
+
+def test_failed_solves_serve_the_shifted_plan_then_stop(track) -> None:
+    controller = Mpcc(track, settings=MpccSettings(max_failures=2))
+    x = _start(track, 1.0)
+    controller(x)
+    _, plan_V = controller.plan
+    real_solve = controller._solve_qp
+
+    def failing(Z, V, refs):
+        return dataclasses.replace(real_solve(Z, V, refs), success=False, status="test")
+
+    controller._solve_qp = failing  # type: ignore[method-assign]
+    u = controller(x)
+    assert controller.status.mode == "fallback"
+    assert u == pytest.approx(plan_V[1, :2])  # the previous plan's next input
+    controller(x)
+    assert controller.status.mode == "fallback" and controller.status.failures == 2
+    u = controller(x)
+    assert controller.status.mode == "stop" and "3 failed" in controller.status.reason
+    assert _within_limits(u, controller.settings)
+    controller._solve_qp = real_solve  # type: ignore[method-assign]
+    controller(x)
+    assert controller.status.mode == "solved"
+
+
+def test_velocity_output_gives_the_planned_speed(track) -> None:
+    controller = Mpcc(track, output="velocity")
+    u = controller(_start(track, 1.0))
+    Z, _ = controller.plan
+    assert u[0] == pytest.approx(controller._command[0])
+    assert u[1] == pytest.approx(Z[controller._velocity_stage, 3])
+    assert u[1] > 1.0  # it accelerates from 1 m/s on the start straight
+    with pytest.raises(ValueError, match="output"):
+        Mpcc(track, output="position")
