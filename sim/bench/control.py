@@ -235,3 +235,45 @@ def control_benchmark(
         "mhe_vs_true_lap_ratio": round(mhe_mean / true_mean, 4) if true_mean and mhe_mean else None,
         "wall_time_s": round(time.perf_counter() - started, 1),
     }
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """The benchmark's figures as the README's markdown tables."""
+    solve, peer = result["solve_ms"], result["peer"]
+    lines = [
+        "| controller | median ms | p95 ms | p99 ms | max ms | iterations (median) |",
+        "|---|---|---|---|---|---|",
+        f"| MPCC, real-time iteration + {result['settings']['solver']} | {solve['median']} | "
+        f"{solve['p95']} | {solve['p99']} | {solve['max']} | "
+        f"{result['qp_iterations']['median']:g} (QP) |",
+        f"| peer: {peer['name']} | {peer['solve_ms']['median']} | {peer['solve_ms']['p95']} | "
+        f"{peer['solve_ms']['p99']} | {peer['solve_ms']['max']} | "
+        f"{peer['iterations_median']:g} (NLP) |",
+        "",
+        f"speed-up (medians): {result['speedup_median']}x; fallbacks {result['fallbacks']}, "
+        f"stops {result['stops']}",
+        "",
+        "| QP solver | median ms | p99 ms | QP iterations | laps | lap times s | modes |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for row in result["qp_solvers"]:
+        lines.append(
+            f"| {row['solver']} | {row['solve_ms']['median']} | {row['solve_ms']['p99']} | "
+            f"{row['qp_iterations_median']} | {row['laps']} | "
+            f"{', '.join(f'{v:.2f}' for v in row['lap_times_s'])} | {row['controller_modes']} |"
+        )
+    lines += [
+        "",
+        "| state | blackout | truth | laps | mean lap s | boundary violations | max contouring "
+        "error m | closest to the edge m | solve median / p99 ms |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in result["closed_loop"]:
+        mean = "-" if row["mean_lap_s"] is None else f"{row['mean_lap_s']:.3f}"
+        lines.append(
+            f"| {row['state']} | {'1.127 s per lap' if row['blackout'] else 'no'} | "
+            f"{row['truth']} | {row['laps']} | {mean} | {row['boundary_violations']} | "
+            f"{row['max_contouring_error_m']} | {-row['max_outside_m']:.3f} | "
+            f"{row['solve_ms']['median']} / {row['solve_ms']['p99']} |"
+        )
+    return "\n".join(lines)
