@@ -307,6 +307,7 @@ def launch(args: argparse.Namespace) -> None:
         record=args.record,
         track_file=args.track,
         params_file=args.params,
+        controller=args.controller,
     )
     print(summary(report, Path(args.out)))
 
@@ -575,6 +576,12 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument(
         "--estimator", choices=["ekf", "mhe"], default="mhe", help="(default mhe, at 60 Hz)"
+    )
+    sub.add_argument(
+        "--controller",
+        choices=["mpcc", "path"],
+        default="mpcc",
+        help="mpcc: race (MPCC, 30 Hz; default); path: follow the centreline at 1 m/s (50 Hz)",
     )
     sub.add_argument(
         "--duration",

@@ -46,6 +46,7 @@ def stack_nodes(
     blind_start: bool = False,
     track_file: Path | None = None,
     params_file: Path | None = None,
+    controller: str = "mpcc",
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
@@ -53,7 +54,8 @@ def stack_nodes(
     start pose and initialise themselves from the Lighthouse (the car waits, its controller
     seeing no estimate, until they have). ``track_file`` (default DEMO_TRACK) and
     ``params_file`` (the car's parameters: the simulated truth and the model of the estimator
-    and the controller) go to every car's nodes.
+    and the controller) go to every car's nodes. ``controller``: ``mpcc`` (racing, 30 Hz) or
+    ``path`` (the centreline follower, 50 Hz).
     """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
@@ -84,7 +86,9 @@ def stack_nodes(
                 ns,
                 {"estimator": estimator, "blind_start": blind_start, **files},
             ),
-            NodeSpec("controller", "ros4crs.controller_node", ns, dict(files)),
+            NodeSpec(
+                "controller", "ros4crs.controller_node", ns, {"controller": controller, **files}
+            ),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
     nodes.append(
@@ -109,6 +113,7 @@ def run_stack(
     record: str = "all",
     track_file: Path | None = None,
     params_file: Path | None = None,
+    controller: str = "mpcc",
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -126,6 +131,7 @@ def run_stack(
         blind_start=blind_start,
         track_file=track_file,
         params_file=params_file,
+        controller=controller,
     )
     track = Track.from_yaml(track_file) if track_file else load_demo_track()
     launcher = Launcher(nodes, domain, out / "logs")

@@ -1,25 +1,30 @@
-"""Controller node: tracks a track (the DEMO_TRACK by default) with the ``crs_core`` path follower.
+"""Controller node: races a track (the DEMO_TRACK by default) with the ``crs_core`` MPCC, or
+follows its centreline with the path follower.
 
-Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz``. When the newest estimate
-is older than ``stale_timeout``, ``lost`` (or none arrived yet), it commands zero torque and
-straight wheels, so the car rolls to a stop, and says so once per episode; while it is
-``degraded`` the car drives at ``degraded_speed`` at most. With ``predict`` (default) the
-estimate, tens of ms old when it arrives, is carried forward to the time the command acts with
-the model and the last command. The MPCC replaces the path
-follower through this same node later.
+Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz`` (default 30 Hz for the
+MPCC, the paper's, 50 Hz for the path follower). When the newest estimate is older than
+``stale_timeout``, ``lost`` (or none arrived yet), it commands zero torque and straight wheels,
+so the car rolls to a stop, and says so once per episode; while it is ``degraded`` the car
+drives at ``degraded_speed`` at most. With ``predict`` (default) the estimate, tens of ms old
+when it arrives, is carried forward to the time the command acts with the model and the last
+command. A controller that raises is answered by a stop command and a throttled error; the node
+keeps running.
 
-Parameters: ``rate_hz``, ``v_ref`` (m/s), ``stale_timeout`` (s), ``degraded_speed`` (m/s),
-``predict``, ``track_file`` (CRS track YAML; default DEMO_TRACK), ``params_file`` (model
-parameter YAML: the wheelbase and the prediction).
+Parameters: ``controller`` (``mpcc`` | ``path``), ``rate_hz``, ``v_ref`` (m/s, path follower),
+``stale_timeout`` (s), ``degraded_speed`` (m/s), ``predict``, ``track_file`` (CRS track YAML;
+default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction model).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 
 import numpy as np
 from rclpy.node import Node
 
+from crs_core.control.mpcc import Mpcc
+from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
@@ -33,15 +38,23 @@ from ros4crs.node_support import (
 )
 
 STOP = np.array([0.0, 0.0])
+#: Controllers the node runs.
+CONTROLLERS = ("mpcc", "path")
+
+
+def _controller_kind(value: str) -> str | None:
+    return None if value in CONTROLLERS else f"must be one of {', '.join(CONTROLLERS)}"
 
 
 class ControllerNode(Node):
-    """Path following on the latest estimate, safe stop when it goes stale."""
+    """MPCC (or path following) on the latest estimate, safe stop when it goes stale."""
 
     def __init__(self) -> None:
         super().__init__("controller")
-        rate_hz = declare(self, "rate_hz", 50.0, "control rate, Hz", positive)
-        v_ref = declare(self, "v_ref", 1.0, "reference speed, m/s", positive)
+        kind = declare(self, "controller", "mpcc", "mpcc or path", _controller_kind)
+        default_rate = 30.0 if kind == "mpcc" else 50.0
+        rate_hz = declare(self, "rate_hz", default_rate, "control rate, Hz", positive)
+        v_ref = declare(self, "v_ref", 1.0, "path follower: reference speed, m/s", positive)
         self.stale_timeout = declare(
             self, "stale_timeout", 0.2, "stop when the estimate is this old, s", positive
         )
@@ -50,16 +63,20 @@ class ControllerNode(Node):
         )
         model = declare_model(self)
         parameters = model.parameters
-        wheelbase = parameters.value("lf") + parameters.value("lr")
         self.predict = declare(
             self, "predict", True, "predict the estimate forward to now with the last command"
         )
+        track = declare_track(self)
         self._numeric = model.numeric if self.predict else None
         self._p = parameters.vector()
         self._u = STOP
-        self.follower = PathFollower(
-            declare_track(self), wheelbase, PathFollowerSettings(v_ref=v_ref)
-        )
+        self.mpcc: Mpcc | None = None
+        self.follower: PathFollower | None = None
+        if kind == "mpcc":
+            self.mpcc = Mpcc(track, model, MpccSettings(rate_hz=rate_hz))
+        else:
+            wheelbase = parameters.value("lf") + parameters.value("lr")
+            self.follower = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=v_ref))
         from chronos_msgs.msg import CarInput, CarState
 
         self._input_publisher = self.create_publisher(
@@ -77,6 +94,7 @@ class ControllerNode(Node):
         self._stale = True
         self._degraded = False
         self.stops = 0
+        self.solve_times: list[float] = []
         self.create_timer(1.0 / rate_hz, self._control)
 
     def _on_state(self, value: tuple[float, np.ndarray, str]) -> None:
@@ -95,11 +113,11 @@ class ControllerNode(Node):
                 self.stops += 1
                 self.get_logger().warning("state estimate is stale: stopping the car")
             self._stale = True
-            u = STOP
+            u = self._stop()
         else:
             if self._stale:
                 self.get_logger().info("state estimate is fresh: driving")
-                self.follower.reset()
+                self._reset()
             self._stale = False
             degraded = self._latest[2] == "degraded"
             if degraded != self._degraded:
@@ -109,9 +127,46 @@ class ControllerNode(Node):
                     else "state estimate ok again: full speed"
                 )
                 self._degraded = degraded
-            u = self.follower(now, self._predicted(now), self.degraded_speed if degraded else None)
+            u = self._command(now, self._predicted(now), self.degraded_speed if degraded else None)
         self._u = u
         self._input_publisher.publish(conversions.car_input_msg(u, now))
+
+    def _command(self, now: float, x: np.ndarray, speed_limit: float | None) -> np.ndarray:
+        started = time.perf_counter()
+        try:
+            if self.mpcc is not None:
+                u = self.mpcc(x, speed_limit)
+                if self.mpcc.status.mode != "solved":
+                    self.get_logger().warning(
+                        f"MPCC {self.mpcc.status.mode}: {self.mpcc.status.reason}",
+                        throttle_duration_sec=1.0,
+                    )
+            else:
+                u = self.follower(now, x, speed_limit)
+        except (ValueError, RuntimeError) as error:
+            self.get_logger().error(f"controller failed: {error}", throttle_duration_sec=1.0)
+            return self._stop()
+        self.solve_times.append(time.perf_counter() - started)
+        if len(self.solve_times) % 900 == 0:  # every 30 s at 30 Hz
+            ms = 1e3 * np.array(self.solve_times[-900:])
+            self.get_logger().info(
+                f"controller call: median {np.median(ms):.2f} ms, "
+                f"p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms"
+            )
+        return u
+
+    def _stop(self) -> np.ndarray:
+        """Zero torque and straight wheels: without a fresh estimate the car's speed is not
+        known, so it rolls to a stop rather than being braked (which could reverse it)."""
+        if self.mpcc is not None:
+            self.mpcc.stop(None, "state estimate stale or lost")
+        return STOP
+
+    def _reset(self) -> None:
+        if self.mpcc is not None:
+            self.mpcc.reset()
+        else:
+            self.follower.reset()
 
     def _predicted(self, now: float) -> np.ndarray:
         """The newest estimate carried forward to ``now``, when the command will act, with the

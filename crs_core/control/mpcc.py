@@ -158,7 +158,7 @@ class Mpcc:
         self.status = MpccStatus("stop", 0.0, -1, math.nan, math.nan, 0.0, 0, reason)
         return self._out(np.array([0.0, torque]), None)
 
-    def __call__(self, x: ArrayLike) -> np.ndarray:
+    def __call__(self, x: ArrayLike, speed_limit: float | None = None) -> np.ndarray:
         """The command for state ``x`` (the car's state now).
 
         Parameters
@@ -166,6 +166,9 @@ class Mpcc:
         x : array_like
             ``[x_p, y_p, psi, v_x, v_y, omega]`` (m, rad, m/s, rad/s), optionally followed by
             the model's effect states (else they are taken from the plan, or at rest).
+        speed_limit : float, optional
+            A lower bound than ``progress_speed_max`` on the progress speed for this call, m/s
+            (e.g. while the state estimate is degraded).
 
         Returns
         -------
@@ -176,6 +179,9 @@ class Mpcc:
         state = np.asarray(x, dtype=float).ravel()
         if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
             return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
+        self._v_upper[2] = self.settings.progress_speed_max
+        if speed_limit is not None and math.isfinite(speed_limit):
+            self._v_upper[2] = min(max(float(speed_limit), 0.0), self._v_upper[2])
         z0 = self._initial_stage_state(state)
         cold = self._Z is None
         Z, V = self._guess(z0)
