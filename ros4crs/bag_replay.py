@@ -48,6 +48,9 @@ class BagContents:
     updates: int = 0
     reinitializations: int = 0
     queries: list[Query] = field(default_factory=list)
+    #: Velocity-mode commands on ``input``: not in ``inputs`` (they carry no torque; the
+    #: estimator node ignores them too, so a replay sees what the node saw).
+    velocity_references: int = 0
 
 
 def read_car(bag: str | Path, namespace: str = "") -> BagContents:
@@ -59,7 +62,7 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
-    malformed = 0
+    malformed = velocity_references = 0
     diagnostics = None
     with open_bag(bag) as reader:
         wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
@@ -73,7 +76,11 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
                 if family in conversions.SENSOR_PARSERS:
                     measurements.append(conversions.SENSOR_PARSERS[family](msg))
                 elif family == "input":
-                    inputs.append(InputSample(*conversions.input_from_msg(msg)))
+                    command = conversions.input_from_msg(msg)
+                    if command.mode == "torque":
+                        inputs.append(command.input_sample())
+                    else:  # a velocity reference is no model input (as in the estimator node)
+                        velocity_references += 1
                 elif family == "state":
                     estimates.append(conversions.state_from_msg(msg))
                 elif family == "ground_truth":
@@ -86,7 +93,15 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
                 malformed += 1
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
     inputs.sort(key=lambda s: s.stamp)
-    contents = BagContents(measurements, inputs, estimates, truth, malformed, queries=queries)
+    contents = BagContents(
+        measurements,
+        inputs,
+        estimates,
+        truth,
+        malformed,
+        queries=queries,
+        velocity_references=velocity_references,
+    )
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)
         contents.updates = int(diagnostics.updates)

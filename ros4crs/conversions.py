@@ -15,7 +15,7 @@ sensors/gyro          sensor_msgs/Imu                  yaw rate only (accel cova
 sensors/wheel_speeds  chronos_msgs/WheelSpeeds         rad/s
 sensors/lighthouse    chronos_msgs/LighthouseSweep     one plane of one base station
 sensors/pose          geometry_msgs/PoseStamped        motion capture
-input                 chronos_msgs/CarInput            steer (rad), torque (-)
+input                 chronos_msgs/CarInput            steer (rad), torque (-) or v_x (m/s)
 ground_truth          chronos_msgs/CarState            simulator truth
 estimate/state        chronos_msgs/CarState            estimate with covariance
 estimate/odometry     nav_msgs/Odometry                the same for any ROS tool
@@ -32,12 +32,17 @@ one ROS graph share one TF tree.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from crs_core.estimation.base import Estimate
-from crs_core.measurements import Measurement, lighthouse_sensor, parse_lighthouse
+from crs_core.measurements import (
+    InputSample,
+    Measurement,
+    lighthouse_sensor,
+    parse_lighthouse,
+)
 
 TOPICS = {
     "imu": "sensors/imu",
@@ -173,25 +178,81 @@ def pose_from_msg(msg: Any) -> Measurement:
 
 
 # --- inputs and states -----------------------------------------------------------------------
-def car_input_msg(u: np.ndarray, seconds: float) -> Any:
-    """``chronos_msgs/CarInput`` in torque mode from ``u = [steer, torque]``."""
+#: ``CarInput.mode`` of each command mode: ``torque`` (``[steer, torque]`` drives the motor
+#: directly) and ``velocity`` (``[steer, v_x]``, a reference for the car's onboard velocity PID).
+INPUT_MODES = {"torque": 0, "velocity": 1}
+#: Largest velocity reference (either direction) the boundary accepts, m/s (a 1:28 car races at
+#: up to ~3 m/s).
+VELOCITY_LIMIT = 5.0
+
+
+class CarCommand(NamedTuple):
+    """A validated ``chronos_msgs/CarInput``: its stamp (s), ``u`` and the mode.
+
+    ``u`` is ``[steer (rad), torque (-)]`` in ``torque`` mode and ``[steer (rad), v_x (m/s)]``
+    in ``velocity`` mode; only a torque-mode command is an input of the car model
+    (:meth:`input_sample`).
+    """
+
+    stamp: float
+    u: np.ndarray
+    mode: str = "torque"
+
+    def input_sample(self) -> InputSample:
+        """The model input ``[steer, torque]`` (torque mode only; else ``ValueError``)."""
+        if self.mode != "torque":
+            raise ValueError(f"mode: a {self.mode!r} command carries no torque")
+        return InputSample(self.stamp, self.u)
+
+
+def car_input_msg(u: np.ndarray, seconds: float, mode: str = "torque") -> Any:
+    """``chronos_msgs/CarInput`` from ``u``: ``[steer, torque]`` (``mode="torque"``) or
+    ``[steer, v_x]`` (``mode="velocity"``: ``velocity`` = ``u[1]``, ``torque`` 0). The values
+    are written as given (the receiver validates them)."""
     from chronos_msgs.msg import CarInput
 
+    if mode not in INPUT_MODES:
+        raise ValueError(f"mode: must be one of {', '.join(INPUT_MODES)}, got {mode!r}")
     msg = CarInput()
-    msg.mode = CarInput.MODE_TORQUE
-    msg.steer, msg.torque = float(u[0]), float(u[1])
+    msg.mode = INPUT_MODES[mode]
+    msg.steer = float(u[0])
+    if mode == "torque":
+        msg.torque = float(u[1])
+    else:
+        msg.torque, msg.velocity = 0.0, float(u[1])
     fill_stamp(msg.header.stamp, seconds)
     return msg
 
 
-def input_from_msg(msg: Any) -> tuple[float, np.ndarray]:
-    """``chronos_msgs/CarInput`` (torque mode) -> (stamp, ``[steer, torque]``)."""
-    if msg.mode != 0:
-        raise ValueError(f"mode: only MODE_TORQUE (0) drives the model, got {msg.mode}")
-    u = _finite("steer/torque", [msg.steer, msg.torque], 2)
-    if abs(u[1]) > 1.0:
-        raise ValueError(f"torque: must be within [-1, 1], got {u[1]}")
-    return seconds_from_stamp(msg.header.stamp), u
+def input_from_msg(msg: Any) -> CarCommand:
+    """``chronos_msgs/CarInput`` -> :class:`CarCommand` (stamp, ``u``, mode).
+
+    Torque mode: ``u = [steer, torque]``, the torque finite and within [-1, 1] (the velocity
+    field is ignored). Velocity mode: ``u = [steer, velocity]``, the velocity finite and within
+    ±:data:`VELOCITY_LIMIT` m/s (the torque field is ignored).
+    """
+    modes = {code: name for name, code in INPUT_MODES.items()}
+    if msg.mode not in modes:
+        raise ValueError(
+            f"mode: must be {INPUT_MODES['torque']} (MODE_TORQUE) or "
+            f"{INPUT_MODES['velocity']} (MODE_VELOCITY), got {msg.mode}"
+        )
+    mode = modes[msg.mode]
+    steer = _finite("steer", [msg.steer], 1)[0]
+    if mode == "torque":
+        torque = _finite("torque", [msg.torque], 1)[0]
+        if abs(torque) > 1.0:
+            raise ValueError(f"torque: must be within [-1, 1], got {torque}")
+        second = torque
+    else:
+        velocity = _finite("velocity", [msg.velocity], 1)[0]
+        if abs(velocity) > VELOCITY_LIMIT:
+            raise ValueError(
+                f"velocity: must be within [-{VELOCITY_LIMIT:g}, {VELOCITY_LIMIT:g}] m/s, "
+                f"got {velocity}"
+            )
+        second = velocity
+    return CarCommand(seconds_from_stamp(msg.header.stamp), np.array([steer, second]), mode)
 
 
 #: ``CarState.status`` of each estimate status.

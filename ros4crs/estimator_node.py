@@ -15,6 +15,16 @@ nothing is published on ``estimate/state``, ``estimate/odometry`` and ``/tf``: a
 stale estimate and stops the car; the diagnostics say why. A clock that jumps back (a looped
 bag replay with ``/clock``) restarts the estimator on the data that follow, with a warning.
 
+Velocity-mode inputs: only torque-mode commands are inputs of the model: a velocity-mode command
+(``CarInput.MODE_VELOCITY``, a reference for the car's onboard velocity PID) says nothing about the
+torque the car applies, so it is ignored (counted in ``velocity_references``, logged once); with
+``inputs`` auto (the default) the estimator then keeps estimating the inputs from the sensors (the
+input-free model), as without commands. It is not logged in ``estimate/query`` either, so a bag
+replays the same way (:func:`ros4crs.bag_replay.read_car` leaves such commands out too). An
+estimator that has switched to the commanded model (a torque-mode command came first) stays on it
+and holds the last torque command if the car switches to velocity mode later: restart it for such a
+run.
+
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
 ``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
 (model parameter YAML, optional), ``track_file`` (CRS track YAML; default DEMO_TRACK),
@@ -80,6 +90,7 @@ class EstimatorNode(Node):
         inputs = declare(
             self, "inputs", "auto", "auto, commanded or estimated", one_of(*INPUT_MODES)
         )
+        self.inputs = inputs
         self.blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
         if self.blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
             raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
@@ -135,6 +146,8 @@ class EstimatorNode(Node):
         )
         self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
         self.received: dict[str, int] = {}
+        #: Velocity-mode commands received (ignored: they carry no torque).
+        self.velocity_references = 0
         self._newest: dict[str, float] = {}  # per input topic, the newest stamp received
         self.deadline_misses = 0
         self.updates = 0
@@ -167,10 +180,22 @@ class EstimatorNode(Node):
             )
         )
 
-    def _on_input(self, value: tuple[float, np.ndarray]) -> None:
+    def _on_input(self, command: conversions.CarCommand) -> None:
+        if command.mode != "torque":  # a velocity reference: the torque is the car's secret
+            self.velocity_references += 1
+            if self.velocity_references == 1:
+                self.get_logger().info(
+                    f"input: {command.mode}-mode commands carry no torque: ignored"
+                    + (
+                        " (the inputs are estimated from the sensors)"
+                        if self.inputs != "commanded"
+                        else "; with inputs=commanded the model sees no command (use auto)"
+                    )
+                )
+            return
         topic = conversions.TOPICS["input"]
-        self._newest[topic] = max(self._newest.get(topic, -np.inf), value[0])
-        self._deliver(InputSample(*value))
+        self._newest[topic] = max(self._newest.get(topic, -np.inf), command.stamp)
+        self._deliver(command.input_sample())
 
     @property
     def malformed(self) -> int:
