@@ -10,9 +10,15 @@ when it arrives, is carried forward to the time the command acts with the model 
 command. A controller that raises is answered by a stop command and a throttled error; the node
 keeps running.
 
-Parameters: ``controller`` (``mpcc`` | ``path``), ``rate_hz``, ``v_ref`` (m/s, path follower),
-``stale_timeout`` (s), ``degraded_speed`` (m/s), ``predict``, ``track_file`` (CRS track YAML;
-default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction model).
+With ``output`` velocity (MPCC only) it publishes ``MODE_VELOCITY`` commands ``[delta, v_x]`` for
+a car that tracks its speed on board (the MPCC's planned speed a short lead ahead; the simulator
+needs ``onboard:=true``); the prediction then uses the torque of the MPCC's plan, and a stop is a
+zero velocity reference.
+
+Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
+latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
+``degraded_speed`` (m/s), ``predict``, ``track_file`` (CRS track YAML; default DEMO_TRACK),
+``params_file`` (model parameter YAML: the prediction model).
 """
 
 from __future__ import annotations
@@ -23,16 +29,18 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
-from crs_core.control.mpcc import Mpcc
+from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
     CheckedSubscription,
+    ParameterError,
     declare,
     declare_model,
     declare_track,
+    one_of,
     positive,
     run,
 )
@@ -52,6 +60,14 @@ class ControllerNode(Node):
     def __init__(self) -> None:
         super().__init__("controller")
         kind = declare(self, "controller", "mpcc", "mpcc or path", _controller_kind)
+        self.output = declare(
+            self, "output", "torque", "command torque or velocity (MPCC)", one_of(*OUTPUTS)
+        )
+        if self.output == "velocity" and kind != "mpcc":
+            raise ParameterError(
+                f"output: velocity needs controller:=mpcc (the {kind} controller commands "
+                "torque), got 'velocity'"
+            )
         default_rate = 30.0 if kind == "mpcc" else 50.0
         rate_hz = declare(self, "rate_hz", default_rate, "control rate, Hz", positive)
         v_ref = declare(self, "v_ref", 1.0, "path follower: reference speed, m/s", positive)
@@ -73,7 +89,7 @@ class ControllerNode(Node):
         self.mpcc: Mpcc | None = None
         self.follower: PathFollower | None = None
         if kind == "mpcc":
-            self.mpcc = Mpcc(track, model, MpccSettings(rate_hz=rate_hz))
+            self.mpcc = Mpcc(track, model, MpccSettings(rate_hz=rate_hz), output=self.output)
         else:
             wheelbase = parameters.value("lf") + parameters.value("lr")
             self.follower = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=v_ref))
@@ -128,8 +144,8 @@ class ControllerNode(Node):
                 )
                 self._degraded = degraded
             u = self._command(now, self._predicted(now), self.degraded_speed if degraded else None)
-        self._u = u
-        self._input_publisher.publish(conversions.car_input_msg(u, now))
+        self._u = self._model_input(u)
+        self._input_publisher.publish(conversions.car_input_msg(u, now, self.output))
 
     def _command(self, now: float, x: np.ndarray, speed_limit: float | None) -> np.ndarray:
         started = time.perf_counter()
@@ -155,9 +171,20 @@ class ControllerNode(Node):
             )
         return u
 
+    def _model_input(self, u: np.ndarray) -> np.ndarray:
+        """The model input ``[delta, T]`` of command ``u`` (for the prediction): ``u`` itself
+        in torque mode; for a velocity reference the first input of the MPCC's plan (the torque
+        it expects the car's velocity PID to apply), zero torque without a plan."""
+        if self.output == "torque":
+            return u
+        plan = self.mpcc.plan if self.mpcc is not None else None
+        return plan[1][0, :2].copy() if plan is not None else np.array([u[0], 0.0])
+
     def _stop(self) -> np.ndarray:
         """Zero torque and straight wheels: without a fresh estimate the car's speed is not
-        known, so it rolls to a stop rather than being braked (which could reverse it)."""
+        known, so it rolls to a stop rather than being braked (which could reverse it). With
+        ``output`` velocity: straight wheels and a zero velocity reference (the car's velocity
+        PID brakes it to a stand, on its own wheel speeds)."""
         if self.mpcc is not None:
             self.mpcc.stop(None, "state estimate stale or lost")
         return STOP

@@ -1,17 +1,22 @@
 """Simulator node: the ``sim`` engine in real time (or faster, publishing ``/clock``).
 
 Publishes every sensor at its own rate with its own stamp (``sensors/*``), the ground truth
-(``ground_truth``), and applies each ``input`` command when it arrives. Stamps are
-``epoch + simulation time`` with ``epoch`` the wall time at start, so at ``rate_factor`` 1 they
-are wall-clock times; at any other factor the node publishes ``/clock`` and the other nodes run
-with ``use_sim_time``.
+(``ground_truth``), and applies each ``input`` command when it arrives. With ``onboard`` the car's
+250 Hz onboard loop runs in the simulation (:mod:`sim.onboard`, as on the real car): a command is
+then a reference for its steering PID and either a torque (``MODE_TORQUE``) or a velocity reference
+for its velocity PID (``MODE_VELOCITY``). Without it the commands act on the model directly, and a
+``MODE_VELOCITY`` command is dropped with a (throttled) warning naming ``mode``. Stamps are
+``epoch + simulation time`` with ``epoch`` the wall time at start, so at ``rate_factor`` 1 they are
+wall-clock times; at any other factor the node publishes ``/clock`` and the other nodes run with
+``use_sim_time``.
 
 Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
 ("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
 ``initial_state`` (6 floats; default the track's start), ``track_file`` (CRS track YAML; default
 DEMO_TRACK), ``params_file`` (parameter YAML of the simulated car), ``duration`` (s, 0 = forever),
 ``wait_for_subscribers`` (simulated time starts once every sensor topic has this many
-subscribers, so a launched stack misses nothing at the start; 0 = start at once).
+subscribers, so a launched stack misses nothing at the start; 0 = start at once), ``onboard``
+(bool, default false: run the onboard loop; with ``noise_free`` its potentiometer is ideal).
 """
 
 from __future__ import annotations
@@ -37,7 +42,9 @@ from ros4crs.node_support import (
     parsed_with,
     positive,
     run,
+    throttled_warning,
 )
+from sim.onboard import OnboardSettings
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
 
@@ -95,11 +102,21 @@ class SimulatorNode(Node):
             in_range(0, 100),
         )
         self._waiting = self.wait_for_subscribers > 0
+        self.onboard = declare(
+            self, "onboard", False, "run the car's 250 Hz onboard loop (steering and velocity PIDs)"
+        )
         sensors = SensorSuite(blackouts=blackouts)
         model = declare_model(self, effects, n_base_stations=stations)
-        self.session = Simulator(model, sensors.ideal() if noise_free else sensors, seed).session(
-            np.asarray(initial, dtype=float), keep_history=False
+        onboard = OnboardSettings() if self.onboard else None
+        if onboard is not None and noise_free:
+            onboard = onboard.ideal()
+        simulator = Simulator(
+            model, sensors.ideal() if noise_free else sensors, seed, onboard=onboard
         )
+        self.session = simulator.session(np.asarray(initial, dtype=float), keep_history=False)
+        self._warn_mode = throttled_warning(self)
+        #: Commands refused for their mode (velocity references without the onboard loop).
+        self.refused_commands = 0
         self.epoch = time.time()
         self._wall_start = time.monotonic()
         self._sensor_publishers = {
@@ -129,6 +146,7 @@ class SimulatorNode(Node):
         self.get_logger().info(
             f"simulating {model!r}, seed {seed}, rate x{self.rate_factor:g}, "
             f"{'ideal' if noise_free else 'noisy'} sensors"
+            + (", onboard loop (torque and velocity commands)" if self.onboard else "")
         )
 
     def _tick(self) -> None:
@@ -163,8 +181,19 @@ class SimulatorNode(Node):
             self._next_truth = t + self._truth_period
             self._truth.publish(conversions.car_state_msg(self.session.base_state, self.epoch + t))
 
-    def _on_input(self, value: tuple[float, np.ndarray]) -> None:
-        self.session.command(value[1])
+    def _on_input(self, command: conversions.CarCommand) -> None:
+        if command.mode != "torque" and self.session.onboard is None:
+            self.refused_commands += 1
+            self._warn_mode(
+                f"dropped input on {conversions.TOPICS['input']}: mode: {command.mode!r} commands "
+                f"need the onboard loop (parameter onboard:=true) ({self.refused_commands} so far)"
+            )
+            return
+        try:
+            self.session.command(command.u, command.mode)
+        except ValueError as error:  # validated at the boundary already; never crash on it
+            self.refused_commands += 1
+            self._warn_mode(f"dropped input on {conversions.TOPICS['input']}: {error}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

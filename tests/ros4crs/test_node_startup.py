@@ -34,6 +34,13 @@ CASES = [
     ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
     ("controller_node", ["-p", "v_ref:=-1.0"], "error: v_ref: must be a finite number > 0"),
     ("controller_node", ["-p", "controller:=lqr"], "error: controller: must be one of mpcc, path"),
+    ("controller_node", ["-p", "output:=speed"], "error: output: must be one of torque, velocity"),
+    (
+        "controller_node",
+        ["-p", "controller:=path", "-p", "output:=velocity"],
+        "error: output: velocity needs controller:=mpcc (the path controller commands torque)",
+    ),
+    ("simulator_node", ["-p", "onboard:=maybe"], "error: onboard: expected true or false"),
     ("controller_node", ["-p", "track_file:={tmp}/none.yaml"], "error: track_file: no such file"),
     ("controller_node", ["-p", "track_file:={tmp}/bad.yaml"], "error: track_file: {tmp}/bad.yaml"),
     ("controller_node", ["-p", "params_file:={tmp}/bad.yaml"], "params_file: {tmp}/bad.yaml: "),
