@@ -291,6 +291,11 @@ def launch(args: argparse.Namespace) -> None:
     from launch_scripts.sim_stack import run_stack, summary
 
     # the nodes check these too, but a mistake is cheaper to hear before four processes start
+    if args.output == "velocity" and args.controller != "mpcc":
+        raise ValueError(
+            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
+            "commands torque)"
+        )
     if args.track is not None:
         Track.from_yaml(args.track)
     if args.params is not None:
@@ -308,6 +313,7 @@ def launch(args: argparse.Namespace) -> None:
         track_file=args.track,
         params_file=args.params,
         controller=args.controller,
+        output=args.output,
     )
     print(summary(report, Path(args.out)))
 
@@ -582,6 +588,14 @@ def make_parser() -> argparse.ArgumentParser:
         choices=["mpcc", "path"],
         default="mpcc",
         help="mpcc: race (MPCC, 30 Hz; default); path: follow the centreline at 1 m/s (50 Hz)",
+    )
+    sub.add_argument(
+        "--output",
+        choices=["torque", "velocity"],
+        default="torque",
+        help="what the controllers command: torque (steering and motor torque; default) or "
+        "velocity (steering and a velocity reference for the car's onboard 250 Hz velocity PID, "
+        "which the simulators then run; --controller mpcc only)",
     )
     sub.add_argument(
         "--duration",

@@ -35,6 +35,9 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: start (at most a quarter of the run), s: before, the nodes import, discover each other and
 #: wait for the simulator's clock, which makes a short run's average look cheaper.
 SETTLE_S = 10.0
+#: What the controllers command: ``torque`` (``[delta, T]``) or ``velocity`` (``[delta, v_x]``
+#: references for the car's onboard velocity PID; MPCC only).
+OUTPUTS = ("torque", "velocity")
 
 
 def stack_nodes(
@@ -47,6 +50,7 @@ def stack_nodes(
     track_file: Path | None = None,
     params_file: Path | None = None,
     controller: str = "mpcc",
+    output: str = "torque",
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
@@ -55,12 +59,22 @@ def stack_nodes(
     seeing no estimate, until they have). ``track_file`` (default DEMO_TRACK) and
     ``params_file`` (the car's parameters: the simulated truth and the model of the estimator
     and the controller) go to every car's nodes. ``controller``: ``mpcc`` (racing, 30 Hz) or
-    ``path`` (the centreline follower, 50 Hz).
+    ``path`` (the centreline follower, 50 Hz). ``output``: ``torque`` (the controller commands
+    steering and torque) or ``velocity`` (the MPCC commands steering and a velocity reference,
+    ``output: velocity``, to the car's onboard loop, which the simulators then run,
+    ``onboard: true``; the estimators ignore such commands and estimate the inputs).
     """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
     if estimator not in ("ekf", "mhe"):
         raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
+    if output not in OUTPUTS:
+        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    if output == "velocity" and controller != "mpcc":
+        raise ValueError(
+            f"output: velocity needs the mpcc controller (the {controller} controller commands "
+            "torque)"
+        )
     if record not in RECORD_SETS:
         raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
     per_car, global_topics = RECORD_SETS[record]
@@ -70,6 +84,9 @@ def stack_nodes(
         for name, path in (("track_file", track_file), ("params_file", params_file))
         if path is not None
     }
+    # the default torque stack passes no extra parameters (the nodes' defaults)
+    onboard = {"onboard": True} if output == "velocity" else {}
+    commands = {"output": output} if output == "velocity" else {}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
@@ -78,7 +95,7 @@ def stack_nodes(
                 "simulator",
                 "ros4crs.simulator_node",
                 ns,
-                {"seed": seed + i, "wait_for_subscribers": 2, **files},
+                {"seed": seed + i, "wait_for_subscribers": 2, **onboard, **files},
             ),
             NodeSpec(
                 "estimator",
@@ -87,7 +104,10 @@ def stack_nodes(
                 {"estimator": estimator, "blind_start": blind_start, **files},
             ),
             NodeSpec(
-                "controller", "ros4crs.controller_node", ns, {"controller": controller, **files}
+                "controller",
+                "ros4crs.controller_node",
+                ns,
+                {"controller": controller, **commands, **files},
             ),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
@@ -114,6 +134,7 @@ def run_stack(
     track_file: Path | None = None,
     params_file: Path | None = None,
     controller: str = "mpcc",
+    output: str = "torque",
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -132,6 +153,7 @@ def run_stack(
         track_file=track_file,
         params_file=params_file,
         controller=controller,
+        output=output,
     )
     track = Track.from_yaml(track_file) if track_file else load_demo_track()
     launcher = Launcher(nodes, domain, out / "logs")
@@ -141,7 +163,11 @@ def run_stack(
             f"[launch] node {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}"
         )
 
-    print(f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator} for {duration:g} s", flush=True)
+    print(
+        f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator}, {controller} "
+        f"({output} commands) for {duration:g} s",
+        flush=True,
+    )
     settle = min(SETTLE_S, duration / 4)
     deaths = launcher.run(
         duration, on_exit=report_death, until=_progress(launcher, duration), settle_s=settle
@@ -149,6 +175,8 @@ def run_stack(
     print("[launch] stopped; analysing the bag", flush=True)
     report = analyse(bag, cars, track)
     report["estimator"] = estimator
+    report["controller"] = controller
+    report["output"] = output
     report["duration_s"] = duration
     report["recorded"] = record
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]

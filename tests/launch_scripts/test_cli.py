@@ -132,6 +132,11 @@ BAD_INPUTS = [
     (["sim", "--stations", "0"], "argument --stations: '0': stations must be > 0"),
     (["launch", "sim", "--duration", "0"], "crs launch: error: argument --duration: '0'"),
     (["launch", "sim", "--cars", "0"], "argument --cars: '0': cars must be > 0"),
+    (
+        ["launch", "sim", "--output", "velocity", "--controller", "path"],
+        "crs launch: error: --output: velocity needs --controller mpcc (the path controller",
+    ),
+    (["launch", "sim", "--output", "speed"], "crs launch: error: argument --output: invalid"),
     (["ros", "echo"], "crs ros: error: TOPIC: echo needs a topic"),
     (["ros", "hz", "/car1/input", "--window", "-1"], "argument --window: '-1': window must"),
 ]

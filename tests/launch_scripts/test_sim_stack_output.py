@@ -1,0 +1,41 @@
+"""``stack_nodes(..., output=...)``: what the velocity-reference stack sets on each node."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from launch_scripts.sim_stack import stack_nodes
+
+
+def _parameters(output: str, cars: int = 2) -> dict[str, dict]:
+    nodes = stack_nodes(cars, "ekf", Path("/tmp/unused-bag"), output=output)
+    return {f"{spec.namespace}/{spec.name}": spec.parameters for spec in nodes}
+
+
+def test_torque_stack_leaves_the_node_defaults():
+    parameters = _parameters("torque")
+    assert "onboard" not in parameters["/car1/simulator"]
+    assert "output" not in parameters["/car1/controller"]
+
+
+def test_velocity_stack_runs_the_onboard_loop_and_commands_velocities_on_every_car():
+    parameters = _parameters("velocity")
+    for car in ("/car1", "/car2"):
+        assert parameters[f"{car}/simulator"]["onboard"] is True
+        assert parameters[f"{car}/controller"]["output"] == "velocity"
+        assert parameters[f"{car}/controller"]["controller"] == "mpcc"
+        assert "onboard" not in parameters[f"{car}/estimator"]
+
+
+@pytest.mark.parametrize(
+    ("arguments", "message"),
+    [
+        ({"output": "speed"}, "output: must be one of torque, velocity, got 'speed'"),
+        ({"output": "velocity", "controller": "path"}, "output: velocity needs the mpcc"),
+    ],
+)
+def test_bad_output_is_refused(arguments: dict, message: str):
+    with pytest.raises(ValueError, match=message):
+        stack_nodes(1, "ekf", Path("/tmp/unused-bag"), **arguments)
