@@ -8,6 +8,9 @@ Fallback: a failed or non-finite solve serves the shifted previous plan's next i
 ``max_failures`` of them in a row, or on an estimate that is stale or unusable, the car is
 stopped (straight wheels, braking torque until it stands). A command is never NaN.
 
+A model with the ``input_delay`` effect is compensated: the state is carried over the delay
+under the commands still in flight (issued at the control rate) before the plan starts.
+
 Conventions: state ``[x_p, y_p, psi, v_x, v_y, omega]`` (+ the model's effect states), input
 ``[delta, T]`` (rad, normalised torque); with ``output="velocity"`` the command is
 ``[delta, v_x]`` (rad, m/s) for cars that track speed on board.
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -122,16 +126,22 @@ class Mpcc:
         self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
         self._half_width = self.path.half_width - s.track_margin
         self._weights = s.weights()
+        #: the model's input delay (s), compensated by predicting over it
+        self._delay = self.model.input_delay(parameters)
+        self._in_flight: deque[np.ndarray] = deque(
+            maxlen=max(1, math.ceil(self._delay * s.rate_hz))
+        )
         self._velocity_stage = min(max(1, round(s.velocity_lead_s * s.rate_hz)), s.horizon)
         self.reset()
 
     # --- public --------------------------------------------------------------------------
     def reset(self) -> None:
-        """Forget the plan (the next call starts cold)."""
+        """Forget the plan and the commands in flight (the next call starts cold)."""
         self._Z: np.ndarray | None = None
         self._V: np.ndarray | None = None
         self._failures = 0
         self._command = np.zeros(2)
+        self._in_flight.clear()
         self._progress_speed = 0.0
         self.status: MpccStatus | None = None
         #: The guess ``(Z, V, refs)`` the last call started from (for comparisons).
@@ -219,9 +229,24 @@ class Mpcc:
             car = np.concatenate((state, self._Z[1, 6:nxc]))
         else:
             car = self.model.initial_state(state, self._command)
+        if self._delay > 0:
+            car = self._through_delay(car)
         near = None if self._Z is None else float(self._Z[1, nxc])
         theta = self.path.progress(car[0], car[1], near)
         return np.concatenate((car, [theta], self._command, [self._progress_speed]))
+
+    def _through_delay(self, car: np.ndarray) -> np.ndarray:
+        """The state when a command issued now acts: carried over the model's input delay
+        ``d`` under the commands still in flight (issued at the control rate during the last
+        ``d`` s; the one issued ``j`` periods ago acts from ``d - j dt`` s after now)."""
+        dt, d = self.settings.dt, self._delay
+        numeric = self.model.numeric
+        for j in range(len(self._in_flight), 0, -1):
+            start = max(0.0, d - j * dt)
+            end = min(d, d - (j - 1) * dt)
+            if end > start:
+                car = numeric.step(car, self._in_flight[-j], self.p, end - start)
+        return car
 
     def _guess(self, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The previous plan shifted by one stage, or a cold start: hold the last command
@@ -319,6 +344,8 @@ class Mpcc:
         return self._out(self._command, Z)
 
     def _out(self, command: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
+        if self._delay > 0:
+            self._in_flight.append(command.copy())
         if self.output == "torque":
             return command.copy()
         speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
