@@ -1,0 +1,378 @@
+r"""A car's ``CarState`` <-> the suite's measurement stream (ROS-free).
+
+Host side: :class:`CarStateConverter` (one per car) turns decoded packets into
+:class:`crs_core.measurements.Measurement` objects and a :class:`Telemetry` record:
+
+- ``imu`` = ``[a_x, a_y, ω]`` in the body frame (m/s², rad/s): the board's x and y axes point the
+  other way, so x and y of both vectors are negated and z kept; ω is the gyro's z. With
+  ``imu_sensor="gyro"`` the converter publishes ``gyro`` = ``[ω]`` instead (as the real
+  recordings hold it). Never both: they would count the yaw rate twice.
+- ``wheel_encoders`` = ``[fl, fr, rl, rr]`` rad/s (the wire order is fr, fl, rr, rl), when the
+  packet carries wheel speeds.
+- ``lighthouse/<station>/<plane>`` = the 4 sweep angles (rad) in the sensor model's convention
+  (:mod:`crs_core.model.lighthouse`): station = ``polynomial >> 1``; plane from the pairing rule
+  of the spec (:meth:`CarStateConverter.convert`); angle offset ``-π + π/3`` (plane 1) or
+  ``-π - π/3`` (plane 2); a sweep whose corrected angle_0 is outside [-1.5, 1.5] rad is out of view
+  and dropped (the pairing sees it; only its publication is dropped).
+
+Stamps: every measurement of a packet gets the packet's stamp, ``Packet.timestamp`` (µs since
+the Unix epoch, converted to s) when present, else the ``receipt_stamp`` the caller passes (s,
+the host clock at reception). A first-plane sweep released later by its partner keeps the stamp
+of the packet that carried it.
+
+Car side (the emulator): :func:`board_imu`, :func:`wire_wheel_speeds`, :func:`raw_sweep_angles`
+map the suite's values to the firmware's raw values; :class:`SweepClock` makes 24-bit deck
+timestamps that the host pairs; :class:`CarStateAssembler` collects one 250 Hz step of
+measurements into a ``CarState`` datagram.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from chronos_bridge.codec import encode_car_state_fitting
+from chronos_bridge.packets import (
+    MAX_SWEEPS,
+    STEER_LIMIT,
+    TICKS_24BIT,
+    Battery,
+    CarState,
+    ControlInput,
+    FieldError,
+    Imu,
+    LighthouseSweep,
+    Packet,
+    Steering,
+    WheelSpeeds,
+)
+from crs_core.measurements import Measurement, lighthouse_sensor, parse_lighthouse
+
+#: Angle added to a raw sweep angle of plane 1 and plane 2 (rad) to reach the model convention.
+PLANE_OFFSETS = {1: -math.pi + math.pi / 3, 2: -math.pi - math.pi / 3}
+#: A sweep whose ``sync_timestamp`` is within this many ticks of the held first plane's is its
+#: second plane (24-bit wrap-around difference).
+PAIRING_TICKS = 100
+#: A sweep whose raw angle_0 is within this of the held first plane's is the next first plane, rad.
+NEW_FIRST_PLANE_RAD = 0.1
+#: Corrected angle_0 outside ±this is out of view, rad.
+IN_VIEW_RAD = 1.5
+#: Standard gravity, m/s² (the accelerometer's z at rest).
+GRAVITY = 9.80665
+#: Lighthouse deck tick rate assumed by the emulator, Hz (24-bit counter: wraps every ~0.7 s).
+DECK_TICK_HZ = 24_000_000
+#: The sensors' true ranges (the emulator saturates there, as the BMI088 does).
+GYRO_RANGE = math.radians(250.0)
+ACCEL_RANGE = 3.0 * GRAVITY
+
+
+def tick_difference(a: int, b: int) -> int:
+    """Signed 24-bit difference ``a - b`` in ``[-2**23, 2**23)`` (wrap-around aware)."""
+    d = (a - b) % TICKS_24BIT
+    return d - TICKS_24BIT if d >= TICKS_24BIT // 2 else d
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry:
+    """What a car state says besides measurements, at ``stamp`` (s, as the measurements).
+
+    ``battery_voltage`` V and ``battery_current`` A (negative when discharging; ``None`` when not
+    sent), ``steer_angle`` rad and ``steer_adc`` counts (``steer_adc_range`` the potentiometer's
+    (low, high) when sent), ``longitudinal_velocity`` the car's own v_x estimate (m/s, or
+    ``None``), ``drive_power`` / ``steer_power`` the motor powers in [-1, 1], ``reference`` the
+    command the car is executing.
+    """
+
+    stamp: float
+    battery_voltage: float | None
+    battery_current: float | None
+    steer_angle: float
+    steer_adc: int
+    steer_adc_range: tuple[int, int] | None
+    longitudinal_velocity: float | None
+    drive_power: float
+    steer_power: float
+    reference: ControlInput
+
+
+@dataclass(frozen=True, slots=True)
+class Converted:
+    """The measurements (in publication order) and the telemetry of one car state."""
+
+    measurements: tuple[Measurement, ...]
+    telemetry: Telemetry
+
+
+@dataclass(slots=True)
+class _Held:
+    sweep: LighthouseSweep
+    stamp: float
+    published: bool
+
+
+class CarStateConverter:
+    """Host side: validated ``CarState`` packets of one car -> measurements + telemetry.
+
+    Stateful (the Lighthouse pairing holds the last first-plane sweep per station): use one per
+    car and feed its packets in arrival order. Counters: ``states``, ``sweeps_out_of_view``,
+    ``sweeps_held`` (sweeps held while the pair was broken).
+    """
+
+    def __init__(self, imu_sensor: Literal["imu", "gyro"] = "imu") -> None:
+        if imu_sensor not in ("imu", "gyro"):
+            raise ValueError(f"imu_sensor: 'imu' or 'gyro', got {imu_sensor!r}")
+        self.imu_sensor = imu_sensor
+        self._held: dict[int, _Held] = {}
+        self.states = 0
+        self.sweeps_out_of_view = 0
+        self.sweeps_held = 0
+
+    def reset(self) -> None:
+        """Forget the held sweeps (e.g. when the car reconnects)."""
+        self._held.clear()
+
+    def convert(self, packet: Packet, receipt_stamp: float) -> Converted:
+        """Measurements and telemetry of a ``Packet{car_state}`` from :func:`decode_from_car`.
+
+        ``receipt_stamp``: host time of reception, s since the Unix epoch; used when the packet
+        has no timestamp. Lighthouse pairing, per sweep in packet order, for its station: if
+        the 24-bit difference of its ``sync_timestamp`` to the held first plane's is within
+        ±100 ticks it is the second plane (the held first one is published first if it was
+        not yet); otherwise, if its raw angle_0 is within 0.1 rad of the held first plane's it
+        is a new first plane (published, and held); otherwise the pair is broken: it is held,
+        unpublished, as the candidate first plane.
+        """
+        state = packet.contents
+        if not isinstance(state, CarState):
+            raise TypeError(f"convert: needs a car_state packet, got {type(state).__name__}")
+        stamp = packet.stamp_s if packet.timestamp_us is not None else float(receipt_stamp)
+        self.states += 1
+        out: list[Measurement] = []
+        acc, gyro = state.imu.linear_acceleration, state.imu.angular_velocity
+        if self.imu_sensor == "imu":
+            out.append(Measurement(stamp, "imu", np.array([-acc[0], -acc[1], gyro[2]])))
+        else:
+            out.append(Measurement(stamp, "gyro", np.array([gyro[2]])))
+        w = state.wheel_speeds
+        if w is not None:
+            values = np.array([w.front_left, w.front_right, w.rear_left, w.rear_right])
+            out.append(Measurement(stamp, "wheel_encoders", values))
+        for sweep in state.sweeps:
+            self._pair(sweep, stamp, out)
+        s = state.steering
+        battery = state.battery
+        telemetry = Telemetry(
+            stamp=stamp,
+            battery_voltage=None if battery is None else battery.voltage,
+            battery_current=None if battery is None else battery.current,
+            steer_angle=s.steer_rad,
+            steer_adc=s.adc_meas,
+            steer_adc_range=s.adc_range,
+            longitudinal_velocity=state.longitudinal_velocity,
+            drive_power=state.drive_power,
+            steer_power=state.steer_power,
+            reference=state.current_reference,
+        )
+        return Converted(tuple(out), telemetry)
+
+    def _pair(self, sweep: LighthouseSweep, stamp: float, out: list[Measurement]) -> None:
+        station = sweep.station
+        held = self._held.get(station)
+        if held is not None and (
+            abs(tick_difference(sweep.sync_timestamp, held.sweep.sync_timestamp)) <= PAIRING_TICKS
+        ):
+            if not held.published:
+                held.published = True
+                self._publish(held.sweep, 1, held.stamp, out)
+            self._publish(sweep, 2, stamp, out)
+        elif (
+            held is not None and abs(sweep.angles[0] - held.sweep.angles[0]) <= NEW_FIRST_PLANE_RAD
+        ):
+            self._held[station] = _Held(sweep, stamp, published=True)
+            self._publish(sweep, 1, stamp, out)
+        else:
+            self._held[station] = _Held(sweep, stamp, published=False)
+            self.sweeps_held += 1
+
+    def _publish(
+        self, sweep: LighthouseSweep, plane: int, stamp: float, out: list[Measurement]
+    ) -> None:
+        angles = np.array(sweep.angles) + PLANE_OFFSETS[plane]
+        if not -IN_VIEW_RAD <= angles[0] <= IN_VIEW_RAD:
+            self.sweeps_out_of_view += 1
+            return
+        out.append(Measurement(stamp, lighthouse_sensor(sweep.station, plane), angles))
+
+
+# --------------------------------------------------------------------------- car side
+
+
+def board_imu(
+    imu: Sequence[float],
+    vertical_acceleration: float = GRAVITY,
+    roll_pitch_rates: tuple[float, float] = (0.0, 0.0),
+) -> Imu:
+    """The suite's ``imu`` = ``[a_x, a_y, ω]`` (body) -> the board-axes reading.
+
+    Body x and y are negated, z kept; the accelerometer's z is ``vertical_acceleration`` (m/s²,
+    +g at rest on a level track), the gyro's x and y are body ``roll_pitch_rates`` (rad/s).
+    Each axis saturates at the sensor's range (±3 g, ±250 °/s) as the BMI088 does.
+    """
+    ax, ay, omega = (float(v) for v in imu)
+    wx, wy = roll_pitch_rates
+
+    def clip(value: float, limit: float) -> float:
+        return min(max(value, -limit), limit)
+
+    return Imu(
+        tuple(clip(v, ACCEL_RANGE) for v in (-ax, -ay, vertical_acceleration)),
+        tuple(clip(v, GYRO_RANGE) for v in (-wx, -wy, omega)),
+    )
+
+
+def wire_wheel_speeds(wheel_encoders: Sequence[float]) -> WheelSpeeds:
+    """The suite's ``wheel_encoders`` ``[fl, fr, rl, rr]`` (rad/s) -> the wire's fr, fl, rr, rl."""
+    fl, fr, rl, rr = (float(v) for v in wheel_encoders)
+    return WheelSpeeds(front_right=fr, front_left=fl, rear_right=rr, rear_left=rl)
+
+
+def raw_sweep_angles(plane: int, angles: Iterable[float]) -> tuple[float, float, float, float]:
+    """Model-convention sweep angles of ``plane`` (1 or 2) -> the firmware's raw angles (the
+    host's plane offset subtracted)."""
+    if plane not in PLANE_OFFSETS:
+        raise ValueError(f"plane: 1 or 2, got {plane!r}")
+    raw = tuple(float(a) - PLANE_OFFSETS[plane] for a in angles)
+    if len(raw) != 4:
+        raise ValueError(f"angles: needs 4, got {len(raw)}")
+    return raw  # type: ignore[return-value]
+
+
+def steering_from_angle(
+    steer: float, adc_per_rad: float = 1500.0, adc_center: int = 2048
+) -> Steering:
+    """A plausible ``SteeringPositionMeasurement`` for a steering angle (rad): a 12-bit ADC
+    reading linear in the angle (``adc_center + adc_per_rad·δ``)."""
+    steer = min(max(float(steer), -STEER_LIMIT), STEER_LIMIT)
+    return Steering(steer, round(adc_center + adc_per_rad * steer))
+
+
+class SweepClock:
+    """24-bit Lighthouse deck timestamps for emulated sweeps that the host pairs correctly.
+
+    A plane-1 sweep at time ``t`` (s) gets ``sync_timestamp = first_timestamp = ticks(t)``. A
+    plane-2 sweep within ``pair_window_s`` after the last plane 1 of its station gets that
+    plane's ``sync_timestamp`` (difference 0, within the host's ±100 ticks) and its own
+    ``first_timestamp = ticks(t)``; a plane 2 without a recent plane 1 (it was lost) gets
+    ``sync = ticks(t)``, which does not pair, as on the real deck. ``ticks(t) =
+    round(t · tick_hz) mod 2**24``.
+    """
+
+    def __init__(self, tick_hz: float = DECK_TICK_HZ, pair_window_s: float = 0.015) -> None:
+        self.tick_hz = float(tick_hz)
+        self.pair_window_s = float(pair_window_s)
+        self._first: dict[int, tuple[float, int]] = {}
+
+    def ticks(self, t: float) -> int:
+        return round(t * self.tick_hz) % TICKS_24BIT
+
+    def timestamps(self, station: int, plane: int, t: float) -> tuple[int, int]:
+        """``(first_timestamp, sync_timestamp)`` of a sweep of ``station``/``plane`` at ``t``."""
+        now = self.ticks(t)
+        if plane == 1:
+            self._first[station] = (t, now)
+            return now, now
+        first = self._first.get(station)
+        if first is not None and 0.0 <= t - first[0] <= self.pair_window_s:
+            return now, first[1]
+        return now, now
+
+
+def raw_sweep(
+    measurement: Measurement, clock: SweepClock, t: float | None = None
+) -> LighthouseSweep:
+    """A ``lighthouse/<station>/<plane>`` measurement -> the firmware's sweep.
+
+    Raw angles (:func:`raw_sweep_angles`), ``polynomial = station << 1`` (the low bit, which
+    the host ignores, is 0: the first of the station's two LFSR polynomials), deck timestamps
+    from ``clock`` at ``t`` (default the measurement's stamp, s).
+    """
+    parsed = parse_lighthouse(measurement.sensor)
+    if parsed is None:
+        raise ValueError(f"sensor: not a lighthouse sensor: {measurement.sensor!r}")
+    station, plane = parsed
+    first, sync = clock.timestamps(station, plane, measurement.stamp if t is None else t)
+    return LighthouseSweep(raw_sweep_angles(plane, measurement.values), station << 1, first, sync)
+
+
+class CarStateAssembler:
+    """Car side: the suite's measurements of one 250 Hz step -> the ``CarState`` the firmware
+    sends.
+
+    :meth:`add` measurements (``imu``, ``wheel_encoders``, ``lighthouse/<s>/<p>``; others are
+    ignored) as they come, then :meth:`encode_step` once per step. The IMU is sampled every step
+    (the last reading is repeated if none arrived; zero motion with +g before the first);
+    wheel speeds are sent only in a step that has a new reading. Sweeps queue (oldest dropped
+    beyond 5, counted in ``sweeps_dropped``; one
+    whose raw angle is beyond ±2π is counted in ``sweeps_unseen``) and go out as many as fit
+    in 255 bytes.
+    """
+
+    def __init__(self, clock: SweepClock | None = None) -> None:
+        self.clock = clock or SweepClock()
+        self._imu = board_imu((0.0, 0.0, 0.0))
+        self._wheels: WheelSpeeds | None = None
+        self._sweeps: deque[LighthouseSweep] = deque()
+        self.sweeps_dropped = 0
+        self.sweeps_unseen = 0
+
+    def add(self, measurement: Measurement) -> None:
+        if measurement.sensor == "imu":
+            self._imu = board_imu(measurement.values)
+        elif measurement.sensor == "wheel_encoders":
+            self._wheels = wire_wheel_speeds(measurement.values)
+        elif parse_lighthouse(measurement.sensor) is not None:
+            try:
+                sweep = raw_sweep(measurement, self.clock)
+            except FieldError:  # a raw angle beyond one turn: the deck cannot have seen it
+                self.sweeps_unseen += 1
+                return
+            self._sweeps.append(sweep)
+            while len(self._sweeps) > MAX_SWEEPS:
+                self._sweeps.popleft()
+                self.sweeps_dropped += 1
+
+    def build(
+        self,
+        reference: ControlInput,
+        steering: Steering,
+        drive_power: float = 0.0,
+        steer_power: float = 0.0,
+        battery: Battery | None = None,
+        longitudinal_velocity: float | None = None,
+    ) -> CarState:
+        """The step's ``CarState`` with every queued sweep (the queue is not consumed)."""
+        return CarState(
+            current_reference=reference,
+            drive_power=drive_power,
+            steer_power=steer_power,
+            imu=self._imu,
+            steering=steering,
+            wheel_speeds=self._wheels,
+            battery=battery,
+            sweeps=tuple(self._sweeps),
+            longitudinal_velocity=longitudinal_velocity,
+        )
+
+    def encode_step(self, timestamp_us: int | None, **telemetry: object) -> bytes:
+        """Build (``telemetry``: the keyword arguments of :meth:`build`) and encode the step's
+        datagram; sweeps that do not fit stay queued for the next step."""
+        state = self.build(**telemetry)  # type: ignore[arg-type]
+        data, left = encode_car_state_fitting(state, timestamp_us)
+        self._sweeps = deque(left)
+        self._wheels = None
+        return data
