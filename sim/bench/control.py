@@ -156,7 +156,7 @@ def control_benchmark(
         counts: list[int] = []
 
         def count(v: Mpcc = variant, out: list[int] = counts) -> None:
-            if v.status.mode == "solved":
+            if v.status.mode == "solved" and v.status.qp_iterations >= 0:  # OSQP: not reported
                 out.append(v.status.qp_iterations)
 
         result, times = _race(variant, track, laps=2, after_call=count)
