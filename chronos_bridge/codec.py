@@ -113,6 +113,11 @@ def _decode(data: bytes, max_size: int, allowed: tuple[str, ...]) -> Packet:
         msg.ParseFromString(data)
     except pb_message.DecodeError as error:
         raise DecodeError("datagram", f"undecodable protobuf ({error})") from None
+    if msg.HasField("car_state"):  # counted first: an entry may be empty
+        try:
+            _check_counts(msg.car_state)
+        except FieldError as error:
+            raise DecodeError.of(error, "car_state") from None
     _reject_unknown(msg, "")
     missing = msg.FindInitializationErrors()
     if missing:
@@ -131,6 +136,14 @@ def _decode(data: bytes, max_size: int, allowed: tuple[str, ...]) -> Packet:
         return Packet(contents, stamp)
     except FieldError as error:
         raise DecodeError.of(error) from None
+
+
+def _check_counts(msg: Any) -> None:
+    if len(msg.lighthouse_data) > MAX_FRAMES:
+        raise FieldError("lighthouse_data", f"{len(msg.lighthouse_data)} frames > {MAX_FRAMES}")
+    if len(msg.lighthouse_sweeps) > MAX_SWEEPS:
+        count = len(msg.lighthouse_sweeps)
+        raise FieldError("lighthouse_sweeps", f"{count} sweeps > {MAX_SWEEPS}")
 
 
 def _reject_unknown(msg: Any, path: str) -> None:
@@ -192,12 +205,6 @@ def _vector(msg: Any) -> tuple[float, float, float]:
 def _car_state(msg: Any) -> CarState:
     imu = msg.imu_data
     steer = msg.steer_data
-    # counted before anything is built from them (a datagram may hold dozens of empty entries)
-    if len(msg.lighthouse_data) > MAX_FRAMES:
-        raise FieldError("lighthouse_data", f"{len(msg.lighthouse_data)} frames > {MAX_FRAMES}")
-    if len(msg.lighthouse_sweeps) > MAX_SWEEPS:
-        count = len(msg.lighthouse_sweeps)
-        raise FieldError("lighthouse_sweeps", f"{count} sweeps > {MAX_SWEEPS}")
     try:
         return CarState(
             current_reference=_within(

@@ -1,0 +1,34 @@
+"""Shared builders for the chronos_bridge tests."""
+
+from __future__ import annotations
+
+from chronos_bridge.packets import (
+    CURRENT_TORQUE_REF_LIMIT,
+    Battery,
+    CarState,
+    ControlInput,
+    Imu,
+    LighthouseFrame,
+    LighthouseSweep,
+    Steering,
+    WheelSpeeds,
+)
+
+STAMP_US = 1_700_000_000_000_000
+
+
+def make_state(**changes: object) -> CarState:
+    fields: dict[str, object] = dict(
+        current_reference=ControlInput(0.25, -0.125, torque_limit=CURRENT_TORQUE_REF_LIMIT),
+        drive_power=0.5,
+        steer_power=-0.25,
+        imu=Imu((-1.5, 0.5, 9.75), (0.125, -0.25, 1.5)),
+        steering=Steering(0.125, 2100, 300 | 3800 << 16, 2.0),
+        wheel_speeds=WheelSpeeds(10.0, 11.0, 12.0, 13.0),
+        battery=Battery(7.5, -1.25),
+        frames=(LighthouseFrame(1, 3, 4, 5, 6, 7),),
+        sweeps=(LighthouseSweep((2.0, 2.01, 2.02, 2.03), 2, 300, 400),),
+        longitudinal_velocity=1.75,
+    )
+    fields.update(changes)
+    return CarState(**fields)  # type: ignore[arg-type]
