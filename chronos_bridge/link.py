@@ -1,0 +1,333 @@
+"""One car's UDP link (host side, ROS-free): receive, validate, pair, answer pings, command.
+
+:class:`CarLink` owns a non-blocking UDP socket bound to ``(bind, port)`` (default
+``127.0.0.1:20211``: loopback only unless told otherwise; a real car needs ``bind="0.0.0.0"`` or
+the host's Wi-Fi address). One link per car; several cars use several ports.
+
+Pairing. The car's endpoint (IP, port) is either configured (``car_ip`` and ``car_port``: paired
+from the start) or learned from the **first valid datagram** (a car state or a ping that
+decodes): with ``car_ip`` alone only that IP can pair (its port is learned), with neither any
+sender can. Once paired the endpoint is pinned for the life of the link; a datagram from any
+other (IP, port) is ignored unread and counted as ``foreign``. (Learning trusts the first valid
+sender: on a shared network configure ``car_ip``.)
+
+Every received datagram lands in exactly one bucket of :attr:`CarLink.counts`:
+
+============  ==================================================================================
+bucket        meaning
+============  ==================================================================================
+car_state     a valid car state, converted (returned by :meth:`CarLink.poll`)
+ping          a valid discovery ping (answered with ``should_bounce=false`` when it asked to be)
+foreign       from another endpoint than the paired car's (or another IP than ``car_ip``)
+oversize      more than 255 bytes (the firmware's buffer), not decoded
+undecodable   not a protobuf ``Packet`` at all (field ``datagram``)
+invalid       a ``Packet`` with a bad field: missing, unknown (or wrong wire type, or an unknown
+              oneof tag), NaN/inf, out of range, too many repeated entries, a host-only content
+error         a valid packet whose conversion failed or produced a non-finite value (never
+              expected; kept so that nothing escapes the count)
+============  ==================================================================================
+
+:attr:`CarLink.rejected_fields` counts ``undecodable`` and ``invalid`` by the field the codec
+named (indices and unknown field numbers folded, e.g. ``car_state.lighthouse_sweeps[].angle_0``,
+``<unknown field>``, so the table stays small whatever arrives). Each reject calls ``warn``
+with the field and reason, throttled to one call per ``warn_period`` s (the message says how
+many were suppressed). Outgoing datagrams are counted in :attr:`CarLink.sent`.
+
+Stamps: measurements carry the packet's ``timestamp`` when the car sent one (its clock is
+SNTP-synchronised), else the receipt time ``now`` given to :meth:`CarLink.poll`
+(:class:`~chronos_bridge.car_state.CarStateConverter`).
+"""
+
+from __future__ import annotations
+
+import errno
+import ipaddress
+import logging
+import math
+import re
+import socket
+from collections.abc import Callable, Sequence
+from typing import Literal
+
+import numpy as np
+
+from chronos_bridge import DEFAULT_PORT
+from chronos_bridge.car_state import CarStateConverter, Converted
+from chronos_bridge.codec import (
+    CAR_DATAGRAM_MAX,
+    DecodeError,
+    decode_from_car,
+    encode_ping_reply,
+    encode_torque_command,
+    encode_velocity_command,
+    now_us,
+)
+from chronos_bridge.packets import CarState, Ping
+
+#: The buckets of :attr:`CarLink.counts`, in report order.
+BUCKETS = ("car_state", "ping", "foreign", "oversize", "undecodable", "invalid", "error")
+#: Largest UDP payload; the receive buffer takes any datagram whole (an oversize one is counted,
+#: not cut to look valid).
+_RECV_SIZE = 65_536
+#: Receive buffer asked of the kernel, bytes (capped by ``net.core.rmem_max``): a few thousand
+#: car-sized datagrams, so a host that stalls for a moment does not drop the car's packets.
+RECEIVE_BUFFER = 1 << 21
+
+_log = logging.getLogger(__name__)
+_INDEX = re.compile(r"\[\d+\]")
+_UNKNOWN = re.compile(r"<field \d+>")
+
+Endpoint = tuple[str, int]
+
+
+def field_key(field: str) -> str:
+    """A codec field path folded for counting: ``a[3].b`` -> ``a[].b``, ``<field 7>`` ->
+    ``<unknown field>``."""
+    return _UNKNOWN.sub("<unknown field>", _INDEX.sub("[]", field))
+
+
+def _ipv4(name: str, value: str) -> str:
+    try:
+        return str(ipaddress.IPv4Address(value))
+    except ValueError:
+        raise ValueError(f"{name}: not an IPv4 address, got {value!r}") from None
+
+
+class CarLink:
+    """The UDP link to one car; see the module docstring.
+
+    Parameters
+    ----------
+    port : int
+        Local UDP port (default 20211; 0 picks a free one, see :attr:`address`).
+    bind : str
+        Local IPv4 address to bind (default loopback; ``0.0.0.0`` for every interface).
+    car_ip : str
+        The car's IPv4 address; empty: learn it from the first valid datagram.
+    car_port : int
+        The car's UDP port; 0: learn it. Needs ``car_ip``.
+    imu_sensor : "imu" or "gyro"
+        What the IMU becomes (:class:`~chronos_bridge.car_state.CarStateConverter`).
+    warn : callable
+        Called with a one-line warning for rejects (throttled) and send failures; default the
+        module's logger.
+    warn_period : float
+        At most one reject warning per this many seconds (of the ``now`` given to poll).
+    max_per_poll : int
+        At most this many datagrams per :meth:`poll` (a flood cannot starve the caller; the rest
+        wait in the socket for the next poll).
+    """
+
+    def __init__(
+        self,
+        port: int = DEFAULT_PORT,
+        bind: str = "127.0.0.1",
+        car_ip: str = "",
+        car_port: int = 0,
+        imu_sensor: Literal["imu", "gyro"] = "imu",
+        warn: Callable[[str], None] | None = None,
+        warn_period: float = 1.0,
+        max_per_poll: int = 2000,
+    ) -> None:
+        if not 0 <= int(port) <= 65535:
+            raise ValueError(f"port: must be in 0..65535, got {port!r}")
+        if not 0 <= int(car_port) <= 65535:
+            raise ValueError(f"car_port: must be in 0..65535, got {car_port!r}")
+        if car_port and not car_ip:
+            raise ValueError(f"car_port: needs car_ip (the port alone cannot pair), got {car_port}")
+        if max_per_poll < 1:
+            raise ValueError(f"max_per_poll: must be >= 1, got {max_per_poll}")
+        bind = _ipv4("bind", bind)
+        self.car_ip = _ipv4("car_ip", car_ip) if car_ip else ""
+        self.car_port = int(car_port)
+        self.converter = CarStateConverter(imu_sensor)
+        self._warn = warn or _log.warning
+        self.warn_period = float(warn_period)
+        self.max_per_poll = int(max_per_poll)
+        #: The car's endpoint once paired (configured or learned), else ``None``.
+        self.endpoint: Endpoint | None = (self.car_ip, self.car_port) if car_port else None
+        self.counts: dict[str, int] = dict.fromkeys(BUCKETS, 0)
+        self.rejected_fields: dict[str, int] = {}
+        self.sent: dict[str, int] = dict.fromkeys(
+            ("commands", "ping_replies", "unpaired", "invalid_commands", "send_errors"), 0
+        )
+        #: Receipt time (``now`` of poll) of the last valid datagram from the car, or ``None``.
+        self.last_valid: float | None = None
+        self._last_warning = -math.inf
+        self._suppressed = 0
+        self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
+            self._socket.bind((bind, int(port)))
+        except OSError as error:
+            self._socket.close()
+            raise OSError(f"port: cannot bind UDP {bind}:{port}: {error.strerror}") from None
+        self._socket.setblocking(False)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def address(self) -> Endpoint:
+        """The local (IP, port) the link listens on."""
+        return self._socket.getsockname()
+
+    @property
+    def paired(self) -> bool:
+        return self.endpoint is not None
+
+    @property
+    def received(self) -> int:
+        """Datagrams received so far (the sum of :attr:`counts`)."""
+        return sum(self.counts.values())
+
+    def fileno(self) -> int:
+        """The socket's file descriptor (to wait on it with ``select``)."""
+        return self._socket.fileno()
+
+    # ------------------------------------------------------------------ receiving
+    def poll(self, now: float) -> list[Converted]:
+        """Read the pending datagrams (at most ``max_per_poll``); return the converted car states.
+
+        ``now``: the host time of reception, s since the Unix epoch (the stamp of a packet
+        without a timestamp). Never raises for anything a sender can put in a datagram.
+        """
+        out: list[Converted] = []
+        for _ in range(self.max_per_poll):
+            try:
+                data, sender = self._socket.recvfrom(_RECV_SIZE)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError as error:  # e.g. ECONNREFUSED queued by an ICMP error: not a datagram
+                if error.errno in (errno.EAGAIN, errno.EWOULDBLOCK):
+                    break
+                continue
+            self._receive(data, sender[:2], now, out)
+        return out
+
+    def _receive(self, data: bytes, sender: Endpoint, now: float, out: list[Converted]) -> None:
+        if self.endpoint is not None:
+            if sender != self.endpoint:
+                self.counts["foreign"] += 1
+                return
+        elif self.car_ip and sender[0] != self.car_ip:
+            self.counts["foreign"] += 1
+            return
+        if len(data) > CAR_DATAGRAM_MAX:
+            self.counts["oversize"] += 1
+            self._reject(now, "datagram", f"{len(data)} bytes > {CAR_DATAGRAM_MAX}", sender)
+            return
+        try:
+            packet = decode_from_car(data)
+        except DecodeError as error:
+            bucket = "undecodable" if error.field == "datagram" else "invalid"
+            self.counts[bucket] += 1
+            key = field_key(error.field)
+            self.rejected_fields[key] = self.rejected_fields.get(key, 0) + 1
+            self._reject(now, error.field, error.reason, sender)
+            return
+        except Exception as error:  # a decoder bug must not take the link down
+            self.counts["error"] += 1
+            self._reject(now, "datagram", f"decoder failed: {error!r}", sender)
+            return
+        if self.endpoint is None:
+            self.endpoint = sender
+            _log.info("paired with the car at %s:%d", *sender)
+        self.last_valid = now
+        contents = packet.contents
+        if isinstance(contents, Ping):
+            self.counts["ping"] += 1
+            if contents.should_bounce:
+                self._send(encode_ping_reply(), "ping_replies")
+            return
+        if not isinstance(contents, CarState):  # decode_from_car returns nothing else
+            self.counts["error"] += 1
+            return
+        try:
+            converted = self.converter.convert(packet, now)
+            _check_finite(converted)
+        except Exception as error:
+            self.counts["error"] += 1
+            self._reject(now, "car_state", f"conversion failed: {error}", sender)
+            return
+        self.counts["car_state"] += 1
+        out.append(converted)
+
+    def _reject(self, now: float, field: str, reason: str, sender: Endpoint) -> None:
+        if now - self._last_warning < self.warn_period:
+            self._suppressed += 1
+            return
+        more = f" (+{self._suppressed} rejects since the last warning)" if self._suppressed else ""
+        self._last_warning, self._suppressed = now, 0
+        self._warn(f"dropped datagram from {sender[0]}:{sender[1]}: {field}: {reason}{more}")
+
+    # ------------------------------------------------------------------ sending
+    def send_command(self, u: Sequence[float], mode: str, now: float | None = None) -> bool:
+        """Send ``u`` as a ``CarReference`` to the paired car; True when sent.
+
+        ``mode="torque"``: ``u = [steer (rad), torque (-)]`` -> ``{throttle, angle}``;
+        ``mode="velocity"``: ``u = [steer (rad), v_x (m/s)]`` -> ``{longitudinal_velocity,
+        angle}``. Stamped with ``now`` (s since the Unix epoch; default the host clock). Nothing
+        is sent before pairing (``sent["unpaired"]``); a value the codec refuses (NaN/inf, out of
+        range) is counted in ``sent["invalid_commands"]`` and warned about, never sent.
+        """
+        if self.endpoint is None:
+            self.sent["unpaired"] += 1
+            return False
+        stamp = now_us() if now is None else int(now * 1e6)
+        try:
+            steer, second = float(u[0]), float(u[1])
+            if mode == "torque":
+                data = encode_torque_command(steer, second, stamp)
+            elif mode == "velocity":
+                data = encode_velocity_command(steer, second, stamp)
+            else:
+                raise ValueError(f"mode: must be torque or velocity, got {mode!r}")
+        except (ValueError, TypeError, IndexError) as error:
+            self.sent["invalid_commands"] += 1
+            self._warn(f"command not sent: {error}")
+            return False
+        return self._send(data, "commands")
+
+    def _send(self, data: bytes, what: str) -> bool:
+        try:
+            self._socket.sendto(data, self.endpoint)
+        except OSError as error:
+            self.sent["send_errors"] += 1
+            self._warn(f"cannot send to the car at {self.endpoint}: {error}")
+            return False
+        self.sent[what] += 1
+        return True
+
+    # ------------------------------------------------------------------ reporting, closing
+    def summary(self) -> str:
+        """One line: the receive buckets, the top rejected fields, what was sent."""
+        counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
+        top = sorted(self.rejected_fields.items(), key=lambda kv: -kv[1])[:5]
+        fields = ", ".join(f"{k} {v}" for k, v in top)
+        sent = ", ".join(f"{k} {v}" for k, v in self.sent.items())
+        peer = f"{self.endpoint[0]}:{self.endpoint[1]}" if self.endpoint else "not paired"
+        return (
+            f"car {peer}; received {self.received}: {counts}"
+            + (f"; top rejected fields: {fields}" if fields else "")
+            + f"; sent: {sent}"
+        )
+
+    def close(self) -> None:
+        self._socket.close()
+
+    def __enter__(self) -> CarLink:
+        return self
+
+    def __exit__(self, *_: object) -> None:
+        self.close()
+
+
+def _check_finite(converted: Converted) -> None:
+    """Defence in depth: the codec validated every value; a non-finite one after the
+    conversion would be a bug, and must not reach a subscriber."""
+    for measurement in converted.measurements:
+        if not (math.isfinite(measurement.stamp) and np.all(np.isfinite(measurement.values))):
+            raise ValueError(f"{measurement.sensor}: non-finite value after conversion")
+    t = converted.telemetry
+    for value in (t.stamp, t.battery_voltage, t.battery_current, t.longitudinal_velocity):
+        if value is not None and not math.isfinite(value):
+            raise ValueError("telemetry: non-finite value after conversion")
