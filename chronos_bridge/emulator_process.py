@@ -1,0 +1,237 @@
+"""``crs car-emulator``: an emulated Chronos car on UDP, for tests and demos of other hosts.
+
+Like a car configured with the host's IP: it binds ``--bind``:``--port`` (default
+127.0.0.1:20211), sends every datagram to ``--host``:``--host-port`` and nowhere else, and
+accepts datagrams only from ``--host`` (others are counted as rejected, reason ``source``).
+The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces it:
+
+- one :meth:`~chronos_bridge.emulator.CarEmulator.step` per 4 ms against ``time.monotonic()``;
+  before each step every pending datagram is read (non-blocking) and handed to the emulator;
+- a tick that starts more than one period late is counted (``late ticks``) and the schedule is
+  re-anchored to now: the missed ticks are not made up in a burst (the simulation then runs
+  that much behind the wall clock, as a firmware loop that overran);
+- packets are stamped with the wall clock (``time.time()`` at the start plus the monotonic time
+  since), like an SNTP-synchronised car; ``--no-timestamp`` leaves the stamp out;
+- a send or receive error (e.g. ICMP port unreachable while no host listens) is counted and
+  the loop goes on;
+- SIGINT / SIGTERM (or ``--duration``) stop it cleanly with a one-line summary on stdout.
+
+It prints one line when it is up: ``crs car-emulator: listening on ADDR:PORT, sending to
+HOST:PORT`` (with ``--port 0`` the port the system chose).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import math
+import signal
+import socket
+import sys
+import time
+from collections.abc import Sequence
+
+PROG = "crs car-emulator"
+DESCRIPTION = (
+    "An emulated Chronos car on UDP, like a car configured with the host's IP: it sends a "
+    "250 Hz CarState and a discovery ping every 5 s to --host:--host-port (and nowhere else), "
+    "listens on --bind:--port and takes datagrams only from --host, tracks throttle or velocity "
+    "references with its onboard loop and cuts the motors 200 ms after the last one. "
+    "SIGINT/SIGTERM stop it with a one-line summary."
+)
+DEFAULT_PORT = 20211
+#: Largest datagram read (the emulator rejects anything over 256 bytes anyway).
+RECEIVE_BUFFER = 4096
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The emulator's options (validated by :func:`options`, errors naming the option)."""
+    parser.add_argument("--host", required=True, help="the host's IPv4 address (sent to)")
+    parser.add_argument("--host-port", required=True, help="the host's UDP port (sent to)")
+    parser.add_argument(
+        "--port", default=str(DEFAULT_PORT), help=f"own UDP port (default {DEFAULT_PORT}; 0: any)"
+    )
+    parser.add_argument(
+        "--bind", default="127.0.0.1", help="own IPv4 address to bind (default 127.0.0.1)"
+    )
+    parser.add_argument("--seed", default="0", help="seed of the simulation's noise (default 0)")
+    parser.add_argument(
+        "--duration", help="stop after this many s (default: run until SIGINT/SIGTERM)"
+    )
+    parser.add_argument(
+        "--no-timestamp",
+        action="store_true",
+        help="leave Packet.timestamp out (an unsynchronised car; the host stamps on receipt)",
+    )
+
+
+def add_command(subparsers) -> None:
+    """Add ``car-emulator`` to the ``crs`` command line."""
+    sub = subparsers.add_parser(
+        "car-emulator",
+        help="an emulated Chronos car on UDP (for tests of other hosts)",
+        description=DESCRIPTION,
+    )
+    add_arguments(sub)
+    sub.set_defaults(handler=run)
+
+
+def _port(name: str, text: str, allow_zero: bool) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise ValueError(f"{name}: {text!r} is not an integer") from None
+    low = 0 if allow_zero else 1
+    if not low <= value <= 65535:
+        raise ValueError(f"{name}: {value} outside {low}..65535")
+    return value
+
+
+def _address(name: str, text: str) -> ipaddress.IPv4Address:
+    try:
+        return ipaddress.IPv4Address(text)
+    except ValueError:
+        raise ValueError(f"{name}: {text!r} is not an IPv4 address") from None
+
+
+def options(args: argparse.Namespace) -> dict:
+    """Checked options; ``ValueError`` naming the option (``--host-port: 70000 outside ...``)."""
+    host = _address("--host", args.host)
+    bind = _address("--bind", args.bind)
+    if host.is_unspecified or host.is_multicast or host == ipaddress.IPv4Address("255.255.255.255"):
+        raise ValueError(f"--host: {host} is not one host's address")
+    if bind.is_loopback and not host.is_loopback:
+        raise ValueError(f"--bind: {bind} cannot reach --host {host}; bind 0.0.0.0 or an interface")
+    try:
+        seed = int(args.seed)
+    except ValueError:
+        raise ValueError(f"--seed: {args.seed!r} is not an integer") from None
+    if seed < 0:
+        raise ValueError(f"--seed: {seed} must be >= 0")
+    duration = None
+    if args.duration is not None:
+        try:
+            duration = float(args.duration)
+        except ValueError:
+            duration = math.nan
+        if not (math.isfinite(duration) and duration > 0):
+            raise ValueError(f"--duration: {args.duration!r} is not a number of seconds > 0")
+    return {
+        "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),
+        "bind": (str(bind), _port("--port", args.port, allow_zero=True)),
+        "seed": seed,
+        "duration": duration,
+        "timestamps": not args.no_timestamp,
+    }
+
+
+class _Stop:
+    def __init__(self) -> None:
+        self.requested = False
+
+    def __call__(self, signum: int, frame: object) -> None:
+        self.requested = True
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the emulator with parsed ``args`` until SIGINT/SIGTERM or ``--duration``."""
+    opts = options(args)
+    from chronos_bridge.emulator import TICK_S, CarEmulator
+
+    host, bind = opts["host"], opts["bind"]
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(bind)
+    except OSError as error:
+        sock.close()
+        raise ValueError(f"--port: cannot bind {bind[0]}:{bind[1]} ({error.strerror})") from None
+    sock.setblocking(False)
+    stop = _Stop()
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
+    start = time.monotonic()
+    emulator = CarEmulator(
+        seed=opts["seed"],
+        unix_offset=time.time() - start,
+        timestamps=opts["timestamps"],
+    )
+    print(
+        f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
+        flush=True,
+    )
+    late = send_errors = receive_errors = 0
+    try:
+        next_tick = time.monotonic()
+        while not stop.requested:
+            now = time.monotonic()
+            if opts["duration"] is not None and now - start >= opts["duration"]:
+                break
+            if now < next_tick:
+                time.sleep(next_tick - now)
+                continue
+            if now - next_tick > TICK_S:  # overran: no burst, re-anchor
+                late += 1
+                next_tick = now
+            receive_errors += _drain(sock, emulator, host[0], now)
+            for datagram in emulator.step(now):
+                try:
+                    sock.sendto(datagram, host)
+                except OSError:
+                    send_errors += 1
+            next_tick += TICK_S
+    finally:
+        sock.close()
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    reasons = ", ".join(f"{k} {v}" for k, v in sorted(emulator.rejected.items()))
+    print(
+        f"{PROG}: stopped after {emulator.steps} steps ({time.monotonic() - start:.1f} s), "
+        f"{late} late ticks, {emulator.commands} commands received, "
+        f"{emulator.rejected_total} rejected{f' ({reasons})' if reasons else ''}, "
+        f"{emulator.pauses} pauses, {emulator.pings_sent} pings sent, "
+        f"{send_errors + receive_errors} socket errors",
+        flush=True,
+    )
+    return 0
+
+
+def _drain(sock: socket.socket, emulator, host: str, now: float) -> int:
+    """Hand every pending datagram from ``host`` to the emulator; the socket errors seen."""
+    errors = 0
+    while True:
+        try:
+            data, source = sock.recvfrom(RECEIVE_BUFFER)
+        except BlockingIOError:
+            return errors
+        except OSError:  # e.g. ECONNREFUSED from an earlier send; try the next one
+            errors += 1
+            if errors > 100:
+                return errors
+            continue
+        if source[0] != host:
+            emulator.rejected["source"] += 1
+            continue
+        emulator.receive(data, now)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``crs car-emulator`` on its own (``python -m chronos_bridge.emulator_process``)."""
+    parser = _Parser(prog=PROG, description=DESCRIPTION)
+    add_arguments(parser)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exit_:
+        return int(exit_.code or 0)
+    try:
+        return run(args)
+    except ValueError as error:
+        print(f"{PROG}: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
