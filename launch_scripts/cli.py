@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from chronos_bridge.emulator_process import add_command as add_car_emulator_command
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec, parse_effect
@@ -685,6 +686,7 @@ def make_parser() -> argparse.ArgumentParser:
     add_sysid_commands(commands)
     add_discrepancy_commands(commands)
     add_calibration_commands(commands)
+    add_car_emulator_command(commands)
     return parser
 
 
