@@ -46,6 +46,7 @@ import logging
 import math
 import re
 import socket
+import time
 from collections.abc import Callable, Sequence
 from typing import Literal
 
@@ -109,8 +110,8 @@ class CarLink:
     imu_sensor : "imu" or "gyro"
         What the IMU becomes (:class:`~chronos_bridge.car_state.CarStateConverter`).
     warn : callable
-        Called with a one-line warning for rejects (throttled) and send failures; default the
-        module's logger.
+        Called with a one-line warning for rejects, refused commands and send failures (each
+        kind throttled to one per ``warn_period`` s); default the module's logger.
     warn_period : float
         At most one reject warning per this many seconds (of the ``now`` given to poll).
     max_per_poll : int
@@ -155,6 +156,7 @@ class CarLink:
         self.last_valid: float | None = None
         self._last_warning = -math.inf
         self._suppressed = 0
+        self._last_kind: dict[str, float] = {}
         self._socket = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RECEIVE_BUFFER)
@@ -283,7 +285,7 @@ class CarLink:
                 raise ValueError(f"mode: must be torque or velocity, got {mode!r}")
         except (ValueError, TypeError, IndexError) as error:
             self.sent["invalid_commands"] += 1
-            self._warn(f"command not sent: {error}")
+            self._throttled("command", f"command not sent: {error}")
             return False
         return self._send(data, "commands")
 
@@ -292,10 +294,17 @@ class CarLink:
             self._socket.sendto(data, self.endpoint)
         except OSError as error:
             self.sent["send_errors"] += 1
-            self._warn(f"cannot send to the car at {self.endpoint}: {error}")
+            self._throttled("send", f"cannot send to the car at {self.endpoint}: {error}")
             return False
         self.sent[what] += 1
         return True
+
+    def _throttled(self, kind: str, message: str) -> None:
+        """``warn`` at most once per ``warn_period`` s (wall clock) per ``kind``."""
+        now = time.monotonic()
+        if now - self._last_kind.get(kind, -math.inf) >= self.warn_period:
+            self._last_kind[kind] = now
+            self._warn(message)
 
     # ------------------------------------------------------------------ reporting, closing
     def summary(self) -> str:

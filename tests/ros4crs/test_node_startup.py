@@ -50,6 +50,10 @@ CASES = [
     ("recorder_node", ["-p", "storage:=zip"], "error: storage: must be one of mcap, sqlite3"),
     ("replayer_node", ["-p", "bag:={tmp}/none"], "error: bag: {tmp}/none: not a bag folder"),
     ("replayer_node", ["-p", "rate:=0.0"], "error: rate: must be a finite number > 0"),
+    ("bridge_node", ["-p", "imu_sensor:=accel"], "error: imu_sensor: must be one of imu, gyro"),
+    ("bridge_node", ["-p", "car_ip:=car.local"], "error: car_ip: must be an IPv4 address"),
+    ("bridge_node", ["-p", "car_port:=20211"], "error: car_port: needs car_ip"),
+    ("bridge_node", ["-p", "port:=0"], "error: port: must be in 1..65535, got 0"),
 ]
 
 

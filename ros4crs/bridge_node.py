@@ -1,0 +1,235 @@
+"""Bridge node: one real (or emulated) Chronos car over Wi-Fi UDP <-> the suite's topics.
+
+A thin node around :class:`chronos_bridge.link.CarLink` (one node per car; run several in
+their own namespaces, on their own ports, for several cars). A timer polls the link's
+non-blocking socket at ``poll_hz`` and publishes each valid ``CarState``:
+
+=========================  ==========================  ===========================================
+topic                      type                        content
+=========================  ==========================  ===========================================
+``sensors/imu``            ``sensor_msgs/Imu``         ``[a_x, a_y, ω]`` body frame (board x, y
+                                                       negated); ``sensors/gyro`` instead with
+                                                       ``imu_sensor: gyro``
+``sensors/wheel_speeds``   ``chronos_msgs/WheelSpeeds`` rad/s, when the packet has them
+``sensors/lighthouse``     ``chronos_msgs/LighthouseSweep`` paired planes, angle offsets, out of
+                                                       view dropped (spec; ``CarStateConverter``)
+``sensors/battery``        ``sensor_msgs/BatteryState`` voltage (V), current (A; 0 when the car
+                                                       does not send it), when sent
+``telemetry/steering``     ``sensor_msgs/JointState``  joint ``steering``: position = measured
+                                                       steering angle (rad), effort = steering
+                                                       motor power [-1, 1]
+``telemetry/drive``        ``sensor_msgs/JointState``  joint ``drive_motor``: effort = drive motor
+                                                       power [-1, 1]
+``telemetry/velocity``     ``geometry_msgs/TwistStamped`` the car's own v_x estimate (m/s,
+                                                       ``twist.linear.x``, body frame), when sent
+``bridge/diagnostics``     ``std_msgs/String``         JSON every ``diagnostics_period`` s: the
+                                                       car's endpoint, receive buckets, rejected
+                                                       fields, sent counts, age of the last packet
+=========================  ==========================  ===========================================
+
+Every ``input`` (``chronos_msgs/CarInput``, validated by ``conversions.input_from_msg``) is sent
+to the car at once as a ``CarReference`` (``MODE_TORQUE``: throttle + steering angle;
+``MODE_VELOCITY``: longitudinal velocity + steering angle), stamped with the host clock: the car
+gets commands at the controller's rate (the car stops after 200 ms without one). Nothing is sent
+before the car is paired.
+
+Stamps: the packet's ``timestamp`` (µs since the Unix epoch) when the car sent one (its clock is
+SNTP-synchronised to the host), else the host's wall clock when the poll read the datagram
+(up to one poll period, 2 ms at 500 Hz, after its arrival).
+
+Robustness: every value is validated by the codec before anything is published (nothing
+NaN/inf or out of range leaves the node; ``BatteryState`` fields the car does not measure are 0,
+not the NaN that ``sensor_msgs`` suggests). A datagram from another endpoint than the paired car,
+oversize, undecodable or with a bad field is dropped and counted (``CarLink.counts``), with a
+warning naming the field (throttled, 1/s); the counts are logged every ``log_period`` s and at
+shutdown. Nothing a sender can put in a datagram stops the node.
+
+Parameters: ``port`` (20211), ``bind`` (``127.0.0.1``; ``0.0.0.0`` for a real car), ``car_ip``
+(empty: learn the car from its first valid datagram), ``car_port`` (0: learn), ``imu_sensor``
+(``imu`` | ``gyro``), ``poll_hz`` (500), ``diagnostics_period`` (1 s), ``log_period`` (10 s).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import time
+from collections.abc import Sequence
+
+from rclpy.node import Node
+
+from chronos_bridge import DEFAULT_PORT
+from chronos_bridge.car_state import Converted
+from chronos_bridge.link import CarLink
+from ros4crs import conversions
+from ros4crs.node_support import (
+    STREAM_QOS,
+    CheckedSubscription,
+    declare,
+    in_range,
+    one_of,
+    positive,
+    run,
+    throttled_warning,
+)
+
+#: The bridge's own topics (relative to the car's namespace), besides the sensor topics.
+BRIDGE_TOPICS = {
+    "battery": "sensors/battery",
+    "steering": "telemetry/steering",
+    "drive": "telemetry/drive",
+    "velocity": "telemetry/velocity",
+    "diagnostics": "bridge/diagnostics",
+}
+
+
+def _ipv4_or_empty(value: str) -> str | None:
+    if not value:
+        return None
+    try:
+        ipaddress.IPv4Address(value)
+    except ValueError:
+        return "must be an IPv4 address (or empty)"
+    return None
+
+
+def _ipv4(value: str) -> str | None:
+    return _ipv4_or_empty(value) if value else "must be an IPv4 address"
+
+
+class BridgeNode(Node):
+    """One car's UDP link as ROS topics (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__("bridge")
+        port = declare(self, "port", DEFAULT_PORT, "local UDP port", in_range(1, 65535))
+        bind = declare(self, "bind", "127.0.0.1", "local IPv4 address to bind", _ipv4)
+        car_ip = declare(self, "car_ip", "", "the car's IPv4 address; empty: learn", _ipv4_or_empty)
+        car_port = declare(self, "car_port", 0, "the car's UDP port; 0: learn", in_range(0, 65535))
+        imu_sensor = declare(
+            self, "imu_sensor", "imu", "publish imu or gyro", one_of("imu", "gyro")
+        )
+        poll_hz = declare(self, "poll_hz", 500.0, "socket polls per s", positive)
+        diagnostics_period = declare(
+            self, "diagnostics_period", 1.0, "bridge/diagnostics period, s", positive
+        )
+        log_period = declare(self, "log_period", 10.0, "counts summary log period, s", positive)
+        self._warn = throttled_warning(self)
+        self.link = CarLink(
+            port, bind, car_ip, car_port, imu_sensor, warn=self.get_logger().warning
+        )
+        self.frame = conversions.body_frame(self.get_namespace())
+        self.publish_errors = 0
+        self._paired = self.link.endpoint
+        from geometry_msgs.msg import TwistStamped
+        from sensor_msgs.msg import BatteryState, JointState
+        from std_msgs.msg import String
+
+        from chronos_msgs.msg import CarInput
+
+        types = conversions.sensor_message_types()
+        families = (imu_sensor, "wheel_encoders", "lighthouse")
+        self._sensors = {
+            f: self.create_publisher(types[f], conversions.TOPICS[f], STREAM_QOS) for f in families
+        }
+        self._battery = self.create_publisher(BatteryState, BRIDGE_TOPICS["battery"], STREAM_QOS)
+        self._steering = self.create_publisher(JointState, BRIDGE_TOPICS["steering"], STREAM_QOS)
+        self._drive = self.create_publisher(JointState, BRIDGE_TOPICS["drive"], STREAM_QOS)
+        self._velocity = self.create_publisher(TwistStamped, BRIDGE_TOPICS["velocity"], STREAM_QOS)
+        self._diagnostics = self.create_publisher(String, BRIDGE_TOPICS["diagnostics"], 10)
+        self._inputs = CheckedSubscription(
+            self,
+            CarInput,
+            conversions.TOPICS["input"],
+            conversions.input_from_msg,
+            self._on_input,
+            "input",
+        )
+        self.create_timer(1.0 / poll_hz, self._poll)
+        self.create_timer(diagnostics_period, self._publish_diagnostics)
+        self.create_timer(log_period, lambda: self.get_logger().info(self.link.summary()))
+        host, local_port = self.link.address
+        peer = f"{car_ip}:{car_port or 'any port'}" if car_ip else "the first valid sender"
+        self.get_logger().info(
+            f"listening on UDP {host}:{local_port}, car: {peer}; publishing {imu_sensor}, "
+            f"stamps from the packet when present, else on receipt"
+        )
+
+    # ------------------------------------------------------------------ car -> ROS
+    def _poll(self) -> None:
+        now = time.time()
+        for converted in self.link.poll(now):
+            try:
+                self._publish(converted)
+            except Exception as error:  # never expected: the values were validated
+                self.publish_errors += 1
+                self._warn(f"not published: {error!r} ({self.publish_errors} so far)")
+        if self.link.endpoint != self._paired:
+            self._paired = self.link.endpoint
+            self.get_logger().info("paired with the car at {}:{}".format(*self._paired))
+
+    def _publish(self, converted: Converted) -> None:
+        from geometry_msgs.msg import TwistStamped
+        from sensor_msgs.msg import BatteryState, JointState
+
+        for measurement in converted.measurements:
+            family = conversions.topic_family(measurement.sensor)
+            self._sensors[family].publish(conversions.measurement_to_msg(measurement, self.frame))
+        t = converted.telemetry
+        if t.battery_voltage is not None:
+            battery = BatteryState(voltage=t.battery_voltage, present=True)
+            battery.current = 0.0 if t.battery_current is None else t.battery_current
+            self._stamp(battery, t.stamp)
+            self._battery.publish(battery)
+        steering = JointState(name=["steering"], position=[t.steer_angle], effort=[t.steer_power])
+        self._stamp(steering, t.stamp)
+        self._steering.publish(steering)
+        drive = JointState(name=["drive_motor"], effort=[t.drive_power])
+        self._stamp(drive, t.stamp)
+        self._drive.publish(drive)
+        if t.longitudinal_velocity is not None:
+            velocity = TwistStamped()
+            velocity.twist.linear.x = t.longitudinal_velocity
+            self._stamp(velocity, t.stamp)
+            self._velocity.publish(velocity)
+
+    def _stamp(self, msg, seconds: float) -> None:
+        msg.header.frame_id = self.frame
+        conversions.fill_stamp(msg.header.stamp, seconds)
+
+    # ------------------------------------------------------------------ ROS -> car
+    def _on_input(self, command: conversions.CarCommand) -> None:
+        self.link.send_command(command.u, command.mode)
+
+    # ------------------------------------------------------------------ reporting
+    def diagnostics(self) -> dict:
+        """What ``bridge/diagnostics`` carries (JSON)."""
+        last = self.link.last_valid
+        return {
+            "car": None if self.link.endpoint is None else "{}:{}".format(*self.link.endpoint),
+            "received": self.link.received,
+            "counts": self.link.counts,
+            "rejected_fields": self.link.rejected_fields,
+            "sent": self.link.sent,
+            "inputs_dropped": self._inputs.dropped,
+            "publish_errors": self.publish_errors,
+            "last_valid_age_s": None if last is None else round(time.time() - last, 3),
+        }
+
+    def _publish_diagnostics(self) -> None:
+        from std_msgs.msg import String
+
+        self._diagnostics.publish(String(data=json.dumps(self.diagnostics())))
+
+    def destroy_node(self) -> None:
+        self.get_logger().info(f"stopping: {self.link.summary()}")
+        self.link.close()
+        super().destroy_node()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    return run(BridgeNode, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
