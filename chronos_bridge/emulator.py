@@ -366,9 +366,9 @@ class CarEmulator:
         assert loop is not None
         drive = _clip(self.session.applied_command[1], 1.0)
         steer_power = _clip(loop.motor_command, 1.0)
-        self.last_battery = self._battery.step(TICK_S, drive, steer_power)
-        velocity = rear_axle_speed(self._wheels, self.onboard_settings.velocity.wheel_radius)
         try:
+            self.last_battery = self._battery.step(TICK_S, drive, steer_power)
+            velocity = rear_axle_speed(self._wheels, self.onboard_settings.velocity.wheel_radius)
             return self._assembler.encode_step(
                 stamp,
                 reference=ControlInput(
