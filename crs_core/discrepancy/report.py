@@ -31,6 +31,7 @@ from crs_core.discrepancy.figures import (
 )
 from crs_core.discrepancy.hypotheses import DELAY_EFFECT, Hypothesis, information_criterion
 from crs_core.discrepancy.residuals import CHANNEL_UNITS
+from crs_core.discrepancy.sweep_lag import SweepLag
 from crs_core.discrepancy.workflow import DiscrepancyResult
 from crs_core.identification.report import write_params_yaml
 from crs_core.model import CarModel
@@ -220,6 +221,18 @@ def _value_std(entry: dict[str, Any]) -> str:
     return f"{value:.3g}{spread} {unit}".rstrip()
 
 
+def _lag_sentence(lag: SweepLag) -> str:
+    """The first-plane sweep lag of the fits, when it was not known from a stream."""
+    if lag.source == "estimated" and lag.value_s is not None:
+        spread = f" ± {1e3 * lag.std_s:.1f}" if lag.std_s is not None else ""
+        return f" First-plane sweep lag (no stream): fitted, {1e3 * lag.value_s:.1f}{spread} ms."
+    if lag.source == "dataset" and lag.value_s is not None:
+        return f" First-plane sweep lag: {1e3 * lag.value_s:.1f} ms (stated by the dataset)."
+    if lag.source == "taken as 0":
+        return " First-plane sweep lag: unknown (no stream), taken as 0."
+    return ""
+
+
 def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) -> str:
     held_out = (
         f"{summary['held_out_dataset']} ({summary['held_out_samples']} samples)"
@@ -234,7 +247,8 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         f"Training data: {summary['train_dataset']} ({summary['train_samples']} samples); "
         f"held out: {held_out}. Verdict: **{result.verdict}**"
         + (f" ({', '.join(result.effects)})" if result.effects else "")
-        + f"; {summary['time_s']:.0f} s.",
+        + f"; {summary['time_s']:.0f} s."
+        + _lag_sentence(result.plane1_lag),
         "",
         "## Hypotheses",
         "",

@@ -2,7 +2,9 @@
 
 :func:`find_discrepancy` runs the steps of ``crs discrepancy``:
 
-1. identify the current model on the training data (the FIE);
+1. identify the current model on the training data (the FIE); on a recording without a
+   stream (the real recordings' layout) with the first-plane sweep lag fitted first, a
+   nuisance shared by every hypothesis (:mod:`~crs_core.discrepancy.sweep_lag`);
 2. diagnose its residuals channel by channel (:mod:`~crs_core.discrepancy.residuals`);
 3. fit every candidate effect of the registry on the training data and test it on held-out
    data (:mod:`~crs_core.discrepancy.hypotheses`); held-out data are the validation dataset,
@@ -20,6 +22,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -41,6 +44,13 @@ from crs_core.discrepancy.hypotheses import (
     parameter_table,
 )
 from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
+from crs_core.discrepancy.sweep_lag import (
+    SweepLag,
+    estimate_plane1_lag,
+    plane1_lag_source,
+    with_plane1_lag,
+)
+from crs_core.identification.data import PLANE1_LAG_KEY
 from crs_core.identification.problem import FieSettings, check_fit
 from crs_core.identification.solve import FieResult, identify
 from crs_core.identification.validation import DEFAULT_HORIZON_S, validate
@@ -84,6 +94,10 @@ class DiscrepancySettings:
         converges in 32) and is stopped here: within a grid step of its optimum.
     workers : int
         Processes fitting hypotheses at once (1: in this process).
+    estimate_plane1_lag : bool
+        On training data without a stream and without a stated lag (the real recordings'
+        layout), fit the first-plane sweep lag before the hypotheses
+        (:func:`~crs_core.discrepancy.sweep_lag.estimate_plane1_lag`); else it is taken as 0.
     """
 
     identification: FieSettings = field(default_factory=FieSettings)
@@ -95,6 +109,7 @@ class DiscrepancySettings:
     hidden_candidates: int = 2
     hypothesis_max_iter: int = 30
     workers: int = 1
+    estimate_plane1_lag: bool = True
 
     def __post_init__(self) -> None:
         if not 0.1 <= self.held_out_fraction <= 0.7:
@@ -136,6 +151,7 @@ class DiscrepancyResult:
     train_samples, held_out_samples : int
     held_out : "validation dataset" or "last N % of the training run"
     time_s : float
+    plane1_lag : the first-plane sweep lag of the training fits and where it came from
     """
 
     verdict: str
@@ -154,6 +170,7 @@ class DiscrepancyResult:
     held_out_samples: int
     held_out: str
     time_s: float
+    plane1_lag: SweepLag = field(default_factory=lambda: SweepLag(None, None, "none"))
 
     def summary(self) -> dict[str, Any]:
         """The JSON report (``report.json``)."""
@@ -173,6 +190,7 @@ class DiscrepancyResult:
             "held_out": self.held_out,
             "train_samples": self.train_samples,
             "held_out_samples": self.held_out_samples,
+            "plane1_lag": self.plane1_lag.to_dict(),
             "hypotheses": [h.to_dict() for h in self.hypotheses],
             "diagnostics_before": [d.to_dict() for d in self.diagnostics_before],
             "diagnostics_after": [d.to_dict() for d in self.diagnostics_after],
@@ -219,6 +237,7 @@ def find_discrepancy(
     candidates.sort(key=lambda name: not _slow_to_fit(name))  # the longest fits start first
     say(f"fitting the current model ({len(fit_data.t)} samples) ...")
     current = identify(fit_data, model, settings.identification)
+    fit_data, current, plane1_lag = _plane1_lag(fit_data, model, current, settings, say)
     current_model = _fitted(model, current)
     diagnostics_before = diagnose(current)
     current_scores = held_out_scores(held_out, current_model, settings.test.test_horizon_s)
@@ -294,7 +313,35 @@ def find_discrepancy(
         held_out_samples=len(held_out.t),
         held_out=held_out_label,
         time_s=time.perf_counter() - started,
+        plane1_lag=plane1_lag,
     )
+
+
+def _plane1_lag(
+    data: Dataset,
+    model: CarModel,
+    current: FieResult,
+    settings: DiscrepancySettings,
+    say: Callable[[str], None],
+) -> tuple[Dataset, FieResult, SweepLag]:
+    """The training data with their first-plane sweep lag, the current model's fit at it, and
+    the lag: estimated when unknown (no stream, none stated) and ``settings`` ask for it."""
+    source = plane1_lag_source(data)
+    if source == "dataset":
+        return data, current, SweepLag(float(data.meta[PLANE1_LAG_KEY]), None, source)
+    if source != "unknown":
+        return data, current, SweepLag(None, None, source)
+    if not settings.estimate_plane1_lag:
+        return data, current, SweepLag(0.0, None, "taken as 0")
+    say("no stream: fitting the first-plane sweep lag ...")
+    lag, std, fit = estimate_plane1_lag(data, model, current, settings.identification)
+    finite_std = std if math.isfinite(std) else None
+    say(
+        f"first-plane sweep lag {1e3 * lag:.1f} ms"
+        + (f" ± {1e3 * std:.1f}" if finite_std is not None else "")
+        + f"; FIE cost {current.cost:.6g} -> {fit.cost:.6g}"
+    )
+    return with_plane1_lag(data, lag), fit, SweepLag(lag, finite_std, "estimated")
 
 
 def _fit_and_judge(task: tuple) -> Hypothesis:

@@ -7,6 +7,7 @@ messages naming the field.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,9 @@ Y_LAYOUT = (
 )
 #: Fewest samples the FIE accepts.
 MIN_SAMPLES = 20
+#: :attr:`Dataset.meta` key (a ``dataset.yaml`` key) of the first-plane sweep lag, s, of a
+#: dataset without a stream (see :func:`plane1_lag`).
+PLANE1_LAG_KEY = "lighthouse_plane1_lag_s"
 
 
 @dataclass(frozen=True)
@@ -133,10 +137,21 @@ def plane1_lag(dataset: Dataset) -> np.ndarray:
 
     A sample pairs the second-plane sweep at its stamp with the latest first-plane sweep
     before it (about half a sweep period earlier). With the full-rate stream the lag is known
-    (simulated datasets); without one (the real recordings) it is taken as 0.
+    (simulated datasets); without one (the real recordings) it is the metadata's
+    :data:`PLANE1_LAG_KEY` when stated (the same for every sample but the first; ``crs
+    discrepancy`` estimates it), else taken as 0.
     """
     lag = np.zeros(len(dataset.t))
     if not dataset.measurements:
+        stated = dataset.meta.get(PLANE1_LAG_KEY)
+        if stated is not None:
+            try:
+                value = float(stated)
+            except (TypeError, ValueError):
+                value = math.nan
+            if not math.isfinite(value) or value < 0.0:
+                raise ValueError(f"{PLANE1_LAG_KEY}: expected a finite lag >= 0 s, got {stated!r}")
+            lag[1:] = value
         return lag
     first = lighthouse_sensor(0, 1)
     stamps = np.sort([m.stamp for m in dataset.measurements if m.sensor == first])

@@ -131,6 +131,7 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
         "gap_before_m": summary["gap_before"],
         "gap_after_m": summary["gap_after"],
         "parameters": summary["parameters"],
+        "plane1_lag": summary["plane1_lag"],
         "hypotheses": {
             "+".join(h["effects"]): {
                 "improvement": h["held_out"]["improvement"] if h["held_out"] else None,
