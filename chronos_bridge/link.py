@@ -22,7 +22,8 @@ foreign       from another endpoint than the paired car's (or another IP than ``
 oversize      more than 255 bytes (the firmware's buffer), not decoded
 undecodable   not a protobuf ``Packet`` at all (field ``datagram``)
 invalid       a ``Packet`` with a bad field: missing, unknown (or wrong wire type, or an unknown
-              oneof tag), NaN/inf, out of range, too many repeated entries, a host-only content
+              oneof tag), NaN/inf, out of range, too many repeated entries, a host-only content,
+              a ``timestamp`` after 2038-01-19 (:data:`STAMP_MAX_US`)
 error         a valid packet whose conversion failed or produced a non-finite value (never
               expected; kept so that nothing escapes the count)
 ============  ==================================================================================
@@ -73,6 +74,11 @@ _RECV_SIZE = 65_536
 #: Receive buffer asked of the kernel, bytes (capped by ``net.core.rmem_max``): a few thousand
 #: car-sized datagrams, so a host that stalls for a moment does not drop the car's packets.
 RECEIVE_BUFFER = 1 << 21
+
+#: Latest packet timestamp accepted, µs since the Unix epoch: 2038-01-19T03:14:07Z, the last
+#: second a ROS ``builtin_interfaces/Time`` (int32 ``sec``) holds. The codec accepts up to the
+#: year 2100; a later stamp would wrap to a negative ROS time, so the link refuses it.
+STAMP_MAX_US = (2**31 - 1) * 1_000_000
 
 _log = logging.getLogger(__name__)
 _INDEX = re.compile(r"\[\d+\]")
@@ -219,6 +225,8 @@ class CarLink:
             return
         try:
             packet = decode_from_car(data)
+            if packet.timestamp_us is not None and packet.timestamp_us > STAMP_MAX_US:
+                raise DecodeError("timestamp", f"{packet.timestamp_us} µs is after 2038-01-19")
         except DecodeError as error:
             bucket = "undecodable" if error.field == "datagram" else "invalid"
             self.counts[bucket] += 1

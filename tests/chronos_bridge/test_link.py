@@ -159,6 +159,13 @@ def test_every_datagram_lands_in_exactly_one_bucket_and_rejects_name_the_field(l
     assert "received 7: car_state 1, ping 0, foreign 0, oversize 1" in link.summary()
 
 
+def test_a_stamp_beyond_what_a_ros_time_holds_is_refused(link, car):
+    """The codec accepts stamps up to 2100; a ROS Time's int32 seconds end in 2038."""
+    car.sendto(encode_car_state(make_state(), (2**31) * 1_000_000), link.address)
+    assert _poll_until(link, 1) == []
+    assert link.counts["invalid"] == 1 and link.rejected_fields == {"timestamp": 1}
+
+
 def test_stamps_on_receipt_without_a_packet_timestamp(link, car):
     car.sendto(encode_car_state(make_state()), link.address)
     (converted,) = _poll_until(link, 1, NOW)
