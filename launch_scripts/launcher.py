@@ -36,12 +36,21 @@ class NodeSpec:
         ROS namespace, e.g. ``/car1`` (``""`` for the root).
     parameters : dict
         ROS parameters, written to a params file under the node's full name.
+    arguments : list of str, optional
+        For a plain (non-ROS) process: its command-line arguments. When given, the process
+        runs as ``python -m <module> *arguments``; ``namespace`` then only names it (and its
+        log) and ``parameters`` must be empty.
     """
 
     name: str
     module: str
     namespace: str = ""
     parameters: dict[str, Any] = field(default_factory=dict)
+    arguments: list[str] | None = None
+
+    def __post_init__(self) -> None:
+        if self.arguments is not None and self.parameters:
+            raise ValueError(f"{self.full_name}: a plain process (arguments) takes no parameters")
 
     @property
     def full_name(self) -> str:
@@ -99,11 +108,14 @@ class Launcher:
         env = self.environment()
         for spec in self.nodes:
             stem = spec.full_name.strip("/").replace("/", "_")
+            log = self.log_dir / f"{stem}.log"
+            if spec.arguments is not None:
+                self._spawn(spec, [sys.executable, "-m", spec.module, *spec.arguments], log, env)
+                continue
             params = self.log_dir / f"{stem}.params.yaml"
             params.write_text(
                 yaml.safe_dump({spec.full_name: {"ros__parameters": spec.parameters}})
             )
-            log = self.log_dir / f"{stem}.log"
             command = [
                 sys.executable,
                 "-m",
@@ -116,15 +128,18 @@ class Launcher:
             ]
             if spec.namespace:
                 command[4:4] = ["-r", f"__ns:={spec.namespace}"]
-            with open(log, "w") as handle:
-                self.processes[spec.full_name] = subprocess.Popen(
-                    command,
-                    stdout=handle,
-                    stderr=subprocess.STDOUT,
-                    env=env,
-                    start_new_session=True,
-                )
-            self._logs[spec.full_name] = log
+            self._spawn(spec, command, log, env)
+
+    def _spawn(self, spec: NodeSpec, command: list[str], log: Path, env: dict[str, str]) -> None:
+        with open(log, "w") as handle:
+            self.processes[spec.full_name] = subprocess.Popen(
+                command,
+                stdout=handle,
+                stderr=subprocess.STDOUT,
+                env=env,
+                start_new_session=True,
+            )
+        self._logs[spec.full_name] = log
 
     def poll(self) -> list[Exited]:
         """Processes that ended since the last poll."""
