@@ -14,7 +14,11 @@ The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces
   since), like an SNTP-synchronised car; ``--no-timestamp`` leaves the stamp out;
 - a send or receive error (e.g. ICMP port unreachable while no host listens) is counted and
   the loop goes on;
-- SIGINT / SIGTERM (or ``--duration``) stop it cleanly with a one-line summary on stdout.
+- SIGINT / SIGTERM (or ``--duration``) stop it cleanly with a one-line summary on stdout;
+- each motor cut-off (200 ms without a reference) and each resumption is one line on stderr;
+- ``--truth-out FILE`` writes, on exit, an ``.npz`` with the emulator's ground truth and the
+  link's timing log (:func:`write_truth`), all on the clock of its packet stamps (Unix s), so
+  a host's estimates and latencies can be checked against them (``crs launch car --emulate``).
 
 It prints one line when it is up: ``crs car-emulator: listening on ADDR:PORT, sending to
 HOST:PORT`` (with ``--port 0`` the port the system chose).
@@ -62,6 +66,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--no-timestamp",
         action="store_true",
         help="leave Packet.timestamp out (an unsynchronised car; the host stamps on receipt)",
+    )
+    parser.add_argument(
+        "--truth-out",
+        help="on exit write FILE (.npz): the true state at every step and the link's timing "
+        "log (commands read, motor cut-offs), stamped like the packets (Unix s)",
     )
 
 
@@ -122,7 +131,65 @@ def options(args: argparse.Namespace) -> dict:
         "seed": seed,
         "duration": duration,
         "timestamps": not args.no_timestamp,
+        "truth_out": _truth_path(args.truth_out),
     }
+
+
+def _truth_path(text: str | None):
+    if text is None:
+        return None
+    from pathlib import Path
+
+    path = Path(text)
+    if path.suffix != ".npz":
+        raise ValueError(f"--truth-out: {text!r} must end in .npz")
+    if not path.parent.is_dir():
+        raise ValueError(f"--truth-out: folder {str(path.parent)!r} does not exist")
+    return path
+
+
+class TruthLog:
+    """What ``--truth-out`` records, on the clock of the packet stamps (Unix s).
+
+    ``t`` / ``x``: the stamp of each step's ``CarState`` (``unix_offset + now``) and the true
+    base state ``[x, y, yaw, v_x, v_y, omega]`` its measurements were sampled at (after the
+    step). ``command_read_t``: when the loop read each valid reference from the socket (the
+    wall clock at ``recvfrom``; the loop reads once per 4 ms tick, before the step);
+    ``command_host_t``: that reference's ``Packet.timestamp`` (the host's send time; NaN when
+    unstamped). ``pause_t`` / ``pause_last_command_t``: each motor cut-off (the tick's time) and
+    the read time of the reference before it; ``resume_t``: each reference that ended a pause.
+    """
+
+    def __init__(self, unix_offset: float) -> None:
+        self.offset = unix_offset
+        self.t: list[float] = []
+        self.x: list = []
+        self.command_read_t: list[float] = []
+        self.command_host_t: list[float] = []
+        self.pause_t: list[float] = []
+        self.pause_last_command_t: list[float] = []
+        self.resume_t: list[float] = []
+
+    def write(self, path) -> None:
+        import numpy as np
+
+        arrays = {
+            "t": np.asarray(self.t, dtype=float),
+            "x": np.asarray(self.x, dtype=float).reshape(-1, 6),
+            **{
+                name: np.asarray(getattr(self, name), dtype=float)
+                for name in (
+                    "command_read_t",
+                    "command_host_t",
+                    "pause_t",
+                    "pause_last_command_t",
+                    "resume_t",
+                )
+            },
+        }
+        partial = path.with_name(path.name + ".partial.npz")
+        np.savez(partial, **arrays)
+        partial.replace(path)
 
 
 class _Stop:
@@ -159,6 +226,9 @@ def run(args: argparse.Namespace) -> int:
         flush=True,
     )
     late = send_errors = receive_errors = 0
+    log = TruthLog(emulator.unix_offset)
+    last_command: list[float | None] = [None]
+    pauses = 0
     try:
         next_tick = time.monotonic()
         while not stop.requested:
@@ -171,8 +241,27 @@ def run(args: argparse.Namespace) -> int:
             if now - next_tick > TICK_S:  # overran: no burst, re-anchor
                 late += 1
                 next_tick = now
-            receive_errors += _drain(sock, emulator, host[0], now)
-            for datagram in emulator.step(now):
+            was_paused = emulator.paused and emulator.commands > 0
+            receive_errors += _drain(sock, emulator, host[0], now, log, last_command)
+            if was_paused and not emulator.paused:
+                log.resume_t.append(log.command_read_t[-1])
+                print(f"{PROG}: references again: drives", file=sys.stderr, flush=True)
+            datagrams = emulator.step(now)
+            if emulator.pauses != pauses:
+                pauses = emulator.pauses
+                t_pause, t_last = emulator.unix_offset + now, last_command[0]
+                log.pause_t.append(t_pause)
+                log.pause_last_command_t.append(math.nan if t_last is None else t_last)
+                gap = f"{1e3 * (t_pause - t_last):.0f} ms" if t_last is not None else "?"
+                print(
+                    f"{PROG}: no reference for {gap}: motors cut (pause {pauses})",
+                    file=sys.stderr,
+                    flush=True,
+                )
+            if opts["truth_out"] is not None:
+                log.t.append(emulator.unix_offset + now)
+                log.x.append(emulator.truth().copy())
+            for datagram in datagrams:
                 try:
                     sock.sendto(datagram, host)
                 except OSError:
@@ -182,6 +271,8 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
+        if opts["truth_out"] is not None:
+            log.write(opts["truth_out"])
     reasons = ", ".join(f"{k} {v}" for k, v in sorted(emulator.rejected.items()))
     print(
         f"{PROG}: stopped after {emulator.steps} steps ({time.monotonic() - start:.1f} s), "
@@ -194,8 +285,18 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _drain(sock: socket.socket, emulator, host: str, now: float) -> int:
-    """Hand every pending datagram from ``host`` to the emulator; the socket errors seen."""
+def _drain(
+    sock: socket.socket,
+    emulator,
+    host: str,
+    now: float,
+    log: TruthLog | None = None,
+    last_command: list | None = None,
+) -> int:
+    """Hand every pending datagram from ``host`` to the emulator; the socket errors seen.
+
+    With ``log``, each valid reference's read time and host stamp go to it and its read time
+    to ``last_command[0]``."""
     errors = 0
     while True:
         try:
@@ -210,7 +311,22 @@ def _drain(sock: socket.socket, emulator, host: str, now: float) -> int:
         if source[0] != host:
             emulator.rejected["source"] += 1
             continue
+        commands = emulator.commands
         emulator.receive(data, now)
+        if log is not None and emulator.commands != commands:
+            read = log.offset + time.monotonic()
+            log.command_read_t.append(read)
+            log.command_host_t.append(_host_stamp(data))
+            if last_command is not None:
+                last_command[0] = read
+
+
+def _host_stamp(datagram: bytes) -> float:
+    """A valid reference's ``Packet.timestamp`` in s (NaN when it has none)."""
+    from chronos_bridge.codec import decode_from_host
+
+    stamp = decode_from_host(datagram).timestamp_us
+    return math.nan if stamp is None else stamp * 1e-6
 
 
 class _Parser(argparse.ArgumentParser):
