@@ -248,8 +248,17 @@ def summary(report: dict[str, Any], out: Path) -> str:
     return "\n".join(lines)
 
 
-def analyse(bag: Path, cars: int, track: Track | None = None) -> dict[str, Any]:
-    """Per car: laps, lap times, estimation RMSE, deadline misses, latencies."""
+def analyse(
+    bag: Path,
+    cars: int,
+    track: Track | None = None,
+    truths: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+) -> dict[str, Any]:
+    """Per car: laps, lap times, estimation RMSE, deadline misses, latencies.
+
+    The truth is the bag's ``ground_truth`` (the simulator's), unless ``truths`` gives it per
+    car (``{"car1": (stamps (n,), states (n, 6))}``, e.g. a car emulator's log; a car missing
+    from it has no truth)."""
     from ros4crs.bag_replay import read_car, read_receive_times
 
     track = track or load_demo_track()
@@ -258,9 +267,17 @@ def analyse(bag: Path, cars: int, track: Track | None = None) -> dict[str, Any]:
         ns = f"/car{i}"
         contents = read_car(bag, ns)
         car: dict[str, Any] = {"laps_completed": 0, "lap_times_s": []}
-        if contents.truth:
-            stamps = np.array([t for t, _ in contents.truth])
-            states = np.array([x for _, x in contents.truth])
+        if truths is not None:
+            truth = truths.get(ns.strip("/"))
+        elif contents.truth:
+            truth = (
+                np.array([t for t, _ in contents.truth]),
+                np.array([x for _, x in contents.truth]),
+            )
+        else:
+            truth = None
+        if truth is not None and len(truth[0]) >= 2:
+            stamps, states = np.asarray(truth[0], dtype=float), np.asarray(truth[1], dtype=float)
             # laps are timed from when the car starts moving (it waits on the start line until
             # the estimator is up), a start within 5 cm of the line counting as on it
             moving = int(np.argmax(states[:, 3] > 0.05)) if np.any(states[:, 3] > 0.05) else 0

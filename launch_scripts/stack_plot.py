@@ -82,10 +82,19 @@ def estimate_errors(estimates: StateTrack, truth: StateTrack) -> tuple[np.ndarra
     return errors, estimates.sigma[:, :3] * factors
 
 
-def plot(bag: Path, cars: int, out: Path, estimator: str = "", track: Track | None = None) -> None:
+def plot(
+    bag: Path,
+    cars: int,
+    out: Path,
+    estimator: str = "",
+    track: Track | None = None,
+    truths: dict[int, StateTrack] | None = None,
+    title: str | None = None,
+) -> None:
     """``path.png``: every car's truth and estimate on the track (with a zoomed inset), and the
     x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
-    ±2σ band of the covariance the estimator published."""
+    ±2σ band of the covariance the estimator published. ``truths`` (per car number) replaces
+    the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the figure's title."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -96,7 +105,10 @@ def plot(bag: Path, cars: int, out: Path, estimator: str = "", track: Track | No
     runs = {}
     for i in range(1, cars + 1):
         estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")
-        truth = read_states(bag, f"/car{i}/{TRUTH_TOPIC}")
+        if truths is not None:
+            truth = truths.get(i) or StateTrack(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
+        else:
+            truth = read_states(bag, f"/car{i}/{TRUTH_TOPIC}")
         if estimates.t.size and truth.t.size:
             runs[i] = (estimates, truth, *estimate_errors(estimates, truth))
     t0 = min((run[0].t[0] for run in runs.values()), default=0.0)
@@ -172,6 +184,8 @@ def plot(bag: Path, cars: int, out: Path, estimator: str = "", track: Track | No
     fig.legend(handles=handles, loc="outside lower right", fontsize=8, ncol=min(len(handles), 5))
     error_axes[-1].set_xlabel("time since the first estimate [s]")
     name = estimator.upper() or "estimator"
-    fig.suptitle(f"ROS 2 stack in simulation: {cars} car(s), {name} vs the simulator's truth")
+    fig.suptitle(
+        title or f"ROS 2 stack in simulation: {cars} car(s), {name} vs the simulator's truth"
+    )
     fig.savefig(out / "path.png", dpi=110)
     plt.close(fig)
