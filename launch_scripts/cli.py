@@ -287,9 +287,16 @@ def bench(args: argparse.Namespace) -> None:
 
 
 def launch(args: argparse.Namespace) -> None:
-    """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``."""
+    """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``; ``crs launch
+    car --emulate | --car-ip IP``: the same against cars over UDP (emulated or real)."""
     from crs_core.track import Track
     from launch_scripts.sim_stack import run_stack, summary
+
+    if args.scenario == "car":
+        return launch_car(args)
+    for option, given in (("--emulate", args.emulate), ("--car-ip", args.car_ip)):
+        if given:
+            raise ValueError(f"{option}: only for crs launch car")
 
     # the nodes check these too, but a mistake is cheaper to hear before four processes start
     if args.output == "velocity" and args.controller != "mpcc":
@@ -315,6 +322,49 @@ def launch(args: argparse.Namespace) -> None:
         params_file=args.params,
         controller=args.controller,
         output=args.output,
+    )
+    print(summary(report, Path(args.out)))
+
+
+def launch_car(args: argparse.Namespace) -> None:
+    """``crs launch car (--emulate | --car-ip IP[,IP...])``: the stack against cars over UDP."""
+    from launch_scripts.car_stack import parse_car_ips, run_car_stack, summary
+
+    if args.emulate == (args.car_ip is not None):
+        raise ValueError("car: needs either --emulate or --car-ip IP (a real car), not both")
+    car_ips = None
+    if args.car_ip is not None:
+        car_ips = parse_car_ips(args.car_ip)
+        if args.cars not in (1, len(car_ips)):
+            raise ValueError(
+                f"--cars: {args.cars} cars with {len(car_ips)} --car-ip address(es); give one "
+                "address per car (IP,IP,...)"
+            )
+        args.cars = len(car_ips)
+    if args.track is not None:
+        raise ValueError("--track: crs launch car races DEMO_TRACK (where the emulator starts)")
+    if args.output == "velocity" and args.controller != "mpcc":
+        raise ValueError(
+            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
+            "commands torque)"
+        )
+    if args.params is not None:
+        build_model([], 1, args.params)
+    prepare_output(Path(args.out), "launch", args.overwrite)
+    report = run_car_stack(
+        args.cars,
+        args.estimator,
+        args.duration,
+        Path(args.out),
+        args.emulate,
+        car_ips,
+        args.domain,
+        args.seed,
+        record=args.record,
+        controller=args.controller,
+        output=args.output,
+        blind_start=args.blind_start,
+        params_file=args.params,
     )
     print(summary(report, Path(args.out)))
 
@@ -575,9 +625,27 @@ def make_parser() -> argparse.ArgumentParser:
         description="sim: per car a simulator, an estimator and a controller node (namespaces "
         "/car1, /car2, ...) and one recorder, as processes on DDS (loopback), for --duration; "
         "then OUT/report.json (laps, estimation RMSE, deadline misses, latencies, CPU), "
-        "OUT/path.png, OUT/bag (MCAP) and OUT/logs.",
+        "OUT/path.png, OUT/bag (MCAP) and OUT/logs. car: per car a bridge node (UDP port "
+        "20211, 20212, ...), an estimator and a controller, against emulated cars on loopback "
+        "(--emulate: one crs car-emulator per car on port 20311, 20312, ...; truth and link "
+        "timing in OUT/truth_carN.npz) or real cars (--car-ip IP[,IP...]: the bridge binds "
+        "0.0.0.0 and pairs only with that address); the report adds the latency sensor packet "
+        "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs.",
     )
-    sub.add_argument("scenario", choices=["sim"], help="sim: simulated cars (no car needed)")
+    sub.add_argument(
+        "scenario",
+        choices=["sim", "car"],
+        help="sim: simulated cars (no car needed); car: cars over UDP (--emulate or --car-ip)",
+    )
+    sub.add_argument(
+        "--emulate",
+        action="store_true",
+        help="car: emulated cars (crs car-emulator) on loopback UDP, exactly as real ones",
+    )
+    sub.add_argument(
+        "--car-ip",
+        help="car: the real car's IPv4 address (several cars: IP,IP,...; one bridge each)",
+    )
     sub.add_argument(
         "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
     )

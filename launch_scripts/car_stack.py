@@ -1,0 +1,405 @@
+"""The whole stack against cars over UDP: emulated ones on loopback, or real ones over Wi-Fi.
+
+``crs launch car --emulate`` runs, per car ``/carN``, the car emulator (``crs car-emulator``, a
+plain process) and the same nodes as against a real car (``crs launch car --car-ip IP``):
+
+- ``emulator`` (``--emulate`` only): binds 127.0.0.1:``EMULATOR_PORT + N - 1`` and sends to the
+  bridge's port, seed ``SEED + N``, ``--truth-out OUT/truth_carN.npz`` (its ground truth and the
+  link's timing log on the clock of its packet stamps);
+- ``bridge`` (:mod:`ros4crs.bridge_node`): port ``HOST_PORT + N - 1``; emulated: bound to
+  127.0.0.1 and paired only with its emulator's address and port; a real car: bound to
+  0.0.0.0 and paired only with that car's IP (any port);
+- ``estimator`` (EKF or MHE, ``inputs: auto``: the controller's commands on ``input`` when they
+  are torques), ``controller`` (MPCC on ``input``, torque or velocity references);
+- one ``recorder`` (OUT/bag): as ``crs launch sim --record`` plus ``bridge/diagnostics``.
+
+Then :func:`analyse_car_run` writes ``OUT/report.json`` per car: laps and lap times (from the
+emulator's truth; from the estimates for a real car, marked ``laps_from``), estimation RMSE
+against the emulator's truth, estimator deadline misses, latencies, the bridge's last
+diagnostics and its final log line, the emulator's summary and motor cut-offs; and per process
+CPU (% of one core) and peak memory. ``OUT/path.png`` as for ``crs launch sim`` (emulated cars).
+
+Latencies (ms, median and p95; the packet stamps are the emulator's wall clock, which is the
+host's, and the recorder's receive times the host's wall clock):
+
+- ``sensor_to_estimate``, ``sensor_to_input``: as in ``crs launch sim``
+  (:func:`launch_scripts.sim_stack.latencies`; the sensor stamp is the car's packet stamp);
+- ``sensor_to_command_read`` (**sensor packet → estimate → command packet**): for every
+  reference the emulated car read, its read time (the emulator's wall clock at ``recvfrom``;
+  it reads once per 4 ms tick, as the firmware's loop) minus the stamp of the newest sensor
+  packet behind the estimate it was computed from. The chain is followed back through the
+  stamps: the command packet's ``Packet.timestamp`` (the bridge's send time) → the newest
+  ``input`` message stamped at or before it (the controller stamps its tick's start, right
+  after taking the estimates that had arrived) → the newest estimate the recorder had received
+  by that stamp (≈ the controller's receipt, both on loopback DDS) → the newest sensor packet
+  stamped at or before that estimate's stamp (the estimator queries 20 ms in the past, so this
+  includes its deliberate lag, as in ``crs launch sim``);
+- ``sensor_to_command_sent``: the same chain ending at the bridge's send stamp, and
+  ``command_sent_to_read``: bridge send → emulator read (UDP on loopback plus the wait for the
+  emulator's next tick, 0–4 ms).
+"""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crs_core.analysis.metrics import lap_statistics
+from crs_core.track import load_demo_track
+from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.sim_stack import OUTPUTS, RECORD_SETS, SETTLE_S, _progress, _summary, analyse
+
+#: The bridge of car N listens on ``HOST_PORT + N - 1`` (the firmware's default host port first).
+HOST_PORT = 20211
+#: The emulator of car N binds ``EMULATOR_PORT + N - 1`` (127.0.0.1).
+EMULATOR_PORT = 20311
+#: The bridge's own topic the recorder adds to the car's record set.
+DIAGNOSTICS_TOPIC = "bridge/diagnostics"
+
+
+def parse_car_ips(text: str) -> list[str]:
+    """``IP[,IP...]`` -> the cars' IPv4 addresses (``ValueError`` naming ``--car-ip``)."""
+    ips = [part.strip() for part in text.split(",")]
+    for ip in ips:
+        try:
+            address = ipaddress.IPv4Address(ip)
+        except ValueError:
+            raise ValueError(f"--car-ip: {ip!r} is not an IPv4 address") from None
+        if address.is_unspecified or address.is_multicast:
+            raise ValueError(f"--car-ip: {ip} is not one car's address")
+    if len(set(ips)) != len(ips):
+        raise ValueError(f"--car-ip: {text!r} names a car twice")
+    return ips
+
+
+def car_nodes(
+    cars: int,
+    estimator: str,
+    bag: Path,
+    out: Path,
+    emulate: bool,
+    car_ips: list[str] | None = None,
+    seed: int = 0,
+    record: str = "all",
+    controller: str = "mpcc",
+    output: str = "torque",
+    blind_start: bool = False,
+    params_file: Path | None = None,
+) -> list[NodeSpec]:
+    """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
+    when ``emulate``, started last: its car waits for references anyway), and one recorder.
+    ``car_ips``: one real car per address (not with ``emulate``)."""
+    if emulate == bool(car_ips):
+        raise ValueError("car: either emulate or car_ips (one real car per address)")
+    if car_ips and len(car_ips) != cars:
+        raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
+    if cars < 1:
+        raise ValueError("cars: must be >= 1")
+    if estimator not in ("ekf", "mhe"):
+        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
+    if output not in OUTPUTS:
+        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    if record not in RECORD_SETS:
+        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
+    per_car, global_topics = RECORD_SETS[record]
+    files = {"params_file": str(Path(params_file).resolve())} if params_file else {}
+    commands = {"output": output} if output == "velocity" else {}
+    nodes, emulators, topics = [], [], list(global_topics)
+    for i in range(1, cars + 1):
+        ns, host_port = f"/car{i}", HOST_PORT + i - 1
+        if emulate:
+            car_port = EMULATOR_PORT + i - 1
+            bridge = {"port": host_port, "car_ip": "127.0.0.1", "car_port": car_port}
+            arguments = ["--host", "127.0.0.1", "--host-port", str(host_port)]
+            arguments += ["--port", str(car_port), "--seed", str(seed + i)]
+            arguments += ["--truth-out", str(Path(out).resolve() / f"truth_car{i}.npz")]
+            emulators.append(
+                NodeSpec("emulator", "chronos_bridge.emulator_process", ns, arguments=arguments)
+            )
+        else:
+            bridge = {"port": host_port, "bind": "0.0.0.0", "car_ip": car_ips[i - 1]}
+        nodes += [
+            NodeSpec("bridge", "ros4crs.bridge_node", ns, bridge),
+            NodeSpec(
+                "estimator",
+                "ros4crs.estimator_node",
+                ns,
+                {"estimator": estimator, "blind_start": blind_start, **files},
+            ),
+            NodeSpec(
+                "controller",
+                "ros4crs.controller_node",
+                ns,
+                {"controller": controller, **commands, **files},
+            ),
+        ]
+        topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
+    nodes.append(
+        NodeSpec(
+            "recorder",
+            "ros4crs.recorder_node",
+            "",
+            {"output": str(bag), "topics": ",".join(topics)},
+        )
+    )
+    return nodes + emulators
+
+
+def run_car_stack(
+    cars: int,
+    estimator: str,
+    duration: float,
+    out: Path,
+    emulate: bool,
+    car_ips: list[str] | None = None,
+    domain_id: int | None = None,
+    seed: int = 0,
+    record: str = "all",
+    controller: str = "mpcc",
+    output: str = "torque",
+    blind_start: bool = False,
+    params_file: Path | None = None,
+) -> dict[str, Any]:
+    """Run the stack against the cars for ``duration`` s, then write ``out/report.json``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "bag"
+    if bag.exists():
+        raise FileExistsError(f"{bag} exists; choose an empty --out")
+    domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    nodes = car_nodes(
+        cars,
+        estimator,
+        bag,
+        out,
+        emulate,
+        car_ips,
+        seed,
+        record=record,
+        controller=controller,
+        output=output,
+        blind_start=blind_start,
+        params_file=params_file,
+    )
+    launcher = Launcher(nodes, domain, out / "logs")
+    what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
+    print(
+        f"[launch] {len(nodes)} processes, {cars} {what}, {estimator}, {controller} "
+        f"({output} commands) for {duration:g} s",
+        flush=True,
+    )
+
+    def report_death(exited) -> None:
+        print(
+            f"[launch] {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}",
+            flush=True,
+        )
+
+    deaths = launcher.run(
+        duration,
+        on_exit=report_death,
+        until=_progress(launcher, duration),
+        settle_s=min(SETTLE_S, duration / 4),
+    )
+    print("[launch] stopped; analysing the bag", flush=True)
+    report = analyse_car_run(bag, cars, out, emulate)
+    report.update(
+        mode="emulated" if emulate else "real",
+        car_ips=car_ips or [],
+        estimator=estimator,
+        controller=controller,
+        output=output,
+        duration_s=duration,
+        recorded=record,
+        seed=seed,
+        node_deaths=[{"node": d.node, "returncode": d.returncode} for d in deaths],
+    )
+    wall = max(launcher.wall_at_stop, 1e-9)
+    report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
+    if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
+        running = launcher.wall_at_stop - launcher.wall_at_settle
+        report["cpu_percent_running"] = {
+            n: round(100 * (s - launcher.cpu_at_settle.get(n, 0.0)) / running, 1)
+            for n, s in launcher.cpu_at_stop.items()
+        }
+    report["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
+    (out / "report.json").write_text(json.dumps(report, indent=2))
+    if emulate:
+        from launch_scripts.stack_plot import StateTrack, plot
+
+        truths = {}
+        for i in range(1, cars + 1):
+            t, x = _truth(out, i)
+            if t.size:
+                truths[i] = StateTrack(t, x, np.full_like(x, np.nan))
+        if truths:
+            title = f"ROS 2 stack against {cars} emulated car(s) over UDP: {estimator.upper()} "
+            plot(bag, cars, out, estimator, None, truths, title + "vs the emulator's truth")
+    return report
+
+
+def _truth(out: Path, car: int) -> tuple[np.ndarray, np.ndarray]:
+    path = Path(out) / f"truth_car{car}.npz"
+    if not path.is_file():
+        return np.zeros(0), np.zeros((0, 6))
+    with np.load(path) as log:
+        return log["t"], log["x"]
+
+
+def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str, Any]:
+    """``report.json``'s per-car part (see the module docstring)."""
+    from ros4crs.bag_replay import read_car, read_receive_times
+
+    track = load_demo_track()
+    truths = {}
+    if emulate:
+        for i in range(1, cars + 1):
+            t, x = _truth(out, i)
+            if t.size >= 2:
+                truths[f"car{i}"] = (t, x)
+    report = analyse(bag, cars, track, truths)
+    diagnostics = last_diagnostics(bag, cars)
+    for i in range(1, cars + 1):
+        name, ns = f"car{i}", f"/car{i}"
+        car = report["cars"][name]
+        car["bridge_diagnostics"] = diagnostics.get(name)
+        car["bridge_final_log"] = _last_line(out / "logs" / f"car{i}_bridge.log", "stopping: ")
+        if emulate:
+            car["laps_from"] = "emulator truth"
+            car["emulator_summary"] = _last_line(
+                out / "logs" / f"car{i}_emulator.log", "crs car-emulator: stopped"
+            )
+            log_path = out / f"truth_car{i}.npz"
+            if log_path.is_file():
+                with np.load(log_path) as log:
+                    car["motor_cutoffs"] = cutoffs(log)
+                    times = read_receive_times(bag, ns)
+                    car["latency_ms"].update(command_latencies(times, log))
+        else:
+            car["laps_from"] = "estimates (no truth from a real car)"
+            estimates = read_car(bag, ns).estimates
+            if len(estimates) >= 2:
+                stamps = np.array([t for t, _ in estimates])
+                states = np.array([x for _, x in estimates])
+                moving = np.flatnonzero(states[:, 3] > 0.05)
+                start = int(moving[0]) if moving.size else 0
+                laps = lap_statistics(stamps[start:], states[start:], track, line_tolerance=0.05)
+                car["laps_completed"] = laps["laps_completed"]
+                car["lap_times_s"] = laps["lap_times_s"]
+    report["latency_definitions"] = LATENCY_DEFINITIONS
+    return report
+
+
+#: What each latency in ``report.json`` measures (copied into the report).
+LATENCY_DEFINITIONS = {
+    "sensor_to_estimate": "recorder receive time of each estimate minus the stamp of the newest "
+    "sensor packet stamped at or before the estimate's stamp (includes the estimator's 20 ms lag)",
+    "sensor_to_input": "recorder receive time of each input message minus the stamp of the newest "
+    "sensor packet behind the newest estimate received before it",
+    "sensor_to_command_read": "sensor packet -> estimate -> command packet: the emulator's read "
+    "time of each reference minus the stamp of the newest sensor packet behind the estimate it was "
+    "computed from (reference host stamp -> newest input stamped at or before it -> newest "
+    "estimate received by that input's stamp -> newest sensor stamped at or before the estimate)",
+    "sensor_to_command_sent": "the same chain ending at the bridge's send stamp of the reference",
+    "command_sent_to_read": "bridge send stamp -> emulator read (loopback UDP + up to one "
+    "4 ms tick)",
+}
+
+
+def command_latencies(
+    times: dict[str, list[tuple[float, float]]], log: Any
+) -> dict[str, dict[str, float]]:
+    """The command-packet latencies (ms; see the module docstring) from the bag's
+    ``(stamp, receive time)`` pairs and the emulator's log (``command_host_t``,
+    ``command_read_t``)."""
+    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
+    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
+    input_stamps = np.sort(np.array([s for s, _ in times.get("input", [])]))
+    sent = np.asarray(log["command_host_t"], dtype=float)
+    read = np.asarray(log["command_read_t"], dtype=float)
+    if sensors.size == 0 or not estimates or input_stamps.size == 0 or sent.size == 0:
+        return {}
+    est_stamp = np.array([s for s, _ in estimates])
+    est_recv = np.array([r for _, r in estimates])
+    keep = np.isfinite(sent)
+    sent, read = sent[keep], read[keep]
+    # the input each command was sent for: the newest stamped at or before its send stamp,
+    # within one controller period (a command with no recorded input is left out)
+    k = np.searchsorted(input_stamps, sent, side="right") - 1
+    ok = (k >= 0) & (sent - input_stamps[np.clip(k, 0, None)] < 0.1)
+    tick = input_stamps[k[ok]]
+    sent, read = sent[ok], read[ok]
+    e = np.searchsorted(est_recv, tick, side="right") - 1
+    ok = e >= 0
+    sent, read, e = sent[ok], read[ok], e[ok]
+    s = np.searchsorted(sensors, est_stamp[e], side="right") - 1
+    ok = s >= 0
+    newest = sensors[s[ok]]
+    sent, read = sent[ok], read[ok]
+    return {
+        "sensor_to_command_read": _summary((read - newest) * 1e3),
+        "sensor_to_command_sent": _summary((sent - newest) * 1e3),
+        "command_sent_to_read": _summary((read - sent) * 1e3),
+        "commands_matched": int(sent.size),
+    }
+
+
+def cutoffs(log: Any) -> dict[str, Any]:
+    """The emulator's motor cut-offs: how many, the time from the last reference (ms) and how
+    many times references came back."""
+    gaps = (np.asarray(log["pause_t"]) - np.asarray(log["pause_last_command_t"])) * 1e3
+    return {
+        "count": int(gaps.size),
+        "after_last_reference_ms": [round(float(g), 1) for g in gaps],
+        "resumed": int(np.asarray(log["resume_t"]).size),
+    }
+
+
+def last_diagnostics(bag: Path, cars: int) -> dict[str, Any]:
+    """Per car, the bridge's last ``bridge/diagnostics`` JSON in the bag."""
+    from ros4crs.bag_repair import open_bag
+    from ros4crs.interfaces import typestore
+
+    store = typestore()
+    wanted = {f"/car{i}/{DIAGNOSTICS_TOPIC}": f"car{i}" for i in range(1, cars + 1)}
+    out: dict[str, Any] = {}
+    with open_bag(bag) as reader:
+        connections = [c for c in reader.connections if c.topic in wanted]
+        for connection, _, data in reader.messages(connections) if connections else ():
+            msg = store.deserialize_cdr(bytes(data), connection.msgtype)
+            try:
+                out[wanted[connection.topic]] = json.loads(msg.data)
+            except ValueError:
+                continue
+    return out
+
+
+def _last_line(path: Path, marker: str) -> str | None:
+    if not path.is_file():
+        return None
+    lines = [ln for ln in path.read_text(errors="replace").splitlines() if marker in ln]
+    return lines[-1].strip() if lines else None
+
+
+def summary(report: dict[str, Any], out: Path) -> str:
+    """A few lines for a person (as ``crs launch sim``'s, plus latencies and the link)."""
+    from launch_scripts.sim_stack import summary as sim_summary
+
+    lines = sim_summary(report, out).splitlines()
+    extra = []
+    for name, car in report["cars"].items():
+        latency = car.get("latency_ms", {})
+        chain = latency.get("sensor_to_command_read") or {}
+        diag = car.get("bridge_diagnostics") or {}
+        cut = car.get("motor_cutoffs") or {}
+        extra.append(
+            f"{name}: sensor packet -> command packet median {chain.get('median', '-')} ms, "
+            f"p95 {chain.get('p95', '-')} ms; bridge received {diag.get('received', '-')}, "
+            f"sent {diag.get('sent', '-')}; motor cut-offs {cut.get('count', '-')}"
+        )
+    return "\n".join(lines[: len(report["cars"])] + extra + lines[len(report["cars"]) :])
