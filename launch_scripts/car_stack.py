@@ -280,6 +280,7 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
                     car["motor_cutoffs"] = cutoffs(log)
                     times = read_receive_times(bag, ns)
                     car["latency_ms"].update(command_latencies(times, log))
+                    car["latency_ms"]["sensor_to_input_chain"] = input_chain_latency(times)
         else:
             car["laps_from"] = "estimates (no truth from a real car)"
             estimates = read_car(bag, ns).estimates
@@ -305,6 +306,8 @@ LATENCY_DEFINITIONS = {
     "time of each reference minus the stamp of the newest sensor packet behind the estimate it was "
     "computed from (reference host stamp -> newest input stamped at or before it -> newest "
     "estimate received by that input's stamp -> newest sensor stamped at or before the estimate)",
+    "sensor_to_input_chain": "the same chain ending at the recorder's receive time of the "
+    "input message (defined alike for the direct simulator)",
     "sensor_to_command_sent": "the same chain ending at the bridge's send stamp of the reference",
     "command_sent_to_read": "bridge send stamp -> emulator read (loopback UDP + up to one "
     "4 ms tick)",
@@ -347,6 +350,27 @@ def command_latencies(
         "command_sent_to_read": _summary((read - sent) * 1e3),
         "commands_matched": int(sent.size),
     }
+
+
+def input_chain_latency(times: dict[str, list[tuple[float, float]]]) -> dict[str, float]:
+    """``sensor_to_input_chain`` (ms): the recorder's receive time of each ``input`` minus the
+    stamp of the newest sensor sample behind the newest estimate received by the input's stamp
+    (the controller's tick): the chain of ``sensor_to_command_*`` ending at the input message,
+    defined alike for the direct simulator (no packets there)."""
+    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
+    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
+    inputs = times.get("input", [])
+    if sensors.size == 0 or not estimates or not inputs:
+        return {}
+    est_stamp = np.array([s for s, _ in estimates])
+    est_recv = np.array([r for _, r in estimates])
+    tick = np.array([s for s, _ in inputs])
+    received = np.array([r for _, r in inputs])
+    e = np.searchsorted(est_recv, tick, side="right") - 1
+    ok = e >= 0
+    s = np.searchsorted(sensors, est_stamp[e[ok]], side="right") - 1
+    good = s >= 0
+    return _summary((received[ok][good] - sensors[s[good]]) * 1e3)
 
 
 def cutoffs(log: Any) -> dict[str, Any]:

@@ -260,6 +260,16 @@ def bench(args: argparse.Namespace) -> None:
         }
         text = json.dumps(result, indent=2)
         print(format_table(result))
+    elif args.what == "bridge":
+        from launch_scripts.bridge_benchmark import bridge_benchmark, format_table
+
+        runs = Path(args.out).with_suffix("") if args.out else Path("out/bench/bridge")
+        work = prepare_output(runs.with_name(runs.name + "_runs"), "bench", args.overwrite)
+        result = bridge_benchmark(args.duration, work, args.estimator, args.seed)
+        result = {"machine": machine(), "command": "crs " + " ".join(sys.argv[1:]), **result}
+        text = json.dumps(result, indent=2)
+        print(format_table(result))
+        print(f"runs (reports, figures, bags, emulator logs): {work}")
     elif args.what == "stack":
         from launch_scripts.stack_benchmark import format_table, stack_benchmark
 
@@ -552,6 +562,10 @@ def make_parser() -> argparse.ArgumentParser:
         "stack: the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, "
         "deadline misses, re-initialisations, latencies, and CPU and peak memory per node; "
         "--load K busy processes beside it; the runs go to <out without .json>_runs/. "
+        "bridge: crs launch sim (direct simulator) and crs launch car --emulate (the emulated "
+        "car over loopback UDP through the bridge) for the same --duration and --seed, side by "
+        "side: laps, RMSE, deadline misses, latencies (sensor packet -> estimate -> command "
+        "packet), bridge counts, CPU per process; ~2 x duration + 30 s. "
         "sysid: identification speed (a real run, 3000 simulated samples), real-data "
         "cross-validation (run 1 <-> run 2) and the simulated coverage study (--seeds, "
         "default 5; 10 for the README figures); ~10 min. "
@@ -567,7 +581,7 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument(
         "what",
-        choices=["model", "estimation", "stack", "sysid", "discrepancy", "control"],
+        choices=["model", "estimation", "stack", "bridge", "sysid", "discrepancy", "control"],
         help="which benchmark",
     )
     sub.add_argument("--out", type=Path, help="also write the JSON to this file")
@@ -598,13 +612,14 @@ def make_parser() -> argparse.ArgumentParser:
         help="stack: 1..8 (default 1)",
     )
     sub.add_argument(
-        "--estimator", choices=["ekf", "mhe"], default="mhe", help="stack: (default mhe)"
+        "--estimator", choices=["ekf", "mhe"], default="mhe", help="stack, bridge: (default mhe)"
     )
+    sub.add_argument("--seed", type=int, default=0, help="bridge: noise seed (default 0)")
     sub.add_argument(
         "--duration",
         type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
         default=40.0,
-        help="stack: wall-clock s per repeat (default 40)",
+        help="stack: wall-clock s per repeat; bridge: per run (default 40)",
     )
     sub.add_argument(
         "--repeats",
