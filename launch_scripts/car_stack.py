@@ -90,10 +90,12 @@ def car_nodes(
     output: str = "torque",
     blind_start: bool = False,
     params_file: Path | None = None,
+    ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
     when ``emulate``, started last: its car waits for references anyway), and one recorder.
-    ``car_ips``: one real car per address (not with ``emulate``)."""
+    ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
+    the emulator's port of car 1 (car N: + N - 1)."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
     if car_ips and len(car_ips) != cars:
@@ -111,9 +113,9 @@ def car_nodes(
     commands = {"output": output} if output == "velocity" else {}
     nodes, emulators, topics = [], [], list(global_topics)
     for i in range(1, cars + 1):
-        ns, host_port = f"/car{i}", HOST_PORT + i - 1
+        ns, host_port = f"/car{i}", ports[0] + i - 1
         if emulate:
-            car_port = EMULATOR_PORT + i - 1
+            car_port = ports[1] + i - 1
             bridge = {"port": host_port, "car_ip": "127.0.0.1", "car_port": car_port}
             arguments = ["--host", "127.0.0.1", "--host-port", str(host_port)]
             arguments += ["--port", str(car_port), "--seed", str(seed + i)]
@@ -164,6 +166,7 @@ def run_car_stack(
     output: str = "torque",
     blind_start: bool = False,
     params_file: Path | None = None,
+    ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
 ) -> dict[str, Any]:
     """Run the stack against the cars for ``duration`` s, then write ``out/report.json``."""
     out = Path(out)
@@ -185,6 +188,7 @@ def run_car_stack(
         output=output,
         blind_start=blind_start,
         params_file=params_file,
+        ports=ports,
     )
     launcher = Launcher(nodes, domain, out / "logs")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
