@@ -1,0 +1,142 @@
+"""``crs launch car --emulate``: the whole stack against emulated cars over loopback UDP.
+
+(a) one emulated car: a lap, estimation within a few mm of the emulator's truth, no process
+death, the latency chain measured; (b) the controller killed: the emulated car cuts its motors
+200 ms after the last reference, and drives again when a new controller sends; (c) two emulated
+cars at once in /car1 and /car2 on their own ports: both drive, each bridge paired with its own
+emulator only, every reference of a car's controller reaches that car.
+
+Ports of their own (not the defaults), so a ``crs launch car`` running beside does not collide.
+"""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+from stack_probe import Probe, log_text, wait_for
+
+from launch_scripts.car_stack import car_nodes, run_car_stack
+from launch_scripts.launcher import Launcher, NodeSpec
+
+pytestmark = pytest.mark.integration
+
+DOMAIN_EMULATED_LAP = 123
+DOMAIN_CUTOFF = 124
+DOMAIN_TWO_EMULATED = 125
+
+
+def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
+    report = run_car_stack(
+        1, "mhe", 25.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
+    )
+    assert report["node_deaths"] == []
+    car = report["cars"]["car1"]
+    assert car["laps_completed"] >= 1, car
+    rmse = car["estimation_rmse"]
+    assert rmse["x"] < 0.008 and rmse["y"] < 0.008 and rmse["yaw"] < 0.03, rmse
+    assert car["estimator_reinitializations"] == 0
+    diagnostics = car["bridge_diagnostics"]
+    assert diagnostics["car"] == "127.0.0.1:21311"
+    counts = diagnostics["counts"]
+    assert counts["car_state"] > 2000 and counts["invalid"] == counts["undecodable"] == 0
+    latency = car["latency_ms"]
+    assert latency["commands_matched"] > 300
+    chain = latency["sensor_to_command_read"]
+    assert 20.0 < chain["median"] <= chain["p95"] < 100.0, latency
+    assert car["motor_cutoffs"]["count"] == 0  # references at 30 Hz all the way
+    assert "0 rejected" in car["emulator_summary"]
+    assert (tmp_path / "run" / "path.png").is_file()
+
+
+def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm_codegen) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    nodes = car_nodes(1, "mhe", out / "bag", out, True, ports=(21221, 21321), record="estimates")
+    launcher = Launcher(nodes, DOMAIN_CUTOFF, out / "logs")
+    controller = next(n for n in nodes if n.name == "controller")
+    again = Launcher(
+        [NodeSpec(controller.name, controller.module, controller.namespace, controller.parameters)],
+        DOMAIN_CUTOFF,
+        out / "logs_again",
+    )
+    emulator_log = lambda: log_text(out / "logs", "/car1/emulator")  # noqa: E731
+    from geometry_msgs.msg import TwistStamped
+
+    probe = Probe(DOMAIN_CUTOFF)
+    # the car's own v_x estimate, through the bridge
+    speeds = probe.collect(TwistStamped, "/car1/telemetry/velocity")
+    try:
+        launcher.start()
+        wait_for(
+            lambda: any(m.twist.linear.x > 1.0 for _, m in speeds[-50:]),
+            60.0,
+            lambda: f"the car driving; bridge log: {log_text(out / 'logs', '/car1/bridge')[-400:]}",
+        )
+        launcher.processes["/car1/controller"].send_signal(signal.SIGKILL)
+        wait_for(lambda: "motors cut (pause 1)" in emulator_log(), 5.0, "the motor cut-off")
+        time.sleep(1.0)
+        again.start()
+        wait_for(
+            lambda: "references again: drives" in emulator_log(),
+            60.0,
+            lambda: f"references again; emulator log: {emulator_log()[-400:]}",
+        )
+        resumed_at = time.time()
+        wait_for(
+            lambda: any(t > resumed_at and m.twist.linear.x > 1.0 for t, m in speeds[-50:]),
+            10.0,
+            "the car driving again",
+        )
+        time.sleep(1.0)
+        assert not [e for e in launcher.poll() if e.node != "/car1/controller"]
+        assert not again.poll()
+    finally:
+        probe.close()
+        again.stop()
+        launcher.stop()
+    with np.load(out / "truth_car1.npz") as log:
+        # every cut-off 200 ms (+ one 4 ms tick) after the last reference: the kill, and the
+        # stop at the end (the controller stops before the emulator)
+        gaps = log["pause_t"] - log["pause_last_command_t"]
+        assert gaps.size >= 1 and np.all((gaps >= 0.195) & (gaps <= 0.25)), gaps
+        assert log["resume_t"].size == 1 and log["pause_t"][0] < log["resume_t"][0]
+        t, x = log["t"], log["x"]
+        cut, resumed = log["pause_t"][0], log["resume_t"][0]
+    before = x[(t > cut - 0.5) & (t < cut), 3]
+    stopped = x[(t > resumed - 0.3) & (t < resumed), 3]
+    after = x[t > resumed + 1.0, 3]
+    assert before.max() > 0.5  # it was driving
+    assert stopped.max() < before.max() * 0.7  # it slowed with the motor cut
+    assert after.max() > 0.5  # and drives again on the new controller's references
+
+
+def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_codegen) -> None:
+    report = run_car_stack(
+        2,
+        "mhe",
+        25.0,
+        tmp_path / "run",
+        True,
+        domain_id=DOMAIN_TWO_EMULATED,
+        ports=(21231, 21331),
+        record="estimates",
+    )
+    assert report["node_deaths"] == []
+    for i in (1, 2):
+        car = report["cars"][f"car{i}"]
+        diagnostics = car["bridge_diagnostics"]
+        assert diagnostics["car"] == f"127.0.0.1:{21331 + i - 1}"  # its own emulator only
+        assert diagnostics["counts"]["foreign"] == 0
+        with np.load(tmp_path / "run" / f"truth_car{i}.npz") as log:
+            x = log["x"]
+        travelled = np.sum(np.hypot(np.diff(x[:, 0]), np.diff(x[:, 1])))
+        assert travelled > 5.0, (i, travelled)  # it drove
+        rmse = car["estimation_rmse"]  # its estimator saw its own car's data
+        assert rmse["x"] < 0.01 and rmse["y"] < 0.01, (i, rmse)
+        # every reference this car's bridge sent, this car's emulator read (and no other's)
+        sent = int(car["bridge_final_log"].split("sent: commands ")[1].split(",")[0])
+        read = int(car["emulator_summary"].split(" commands received")[0].rsplit(" ", 1)[1])
+        assert sent > 200 and abs(sent - read) <= 2, (i, sent, read)
