@@ -116,9 +116,9 @@ def format_table(result: dict[str, Any]) -> str:
     width = max(len(label) for label, _, _ in rows)
     lines = [
         f"1 car, {result['estimator']}, {result['duration_s']:g} s, seed {result['seed']}",
-        f"{'':{width}}  {'direct simulator':>26}  {'emulated car over UDP':>26}",
+        f"{'':{width}}  {'direct simulator':>36}  {'emulated car over UDP':>36}",
     ]
-    lines += [f"{label:{width}}  {a:>26}  {b:>26}" for label, a, b in rows]
+    lines += [f"{label:{width}}  {a:>36}  {b:>36}" for label, a, b in rows]
     lines.append(f"CPU % once running, sim: {_pipeline_cpu(sim)}")
     lines.append(f"CPU % once running, emulated: {_pipeline_cpu(emu)}")
     return "\n".join(lines)
