@@ -108,6 +108,51 @@ class Converted:
     telemetry: Telemetry
 
 
+class DeckClock:
+    """The Lighthouse deck's 24-bit tick counter mapped onto the packet clock.
+
+    A sweep is carried by the first ``CarState`` after it was measured, so ``packet stamp -
+    deck time`` (deck time: the sweep's ``first_timestamp`` unwrapped, over
+    :data:`DECK_TICK_HZ`) is the clocks' offset plus a delay of 0 to 4 ms (one 250 Hz step; more
+    when the sweep waited for room in a later packet). The smallest difference over the last
+    ``window`` sweeps estimates the offset, following a slowly drifting deck clock; a sweep is
+    stamped at its deck time plus that offset (never after its packet). Unwrapping needs a sweep
+    at least every 0.35 s (half the counter's 0.699 s period): after a longer gap (a Lighthouse
+    blackout) the clock starts afresh. A stamp more than ``max_age`` s before its packet (deck
+    ticks that do not follow the packet clock) falls back to the packet's stamp, counted in
+    ``fallbacks``.
+    """
+
+    def __init__(self, window: int = 100, max_age: float = 0.05) -> None:
+        self.window, self.max_age = int(window), float(max_age)
+        self.fallbacks = 0
+        self.restart()
+
+    def restart(self) -> None:
+        """Forget the offset and the unwrapping."""
+        self._ticks: int | None = None
+        self._unwrapped = 0
+        self._packet = -math.inf
+        self._offsets: deque[float] = deque(maxlen=self.window)
+
+    def stamp(self, ticks: int, packet_stamp: float) -> float:
+        """Measurement time (s, the packet clock) of a sweep with ``first_timestamp`` ticks
+        carried by a packet stamped ``packet_stamp``."""
+        if self._ticks is None or packet_stamp - self._packet > 0.5 * TICKS_24BIT / DECK_TICK_HZ:
+            self.restart()
+            self._unwrapped = int(ticks)
+        else:
+            self._unwrapped += tick_difference(int(ticks), self._ticks)
+        self._ticks, self._packet = int(ticks), packet_stamp
+        deck_time = self._unwrapped / DECK_TICK_HZ
+        self._offsets.append(packet_stamp - deck_time)
+        stamp = min(deck_time + min(self._offsets), packet_stamp)
+        if packet_stamp - stamp > self.max_age:
+            self.fallbacks += 1
+            return packet_stamp
+        return stamp
+
+
 @dataclass(slots=True)
 class _Held:
     sweep: LighthouseSweep
@@ -118,9 +163,10 @@ class _Held:
 class CarStateConverter:
     """Host side: validated ``CarState`` packets of one car -> measurements + telemetry.
 
-    Stateful (the Lighthouse pairing holds the last first-plane sweep per station): use one per
-    car and feed its packets in arrival order. Counters: ``states``, ``sweeps_out_of_view``,
-    ``sweeps_held`` (sweeps held while the pair was broken).
+    Stateful (the Lighthouse pairing holds the last first-plane sweep per station; the
+    :class:`DeckClock` stamps sweeps at their measurement time from the deck's ticks): use one
+    per car and feed its packets in arrival order. Counters: ``states``, ``sweeps_out_of_view``,
+    ``sweeps_held`` (sweeps held while the pair was broken); ``deck_clock.fallbacks``.
     """
 
     def __init__(self, imu_sensor: Literal["imu", "gyro"] = "imu") -> None:
@@ -128,21 +174,26 @@ class CarStateConverter:
             raise ValueError(f"imu_sensor: 'imu' or 'gyro', got {imu_sensor!r}")
         self.imu_sensor = imu_sensor
         self._held: dict[int, _Held] = {}
+        self.deck_clock = DeckClock()
         self.states = 0
         self.sweeps_out_of_view = 0
         self.sweeps_held = 0
 
     def reset(self) -> None:
-        """Forget the held sweeps (e.g. when the car reconnects)."""
+        """Forget the held sweeps and the deck clock (e.g. when the car reconnects)."""
         self._held.clear()
+        self.deck_clock.restart()
 
     def convert(self, packet: Packet, receipt_stamp: float) -> Converted:
         """Measurements and telemetry of a ``Packet{car_state}`` from :func:`decode_from_car`.
 
         ``receipt_stamp``: host time of reception, s since the Unix epoch; used when the packet
-        has no timestamp. Lighthouse pairing, per sweep in packet order, for its station: if
-        the 24-bit difference of its ``sync_timestamp`` to the held first plane's is within
-        ±100 ticks it is the second plane (the held first one is published first if it was
+        has no timestamp. IMU, wheel speeds and telemetry carry the packet's stamp (sampled in
+        the step that sends them); a Lighthouse sweep its own measurement time from the deck's
+        ticks (:class:`DeckClock`: a sweep waits up to a 4 ms step, more for room in a packet,
+        which at 1.6 m/s is millimetres). Lighthouse pairing, per sweep in packet order, for
+        its station: if the 24-bit difference of its ``sync_timestamp`` to the held first
+        plane's is within ±100 ticks it is the second plane (the held first one is published first if it was
         not yet); otherwise, if its raw angle_0 is within 0.1 rad of the held first plane's it
         is a new first plane (published, and held); otherwise the pair is broken: it is held,
         unpublished, as the candidate first plane.
@@ -163,7 +214,7 @@ class CarStateConverter:
             values = np.array([w.front_left, w.front_right, w.rear_left, w.rear_right])
             out.append(Measurement(stamp, "wheel_encoders", values))
         for sweep in state.sweeps:
-            self._pair(sweep, stamp, out)
+            self._pair(sweep, self.deck_clock.stamp(sweep.first_timestamp, stamp), out)
         s = state.steering
         battery = state.battery
         telemetry = Telemetry(

@@ -9,6 +9,7 @@ import pytest
 from bridge_builders import STAMP_US, make_state
 
 from chronos_bridge.car_state import (
+    DECK_TICK_HZ,
     PLANE_OFFSETS,
     CarStateAssembler,
     CarStateConverter,
@@ -68,7 +69,8 @@ def test_pairing_first_then_second_plane_releases_both() -> None:
     out = convert(converter, [sweep(SECOND, 1050)], stamp_us=STAMP_US + 4000)
     assert lighthouse(out) == [
         ("lighthouse/0/1", STAMP_US * 1e-6),  # the held one, with its own stamp
-        ("lighthouse/0/2", (STAMP_US + 4000) * 1e-6),
+        # measured 50 deck ticks after the first (the deck clock), not at its packet's stamp
+        ("lighthouse/0/2", pytest.approx(STAMP_US * 1e-6 + 50 / DECK_TICK_HZ, abs=1e-7)),
     ]
     plane1, plane2 = (m for m in out.measurements if m.sensor.startswith("lighthouse"))
     np.testing.assert_allclose(plane1.values, FIRST + PLANE_OFFSETS[1], rtol=1e-6)
@@ -130,7 +132,8 @@ def test_car_side_mapping_is_the_inverse() -> None:
 
 def test_sim_round_trip_gives_back_the_same_measurements() -> None:
     """Simulator -> emulator (car side) -> bytes -> decode -> converter: same values (float32),
-    IMU and wheels at their stamps, each sweep at the stamp of the step that carried it."""
+    IMU and wheels at their stamps, each sweep at its measurement time (the deck clock), not
+    at the stamp of the 4 ms step that carried it."""
     from crs_core.model.car_model import CarModel
     from sim.sensors import SensorSuite
     from sim.simulator import Simulator
@@ -174,7 +177,10 @@ def test_sim_round_trip_gives_back_the_same_measurements() -> None:
         assert len(a) == len(b) > 0, sensor
         for x, y in zip(a, b, strict=True):
             np.testing.assert_allclose(y.values, x.values, rtol=1e-6, atol=2e-6)
-            assert -1e-6 <= (y.stamp - epoch) - x.stamp < step + 1e-6  # µs and epoch rounding
+            if sensor == "wheel_encoders":  # sampled in the step that sends them
+                assert abs((y.stamp - epoch) - x.stamp) < 1e-5  # µs and epoch rounding
+            else:  # a sweep at its own measurement time, from the deck's ticks
+                assert abs((y.stamp - epoch) - x.stamp) < 1e-5, (sensor, y.stamp - epoch, x.stamp)
     assert assembler.sweeps_dropped == 0 and converter.sweeps_out_of_view == 0
 
 
