@@ -32,7 +32,8 @@ def bridge_benchmark(
 ) -> dict[str, Any]:
     """Both runs (``work_dir/sim``, ``work_dir/emulated``); a JSON-ready dict."""
     print("[bench] direct simulator (crs launch sim)", flush=True)
-    sim = run_stack(1, estimator, duration, work_dir / "sim", domain_id, seed)
+    # the same car as the emulator's: the simulator runs the onboard loop (steering servo)
+    sim = run_stack(1, estimator, duration, work_dir / "sim", domain_id, seed, onboard=True)
     from ros4crs.bag_replay import read_receive_times
 
     sim["cars"]["car1"].setdefault("latency_ms", {})["sensor_to_input_chain"] = input_chain_latency(

@@ -51,6 +51,7 @@ def stack_nodes(
     params_file: Path | None = None,
     controller: str = "mpcc",
     output: str = "torque",
+    onboard: bool = False,
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
@@ -63,6 +64,8 @@ def stack_nodes(
     steering and torque) or ``velocity`` (the MPCC commands steering and a velocity reference,
     ``output: velocity``, to the car's onboard loop, which the simulators then run,
     ``onboard: true``; the estimators ignore such commands and estimate the inputs).
+    ``onboard``: the simulators run the car's onboard loop also for torque commands (its
+    steering servo then moves the wheels, as on the emulator and a real car).
     """
     if cars < 1:
         raise ValueError("cars: must be >= 1")
@@ -85,7 +88,7 @@ def stack_nodes(
         if path is not None
     }
     # the default torque stack passes no extra parameters (the nodes' defaults)
-    onboard = {"onboard": True} if output == "velocity" else {}
+    onboard_loop = {"onboard": True} if onboard or output == "velocity" else {}
     commands = {"output": output} if output == "velocity" else {}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
@@ -95,7 +98,7 @@ def stack_nodes(
                 "simulator",
                 "ros4crs.simulator_node",
                 ns,
-                {"seed": seed + i, "wait_for_subscribers": 2, **onboard, **files},
+                {"seed": seed + i, "wait_for_subscribers": 2, **onboard_loop, **files},
             ),
             NodeSpec(
                 "estimator",
@@ -135,6 +138,7 @@ def run_stack(
     params_file: Path | None = None,
     controller: str = "mpcc",
     output: str = "torque",
+    onboard: bool = False,
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out = Path(out)
@@ -154,6 +158,7 @@ def run_stack(
         params_file=params_file,
         controller=controller,
         output=output,
+        onboard=onboard,
     )
     track = Track.from_yaml(track_file) if track_file else load_demo_track()
     launcher = Launcher(nodes, domain, out / "logs")
