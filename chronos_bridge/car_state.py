@@ -195,8 +195,8 @@ class CarStateConverter:
         its station: if the 24-bit difference of its ``sync_timestamp`` to the held first
         plane's is within ±100 ticks it is the second plane (the held first one is published
         first if it was not yet); otherwise, if its raw angle_0 is within 0.1 rad of the held
-        first plane's it is a new first plane (published, and held); otherwise the pair is broken: it is held,
-        unpublished, as the candidate first plane.
+        first plane's it is a new first plane (published, and held); otherwise the pair is
+        broken: it is held, unpublished, as the candidate first plane.
         """
         state = packet.contents
         if not isinstance(state, CarState):
