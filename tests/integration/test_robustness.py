@@ -162,11 +162,11 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
         "/car1/estimator": [
             "dropped malformed lighthouse on sensors/lighthouse: angles: contains NaN",
             "dropped malformed imu on sensors/imu: linear_acceleration: contains NaN or inf",
-            "dropped malformed input on input: steer/torque: contains NaN",
+            "dropped malformed input on input: steer: contains NaN",
             "dropped malformed wheel_encoders on sensors/wheel_speeds: failed to deserialize",
             f"dropped out-of-order data stamped {late_stamp:.3f} s",
         ],
-        "/car1/simulator": ["dropped malformed input on input: steer/torque: contains NaN"],
+        "/car1/simulator": ["dropped malformed input on input: steer: contains NaN"],
     }
     for node, lines in expected.items():
         wait_for(
