@@ -115,7 +115,9 @@ class DeckClock:
     deck time`` (deck time: the sweep's ``first_timestamp`` unwrapped, over
     :data:`DECK_TICK_HZ`) is the clocks' offset plus a delay of 0 to 4 ms (one 250 Hz step; more
     when the sweep waited for room in a later packet). The smallest difference over the last
-    ``window`` sweeps estimates the offset, following a slowly drifting deck clock; a sweep is
+    ``window`` sweeps (10: about 0.1 s) estimates the offset, following a drifting deck clock
+    and re-anchoring within a window after a jump of the car's clock (an emulator on a loaded
+    host falls behind the wall clock and re-anchors its ticks); a sweep is
     stamped at its deck time plus that offset (never after its packet). Unwrapping needs a sweep
     at least every 0.35 s (half the counter's 0.699 s period): after a longer gap (a Lighthouse
     blackout) the clock starts afresh. A stamp more than ``max_age`` s before its packet (deck
@@ -123,7 +125,7 @@ class DeckClock:
     ``fallbacks``.
     """
 
-    def __init__(self, window: int = 100, max_age: float = 0.05) -> None:
+    def __init__(self, window: int = 10, max_age: float = 0.05) -> None:
         self.window, self.max_age = int(window), float(max_age)
         self.fallbacks = 0
         self.restart()
