@@ -345,7 +345,10 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
         )
         stamps = [t for t in stamps if fuzz_start <= t <= fuzz_end]
         windows = {int((t - fuzz_start) / 0.25) for t in stamps}
-        assert windows >= set(range(int((fuzz_end - fuzz_start) / 0.25))), "car not served"
+        # every full window but the last (its messages may still be in flight when the probe's
+        # collection ends: one run in ten missed it)
+        full = int((fuzz_end - fuzz_start) / 0.25) - 1
+        assert windows >= set(range(full)), "car not served"
         for topic in ("wheel_speeds", "lighthouse", "battery", "steering", "drive", "velocity"):
             assert collected[topic], topic
         print(
