@@ -214,11 +214,9 @@ class Mpcc:
                 break
             Z, V = solution.Z, solution.V
             iterations += solution.iterations
-        if not reason:
+        if not reason or (cold and iterations):  # a cold start's successful iterations count
             return self._accept(Z, V, z0, refs, iterations, started)
-        if cold and iterations:  # some iterations of a cold start succeeded: use them
-            return self._accept(Z, V, z0, refs, iterations, started)
-        return self._fall_back(Z, V, z0, refs, started, reason)
+        return self._fall_back(Z, V, z0, started, reason)
 
     # --- steps ---------------------------------------------------------------------------
     def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
@@ -313,35 +311,28 @@ class Mpcc:
         )
         return self._out(self._command, Z)
 
-    def _fall_back(self, Z, V, z0, refs, started, reason: str) -> np.ndarray:
+    def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
-        if self._failures > self.settings.max_failures or self._Z is None:
-            command = self.stop(z0, f"{reason}; {self._failures} failed solves in a row")
-            self.status = MpccStatus(
-                "stop",
-                time.perf_counter() - started,
-                -1,
-                float(z0[self._nxc]),
-                math.nan,
-                0.0,
-                self._failures,
-                self.status.reason if self.status else reason,
-            )
-            return command
-        # the shifted previous plan: its guess is already shifted by one stage
-        self._Z, self._V = Z, V
-        self._command = V[0, :2].copy()
+        failures = self._failures
+        if failures > self.settings.max_failures or self._Z is None:
+            command = self.stop(z0, f"{reason}; {failures} failed solves in a row")
+            mode, slack = "stop", 0.0
+        else:  # the shifted previous plan: the guess is that plan shifted by one stage
+            self._Z, self._V = Z, V
+            self._command = V[0, :2].copy()
+            command = self._out(self._command, Z)
+            mode, slack = "fallback", float(np.max(V[:, 3]))
         self.status = MpccStatus(
-            "fallback",
+            mode,
             time.perf_counter() - started,
             -1,
             float(z0[self._nxc]),
             math.nan,
-            float(np.max(V[:, 3])),
-            self._failures,
-            reason,
+            slack,
+            failures,
+            self.status.reason if mode == "stop" else reason,
         )
-        return self._out(self._command, Z)
+        return command
 
     def _out(self, command: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
         if self._delay > 0:
