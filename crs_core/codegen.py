@@ -143,6 +143,17 @@ def compiler_available() -> bool:
     return shutil.which(os.environ.get("CC", "gcc")) is not None
 
 
+def _backend(backend: str | None) -> str:
+    """``backend``, else ``$CRS_CODEGEN``, else ``compiled`` when a compiler exists (``vm``
+    otherwise); ``ValueError`` for anything but ``compiled`` or ``vm``."""
+    backend = (
+        backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
+    )
+    if backend not in ("compiled", "vm"):
+        raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
+    return backend
+
+
 def compile_functions(
     functions: Sequence[ca.Function],
     library_name: str,
@@ -159,13 +170,8 @@ def compile_functions(
     backend : {"compiled", "vm", None}
         ``None`` picks ``$CRS_CODEGEN`` if set, else ``compiled`` when a compiler exists.
     """
-    backend = (
-        backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
-    )
-    if backend == "vm":
+    if _backend(backend) == "vm":
         return {f.name(): VMFunction(f) for f in functions}
-    if backend != "compiled":
-        raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
     flags = ["-O2", "-fPIC", "-shared"]
     library = ctypes.CDLL(str(_build_library(functions, library_name, flags)))
     return {f.name(): CompiledFunction(f, library) for f in functions}
@@ -178,13 +184,8 @@ def external_functions(
     to be embedded in a larger CasADi graph (such as one around a QP solver); without a
     compiler (or with ``backend="vm"`` / ``CRS_CODEGEN=vm``) the functions themselves.
     Outputs may be sparse. Keyed by function name."""
-    backend = (
-        backend or os.environ.get("CRS_CODEGEN") or ("compiled" if compiler_available() else "vm")
-    )
-    if backend == "vm":
+    if _backend(backend) == "vm":
         return {f.name(): f for f in functions}
-    if backend != "compiled":
-        raise ValueError(f"backend must be 'compiled' or 'vm', got {backend!r}")
     path = _build_library(functions, library_name, ["-O2", "-fPIC", "-shared"])
     return {f.name(): ca.external(f.name(), str(path)) for f in functions}
 
