@@ -24,6 +24,7 @@ latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale
 from __future__ import annotations
 
 import time
+from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -110,7 +111,9 @@ class ControllerNode(Node):
         self._stale = True
         self._degraded = False
         self.stops = 0
-        self.solve_times: list[float] = []
+        #: the controller's call times of the last 30 s at 30 Hz, s (bounded: a node runs for hours)
+        self.solve_times: deque[float] = deque(maxlen=900)
+        self._calls = 0
         self.create_timer(1.0 / rate_hz, self._control)
 
     def _on_state(self, value: tuple[float, np.ndarray, str]) -> None:
@@ -163,8 +166,9 @@ class ControllerNode(Node):
             self.get_logger().error(f"controller failed: {error}", throttle_duration_sec=1.0)
             return self._stop()
         self.solve_times.append(time.perf_counter() - started)
-        if len(self.solve_times) % 900 == 0:  # every 30 s at 30 Hz
-            ms = 1e3 * np.array(self.solve_times[-900:])
+        self._calls += 1
+        if self._calls % self.solve_times.maxlen == 0:  # every 30 s at 30 Hz
+            ms = 1e3 * np.array(self.solve_times)
             self.get_logger().info(
                 f"controller call: median {np.median(ms):.2f} ms, "
                 f"p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms"
