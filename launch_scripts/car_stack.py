@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import ipaddress
 import json
-import os
 from pathlib import Path
 from typing import Any
 
@@ -52,7 +51,15 @@ import numpy as np
 from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
-from launch_scripts.sim_stack import OUTPUTS, RECORD_SETS, SETTLE_S, _progress, _summary, analyse
+from launch_scripts.sim_stack import (
+    OUTPUTS,
+    RECORD_SETS,
+    _summary,
+    analyse,
+    process_figures,
+    run_folder,
+    run_watched,
+)
 
 #: The bridge of car N listens on ``HOST_PORT + N - 1`` (the firmware's default host port first).
 HOST_PORT = 20211
@@ -169,12 +176,7 @@ def run_car_stack(
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
 ) -> dict[str, Any]:
     """Run the stack against the cars for ``duration`` s, then write ``out/report.json``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    bag = out / "bag"
-    if bag.exists():
-        raise FileExistsError(f"{bag} exists; choose an empty --out")
-    domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(
         cars,
         estimator,
@@ -198,19 +200,7 @@ def run_car_stack(
         flush=True,
     )
 
-    def report_death(exited) -> None:
-        print(
-            f"[launch] {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}",
-            flush=True,
-        )
-
-    deaths = launcher.run(
-        duration,
-        on_exit=report_death,
-        until=_progress(launcher, duration),
-        settle_s=min(SETTLE_S, duration / 4),
-    )
-    print("[launch] stopped; analysing the bag", flush=True)
+    deaths = run_watched(launcher, duration)
     report = analyse_car_run(bag, cars, out, emulate)
     report.update(
         mode="emulated" if emulate else "real",
@@ -223,15 +213,7 @@ def run_car_stack(
         seed=seed,
         node_deaths=[{"node": d.node, "returncode": d.returncode} for d in deaths],
     )
-    wall = max(launcher.wall_at_stop, 1e-9)
-    report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
-    if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
-        running = launcher.wall_at_stop - launcher.wall_at_settle
-        report["cpu_percent_running"] = {
-            n: round(100 * (s - launcher.cpu_at_settle.get(n, 0.0)) / running, 1)
-            for n, s in launcher.cpu_at_stop.items()
-        }
-    report["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
+    report.update(process_figures(launcher))
     (out / "report.json").write_text(json.dumps(report, indent=2))
     if emulate:
         from launch_scripts.stack_plot import StateTrack, plot

@@ -141,12 +141,7 @@ def run_stack(
     onboard: bool = False,
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    bag = out / "bag"
-    if bag.exists():
-        raise FileExistsError(f"{bag} exists; choose an empty --out")
-    domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    out, bag, domain = run_folder(out, domain_id)
     nodes = stack_nodes(
         cars,
         estimator,
@@ -162,22 +157,12 @@ def run_stack(
     )
     track = Track.from_yaml(track_file) if track_file else load_demo_track()
     launcher = Launcher(nodes, domain, out / "logs")
-
-    def report_death(exited) -> None:
-        print(
-            f"[launch] node {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}"
-        )
-
     print(
         f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator}, {controller} "
         f"({output} commands) for {duration:g} s",
         flush=True,
     )
-    settle = min(SETTLE_S, duration / 4)
-    deaths = launcher.run(
-        duration, on_exit=report_death, until=_progress(launcher, duration), settle_s=settle
-    )
-    print("[launch] stopped; analysing the bag", flush=True)
+    deaths = run_watched(launcher, duration)
     report = analyse(bag, cars, track)
     report["estimator"] = estimator
     report["controller"] = controller
@@ -185,18 +170,60 @@ def run_stack(
     report["duration_s"] = duration
     report["recorded"] = record
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
-    wall = max(launcher.wall_at_stop, 1e-9)
-    report["cpu_percent"] = {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
-    if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
-        running = launcher.wall_at_stop - launcher.wall_at_settle
-        report["cpu_percent_running"] = {
-            n: round(100 * (s - launcher.cpu_at_settle.get(n, 0.0)) / running, 1)
-            for n, s in launcher.cpu_at_stop.items()
-        }
-    report["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
+    report.update(process_figures(launcher))
     (out / "report.json").write_text(json.dumps(report, indent=2))
     plot(bag, cars, out, estimator, track)
     return report
+
+
+def run_folder(out: Path, domain_id: int | None) -> tuple[Path, Path, int]:
+    """``out`` created, the bag folder in it (refused if it exists) and the ROS domain
+    (``domain_id``, else ``$ROS_DOMAIN_ID``, else 42) of a launched run."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    bag = out / "bag"
+    if bag.exists():
+        raise FileExistsError(f"{bag} exists; choose an empty --out")
+    domain = domain_id if domain_id is not None else int(os.environ.get("ROS_DOMAIN_ID", "42"))
+    return out, bag, domain
+
+
+def run_watched(launcher: Launcher, duration: float) -> list:
+    """Run the launcher for ``duration`` s with a progress line every 5 s, reporting any
+    process that dies, the CPU counted from :data:`SETTLE_S` (at most a quarter of the run)
+    on; the processes that died."""
+
+    def report_death(exited) -> None:
+        print(
+            f"[launch] {exited.node} exited with code {exited.returncode}:\n{exited.log_tail}",
+            flush=True,
+        )
+
+    deaths = launcher.run(
+        duration,
+        on_exit=report_death,
+        until=_progress(launcher, duration),
+        settle_s=min(SETTLE_S, duration / 4),
+    )
+    print("[launch] stopped; analysing the bag", flush=True)
+    return deaths
+
+
+def process_figures(launcher: Launcher) -> dict[str, Any]:
+    """``cpu_percent`` (whole run), ``cpu_percent_running`` (from the settle time on) and
+    ``peak_memory_mib`` per process of a finished :meth:`Launcher.run`."""
+    wall = max(launcher.wall_at_stop, 1e-9)
+    figures: dict[str, Any] = {
+        "cpu_percent": {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
+    }
+    if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
+        running = launcher.wall_at_stop - launcher.wall_at_settle
+        figures["cpu_percent_running"] = {
+            n: round(100 * (s - launcher.cpu_at_settle.get(n, 0.0)) / running, 1)
+            for n, s in launcher.cpu_at_stop.items()
+        }
+    figures["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
+    return figures
 
 
 def _progress(launcher: Launcher, duration: float, every: float = 5.0):
