@@ -7,11 +7,16 @@ The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces
 
 - one :meth:`~chronos_bridge.emulator.CarEmulator.step` per 4 ms against ``time.monotonic()``;
   before each step every pending datagram is read (non-blocking) and handed to the emulator;
-- a tick that starts more than one period late is counted (``late ticks``) and the schedule is
-  re-anchored to now: the missed ticks are not made up in a burst (the simulation then runs
-  that much behind the wall clock, as a firmware loop that overran);
-- packets are stamped with the wall clock (``time.time()`` at the start plus the monotonic time
-  since), like an SNTP-synchronised car; ``--no-timestamp`` leaves the stamp out;
+- each step runs at its scheduled time and is stamped with it, so the simulated car, its
+  Lighthouse deck ticks and its packet stamps stay on one clock; a tick that starts more than
+  one period late is counted (``late ticks``) and the overdue steps follow back to back (a short
+  burst of packets, as from a car whose Wi-Fi stalled); only more than
+  :data:`MAX_CATCH_UP_S` behind the schedule is re-anchored to now (counted in ``skips``: the
+  simulated car then falls that far behind the wall clock). Re-anchoring at every late tick
+  made the car's physics and deck ticks drift from its packet stamps under load, and the host's
+  estimator diverged;
+- packets are stamped with the wall clock (``time.time()`` at the start plus the scheduled
+  monotonic time), like an SNTP-synchronised car; ``--no-timestamp`` leaves the stamp out;
 - a send or receive error (e.g. ICMP port unreachable while no host listens) is counted and
   the loop goes on;
 - SIGINT / SIGTERM (or ``--duration``) stop it cleanly with a one-line summary on stdout;
@@ -46,6 +51,8 @@ DESCRIPTION = (
 DEFAULT_PORT = 20211
 #: Largest datagram read (the emulator rejects anything over 256 bytes anyway).
 RECEIVE_BUFFER = 4096
+#: Furthest the loop catches up on overdue steps, s; beyond it the schedule is re-anchored.
+MAX_CATCH_UP_S = 0.5
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -225,7 +232,7 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
         flush=True,
     )
-    late = send_errors = receive_errors = 0
+    late = skips = send_errors = receive_errors = 0
     log = TruthLog(emulator.unix_offset)
     last_command: list[float | None] = [None]
     pauses = 0
@@ -238,9 +245,12 @@ def run(args: argparse.Namespace) -> int:
             if now < next_tick:
                 time.sleep(next_tick - now)
                 continue
-            if now - next_tick > TICK_S:  # overran: no burst, re-anchor
-                late += 1
+            if now - next_tick > MAX_CATCH_UP_S:  # hopelessly behind: re-anchor
+                skips += 1
                 next_tick = now
+            elif now - next_tick > TICK_S:  # late: this and the overdue steps follow at once
+                late += 1
+            now = next_tick  # the step's own time: one clock for the car, its ticks and stamps
             was_paused = emulator.paused and emulator.commands > 0
             receive_errors += _drain(sock, emulator, host[0], now, log, last_command)
             if was_paused and not emulator.paused:
@@ -276,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
     reasons = ", ".join(f"{k} {v}" for k, v in sorted(emulator.rejected.items()))
     print(
         f"{PROG}: stopped after {emulator.steps} steps ({time.monotonic() - start:.1f} s), "
-        f"{late} late ticks, {emulator.commands} commands received, "
+        f"{late} late ticks, {skips} skips, {emulator.commands} commands received, "
         f"{emulator.rejected_total} rejected{f' ({reasons})' if reasons else ''}, "
         f"{emulator.pauses} pauses, {emulator.pings_sent} pings sent, "
         f"{send_errors + receive_errors} socket errors",
@@ -295,7 +305,8 @@ def _drain(
 ) -> int:
     """Hand every pending datagram from ``host`` to the emulator; the socket errors seen.
 
-    With ``log``, each valid reference's read time and host stamp go to it and its read time
+    ``now``: the step's scheduled time (the emulator's clock). With ``log``, each valid
+    reference's actual read time (for latencies) and host stamp go to it, and the step's time
     to ``last_command[0]``."""
     errors = 0
     while True:
@@ -317,8 +328,8 @@ def _drain(
             read = log.offset + time.monotonic()
             log.command_read_t.append(read)
             log.command_host_t.append(_host_stamp(data))
-            if last_command is not None:
-                last_command[0] = read
+            if last_command is not None:  # on the emulator's clock, as its timeout counts
+                last_command[0] = log.offset + now
 
 
 def _host_stamp(datagram: bytes) -> float:
