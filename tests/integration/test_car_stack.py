@@ -123,6 +123,10 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
         domain_id=DOMAIN_TWO_EMULATED,
         ports=(21231, 21331),
         record="estimates",
+        # the path follower (1 m/s): this test is about two links side by side; two MHEs at
+        # racing speed, ten processes on two cores, lost the Lighthouse in 1 of 4 runs (open:
+        # see the issue note)
+        controller="path",
     )
     assert report["node_deaths"] == []
     for i in (1, 2):
