@@ -105,6 +105,7 @@ class FakeCar:
         self.socket.settimeout(0.001)
         self.target, self.voltage = ("127.0.0.1", port), voltage
         self.sent, self.received = 0, []
+        self.sent_stamps: list[float] = []  # the packet stamps, s
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
@@ -115,9 +116,11 @@ class FakeCar:
     def _run(self) -> None:
         next_step, k = time.monotonic(), 0
         while not self._stop.is_set():
-            data = encode_car_state(_state(k, self.voltage, _sweeps(k)), time.time_ns() // 1000)
+            stamp_us = time.time_ns() // 1000
+            data = encode_car_state(_state(k, self.voltage, _sweeps(k)), stamp_us)
             self.socket.sendto(data, self.target)
             self.sent += 1
+            self.sent_stamps.append(stamp_us * 1e-6)
             k += 1
             next_step += 0.004
             while time.monotonic() < next_step:
@@ -345,10 +348,13 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
         )
         stamps = [t for t in stamps if fuzz_start <= t <= fuzz_end]
         windows = {int((t - fuzz_start) / 0.25) for t in stamps}
-        # every full window but the last (its messages may still be in flight when the probe's
-        # collection ends: one run in ten missed it)
-        full = int((fuzz_end - fuzz_start) / 0.25) - 1
-        assert windows >= set(range(full)), "car not served"
+        # every 0.25 s window in which the car sent has its data published (the fake car is a
+        # thread beside the fuzz loop: it can be starved of the GIL for a window near the end)
+        sending = {
+            int((t - fuzz_start) / 0.25) for t in car.sent_stamps if fuzz_start <= t <= fuzz_end
+        }
+        assert len(sending) >= int((fuzz_end - fuzz_start) / 0.25) - 2, "the fake car hardly sent"
+        assert windows >= sending, "car not served"
         for topic in ("wheel_speeds", "lighthouse", "battery", "steering", "drive", "velocity"):
             assert collected[topic], topic
         print(
