@@ -35,6 +35,7 @@ import numpy as np
 
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT, FieData
+from crs_core.identification.jacobian import DefectBlock, MeasurementBlock, residual_jacobian
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
 
@@ -264,22 +265,27 @@ class FieProblem:
             (int(c), substeps_for(float(np.max(d))))
             for c, d in zip(data.segment_count, data.segment_dt, strict=True)
         ]
-        defects = []
+        defects, defect_blocks, row = [], [], self.n_theta + nx
         for key in sorted(set(keys)):
             index = [k for k, other in enumerate(keys) if other == key]
-            step = _segment_step(model, *key).map(len(index), "serial")
+            step = _segment_step(model, *key)
             m = key[0]
-            u_seg = data.segment_u[index, :m, :].reshape(len(index), 2 * m).T
-            dt_seg = data.segment_dt[index, :m].T
-            x_next = step(X[:, index], ca.DM(u_seg), ca.repmat(p, 1, len(index)), ca.DM(dt_seg))
+            u_seg = ca.DM(data.segment_u[index, :m, :].reshape(len(index), 2 * m).T)
+            dt_seg = ca.DM(data.segment_dt[index, :m].T)
+            x_next = step.map(len(index), "serial")(
+                X[:, index], u_seg, ca.repmat(p, 1, len(index)), dt_seg
+            )
             after = [k + 1 for k in index]
             weight = 1.0 / (q_std[:, None] * np.sqrt(dt[index])[None, :])
             defects.append(ca.vec((X[:, after] - x_next) * ca.DM(weight)))
+            defect_blocks.append(DefectBlock(step, np.array(index), u_seg, dt_seg, weight, row))
+            row += weight.size
         # measurements
         outputs = ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))
         h = ca.Function("h_fie", [model.x_sym, model.u_sym, model.p_sym], [outputs])
         Y = h.map(n, "serial")(X, U, ca.repmat(p, 1, n))
         alpha = data.plane1_alpha
+        h1 = None
         if np.any(alpha > 0):  # plane-1 angles at the (interpolated) state of their sweep
             X_prev = ca.horzcat(X[:, 0], X[:, : n - 1])
             a = ca.DM(np.tile(alpha, (nx, 1)))
@@ -307,11 +313,23 @@ class FieProblem:
         self.z_sym = z
         self.residual = residual
         self.residual_function = ca.Function("fie_residual", [z], [residual])
+        x0_weight = 1.0 / x0_std
+        self.jacobian = residual_jacobian(
+            z,
+            X,
+            p,
+            self.n_theta,
+            select * self.theta_std[None, :],
+            x0_weight,
+            defect_blocks,
+            MeasurementBlock(h, h1, Y_LAYOUT[0][1].stop, alpha, U, data.weight, row),
+            int(residual.numel()),
+        )
         self.output_function = ca.Function("fie_outputs", [z], [Y])
 
     def jacobian_function(self) -> ca.Function:
-        """``z -> dr/dz`` (sparse)."""
-        return ca.Function("fie_jacobian", [self.z_sym], [ca.jacobian(self.residual, self.z_sym)])
+        """``z -> dr/dz`` (sparse; :func:`~crs_core.identification.jacobian.residual_jacobian`)."""
+        return ca.Function("fie_jacobian", [self.z_sym], [self.jacobian])
 
     def solver(self, callback: ca.Callback | None = None) -> ca.Function:
         """IPOPT on ``min 0.5 r'r`` with the chosen Hessian."""
@@ -330,7 +348,7 @@ class FieProblem:
             "ipopt.acceptable_iter": 3,
         }
         if self.settings.hessian == "gauss-newton":
-            jac = ca.jacobian(r, z)
+            jac = self.jacobian
             lam_f = ca.MX.sym("lam_f")
             hess = lam_f * ca.triu(ca.mtimes(jac.T, jac))
             options["hess_lag"] = ca.Function(
