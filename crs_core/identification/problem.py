@@ -285,6 +285,7 @@ class FieProblem:
         h = ca.Function("h_fie", [model.x_sym, model.u_sym, model.p_sym], [outputs])
         Y = h.map(n, "serial")(X, U, ca.repmat(p, 1, n))
         alpha = data.plane1_alpha
+        plane1_rows = Y_LAYOUT[0][1].stop
         h1 = None
         if np.any(alpha > 0):  # plane-1 angles at the (interpolated) state of their sweep
             X_prev = ca.horzcat(X[:, 0], X[:, : n - 1])
@@ -296,7 +297,7 @@ class FieProblem:
                 [model.output_expressions[Y_LAYOUT[0][0]]],
             )
             Y1 = h1.map(n, "serial")(X1, U, ca.repmat(p, 1, n))
-            Y = ca.vertcat(Y1, Y[4:, :])
+            Y = ca.vertcat(Y1, Y[plane1_rows:, :])
         measured = (Y - ca.DM(data.y.T)) * ca.DM(data.weight.T)
         # priors: theta (already scaled by its std) and the first state
         x0_std = np.concatenate(
@@ -313,16 +314,15 @@ class FieProblem:
         self.z_sym = z
         self.residual = residual
         self.residual_function = ca.Function("fie_residual", [z], [residual])
-        x0_weight = 1.0 / x0_std
         self.jacobian = residual_jacobian(
             z,
             X,
             p,
             self.n_theta,
             select * self.theta_std[None, :],
-            x0_weight,
+            1.0 / x0_std,
             defect_blocks,
-            MeasurementBlock(h, h1, Y_LAYOUT[0][1].stop, alpha, U, data.weight, row),
+            MeasurementBlock(h, h1, plane1_rows, alpha, U, data.weight, row),
             int(residual.numel()),
         )
         self.output_function = ca.Function("fie_outputs", [z], [Y])
