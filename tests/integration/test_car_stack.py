@@ -75,6 +75,8 @@ def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm
             60.0,
             lambda: f"the car driving; bridge log: {log_text(out / 'logs', '/car1/bridge')[-400:]}",
         )
+        # no cut-off so far (a cold start that held the references back would be one)
+        assert "motors cut" not in emulator_log(), emulator_log()
         launcher.processes["/car1/controller"].send_signal(signal.SIGKILL)
         wait_for(lambda: "motors cut (pause 1)" in emulator_log(), 5.0, "the motor cut-off")
         time.sleep(1.0)

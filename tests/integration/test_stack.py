@@ -100,6 +100,9 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
     # every node shut down cleanly on SIGINT (the recorder closed its bag)
     codes = {name: process.returncode for name, process in launcher.processes.items()}
     assert codes == dict.fromkeys(codes, 0), codes
+    # between callbacks: no callback interrupted (the executor logs that as FATAL)
+    for log in (tmp_path / "logs").glob("*.log"):
+        assert "FATAL" not in log.read_text(errors="replace"), log.read_text(errors="replace")
 
     report = analyse(bag, 1)["cars"]["car1"]
     cpu = {n: round(100 * s / launcher.wall_at_stop, 1) for n, s in launcher.cpu_at_stop.items()}
