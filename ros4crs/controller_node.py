@@ -4,7 +4,8 @@ follows its centreline with the path follower.
 Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz`` (default 30 Hz for the
 MPCC, the paper's, 50 Hz for the path follower). When the newest estimate is older than
 ``stale_timeout``, ``lost`` (or none arrived yet), it commands zero torque and straight wheels,
-so the car rolls to a stop, and says so once per episode; while it is ``degraded`` the car
+so the car rolls to a stop, and says so once per episode (the MPCC keeps its plan through a gap
+of up to half its horizon and goes on from it); while it is ``degraded`` the car
 drives at ``degraded_speed`` at most. With ``predict`` (default) the estimate, tens of ms old
 when it arrives, is carried forward to the time the command acts with the model and the last
 command. A controller that raises is answered by a stop command and a throttled error; the node
@@ -144,7 +145,7 @@ class ControllerNode(Node):
                 self.stops += 1
                 self.get_logger().warning("state estimate is stale: stopping the car")
             self._stale = True
-            u = self._stop()
+            u = self._stop(keep_plan=True)
         else:
             if self._stale:
                 self.get_logger().info("state estimate is fresh: driving")
@@ -201,19 +202,18 @@ class ControllerNode(Node):
         plan = self.mpcc.plan if self.mpcc is not None else None
         return plan[1][0, :2].copy() if plan is not None else np.array([u[0], 0.0])
 
-    def _stop(self) -> np.ndarray:
+    def _stop(self, keep_plan: bool = False) -> np.ndarray:
         """Zero torque and straight wheels: without a fresh estimate the car's speed is not
         known, so it rolls to a stop rather than being braked (which could reverse it). With
         ``output`` velocity: straight wheels and a zero velocity reference (the car's velocity
-        PID brakes it to a stand, on its own wheel speeds)."""
+        PID brakes it to a stand, on its own wheel speeds). With ``keep_plan`` the MPCC keeps
+        its plan for a short gap in the estimates (see :meth:`Mpcc.stop`)."""
         if self.mpcc is not None:
-            self.mpcc.stop(None, "state estimate stale or lost")
+            self.mpcc.stop(None, "state estimate stale or lost", keep_plan=keep_plan)
         return STOP
 
     def _reset(self) -> None:
-        if self.mpcc is not None:
-            self.mpcc.reset()
-        else:
+        if self.follower is not None:
             self.follower.reset()
 
     def _predicted(self, now: float) -> np.ndarray:

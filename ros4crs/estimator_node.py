@@ -26,9 +26,11 @@ and holds the last torque command if the car switches to velocity mode later: re
 run.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
-``horizon`` (MHE), ``inputs`` (auto | commanded | estimated), ``stations``, ``params_file``
-(model parameter YAML, optional), ``track_file`` (CRS track YAML; default DEMO_TRACK),
-``initial_state`` (6 floats; default the track's start),
+``horizon`` (MHE), ``catch_up_solves`` (MHE: an update that finds more grid nodes due, because it
+came late, solves only the newest this many and predicts the others, so that a loaded machine's
+late update does not make the next one later still; default 2), ``inputs`` (auto | commanded |
+estimated), ``stations``, ``params_file`` (model parameter YAML, optional), ``track_file`` (CRS
+track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track's start),
 ``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse), ``time_offsets``
 (per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger).
 """
@@ -87,6 +89,9 @@ class EstimatorNode(Node):
         self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
         self.lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
         horizon = declare(self, "horizon", 40, "MHE horizon, stages", in_range(2, 1000))
+        solves = declare(
+            self, "catch_up_solves", 2, "MHE: most nodes solved per update", in_range(1, 1000)
+        )
         inputs = declare(
             self, "inputs", "auto", "auto, commanded or estimated", one_of(*INPUT_MODES)
         )
@@ -111,7 +116,12 @@ class EstimatorNode(Node):
             )
         )
         settings = (
-            MheSettings(horizon=horizon, rate_hz=self.rate_hz, time_offsets=offsets)
+            MheSettings(
+                horizon=horizon,
+                rate_hz=self.rate_hz,
+                time_offsets=offsets,
+                catch_up_solves=solves,
+            )
             if kind == "mhe"
             else EkfSettings(time_offsets=offsets)
         )

@@ -146,6 +146,7 @@ class Mpcc:
         self._Z: np.ndarray | None = None
         self._V: np.ndarray | None = None
         self._failures = 0
+        self._held = 0  # stops in a row with the plan kept
         #: SQP iterations of the cold start still to make (0: real-time iterations)
         self._cold_left = self.settings.cold_start_iterations
         self._command = np.zeros(2)
@@ -163,11 +164,24 @@ class Mpcc:
             return None
         return self._Z.copy(), self._V.copy()
 
-    def stop(self, x: ArrayLike | None = None, reason: str = "stop requested") -> np.ndarray:
-        """The safe-stop command for state ``x`` (straight wheels, brake until standing);
-        forgets the plan."""
+    def stop(
+        self, x: ArrayLike | None = None, reason: str = "stop requested", keep_plan: bool = False
+    ) -> np.ndarray:
+        """The safe-stop command for state ``x`` (straight wheels, brake until standing).
+
+        Forgets the plan; with ``keep_plan`` (a short gap, e.g. a late state estimate) the
+        plan is kept, shifted by a stage per call as time goes on, for the next call to start
+        from, and forgotten once the stops in a row have used up half its horizon: a car
+        that coasted a few periods is still near it, and a cold start from a moving car
+        would take several periods to converge.
+        """
         command = self._stop_command(x)
-        self.reset()
+        self._held += 1
+        if keep_plan and self._Z is not None and self._held <= self.problem.N // 2:
+            self._Z, self._V = self._shifted()
+            self._command = command
+        else:
+            self.reset()
         self.status = MpccStatus("stop", 0.0, -1, math.nan, math.nan, 0.0, 0, reason)
         return self._out(command, None)
 
@@ -192,6 +206,7 @@ class Mpcc:
         state = np.asarray(x, dtype=float).ravel()
         if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
             return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
+        self._held = 0
         self._v_upper[2] = self.settings.progress_speed_max
         if speed_limit is not None and math.isfinite(speed_limit):
             self._v_upper[2] = min(max(float(speed_limit), 0.0), self._v_upper[2])
@@ -263,9 +278,7 @@ class Mpcc:
         N, nxc = self.problem.N, self._nxc
         dt = self.settings.dt
         if self._Z is not None and self._V is not None:
-            V = np.vstack((self._V[1:], self._V[-1:]))
-            Z = np.vstack((self._Z[1:], self._Z[-1:]))
-            Z[-1] = np.asarray(self.problem.dynamics(Z[-2], V[-1], self.p)).ravel()
+            Z, V = self._shifted()
             Z[0] = z0
             return Z, V
         speed = max(float(z0[3]), 0.5)
@@ -276,6 +289,13 @@ class Mpcc:
         for k in range(N):
             Z[k + 1] = np.asarray(self.problem.dynamics(Z[k], V[k], self.p)).ravel()
             Z[k + 1, nxc] = z0[nxc] + (k + 1) * dt * speed
+        return Z, V
+
+    def _shifted(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plan one stage on: its last input held for one more stage."""
+        V = np.vstack((self._V[1:], self._V[-1:]))
+        Z = np.vstack((self._Z[1:], self._Z[-1:]))
+        Z[-1] = np.asarray(self.problem.dynamics(Z[-2], V[-1], self.p)).ravel()
         return Z, V
 
     def _references(self, theta: np.ndarray) -> np.ndarray:

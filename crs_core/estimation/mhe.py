@@ -33,9 +33,10 @@ window itself is untouched). A step is taken only if it lowers the cost (backtra
 halving, :data:`STEP_FRACTIONS`; else the warm start is kept): the estimate never moves further
 from the data than the prediction. If the cost is not finite, or the normal equations are not
 positive definite, the window restarts from its newest finite state (or keeps the prediction);
-when more than ``max_catch_up`` nodes are due at
-once (a stalled process), the estimator skips ahead to the newest data instead of working
-through the backlog. Every such event is counted and makes the status ``degraded``.
+when more than ``max_catch_up`` nodes are due at once (a stalled process), the estimator skips
+ahead to the newest data instead of working through the backlog. Every such event is counted
+and makes the status ``degraded``. With ``catch_up_solves`` only the newest few nodes of a late
+call are solved (the others predicted), which bounds a call's work.
 
 Why the grid: with node times taken from the callers, a late call made a long stage that the
 fixed number of RK4 substeps (chosen for the nominal rate) integrated with steps far beyond
@@ -118,6 +119,12 @@ class MheSettings(EstimatorSettings):
     max_catch_up : int or None
         Most nodes processed in one call; when more are due (a stalled process), the window
         restarts this many nodes before the newest data (default: the horizon).
+    catch_up_solves : int or None
+        Most nodes per call that get their Gauss-Newton ``iterations``; when more are due (a
+        late call on a loaded machine), the older ones are only predicted and the solves go to
+        the newest (their data still enter those solves: each covers the whole window). Bounds
+        a call's work, so that a late call does not make the next one later still. None
+        (default): every node solved, the result independent of when the estimate is queried.
     """
 
     horizon: int = 40
@@ -133,6 +140,7 @@ class MheSettings(EstimatorSettings):
     outlier_sigma: float = 30.0
     max_consecutive_rejections: int = 25
     max_catch_up: int | None = None
+    catch_up_solves: int | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -150,6 +158,8 @@ class MheSettings(EstimatorSettings):
             raise ValueError("state_lower, state_upper: need 3 values (vx, vy, omega)")
         if self.max_catch_up is not None and self.max_catch_up < 1:
             raise ValueError("max_catch_up: must be >= 1")
+        if self.catch_up_solves is not None and self.catch_up_solves < 1:
+            raise ValueError("catch_up_solves: must be >= 1")
 
 
 class MovingHorizonEstimator(Estimator):
@@ -376,13 +386,15 @@ class MovingHorizonEstimator(Estimator):
         if due > self._max_catch_up:
             self._skip_ahead(t, due)
             due = self._max_catch_up
-        for _ in range(max(0, due)):
+        solves = self.settings.catch_up_solves or due
+        for k in range(max(0, due)):
             self._shift()
             newest = self._times[-1]
             while self._pending and self._pending[0][0] <= newest:
                 self._attach(self._pending.pop(0)[3])
-            for _ in range(self.settings.iterations):
-                self._gauss_newton_step()
+            if k >= due - solves:
+                for _ in range(self.settings.iterations):
+                    self._gauss_newton_step()
         x, covariance = self._read_out(t)
         return x[:6].copy(), covariance[:6, :6].copy()
 

@@ -52,7 +52,8 @@ class Recording:
 
 def _mhe() -> object:
     """The estimator the node builds with its default parameters."""
-    return make_estimator("mhe", "lh+imu+we", CarModel(), MheSettings(rate_hz=RATE_HZ))
+    settings = MheSettings(rate_hz=RATE_HZ, catch_up_solves=2)
+    return make_estimator("mhe", "lh+imu+we", CarModel(), settings)
 
 
 def _compare(contents: BagContents, estimates: list[tuple[float, np.ndarray]]) -> np.ndarray:

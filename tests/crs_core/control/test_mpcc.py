@@ -270,3 +270,31 @@ def test_a_cold_start_out_of_time_brakes_meanwhile_and_goes_on_at_the_next_calls
     assert u_budgeted[1] > 0.5 and u_full[1] > 0.5
     with pytest.raises(ValueError, match="cold_start_budget_s"):
         MpccSettings(cold_start_budget_s=-1.0)
+
+
+def test_a_short_stop_keeps_the_plan_shifted_in_time_and_a_long_one_forgets_it(track) -> None:
+    """Stops with ``keep_plan`` (a late estimate) shift the plan a stage per call, as the calls
+    would have; the next call starts from it (no cold start); once the stops have used up half
+    the horizon, the plan is forgotten."""
+    controller = Mpcc(track)
+    x = _start(track, 1.0)
+    controller(x)
+    Z, V = controller.plan
+    for _ in range(3):
+        assert np.array_equal(controller.stop(None, "late", keep_plan=True), [0.0, 0.0])
+    assert controller.status.mode == "stop"
+    kept_Z, kept_V = controller.plan
+    np.testing.assert_array_equal(kept_V[:-3], V[3:])
+    np.testing.assert_array_equal(kept_Z[:-3], Z[3:])
+    controller(x)
+    assert controller.status.mode == "solved"
+    assert controller.last_guess[1][0] == pytest.approx(V[4])  # warm: the plan one stage on
+    half = controller.problem.N // 2
+    for _ in range(half):
+        controller.stop(None, "late", keep_plan=True)
+    assert controller.plan is not None
+    controller.stop(None, "late", keep_plan=True)
+    assert controller.plan is None  # half the horizon gone: a cold start next
+    controller(x)
+    controller.stop(None, "stopped")
+    assert controller.plan is None

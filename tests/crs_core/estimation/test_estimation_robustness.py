@@ -87,6 +87,33 @@ def test_late_updates_stay_bounded(drive, kind, late_s):
     assert error[settled].max() < 0.02, error[settled].max()
 
 
+@pytest.mark.parametrize("late_s", [0.3, 1.0])
+def test_catch_up_solves_bound_a_late_calls_work_and_keep_it_on_track(drive, late_s):
+    """With ``catch_up_solves`` a late call solves only the newest nodes (the older ones are
+    predicted, their data still in the window): the same estimates as solving every node
+    when no call is late, within 5 mm of the truth when 5 % come late, and fewer solves."""
+    on_time = list(np.arange(1 / 60, drive.duration - 0.5, 1 / 60))
+    every = make_estimator("mhe", inputs="commanded")
+    bounded = make_estimator("mhe", settings=MheSettings(catch_up_solves=2), inputs="commanded")
+    np.testing.assert_array_equal(_run(bounded, drive, on_time)[0], _run(every, drive, on_time)[0])
+    queries = _late_ticks(np.random.default_rng(7), drive.duration - 0.5, late_s)
+    solves = {}
+    for name, estimator in (("every", every), ("bounded", bounded)):
+        count = [0]
+        step = estimator._gauss_newton_step
+
+        def counted(step=step, count=count):
+            count[0] += 1
+            step()
+
+        estimator._gauss_newton_step = counted
+        xs, _ = _run(estimator, drive, queries)
+        solves[name] = count[0]
+        error = _position_error(drive, queries, xs)
+        assert error[np.asarray(queries) > 2.0].max() < 0.005, (name, error.max())
+    assert solves["bounded"] < 0.9 * solves["every"], solves
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_stall_and_resume(drive, kind):
     """No query and no data for 2.5 s, then everything at once: the estimator skips to the
