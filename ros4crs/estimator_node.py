@@ -3,7 +3,8 @@
 Subscribes to ``sensors/*`` and ``input``; every message is validated and converted at the
 boundary (a malformed one is logged and dropped). A timer at ``rate_hz`` asks the estimator for
 the state at ``now - lag`` (the lag lets messages in flight arrive first; it must exceed the
-transport latency) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
+transport latency: it is raised to cover the largest arrival delay, receipt minus stamp, of the
+last 5 s, up to ``max_lag``) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
 (Odometry), the transform ``world`` -> ``<ns>/base_link`` on ``/tf`` and, once a second,
 ``estimate/diagnostics``; ``estimate/query`` logs every query with the newest data it had, so
 that a recorded bag replays the estimator offline exactly. An update slower than the period
@@ -25,7 +26,8 @@ estimator that has switched to the commanded model (a torque-mode command came f
 and holds the last torque command if the car switches to velocity mode later: restart it for such a
 run.
 
-Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag``,
+Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag`` (s,
+default 0.02), ``max_lag`` (s, default 0.1; not above ``lag``: the lag stays),
 ``horizon`` (MHE), ``catch_up_solves`` (MHE: an update that finds more grid nodes due, because it
 came late, solves only the newest this many and predicts the others, so that a loaded machine's
 late update does not make the next one later still; default 2), ``inputs`` (auto | commanded |
@@ -37,6 +39,7 @@ track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track'
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Sequence
 
@@ -75,6 +78,32 @@ from ros4crs.node_support import (
 CLOCK_JUMP_S = 0.5
 #: A query this close (in periods) before the next grid time is asked at that time.
 GRID_TOLERANCE = 0.05
+#: The lag covers the largest arrival delay (receipt minus stamp) of the last this many s ...
+LAG_WINDOW_S = 5.0
+#: ... plus this margin, s.
+LAG_MARGIN_S = 0.005
+
+
+class WindowMax:
+    """The largest value added in the last ``window`` s (whole seconds of buckets)."""
+
+    def __init__(self, window: float) -> None:
+        self._buckets: dict[int, float] = {}
+        self._window = math.ceil(window)
+
+    def add(self, now: float, value: float) -> None:
+        second = math.floor(now)
+        if value > self._buckets.get(second, -math.inf):
+            self._buckets[second] = value
+            if len(self._buckets) > self._window + 1:
+                self._buckets = {
+                    k: v for k, v in self._buckets.items() if k > second - self._window
+                }
+
+    def value(self, now: float) -> float:
+        """The largest value of the window ending at ``now`` (-inf: none)."""
+        oldest = math.floor(now) - self._window
+        return max((v for k, v in self._buckets.items() if k > oldest), default=-math.inf)
 
 
 class EstimatorNode(Node):
@@ -88,6 +117,16 @@ class EstimatorNode(Node):
         )
         self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
         self.lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
+        # (a max_lag below lag: the lag stays)
+        self.max_lag = max(
+            self.lag,
+            declare(
+                self, "max_lag", 0.1, "raise the lag up to this for late data, s", non_negative
+            ),
+        )
+        #: the lag in use, s: ``lag`` raised while data arrive late (up to ``max_lag``)
+        self.current_lag = self.lag
+        self._delays = WindowMax(LAG_WINDOW_S)
         horizon = declare(self, "horizon", 40, "MHE horizon, stages", in_range(2, 1000))
         solves = declare(
             self, "catch_up_solves", 2, "MHE: most nodes solved per update", in_range(1, 1000)
@@ -135,6 +174,7 @@ class EstimatorNode(Node):
 
         self._checked_subscriptions: list = []
         self._warn_late = throttled_warning(self)
+        self._warn_lag = throttled_warning(self)
         for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
         self._checked_subscriptions.append(
@@ -217,6 +257,7 @@ class EstimatorNode(Node):
         if not self._started:
             self._buffer.append(item)
             return
+        self._delays.add(self._now(), self._now() - item.stamp)
         late_before = self.estimator.diagnostics.late
         try:
             self.estimator.add(item)
@@ -242,7 +283,16 @@ class EstimatorNode(Node):
         before by more than :data:`GRID_TOLERANCE` of a period, earlier only by the tick's
         lateness."""
         period = 1.0 / self.rate_hz
-        raw = self._now() - self.lag
+        now = self._now()
+        delay = self._delays.value(now)
+        lag = min(max(self.lag, delay + LAG_MARGIN_S), self.max_lag)
+        if lag > self.current_lag + LAG_MARGIN_S:
+            self._warn_lag(
+                f"data arrive up to {1e3 * delay:.0f} ms after their stamps: estimating "
+                f"{1e3 * lag:.0f} ms in the past (max_lag {1e3 * self.max_lag:.0f} ms)"
+            )
+        self.current_lag = lag
+        raw = now - lag
         if not self._started:
             until = self._timer.time_until_next_call()
             late = period - 1e-9 * until if until is not None else 0.0

@@ -25,6 +25,7 @@ from ros4crs.bag_replay import read_car
 pytestmark = pytest.mark.integration
 
 DOMAIN = 104
+DOMAIN_LAG = 126
 #: The estimator's lag: large enough that no sensor data of a busy machine arrive late, so the
 #: only late data are the ones the test sends.
 LAG_S = 0.2
@@ -235,3 +236,60 @@ def test_launcher_reports_a_killed_node_and_the_others_keep_running(stack):
     wait_for(lambda: len(_after(estimates, killed)) >= 30, 10.0, "estimates after the kill")
     assert launcher.processes["/car1/estimator"].poll() is None
     assert launcher.poll() == []  # reported once, and nothing else died
+
+
+def test_data_that_arrive_late_raise_the_estimators_lag(tmp_path, warm_codegen):
+    """Sensor data that arrive 60 ms after their stamps (a loaded machine's transport) against
+    an estimator asking 20 ms in the past: it raises its lag past their delay (logged), no
+    more data are late after the first second, and its estimates come out stamped that far
+    back."""
+    from sensor_msgs.msg import Imu
+
+    from chronos_msgs.msg import CarState, EstimatorDiagnostics, WheelSpeeds
+    from crs_core.measurements import Measurement
+
+    delay = 0.06
+    launcher = Launcher(
+        [
+            NodeSpec(
+                "estimator",
+                "ros4crs.estimator_node",
+                "/car1",
+                {"estimator": "ekf", "sensors": "imu+we"},
+            )
+        ],
+        DOMAIN_LAG,
+        tmp_path / "logs",
+    )
+    probe = Probe(DOMAIN_LAG)
+    estimates = probe.collect(CarState, "/car1/estimate/state")
+    diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
+    try:
+        launcher.start()
+        imu = probe.publisher(Imu, "/car1/sensors/imu")
+        wheels = probe.publisher(WheelSpeeds, "/car1/sensors/wheel_speeds")
+        started = time.time()
+        settled = started + 2.0
+        late_at_settled = None
+        while time.time() < started + 6.0:  # a standing car, 100 Hz, each sample 60 ms old
+            stamp = time.time() - delay
+            imu.publish(conversions.measurement_to_msg(Measurement(stamp, "imu", [0, 0, 0])))
+            wheels.publish(
+                conversions.measurement_to_msg(Measurement(stamp, "wheel_encoders", [0] * 4))
+            )
+            if late_at_settled is None and time.time() > settled and diagnostics:
+                late_at_settled = diagnostics[-1][1].late_measurements
+            time.sleep(0.01)
+        assert not launcher.poll()
+        ended = time.time()
+        wait_for(lambda: _after(diagnostics, ended), 3.0, "diagnostics after the last data")
+    finally:
+        launcher.stop()
+        probe.close()
+    log = log_text(tmp_path / "logs", "/car1/estimator")
+    match = re.search(r"data arrive up to (\d+) ms after their stamps: estimating (\d+) ms", log)
+    assert match and int(match.group(1)) >= 1e3 * delay and int(match.group(2)) > 1e3 * delay, log
+    assert diagnostics[0][1].late_measurements <= late_at_settled  # late at first, then
+    assert diagnostics[-1][1].late_measurements == late_at_settled  # none after 2 s
+    ages = [t - _stamp(m) for t, m in estimates if t > settled]
+    assert np.median(ages) > delay, np.median(ages)

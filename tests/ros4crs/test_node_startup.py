@@ -29,6 +29,18 @@ CASES = [
     ("estimator_node", ["-p", "params_file:={tmp}/none.yaml"], "params_file: no such file"),
     ("estimator_node", ["-p", "params_file:={tmp}/bad.yaml"], "params_file: {tmp}/bad.yaml: "),
     ("estimator_node", ["-p", "time_offsets:=lh"], "error: time_offsets: "),
+    ("estimator_node", ["-p", "catch_up_solves:=0"], "error: catch_up_solves: must be in 1..1000"),
+    ("estimator_node", ["-p", "max_lag:=-0.1"], "error: max_lag: must be a finite number >= 0"),
+    (
+        "controller_node",
+        ["-p", "cold_start_budget:=0.0"],
+        "error: cold_start_budget: must be a finite number > 0",
+    ),
+    (
+        "bridge_node",
+        ["-p", "telemetry_hz:=0.0"],
+        "error: telemetry_hz: must be a finite number > 0",
+    ),
     ("simulator_node", ["-p", "effects:=bogus"], "error: effects: unknown effect 'bogus'"),
     ("simulator_node", ["-p", "blackouts:=lighthouse:1"], "error: blackouts: 'lighthouse:1'"),
     ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
