@@ -27,7 +27,10 @@ and holds the last torque command if the car switches to velocity mode later: re
 run.
 
 Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag`` (s,
-default 0.02), ``max_lag`` (s, default 0.1; not above ``lag``: the lag stays),
+default 0.02), ``max_lag`` (s; default 0.1 for the EKF, which drops late data, and 0 for the MHE,
+which takes them into its window at its next update, where a longer lag would only delay the
+controller: an MPCC fed estimates 110-180 ms old steered bang-bang and spun the car; not above
+``lag``: the lag stays),
 ``horizon`` (MHE), ``catch_up_solves`` (MHE: an update that finds more grid nodes due, because it
 came late, solves only the newest this many and predicts the others, so that a loaded machine's
 late update does not make the next one later still; default 2), ``inputs`` (auto | commanded |
@@ -117,11 +120,17 @@ class EstimatorNode(Node):
         )
         self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
         self.lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
-        # (a max_lag below lag: the lag stays)
+        # the EKF drops late data; the MHE takes them into its window at the next update, and
+        # a larger lag would only make the controller's loop slower (a max_lag below lag:
+        # the lag stays)
         self.max_lag = max(
             self.lag,
             declare(
-                self, "max_lag", 0.1, "raise the lag up to this for late data, s", non_negative
+                self,
+                "max_lag",
+                0.1 if kind == "ekf" else 0.0,
+                "raise the lag up to this for late data, s",
+                non_negative,
             ),
         )
         #: the lag in use, s: ``lag`` raised while data arrive late (up to ``max_lag``)
