@@ -18,12 +18,8 @@ zero velocity reference.
 
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
-``degraded_speed`` (m/s), ``predict``, ``cold_start_budget`` (s, MPCC: a cold start, at the first
-fresh estimate or after a stop, stops iterating after this long and converges over the next
-calls instead, the car braking meanwhile; default one control period, so a loaded machine's
-cold start never holds the commands back for the car's 200 ms motor cut-off), ``track_file``
-(CRS track YAML; default
-DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction model).
+``degraded_speed`` (m/s), ``predict``, ``track_file`` (CRS track YAML; default DEMO_TRACK),
+``params_file`` (model parameter YAML: the prediction model).
 """
 
 from __future__ import annotations
@@ -95,16 +91,8 @@ class ControllerNode(Node):
         self._sent: deque[tuple[float, np.ndarray]] = deque()
         self.mpcc: Mpcc | None = None
         self.follower: PathFollower | None = None
-        budget = declare(
-            self,
-            "cold_start_budget",
-            1.0 / rate_hz,
-            "MPCC: wall time of a cold start's iterations, s (default one control period)",
-            positive,
-        )
         if kind == "mpcc":
-            settings = MpccSettings(rate_hz=rate_hz, cold_start_budget_s=budget)
-            self.mpcc = Mpcc(track, model, settings, output=self.output)
+            self.mpcc = Mpcc(track, model, MpccSettings(rate_hz=rate_hz), output=self.output)
         else:
             wheelbase = parameters.value("lf") + parameters.value("lr")
             self.follower = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=v_ref))
@@ -171,12 +159,7 @@ class ControllerNode(Node):
         try:
             if self.mpcc is not None:
                 u = self.mpcc(x, speed_limit)
-                if self.mpcc.status.mode == "warming":
-                    self.get_logger().info(
-                        f"MPCC {self.mpcc.status.reason}: braking meanwhile",
-                        throttle_duration_sec=1.0,
-                    )
-                elif self.mpcc.status.mode != "solved":
+                if self.mpcc.status.mode != "solved":
                     self.get_logger().warning(
                         f"MPCC {self.mpcc.status.mode}: {self.mpcc.status.reason}",
                         throttle_duration_sec=1.0,

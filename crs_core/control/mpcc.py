@@ -4,11 +4,6 @@
 (real-time iteration) of the problem in :mod:`~crs_core.control.mpcc_problem`, warm-started from
 the previous plan shifted by one stage, its QP solved by HPIPM (:mod:`~crs_core.control.ocp_qp`).
 
-A cold start (the first call, or the first after a stop) makes ``cold_start_iterations`` SQP
-iterations. With ``cold_start_budget_s`` (real time) it stops iterating once that much wall time
-has passed and goes on at the next calls from its plan shifted by a stage; until it is done the car
-gets the safe-stop command (mode ``warming``).
-
 Fallback: a failed or non-finite solve serves the shifted previous plan's next input; after
 ``max_failures`` of them in a row, or on an estimate that is stale or unusable, the car is
 stopped (straight wheels, braking torque until it stands). A command is never NaN.
@@ -63,8 +58,7 @@ class MpccStatus:
     ----------
     mode : str
         ``"solved"`` (the plan's first input), ``"fallback"`` (the shifted previous plan after a
-        failed solve), ``"warming"`` (a cold start out of its time budget, going on at the next
-        call; the safe-stop command meanwhile) or ``"stop"`` (safe stop).
+        failed solve) or ``"stop"`` (safe stop).
     solve_time_s : float
         Wall time of the whole call, s (linearisation, QP, bookkeeping).
     qp_iterations : int
@@ -147,8 +141,6 @@ class Mpcc:
         self._V: np.ndarray | None = None
         self._failures = 0
         self._held = 0  # stops in a row with the plan kept
-        #: SQP iterations of the cold start still to make (0: real-time iterations)
-        self._cold_left = self.settings.cold_start_iterations
         self._command = np.zeros(2)
         self._in_flight.clear()
         self._progress_speed = 0.0
@@ -158,9 +150,8 @@ class Mpcc:
 
     @property
     def plan(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The current plan: stage states ``(N+1, nz)`` and inputs ``(N, nv)``, or None
-        (also while a cold start is still converging)."""
-        if self._Z is None or self._V is None or self._cold_left:
+        """The current plan: stage states ``(N+1, nz)`` and inputs ``(N, nv)``, or None."""
+        if self._Z is None or self._V is None:
             return None
         return self._Z.copy(), self._V.copy()
 
@@ -211,16 +202,13 @@ class Mpcc:
         if speed_limit is not None and math.isfinite(speed_limit):
             self._v_upper[2] = min(max(float(speed_limit), 0.0), self._v_upper[2])
         z0 = self._initial_stage_state(state)
-        cold = self._cold_left > 0
+        cold = self._Z is None
         Z, V = self._guess(z0)
         refs = self._references(Z[:, self._nxc])
         self.last_guess = (Z.copy(), V.copy(), refs)
         iterations, reason = 0, ""
-        budget = self.settings.cold_start_budget_s
-        for iteration in range(self._cold_left if cold else 1):
+        for iteration in range(self.settings.cold_start_iterations if cold else 1):
             if iteration:
-                if budget is not None and time.perf_counter() - started > budget:
-                    break  # out of time: the next call goes on from this plan
                 refs = self._references(Z[:, self._nxc])
             try:
                 solution = self._solve_qp(Z, V, refs)
@@ -235,14 +223,9 @@ class Mpcc:
                 break
             Z, V = solution.Z, solution.V
             iterations += solution.iterations
-            self._cold_left -= 1 if cold else 0
-        if cold and iterations and reason:  # a cold start's successful iterations count
-            self._cold_left = 0
-        if cold and iterations and self._cold_left:
-            return self._warm_up(Z, V, z0, state, iterations, started)
-        if not reason or (cold and iterations):
+        if not reason or (cold and iterations):  # a cold start's successful iterations count
             return self._accept(Z, V, z0, refs, iterations, started)
-        return self._fall_back(Z, V, z0, started, reason, cold)
+        return self._fall_back(Z, V, z0, started, reason)
 
     # --- steps ---------------------------------------------------------------------------
     def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
@@ -335,26 +318,6 @@ class Mpcc:
         torque = min(max(-s.brake_gain * vx, s.torque_min), 0.0) if vx > 0.05 else 0.0
         return np.array([0.0, torque])
 
-    def _warm_up(self, Z, V, z0, state, iterations, started) -> np.ndarray:
-        """A cold start out of its time budget: the plan so far is kept for the next call to
-        go on from; until it has converged the car gets the safe-stop command (what it got
-        before: a cold start follows the start, a stale estimate or a stop), not the input of
-        a plan a few iterations from a rough guess."""
-        self._Z, self._V = Z, V
-        self._command = self._stop_command(state)
-        done = self.settings.cold_start_iterations - self._cold_left
-        self.status = MpccStatus(
-            "warming",
-            time.perf_counter() - started,
-            iterations,
-            float(z0[self._nxc]),
-            math.nan,
-            0.0,
-            0,
-            f"cold start: {done} of {self.settings.cold_start_iterations} iterations",
-        )
-        return self._out(self._command, None)
-
     def _accept(self, Z, V, z0, refs, iterations, started) -> np.ndarray:
         s = self.settings
         V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
@@ -374,10 +337,10 @@ class Mpcc:
         )
         return self._out(self._command, Z)
 
-    def _fall_back(self, Z, V, z0, started, reason: str, cold: bool) -> np.ndarray:
+    def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
         failures = self._failures
-        if failures > self.settings.max_failures or self._Z is None or cold:
+        if failures > self.settings.max_failures or self._Z is None:
             command = self.stop(z0, f"{reason}; {failures} failed solves in a row")
             mode, slack = "stop", 0.0
         else:  # the shifted previous plan: the guess is that plan shifted by one stage

@@ -106,13 +106,6 @@ class MpccSettings:
     cold_start_iterations : int
         SQP iterations of a call without a plan to start from (first call, after a stop);
         every later call makes one (real-time iteration).
-    cold_start_budget_s : float or None
-        Wall time a call may spend on cold-start iterations, s: no further iteration starts
-        once it has passed (the first always runs); the next calls go on from the plan until
-        all ``cold_start_iterations`` are made, the car getting the safe-stop command
-        meanwhile. A slow machine's cold start then neither holds the command back past the
-        car's timeout nor sends a plan a few iterations from a rough guess. None (default):
-        all iterations in the first call, the same plan on every machine.
     feasibility_tolerance : float
         Largest constraint violation of a QP solution that is used (a solver stopped at its
         iteration limit with a feasible point counts: the next iteration continues from it).
@@ -145,7 +138,6 @@ class MpccSettings:
     solver: str = "hpipm"
     qp_max_iter: int = 50
     cold_start_iterations: int = 10
-    cold_start_budget_s: float | None = None
     feasibility_tolerance: float = 1e-6
     velocity_lead_s: float = 0.15
 
@@ -162,7 +154,7 @@ class MpccSettings:
         """
         for item in fields(self):
             value = getattr(self, item.name)
-            if item.type == "str" or (value is None and "None" in str(item.type)):
+            if item.type == "str":
                 continue
             if isinstance(value, bool) or not isinstance(value, int | float):
                 raise ValueError(f"{item.name}: must be a number, got {value!r}")

@@ -32,11 +32,6 @@ CASES = [
     ("estimator_node", ["-p", "catch_up_solves:=0"], "error: catch_up_solves: must be in 1..1000"),
     ("estimator_node", ["-p", "max_lag:=-0.1"], "error: max_lag: must be a finite number >= 0"),
     (
-        "controller_node",
-        ["-p", "cold_start_budget:=0.0"],
-        "error: cold_start_budget: must be a finite number > 0",
-    ),
-    (
         "bridge_node",
         ["-p", "telemetry_hz:=0.0"],
         "error: telemetry_hz: must be a finite number > 0",

@@ -243,35 +243,6 @@ def test_velocity_output_gives_the_planned_speed(track) -> None:
         Mpcc(track, output="position")
 
 
-def test_a_cold_start_out_of_time_brakes_meanwhile_and_goes_on_at_the_next_calls(track) -> None:
-    """A cold start with no time left (a loaded machine) makes one SQP iteration per call and
-    sends the safe-stop command until its iterations are made (not the input of a plan one
-    iteration from a rough guess); then it starts as the cold start made at once would."""
-    budgeted = Mpcc(track, settings=MpccSettings(cold_start_budget_s=0.0))
-    full = Mpcc(track)
-    n = budgeted.settings.cold_start_iterations
-    moving = _start(track, 1.0)
-    u = budgeted(moving)
-    assert (
-        budgeted.status.mode == "warming"
-        and budgeted.status.reason == f"cold start: 1 of {n} iterations"
-    )
-    assert u[0] == 0.0 and u[1] == pytest.approx(-budgeted.settings.brake_gain * 1.0)
-    assert budgeted.plan is None
-    budgeted.reset()
-    x = _start(track, 0.0)
-    for k in range(1, n):
-        assert np.array_equal(budgeted(x), [0.0, 0.0])  # standing: no brake, straight wheels
-        assert budgeted.status.reason == f"cold start: {k} of {n} iterations"
-    u_budgeted, u_full = budgeted(x), full(x)
-    assert budgeted.status.mode == "solved" and budgeted.plan is not None
-    # the same start as the cold start made at once: a little left, full torque forward
-    assert u_budgeted[0] == pytest.approx(u_full[0], abs=0.01)
-    assert u_budgeted[1] > 0.5 and u_full[1] > 0.5
-    with pytest.raises(ValueError, match="cold_start_budget_s"):
-        MpccSettings(cold_start_budget_s=-1.0)
-
-
 def test_a_short_stop_keeps_the_plan_shifted_in_time_and_a_long_one_forgets_it(track) -> None:
     """Stops with ``keep_plan`` (a late estimate) shift the plan a stage per call, as the calls
     would have; the next call starts from it (no cold start); once the stops have used up half
