@@ -64,7 +64,7 @@ def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, A
                 "position_rmse_m": summary["position_rmse_m"],
                 "position_rmse_at_horizon_m": summary["position_rmse_at_horizon_m"],
             }
-        print(f"bench sysid: seed {seed} done", file=sys.stderr, flush=True)
+        _say(f"simulated: seed {seed} done")
     return {
         "duration_s": duration,
         "seeds": list(seeds),
@@ -83,6 +83,7 @@ def real_study() -> dict[str, Any]:
     runs = [REAL_DATA / "fie_mpc_lighthouse_1", REAL_DATA / "fie_mpc_lighthouse_2"]
     out = {}
     for train, test in ((runs[0], runs[1]), (runs[1], runs[0])):
+        _say(f"real: identify on {train.name}, validate on {test.name}, prediction-error floor")
         dataset = Dataset.load(train)
         model = identification_model(dataset, [], ROUGH)
         result = identify(dataset, model, FieSettings(fit=BENCHMARK_FIT))
@@ -133,6 +134,7 @@ def speed_study() -> dict[str, Any]:
         "simulated_3000": None,
     }
     for label, dataset in cases.items():
+        _say(f"speed: {label}")
         if dataset is None:
             dataset = simulate_dataset(70.0, 7).samples(0, 3000)
         model = identification_model(dataset, [], ROUGH)
@@ -149,6 +151,11 @@ def speed_study() -> dict[str, Any]:
             "solver_status": result.solver_status,
         }
     return out
+
+
+def _say(line: str) -> None:
+    """A progress line on stderr (the JSON goes to stdout)."""
+    print(f"bench sysid: {line}", file=sys.stderr, flush=True)
 
 
 def sysid_benchmark(out: Path | None, seeds: int = 10) -> dict[str, Any]:
