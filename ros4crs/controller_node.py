@@ -7,9 +7,9 @@ MPCC, the paper's, 50 Hz for the path follower). When the newest estimate is old
 so the car rolls to a stop, and says so once per episode (the MPCC keeps its plan through a gap
 of up to half its horizon and goes on from it); while it is ``degraded`` the car
 drives at ``degraded_speed`` at most. With ``predict`` (default) the estimate, tens of ms old
-when it arrives, is carried forward to the time the command acts with the model and the last
-command. A controller that raises is answered by a stop command and a throttled error; the node
-keeps running.
+when it arrives, is carried forward to the time the command acts with the model and the
+commands sent since its stamp. A controller that raises is answered by a stop command and a
+throttled error; the node keeps running.
 
 With ``output`` velocity (MPCC only) it publishes ``MODE_VELOCITY`` commands ``[delta, v_x]`` for
 a car that tracks its speed on board (the MPCC's planned speed a short lead ahead; the simulator
@@ -82,7 +82,7 @@ class ControllerNode(Node):
         model = declare_model(self)
         parameters = model.parameters
         self.predict = declare(
-            self, "predict", True, "predict the estimate forward to now with the last command"
+            self, "predict", True, "predict the estimate forward to now with the commands sent"
         )
         track = declare_track(self)
         self._numeric = model.numeric if self.predict else None

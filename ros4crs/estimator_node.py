@@ -266,7 +266,9 @@ class EstimatorNode(Node):
         if not self._started:
             self._buffer.append(item)
             return
-        self._delays.add(self._now(), self._now() - item.stamp)
+        if self.max_lag > self.lag:  # the lag can rise: track the arrival delays
+            now = self._now()
+            self._delays.add(now, now - item.stamp)
         late_before = self.estimator.diagnostics.late
         try:
             self.estimator.add(item)
