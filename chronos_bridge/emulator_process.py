@@ -21,6 +21,15 @@ The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces
   the loop goes on;
 - SIGINT / SIGTERM (or ``--duration``) stop it cleanly with a one-line summary on stdout;
 - each motor cut-off (200 ms without a reference) and each resumption is one line on stderr;
+- ``--link PRESET|SPEC`` (both directions), ``--link-up`` (car → host), ``--link-down``
+  (host → car) put a Wi-Fi-like link (:mod:`chronos_bridge.impairment`, seeded by
+  ``--link-seed``, default ``--seed``) between the emulator and its socket: each outgoing
+  datagram is sent at its release time (the loop sleeps until the next release or tick, so
+  to within the sleep's accuracy); each datagram read is handed to the emulator at the first
+  tick at or after its release time (the firmware's loop reads once per 4 ms tick too; the
+  delay counts from the tick that read it). An outage longer than 200 ms cuts the motors
+  (one line on stderr, as any cut-off). The link's settings are one line on stderr at the
+  start when not clean, and its counters end the summary line;
 - ``--truth-out FILE`` writes, on exit, an ``.npz`` with the emulator's ground truth and the
   link's timing log (:func:`write_truth`), all on the clock of its packet stamps (Unix s), so
   a host's estimates and latencies can be checked against them (``crs launch car --emulate``).
@@ -39,6 +48,14 @@ import socket
 import sys
 import time
 from collections.abc import Sequence
+
+from chronos_bridge.impairment import (
+    SPEC_HELP,
+    ImpairedChannel,
+    describe,
+    make_link,
+    parse_link,
+)
 
 PROG = "crs car-emulator"
 DESCRIPTION = (
@@ -77,7 +94,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--truth-out",
         help="on exit write FILE (.npz): the true state at every step and the link's timing "
-        "log (commands read, motor cut-offs), stamped like the packets (Unix s)",
+        "log (commands read, motor cut-offs, outages, link counters), stamped like the packets "
+        "(Unix s)",
+    )
+    parser.add_argument(
+        "--link",
+        help="impair the link both ways like Wi-Fi (default clean): " + SPEC_HELP,
+    )
+    parser.add_argument("--link-up", help="car -> host only (overrides --link that way): SPEC")
+    parser.add_argument("--link-down", help="host -> car only (overrides --link that way): SPEC")
+    parser.add_argument(
+        "--link-seed", help="seed of the link's draws (default: --seed; independent streams)"
     )
 
 
@@ -118,12 +145,8 @@ def options(args: argparse.Namespace) -> dict:
         raise ValueError(f"--host: {host} is not one host's address")
     if bind.is_loopback and not host.is_loopback:
         raise ValueError(f"--bind: {bind} cannot reach --host {host}; bind 0.0.0.0 or an interface")
-    try:
-        seed = int(args.seed)
-    except ValueError:
-        raise ValueError(f"--seed: {args.seed!r} is not an integer") from None
-    if seed < 0:
-        raise ValueError(f"--seed: {seed} must be >= 0")
+    seed = _seed("--seed", args.seed)
+    link_seed = seed if args.link_seed is None else _seed("--link-seed", args.link_seed)
     duration = None
     if args.duration is not None:
         try:
@@ -139,7 +162,19 @@ def options(args: argparse.Namespace) -> dict:
         "duration": duration,
         "timestamps": not args.no_timestamp,
         "truth_out": _truth_path(args.truth_out),
+        "link": parse_link(args.link, args.link_up, args.link_down),
+        "link_seed": link_seed,
     }
+
+
+def _seed(name: str, text: str) -> int:
+    try:
+        seed = int(text)
+    except ValueError:
+        raise ValueError(f"{name}: {text!r} is not an integer") from None
+    if seed < 0:
+        raise ValueError(f"{name}: {seed} must be >= 0")
+    return seed
 
 
 def _truth_path(text: str | None):
@@ -165,6 +200,11 @@ class TruthLog:
     ``command_host_t``: that reference's ``Packet.timestamp`` (the host's send time; NaN when
     unstamped). ``pause_t`` / ``pause_last_command_t``: each motor cut-off (the tick's time) and
     the read time of the reference before it; ``resume_t``: each reference that ended a pause.
+    With ``--link``, a reference is "read" when the link releases it to the emulator.
+    ``link_{up,down}_outage_start_t`` / ``..._end_t``: the outage windows ``[start, end)`` of
+    the car → host (``up``) and host → car (``down``) channels that began before the end of
+    the run; ``link_{up,down}_{counter}``: that channel's counters
+    (:data:`chronos_bridge.impairment.COUNTERS`).
     """
 
     def __init__(self, unix_offset: float) -> None:
@@ -176,6 +216,17 @@ class TruthLog:
         self.pause_t: list[float] = []
         self.pause_last_command_t: list[float] = []
         self.resume_t: list[float] = []
+        self.link: dict[str, object] = {}
+
+    def record_link(self, channels: dict[str, ImpairedChannel], until: float) -> None:
+        """The outage windows (started before ``until``, the loop's clock) and counters of
+        the ``up`` and ``down`` channels."""
+        for direction, channel in channels.items():
+            windows = channel.outages.windows(until) + self.offset
+            self.link[f"link_{direction}_outage_start_t"] = windows[:, 0]
+            self.link[f"link_{direction}_outage_end_t"] = windows[:, 1]
+            for name, value in channel.counters().items():
+                self.link[f"link_{direction}_{name}"] = value
 
     def write(self, path) -> None:
         import numpy as np
@@ -193,6 +244,7 @@ class TruthLog:
                     "resume_t",
                 )
             },
+            **{name: np.asarray(value) for name, value in self.link.items()},
         }
         partial = path.with_name(path.name + ".partial.npz")
         np.savez(partial, **arrays)
@@ -228,10 +280,19 @@ def run(args: argparse.Namespace) -> int:
         unix_offset=time.time() - start,
         timestamps=opts["timestamps"],
     )
+    link = opts["link"]
+    up, down = make_link(link, opts["link_seed"], start)
     print(
         f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
         flush=True,
     )
+    if not (link.up.clean and link.down.clean):
+        print(
+            f"{PROG}: link car -> host {describe(link.up)}; host -> car {describe(link.down)}; "
+            f"link seed {opts['link_seed']}",
+            file=sys.stderr,
+            flush=True,
+        )
     late = skips = send_errors = receive_errors = 0
     log = TruthLog(emulator.unix_offset)
     last_command: list[float | None] = [None]
@@ -242,8 +303,11 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             if opts["duration"] is not None and now - start >= opts["duration"]:
                 break
-            if now < next_tick:
-                time.sleep(next_tick - now)
+            send_errors += _send(sock, up.due(now), host)
+            if now < next_tick:  # sleep until the tick or the next datagram's release
+                release = up.next_release()
+                wake = next_tick if release is None else min(next_tick, release)
+                time.sleep(max(0.0, wake - now))
                 continue
             if now - next_tick > MAX_CATCH_UP_S:  # hopelessly behind: re-anchor
                 skips += 1
@@ -252,7 +316,8 @@ def run(args: argparse.Namespace) -> int:
                 late += 1
             now = next_tick  # the step's own time: one clock for the car, its ticks and stamps
             was_paused = emulator.paused and emulator.commands > 0
-            receive_errors += _drain(sock, emulator, host[0], now, log, last_command)
+            receive_errors += _drain(sock, emulator.rejected, host[0], down, now)
+            _deliver(down.due(now), emulator, now, log, last_command)
             if was_paused and not emulator.paused:
                 log.resume_t.append(log.command_read_t[-1])
                 print(f"{PROG}: references again: drives", file=sys.stderr, flush=True)
@@ -272,16 +337,15 @@ def run(args: argparse.Namespace) -> int:
                 log.t.append(emulator.unix_offset + now)
                 log.x.append(emulator.truth().copy())
             for datagram in datagrams:
-                try:
-                    sock.sendto(datagram, host)
-                except OSError:
-                    send_errors += 1
+                up.send(datagram, now)
+            send_errors += _send(sock, up.due(now), host)
             next_tick += TICK_S
     finally:
         sock.close()
         for s, handler in previous.items():
             signal.signal(s, handler)
         if opts["truth_out"] is not None:
+            log.record_link({"up": up, "down": down}, time.monotonic())
             log.write(opts["truth_out"])
     reasons = ", ".join(f"{k} {v}" for k, v in sorted(emulator.rejected.items()))
     print(
@@ -289,25 +353,29 @@ def run(args: argparse.Namespace) -> int:
         f"{late} late ticks, {skips} skips, {emulator.commands} commands received, "
         f"{emulator.rejected_total} rejected{f' ({reasons})' if reasons else ''}, "
         f"{emulator.pauses} pauses, {emulator.pings_sent} pings sent, "
-        f"{send_errors + receive_errors} socket errors",
+        f"{send_errors + receive_errors} socket errors; "
+        f"link car -> host: {up.summary()}; host -> car: {down.summary()}",
         flush=True,
     )
     return 0
 
 
-def _drain(
-    sock: socket.socket,
-    emulator,
-    host: str,
-    now: float,
-    log: TruthLog | None = None,
-    last_command: list | None = None,
-) -> int:
-    """Hand every pending datagram from ``host`` to the emulator; the socket errors seen.
+def _send(sock: socket.socket, datagrams: list[bytes], host: tuple[str, int]) -> int:
+    """Send ``datagrams`` to ``host``; the socket errors seen."""
+    errors = 0
+    for datagram in datagrams:
+        try:
+            sock.sendto(datagram, host)
+        except OSError:
+            errors += 1
+    return errors
 
-    ``now``: the step's scheduled time (the emulator's clock). With ``log``, each valid
-    reference's actual read time (for latencies) and host stamp go to it, and the step's time
-    to ``last_command[0]``."""
+
+def _drain(
+    sock: socket.socket, rejected: dict, host: str, channel: ImpairedChannel, now: float
+) -> int:
+    """Hand every pending datagram from ``host`` to the host → car ``channel`` at ``now`` (the
+    step's scheduled time); others count in ``rejected["source"]``. The socket errors seen."""
     errors = 0
     while True:
         try:
@@ -320,16 +388,24 @@ def _drain(
                 return errors
             continue
         if source[0] != host:
-            emulator.rejected["source"] += 1
+            rejected["source"] += 1
             continue
+        channel.send(data, now)
+
+
+def _deliver(
+    datagrams: list[bytes], emulator, now: float, log: TruthLog, last_command: list
+) -> None:
+    """Hand the released ``datagrams`` to the emulator at ``now`` (the step's time); each valid
+    reference's actual delivery time (for latencies) and host stamp go to ``log``, and the
+    step's time to ``last_command[0]``."""
+    for data in datagrams:
         commands = emulator.commands
         emulator.receive(data, now)
-        if log is not None and emulator.commands != commands:
-            read = log.offset + time.monotonic()
-            log.command_read_t.append(read)
+        if emulator.commands != commands:
+            log.command_read_t.append(log.offset + time.monotonic())
             log.command_host_t.append(_host_stamp(data))
-            if last_command is not None:  # on the emulator's clock, as its timeout counts
-                last_command[0] = log.offset + now
+            last_command[0] = log.offset + now  # on the emulator's clock, as its timeout counts
 
 
 def _host_stamp(datagram: bytes) -> float:

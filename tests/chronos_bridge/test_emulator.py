@@ -326,3 +326,53 @@ def test_cli_option_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> N
     assert capsys.readouterr().err.startswith("crs car-emulator: error: --bind: 127.0.0.1 cannot")
     assert main(["car-emulator", "--host", "nowhere", "--host-port", "9"]) == 2
     assert "--host: 'nowhere' is not an IPv4 address" in capsys.readouterr().err
+
+
+def test_an_outage_cuts_the_motors_and_is_logged_on_the_packets_clock(tmp_path: Path) -> None:
+    host = _free_port_socket()
+    host.settimeout(0.005)
+    out = tmp_path / "truth.npz"
+    command = [sys.executable, "-m", "chronos_bridge.emulator_process", "--host", "127.0.0.1"]
+    command += ["--host-port", str(host.getsockname()[1]), "--port", "0", "--duration", "1.3"]
+    command += ["--link", "outage=300ms,outage_every=1s,outage_phase=500ms"]
+    command += ["--truth-out", str(out)]
+    process = subprocess.Popen(
+        command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    stamps = []
+    try:
+        car = ("127.0.0.1", int(process.stdout.readline().split(",")[0].rsplit(":", 1)[1]))
+        next_reference = time.monotonic()
+        while process.poll() is None:
+            if time.monotonic() >= next_reference:  # 100 Hz, also during the outage
+                host.sendto(encode_torque_command(0.0, 0.4, STAMP_US), car)
+                next_reference += 0.01
+            try:
+                packet = decode_from_car(host.recvfrom(1024)[0])
+            except TimeoutError:
+                continue
+            if isinstance(packet.contents, CarState):
+                stamps.append(packet.stamp_s)
+        summary, errors = process.communicate(timeout=10)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        host.close()
+    log = np.load(out)
+    start, end = log["link_down_outage_start_t"], log["link_down_outage_end_t"]
+    assert start.size == 1 and end[0] - start[0] == pytest.approx(0.3)
+    np.testing.assert_array_equal(log["link_up_outage_start_t"], start)  # one Wi-Fi, both ways
+    stamps = np.array(stamps)
+    inside = (stamps > start[0] + 1e-5) & (stamps < end[0] - 1e-5)
+    assert not np.any(inside) and np.sum(stamps < start[0]) > 50 and np.sum(stamps > end[0]) > 50
+    read = log["command_read_t"]
+    assert not np.any((read > start[0]) & (read < end[0]))
+    # the cut-off 200 ms into the outage, driving again at the first reference after it
+    assert log["pause_t"].size == 1 and start[0] + 0.19 < log["pause_t"][0] < end[0]
+    assert log["resume_t"].size == 1 and end[0] <= log["resume_t"][0] < end[0] + 0.03
+    assert "motors cut (pause 1)" in errors and "references again: drives" in errors
+    assert int(log["link_up_lost_outage"]) == pytest.approx(75, abs=2)  # 300 ms at 250 Hz
+    assert f"lost {int(log['link_up_lost_outage'])} (random 0, burst 0, outage " in summary
+    assert 20 <= int(log["link_down_lost_outage"]) <= 32  # ~100 Hz of references in 300 ms
+    assert int(log["link_down_lost_random"]) == 0
