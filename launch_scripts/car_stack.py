@@ -5,7 +5,10 @@ plain process) and the same nodes as against a real car (``crs launch car --car-
 
 - ``emulator`` (``--emulate`` only): binds 127.0.0.1:``EMULATOR_PORT + N - 1`` and sends to the
   bridge's port, seed ``SEED + N``, ``--truth-out OUT/truth_carN.npz`` (its ground truth and the
-  link's timing log on the clock of its packet stamps);
+  link's timing log on the clock of its packet stamps); with an :class:`EmulatedLink`, its
+  ``--link``/``--link-up``/``--link-down`` (a Wi-Fi-like link, :mod:`chronos_bridge.impairment`)
+  and ``--link-seed LINK_SEED + N`` (default: derived from its own seed, so each car's link
+  draws differ);
 - ``bridge`` (:mod:`ros4crs.bridge_node`): port ``HOST_PORT + N - 1``; emulated: bound to
   127.0.0.1 and paired only with its emulator's address and port; a real car: bound to
   0.0.0.0 and paired only with that car's IP (any port);
@@ -43,11 +46,13 @@ from __future__ import annotations
 
 import ipaddress
 import json
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from chronos_bridge.impairment import parse_link
 from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
@@ -67,6 +72,38 @@ HOST_PORT = 20211
 EMULATOR_PORT = 20311
 #: The bridge's own topic the recorder adds to the car's record set.
 DIAGNOSTICS_TOPIC = "bridge/diagnostics"
+
+
+@dataclass(frozen=True)
+class EmulatedLink:
+    """The emulated cars' link impairment: ``crs car-emulator``'s ``--link`` (both ways),
+    ``--link-up`` (car -> host), ``--link-down`` (host -> car) specs (None: not given; all
+    None: a clean link) and ``seed`` (car N gets ``--link-seed seed + N``; None: each
+    emulator derives it from its own ``--seed``)."""
+
+    both: str | None = None
+    up: str | None = None
+    down: str | None = None
+    seed: int | None = None
+
+    @property
+    def given(self) -> bool:
+        """True when any option is set."""
+        return any(value is not None for value in asdict(self).values())
+
+    def arguments(self, car: int) -> list[str]:
+        """Car ``car``'s emulator options (checked: ``ValueError`` naming the option)."""
+        parse_link(self.both, self.up, self.down)
+        if self.seed is not None and self.seed < 0:
+            raise ValueError(f"--link-seed: {self.seed} must be >= 0")
+        arguments = []
+        specs = (("--link", self.both), ("--link-up", self.up), ("--link-down", self.down))
+        for option, value in specs:
+            if value is not None:
+                arguments += [option, value]
+        if self.seed is not None:
+            arguments += ["--link-seed", str(self.seed + car)]
+        return arguments
 
 
 def parse_car_ips(text: str) -> list[str]:
@@ -98,13 +135,16 @@ def car_nodes(
     blind_start: bool = False,
     params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
+    link: EmulatedLink = EmulatedLink(),
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
     when ``emulate``, started last: its car waits for references anyway), and one recorder.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
-    the emulator's port of car 1 (car N: + N - 1)."""
+    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
+    if link.given and not emulate:
+        raise ValueError("--link: only for emulated cars (a real car's link is the real one)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
     if cars < 1:
@@ -127,6 +167,7 @@ def car_nodes(
             arguments = ["--host", "127.0.0.1", "--host-port", str(host_port)]
             arguments += ["--port", str(car_port), "--seed", str(seed + i)]
             arguments += ["--truth-out", str(Path(out).resolve() / f"truth_car{i}.npz")]
+            arguments += link.arguments(i)
             emulators.append(
                 NodeSpec("emulator", "chronos_bridge.emulator_process", ns, arguments=arguments)
             )
@@ -174,8 +215,10 @@ def run_car_stack(
     blind_start: bool = False,
     params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
+    link: EmulatedLink = EmulatedLink(),
 ) -> dict[str, Any]:
-    """Run the stack against the cars for ``duration`` s, then write ``out/report.json``."""
+    """Run the stack against the cars for ``duration`` s, then write ``out/report.json``
+    (``link``: the emulators' link impairment, recorded in it)."""
     out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(
         cars,
@@ -191,6 +234,7 @@ def run_car_stack(
         blind_start=blind_start,
         params_file=params_file,
         ports=ports,
+        link=link,
     )
     launcher = Launcher(nodes, domain, out / "logs")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
@@ -211,6 +255,7 @@ def run_car_stack(
         duration_s=duration,
         recorded=record,
         seed=seed,
+        link=asdict(link),
         node_deaths=[{"node": d.node, "returncode": d.returncode} for d in deaths],
     )
     report.update(process_figures(launcher))
