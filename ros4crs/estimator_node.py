@@ -1,7 +1,10 @@
 """Estimator node: EKF or MHE from ``crs_core`` on whatever sensors publish.
 
 Subscribes to ``sensors/*`` and ``input``; every message is validated and converted at the
-boundary (a malformed one is logged and dropped). A timer at ``rate_hz`` asks the estimator for
+boundary (a malformed one is logged and dropped). The real-time policy (start, query grid,
+adaptive lag, late data, clock jumps, deadlines) is a
+:class:`~crs_core.estimation.realtime.RealtimeEstimator`; the node feeds it, publishes what it
+returns and logs its warnings. A timer at ``rate_hz`` asks the estimator for
 the state at ``now - lag`` (the lag lets messages in flight arrive first; it must exceed the
 transport latency: it is raised to cover the largest arrival delay, receipt minus stamp, of the
 last 5 s, up to ``max_lag``) and publishes ``estimate/state`` (CarState), ``estimate/odometry``
@@ -42,8 +45,6 @@ track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track'
 
 from __future__ import annotations
 
-import math
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -58,7 +59,8 @@ from crs_core.estimation import (
     parse_sensor_set,
 )
 from crs_core.estimation.base import parse_time_offsets
-from crs_core.measurements import InputSample, Measurement, from_start
+from crs_core.estimation.realtime import RealtimeEstimator, RealtimeSettings
+from crs_core.measurements import Measurement
 from ros4crs import conversions
 from ros4crs.node_support import (
     LOG_QOS,
@@ -77,40 +79,9 @@ from ros4crs.node_support import (
     throttled_warning,
 )
 
-#: A clock that goes back by more than this (s) restarts the estimator (a looped replay).
-CLOCK_JUMP_S = 0.5
-#: A query this close (in periods) before the next grid time is asked at that time.
-GRID_TOLERANCE = 0.05
-#: The lag covers the largest arrival delay (receipt minus stamp) of the last this many s ...
-LAG_WINDOW_S = 5.0
-#: ... plus this margin, s.
-LAG_MARGIN_S = 0.005
-
-
-class WindowMax:
-    """The largest value added in the last ``window`` s (whole seconds of buckets)."""
-
-    def __init__(self, window: float) -> None:
-        self._buckets: dict[int, float] = {}
-        self._window = math.ceil(window)
-
-    def add(self, now: float, value: float) -> None:
-        second = math.floor(now)
-        if value > self._buckets.get(second, -math.inf):
-            self._buckets[second] = value
-            if len(self._buckets) > self._window + 1:
-                self._buckets = {
-                    k: v for k, v in self._buckets.items() if k > second - self._window
-                }
-
-    def value(self, now: float) -> float:
-        """The largest value of the window ending at ``now`` (-inf: none)."""
-        oldest = math.floor(now) - self._window
-        return max((v for k, v in self._buckets.items() if k > oldest), default=-math.inf)
-
 
 class EstimatorNode(Node):
-    """Wraps an :class:`~crs_core.estimation.base.Estimator`."""
+    """Wraps a :class:`~crs_core.estimation.realtime.RealtimeEstimator`."""
 
     def __init__(self) -> None:
         super().__init__("estimator")
@@ -119,23 +90,17 @@ class EstimatorNode(Node):
             self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)
         )
         self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
-        self.lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
+        lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
         # the EKF drops late data; the MHE takes them into its window at the next update, and
         # a larger lag would only make the controller's loop slower (a max_lag below lag:
         # the lag stays)
-        self.max_lag = max(
-            self.lag,
-            declare(
-                self,
-                "max_lag",
-                0.1 if kind == "ekf" else 0.0,
-                "raise the lag up to this for late data, s",
-                non_negative,
-            ),
+        max_lag = declare(
+            self,
+            "max_lag",
+            0.1 if kind == "ekf" else 0.0,
+            "raise the lag up to this for late data, s",
+            non_negative,
         )
-        #: the lag in use, s: ``lag`` raised while data arrive late (up to ``max_lag``)
-        self.current_lag = self.lag
-        self._delays = WindowMax(LAG_WINDOW_S)
         horizon = declare(self, "horizon", 40, "MHE horizon, stages", in_range(2, 1000))
         solves = declare(
             self, "catch_up_solves", 2, "MHE: most nodes solved per update", in_range(1, 1000)
@@ -144,14 +109,14 @@ class EstimatorNode(Node):
             self, "inputs", "auto", "auto, commanded or estimated", one_of(*INPUT_MODES)
         )
         self.inputs = inputs
-        self.blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
-        if self.blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
+        blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
+        if blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
             raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
         model = declare_model(self, n_base_stations=stations)
         track = declare_track(self)
         start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
-        self.initial = np.asarray(
+        initial = np.asarray(
             declare(self, "initial_state", start, "initial estimate", finite_vector(6))
         )
         offsets = parse_time_offsets(
@@ -174,7 +139,11 @@ class EstimatorNode(Node):
             else EkfSettings(time_offsets=offsets)
         )
         self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
-        self._warn_status = throttled_warning(self)
+        self.realtime = RealtimeEstimator(
+            self.estimator,
+            RealtimeSettings(rate_hz=self.rate_hz, lag=lag, max_lag=max_lag),
+            None if blind_start else initial,
+        )
         self.kind = kind
         from nav_msgs.msg import Odometry
 
@@ -182,8 +151,14 @@ class EstimatorNode(Node):
         from tf2_msgs.msg import TFMessage
 
         self._checked_subscriptions: list = []
-        self._warn_late = throttled_warning(self)
-        self._warn_lag = throttled_warning(self)
+        late = throttled_warning(self)  # late data and deadline misses share one throttle
+        self._warn = {
+            "late": late,
+            "deadline": late,
+            "lag": throttled_warning(self),
+            "status": throttled_warning(self),
+            "restart": self.get_logger().warning,
+        }
         for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
         self._checked_subscriptions.append(
@@ -207,35 +182,25 @@ class EstimatorNode(Node):
         self.received: dict[str, int] = {}
         #: Velocity-mode commands received (ignored: they carry no torque).
         self.velocity_references = 0
-        self._newest: dict[str, float] = {}  # per input topic, the newest stamp received
-        self.deadline_misses = 0
-        self.updates = 0
-        self._max_solve = 0.0
-        self._started = False
-        self.restarts = 0
-        self._buffer: list[Measurement | InputSample] = []
-        self._last_query = -np.inf
-        self._grid_origin = 0.0
         self._timer = self.create_timer(1.0 / self.rate_hz, self._update)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
 
     def _subscribe(self, family: str, msg_type: type) -> None:
         topic = conversions.TOPICS[family]
+        received = self.received
+        realtime = self.realtime
 
         def handle(measurement: Measurement) -> None:
-            self.received[measurement.sensor] = self.received.get(measurement.sensor, 0) + 1
-            self._newest[topic] = max(self._newest.get(topic, -np.inf), measurement.stamp)
-            self._deliver(measurement)
+            received[measurement.sensor] = received.get(measurement.sensor, 0) + 1
+            now = self._now() if realtime.tracks_delays else None
+            warning = realtime.deliver(measurement, now, topic)
+            if warning is not None:
+                self._warn[warning.kind](warning.message)
 
         self._checked_subscriptions.append(
             CheckedSubscription(
-                self,
-                msg_type,
-                conversions.TOPICS[family],
-                conversions.SENSOR_PARSERS[family],
-                handle,
-                family,
+                self, msg_type, topic, conversions.SENSOR_PARSERS[family], handle, family
             )
         )
 
@@ -252,113 +217,41 @@ class EstimatorNode(Node):
                     )
                 )
             return
-        topic = conversions.TOPICS["input"]
-        self._newest[topic] = max(self._newest.get(topic, -np.inf), command.stamp)
-        self._deliver(command.input_sample())
+        now = self._now() if self.realtime.tracks_delays else None
+        warning = self.realtime.deliver(command.input_sample(), now, conversions.TOPICS["input"])
+        if warning is not None:
+            self._warn[warning.kind](warning.message)
 
     @property
     def malformed(self) -> int:
         """Messages dropped at the boundary so far."""
         return sum(s.dropped for s in self._checked_subscriptions)
 
-    def _deliver(self, item: Measurement | InputSample) -> None:
-        """Into the estimator, or a buffer until its first update (it starts at now - lag)."""
-        if not self._started:
-            self._buffer.append(item)
-            return
-        if self.max_lag > self.lag:  # the lag can rise: track the arrival delays
-            now = self._now()
-            self._delays.add(now, now - item.stamp)
-        late_before = self.estimator.diagnostics.late
-        try:
-            self.estimator.add(item)
-        except ValueError as error:  # a sensor the model does not have
-            self._warn_late(f"dropped: {error}")
-            return
-        if self.estimator.diagnostics.late > late_before:
-            self._warn_late(
-                f"dropped out-of-order data stamped {item.stamp:.3f} s: older than what the "
-                "estimator already processed"
-            )
-
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
-    def _query_time(self) -> float:
-        """``now - lag`` on the grid of the timer's schedule: the MHE's nodes sit on a grid
-        anchored at its start, and a query between two nodes costs an EKF pass over the data
-        since the newer one (whose length would otherwise be set by how late the start's tick
-        happened to fire: up to a whole period, a quarter of the estimator's CPU). The start is
-        therefore taken at its tick's scheduled time (``now`` minus the tick's lateness), and
-        every query at the newest grid time by ``now - lag``: on a node, never later than
-        before by more than :data:`GRID_TOLERANCE` of a period, earlier only by the tick's
-        lateness."""
-        period = 1.0 / self.rate_hz
-        now = self._now()
-        delay = self._delays.value(now)
-        lag = min(max(self.lag, delay + LAG_MARGIN_S), self.max_lag)
-        if lag > self.current_lag + LAG_MARGIN_S:
-            self._warn_lag(
-                f"data arrive up to {1e3 * delay:.0f} ms after their stamps: estimating "
-                f"{1e3 * lag:.0f} ms in the past (max_lag {1e3 * self.max_lag:.0f} ms)"
-            )
-        self.current_lag = lag
-        raw = now - lag
-        if not self._started:
-            until = self._timer.time_until_next_call()
-            late = period - 1e-9 * until if until is not None else 0.0
-            return raw - min(max(late, 0.0), period)
-        steps = np.floor((raw - self._grid_origin) / period + GRID_TOLERANCE)
-        return self._grid_origin + steps * period
-
-    def _update(self) -> None:
-        t = self._query_time()
-        if self._started and t < self._last_query - CLOCK_JUMP_S:
-            self._restart(f"the clock jumped back by {self._last_query - t:.2f} s")
-        # everything that has arrived first (rclpy runs a due timer before queued messages)
+    def _take_pending(self) -> None:
+        """Everything that has arrived (rclpy runs a due timer before queued messages)."""
         for subscription in self._checked_subscriptions:
             subscription.take_pending()
-        if not self._started and not any(isinstance(i, Measurement) for i in self._buffer):
-            return  # no data yet: publishing the initial guess would let the car drive blind
-        if not self._started:  # start at now - lag, with the command in effect then
-            blind = self.blind_start or self.restarts > 0
-            self.estimator.reset(t, None if blind else self.initial)
-            self._started = True
-            self._grid_origin = t
-            self._last_query = t
-            # data still in flight from before a clock jump lie in the future: not ours
-            arrived = [i for i in self._buffer if i.stamp <= t + self.lag + CLOCK_JUMP_S]
-            for item in from_start(arrived, t):
-                self._deliver(item)
-            self._buffer.clear()
-            self._queries.publish(conversions.query_msg(t, True, self._newest))
-            if not blind:
-                covariance = np.diag(np.full(6, 1.0))
-                self._state.publish(conversions.car_state_msg(self.initial, t, covariance))
-            return
-        if t <= self._last_query:
-            return
-        self._last_query = t
-        start = time.perf_counter()
-        try:
-            estimate = self.estimator.estimate(t)
-        except ValueError as error:  # e.g. a clock that jumped back: say so, keep running
-            self._warn_status(f"no estimate at {t:.3f} s: {error}")
-            return
-        finally:
-            self._queries.publish(conversions.query_msg(t, False, self._newest))
-        elapsed = time.perf_counter() - start
-        self.updates += 1
-        self._max_solve = max(self._max_solve, elapsed)
-        if elapsed > 1.0 / self.rate_hz:
-            self.deadline_misses += 1
-            self._warn_late(
-                f"update took {1e3 * elapsed:.0f} ms, over the {1e3 / self.rate_hz:.0f} ms period "
-                f"({self.deadline_misses} misses): the next one estimates at the newest time"
-            )
-        if estimate.status != "ok":
-            self._warn_status(f"estimate {estimate.summary}")
-        if estimate.status == "lost":
+
+    def _update(self) -> None:
+        realtime = self.realtime
+        lateness = 0.0
+        if not realtime.started:  # the start is anchored at the tick's scheduled time
+            until = self._timer.time_until_next_call()
+            lateness = 1.0 / self.rate_hz - 1e-9 * until if until is not None else 0.0
+        result = realtime.update(self._now(), lateness, self._take_pending)
+        for warning in result.warnings:
+            self._warn[warning.kind](warning.message)
+        t = result.t
+        if result.queried:
+            self._queries.publish(conversions.query_msg(t, result.started, realtime.newest))
+        if result.initial is not None:
+            covariance = np.diag(np.full(6, 1.0))
+            self._state.publish(conversions.car_state_msg(result.initial, t, covariance))
+        estimate = result.estimate
+        if estimate is None or estimate.status == "lost":
             return
         self._state.publish(
             conversions.car_state_msg(estimate.x, t, estimate.covariance, estimate.status)
@@ -366,25 +259,16 @@ class EstimatorNode(Node):
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
 
-    def _restart(self, why: str) -> None:
-        """Start over on the data that come next (the Lighthouse initialises it when the
-        estimator has it; else ``initial_state``), e.g. when a looped bag replay with ``/clock``
-        jumps back in time: continuing would call everything that follows late."""
-        self.restarts += 1
-        self._started = False
-        self._buffer.clear()
-        self._newest.clear()
-        self.get_logger().warning(f"{why}: restarting the estimator (restart {self.restarts})")
-
     def _publish_diagnostics(self) -> None:
         from chronos_msgs.msg import EstimatorDiagnostics
 
         d = self.estimator.diagnostics
+        realtime = self.realtime
         msg = EstimatorDiagnostics()
         conversions.fill_stamp(msg.header.stamp, max(self._now(), 0.0))
         msg.estimator, msg.status = self.kind, d.last_status
-        msg.solve_time, msg.max_solve_time = d.last_solve_time_s, self._max_solve
-        msg.updates, msg.deadline_misses = self.updates, self.deadline_misses
+        msg.solve_time, msg.max_solve_time = d.last_solve_time_s, realtime.take_max_update_time()
+        msg.updates, msg.deadline_misses = realtime.updates, realtime.deadline_misses
         msg.rejected_measurements = sum(d.rejected.values())
         msg.late_measurements = d.late
         msg.ignored_measurements = sum(d.ignored.values()) + self.malformed
@@ -394,7 +278,6 @@ class EstimatorNode(Node):
         msg.sensors = list(self.received)
         msg.received = list(self.received.values())
         self._diagnostics.publish(msg)
-        self._max_solve = 0.0
 
 
 def main(argv: Sequence[str] | None = None) -> int:

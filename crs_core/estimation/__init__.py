@@ -1,4 +1,5 @@
-"""State estimation: EKF and moving horizon estimation behind one interface."""
+"""State estimation: EKF and moving horizon estimation behind one interface, and the
+real-time policy that drives one on a live stream."""
 
 from crs_core.estimation.base import Estimate, Estimator, EstimatorSettings, parse_sensor_set
 from crs_core.estimation.ekf import EkfSettings, ExtendedKalmanFilter
@@ -9,6 +10,12 @@ from crs_core.estimation.inputs import InputModeEstimator
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
 from crs_core.estimation.noise import EstimatorNoise
+from crs_core.estimation.realtime import (
+    RealtimeEstimator,
+    RealtimeSettings,
+    RealtimeWarning,
+    UpdateResult,
+)
 
 __all__ = [
     "INPUT_MODES",
@@ -26,7 +33,11 @@ __all__ = [
     "MheSettings",
     "MovingHorizonEstimator",
     "PoseFix",
+    "RealtimeEstimator",
+    "RealtimeSettings",
+    "RealtimeWarning",
     "SweepPairer",
+    "UpdateResult",
     "input_free_model",
     "make_estimator",
     "parse_sensor_set",
