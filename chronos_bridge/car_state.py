@@ -11,14 +11,17 @@ Host side: :class:`CarStateConverter` (one per car) turns decoded packets into
   packet carries wheel speeds.
 - ``lighthouse/<station>/<plane>`` = the 4 sweep angles (rad) in the sensor model's convention
   (:mod:`crs_core.model.lighthouse`): station = ``polynomial >> 1``; plane from the pairing rule
-  of the spec (:meth:`CarStateConverter.convert`); angle offset ``-π + π/3`` (plane 1) or
-  ``-π - π/3`` (plane 2); a sweep whose corrected angle_0 is outside [-1.5, 1.5] rad is out of view
-  and dropped (the pairing sees it; only its publication is dropped).
+  of the spec, made independent of the arrival order (:meth:`CarStateConverter.convert`: the
+  sweeps of one rotation share ``sync_timestamp``, plane 1 has the earlier deck ticks); angle
+  offset ``-π + π/3`` (plane 1) or ``-π - π/3`` (plane 2); a sweep whose corrected angle_0 is
+  outside [-1.5, 1.5] rad is out of view and dropped (the pairing sees it; only its publication
+  is dropped).
 
 Stamps: every measurement of a packet gets the packet's stamp, ``Packet.timestamp`` (µs since
 the Unix epoch, converted to s) when present, else the ``receipt_stamp`` the caller passes (s,
-the host clock at reception). A first-plane sweep released later by its partner keeps the stamp
-of the packet that carried it.
+the host clock at reception); a Lighthouse sweep its measurement time from the deck's ticks
+(:class:`DeckClock`), also when it is published later, by its partner. Packets may arrive in any
+order; a duplicate packet must be dropped before (:class:`chronos_bridge.link.DatagramFilter`).
 
 Car side (the emulator): :func:`board_imu`, :func:`wire_wheel_speeds`, :func:`raw_sweep_angles`
 map the suite's values to the firmware's raw values; :class:`SweepClock` makes 24-bit deck
@@ -60,6 +63,10 @@ PLANE_OFFSETS = {1: -math.pi + math.pi / 3, 2: -math.pi - math.pi / 3}
 PAIRING_TICKS = 100
 #: A sweep whose raw angle_0 is within this of the held first plane's is the next first plane, rad.
 NEW_FIRST_PLANE_RAD = 0.1
+#: How long the pairing remembers a station's sweeps, s (measurement time): longer than the
+#: reordering of a Wi-Fi link (tens of ms) and than a rotation (20 ms), well inside the 0.35 s
+#: over which 24-bit tick differences are unambiguous.
+MEMORY_S = 0.1
 #: Corrected angle_0 outside ±this is out of view, rad.
 IN_VIEW_RAD = 1.5
 #: Standard gravity, m/s² (the accelerometer's z at rest).
@@ -123,6 +130,12 @@ class DeckClock:
     blackout) the clock starts afresh. A stamp more than ``max_age`` s before its packet (deck
     ticks that do not follow the packet clock) falls back to the packet's stamp, counted in
     ``fallbacks``.
+
+    Out-of-order packets: ticks unwrap relative to the newest sweep seen (an older sweep, within
+    0.35 s, gets an older deck time and does not move the reference), and the gap that restarts
+    the clock is measured from the newest packet stamp, so a late packet never restarts it. With
+    ``Packet.timestamp`` the packet stamp is the car's send time and a late arrival changes no
+    offset; stamped on receipt, a late packet's offset is too large and the minimum ignores it.
     """
 
     def __init__(self, window: int = 10, max_age: float = 0.05) -> None:
@@ -140,13 +153,16 @@ class DeckClock:
     def stamp(self, ticks: int, packet_stamp: float) -> float:
         """Measurement time (s, the packet clock) of a sweep with ``first_timestamp`` ticks
         carried by a packet stamped ``packet_stamp``."""
+        ticks = int(ticks)
         if self._ticks is None or packet_stamp - self._packet > 0.5 * TICKS_24BIT / DECK_TICK_HZ:
             self.restart()
-            self._unwrapped = int(ticks)
+            unwrapped = ticks
         else:
-            self._unwrapped += tick_difference(int(ticks), self._ticks)
-        self._ticks, self._packet = int(ticks), packet_stamp
-        deck_time = self._unwrapped / DECK_TICK_HZ
+            unwrapped = self._unwrapped + tick_difference(ticks, self._ticks)
+        if self._ticks is None or unwrapped > self._unwrapped:
+            self._ticks, self._unwrapped = ticks, unwrapped
+        self._packet = max(self._packet, packet_stamp)
+        deck_time = unwrapped / DECK_TICK_HZ
         self._offsets.append(packet_stamp - deck_time)
         stamp = min(deck_time + min(self._offsets), packet_stamp)
         if packet_stamp - stamp > self.max_age:
@@ -156,34 +172,61 @@ class DeckClock:
 
 
 @dataclass(slots=True)
-class _Held:
+class _Sweep:
+    """A sweep the pairing remembers without a partner: its measurement time (s), whether it was
+    published (as plane 1, by the angle rule) and whether that was against a known first plane."""
+
     sweep: LighthouseSweep
     stamp: float
     published: bool
+    known: bool
+
+
+@dataclass(slots=True)
+class _Station:
+    """The pairing's memory of one base station (entries newest last)."""
+
+    #: Sweeps without a partner yet.
+    unpaired: list[_Sweep]
+    #: The two sweeps of recent pairs (a sweep of a rotation already paired is a duplicate).
+    pairs: deque[tuple[LighthouseSweep, LighthouseSweep, float]]
+    #: Recent sweeps known to be plane 1 (paired, or by the angle rule) and their stamps.
+    firsts: deque[tuple[LighthouseSweep, float]]
+    #: The spec's held first plane (the last sweep that was not a second plane).
+    held: LighthouseSweep | None = None
 
 
 class CarStateConverter:
     """Host side: validated ``CarState`` packets of one car -> measurements + telemetry.
 
-    Stateful (the Lighthouse pairing holds the last first-plane sweep per station; the
+    Stateful (the Lighthouse pairing remembers each station's recent sweeps; the
     :class:`DeckClock` stamps sweeps at their measurement time from the deck's ticks): use one
-    per car and feed its packets in arrival order. Counters: ``states``, ``sweeps_out_of_view``,
-    ``sweeps_held`` (sweeps held while the pair was broken); ``deck_clock.fallbacks``.
+    per car. Packets may come in any order (UDP over Wi-Fi reorders), but each once: drop
+    duplicates before (:class:`chronos_bridge.link.DatagramFilter`). Counters: ``states``,
+    ``sweeps_out_of_view``, ``sweeps_held`` (sweeps held without a plane when they came),
+    ``sweeps_unpaired`` (held sweeps forgotten without a plane, never published),
+    ``sweeps_out_of_order`` (pairs whose second plane came first), ``sweeps_duplicate``
+    (dropped), ``sweeps_wrong_plane`` (published as plane 1, found a plane 2 by its partner:
+    see :meth:`convert`); ``deck_clock.fallbacks``.
     """
 
     def __init__(self, imu_sensor: Literal["imu", "gyro"] = "imu") -> None:
         if imu_sensor not in ("imu", "gyro"):
             raise ValueError(f"imu_sensor: 'imu' or 'gyro', got {imu_sensor!r}")
         self.imu_sensor = imu_sensor
-        self._held: dict[int, _Held] = {}
+        self._stations: dict[int, _Station] = {}
         self.deck_clock = DeckClock()
         self.states = 0
         self.sweeps_out_of_view = 0
         self.sweeps_held = 0
+        self.sweeps_unpaired = 0
+        self.sweeps_out_of_order = 0
+        self.sweeps_duplicate = 0
+        self.sweeps_wrong_plane = 0
 
     def reset(self) -> None:
-        """Forget the held sweeps and the deck clock (e.g. when the car reconnects)."""
-        self._held.clear()
+        """Forget the remembered sweeps and the deck clock (e.g. when the car reconnects)."""
+        self._stations.clear()
         self.deck_clock.restart()
 
     def convert(self, packet: Packet, receipt_stamp: float) -> Converted:
@@ -193,12 +236,34 @@ class CarStateConverter:
         has no timestamp. IMU, wheel speeds and telemetry carry the packet's stamp (sampled in
         the step that sends them); a Lighthouse sweep its own measurement time from the deck's
         ticks (:class:`DeckClock`: a sweep waits up to a 4 ms step, more for room in a packet,
-        which at 1.6 m/s is millimetres). Lighthouse pairing, per sweep in packet order, for
-        its station: if the 24-bit difference of its ``sync_timestamp`` to the held first
-        plane's is within ±100 ticks it is the second plane (the held first one is published
-        first if it was not yet); otherwise, if its raw angle_0 is within 0.1 rad of the held
-        first plane's it is a new first plane (published, and held); otherwise the pair is
-        broken: it is held, unpublished, as the candidate first plane.
+        which at 1.6 m/s is millimetres).
+
+        Lighthouse pairing, per sweep, for its station; the spec's rule made independent of the
+        arrival order. Both planes of one rotation carry the same ``sync_timestamp`` and plane 1
+        is swept first (its raw angle, the rotor's angle since the sync, is 2π/3 below plane 2's),
+        so among the station's sweeps remembered without a partner (those of the last
+        :data:`MEMORY_S`):
+
+        1. one whose ``sync_timestamp`` is within ±100 ticks (24-bit difference) is the partner:
+           the earlier ``first_timestamp`` is plane 1, the other plane 2 (on equal ticks the one
+           that came first; a partner published as plane 1 by rule 2 against a known first plane
+           stays plane 1); the pair's unpublished sweeps are published, plane 1 first;
+        2. otherwise, if its raw angle_0 is within 0.1 rad of plane 1's, it is a new first plane
+           (published, remembered: its plane 2 may still come). Plane 1 is the known first
+           plane (paired, or by this rule) nearest in deck ticks within :data:`MEMORY_S`, else
+           the spec's held first plane (the last sweep that was not a second plane);
+        3. otherwise it is held, unpublished, and becomes the held first plane if it is the
+           newest; forgotten after :data:`MEMORY_S` if no partner came (``sweeps_unpaired``).
+
+        For packets in order this is the spec's rule, except that a first plane that passes
+        rule 2 against a known first plane is published even when a lone plane 2 (its plane 1
+        lost) came in between. A sweep of a rotation already paired, or one equal to a
+        remembered sweep, is a duplicate and dropped (``sweeps_duplicate``). Left as in the spec:
+        with no known first plane (the start, after a blackout of the station) rule 2 compares
+        with the held sweep, which may be a plane 2 whose plane 1 is late or lost; a sweep it
+        then publishes as plane 1 is not taken for a known first plane (the error does not
+        spread), and when its partner shows it was a plane 2 it is counted in
+        ``sweeps_wrong_plane`` (published already; the partner is published as plane 1).
         """
         state = packet.contents
         if not isinstance(state, CarState):
@@ -233,24 +298,80 @@ class CarStateConverter:
         )
         return Converted(tuple(out), telemetry)
 
+    def _station(self, station: int, stamp: float) -> _Station:
+        """The station's memory with what is older than :data:`MEMORY_S` before ``stamp``
+        forgotten (so that 24-bit tick differences within it are unambiguous)."""
+        memory = self._stations.get(station)
+        if memory is None:
+            memory = self._stations[station] = _Station([], deque(maxlen=8), deque(maxlen=8))
+            return memory
+        oldest = stamp - MEMORY_S
+        kept = [entry for entry in memory.unpaired if entry.stamp >= oldest]
+        self.sweeps_unpaired += sum(
+            not entry.published for entry in memory.unpaired if entry.stamp < oldest
+        )
+        memory.unpaired = kept
+        while memory.pairs and memory.pairs[0][2] < oldest:
+            memory.pairs.popleft()
+        while memory.firsts and memory.firsts[0][1] < oldest:
+            memory.firsts.popleft()
+        return memory
+
     def _pair(self, sweep: LighthouseSweep, stamp: float, out: list[Measurement]) -> None:
-        station = sweep.station
-        held = self._held.get(station)
-        if held is not None and (
-            abs(tick_difference(sweep.sync_timestamp, held.sweep.sync_timestamp)) <= PAIRING_TICKS
+        memory = self._station(sweep.station, stamp)
+
+        def same_rotation(other: LighthouseSweep) -> bool:
+            return abs(tick_difference(sweep.sync_timestamp, other.sync_timestamp)) <= PAIRING_TICKS
+
+        if any(same_rotation(first) for first, _, _ in memory.pairs) or any(
+            entry.sweep == sweep for entry in memory.unpaired
         ):
-            if not held.published:
-                held.published = True
-                self._publish(held.sweep, 1, held.stamp, out)
-            self._publish(sweep, 2, stamp, out)
-        elif (
-            held is not None and abs(sweep.angles[0] - held.sweep.angles[0]) <= NEW_FIRST_PLANE_RAD
+            self.sweeps_duplicate += 1
+            return
+        partner = next((e for e in memory.unpaired if same_rotation(e.sweep)), None)
+        if partner is not None:
+            memory.unpaired.remove(partner)
+            new = _Sweep(sweep, stamp, published=False, known=False)
+            earlier = tick_difference(sweep.first_timestamp, partner.sweep.first_timestamp) < 0
+            first, second = (new, partner) if earlier and not partner.known else (partner, new)
+            if first is new:
+                self.sweeps_out_of_order += 1
+                self.sweeps_wrong_plane += partner.published
+            if not first.published:
+                self._publish(first.sweep, 1, first.stamp, out)
+            if not second.published:  # else published as plane 1 by the held-plane rule: wrong
+                self._publish(second.sweep, 2, second.stamp, out)
+            memory.pairs.append((first.sweep, second.sweep, min(first.stamp, second.stamp)))
+            self._first_plane(memory, first.sweep, first.stamp, known=True)
+            return
+        known = bool(memory.firsts)
+        reference = (
+            min(
+                (first for first, _ in memory.firsts),
+                key=lambda f: abs(tick_difference(sweep.first_timestamp, f.first_timestamp)),
+            )
+            if known
+            else memory.held
+        )
+        if (
+            reference is not None
+            and abs(sweep.angles[0] - reference.angles[0]) <= NEW_FIRST_PLANE_RAD
         ):
-            self._held[station] = _Held(sweep, stamp, published=True)
+            memory.unpaired.append(_Sweep(sweep, stamp, published=True, known=known))
             self._publish(sweep, 1, stamp, out)
-        else:
-            self._held[station] = _Held(sweep, stamp, published=False)
-            self.sweeps_held += 1
+            self._first_plane(memory, sweep, stamp, known)
+            return
+        memory.unpaired.append(_Sweep(sweep, stamp, published=False, known=False))
+        self.sweeps_held += 1
+        self._first_plane(memory, sweep, stamp, known=False)
+
+    @staticmethod
+    def _first_plane(memory: _Station, sweep: LighthouseSweep, stamp: float, known: bool) -> None:
+        """``sweep`` is (``known``) or may be the station's first plane: remember it."""
+        if known:
+            memory.firsts.append((sweep, stamp))
+        if memory.held is None or not _newer(memory.held, sweep):
+            memory.held = sweep
 
     def _publish(
         self, sweep: LighthouseSweep, plane: int, stamp: float, out: list[Measurement]
@@ -260,6 +381,11 @@ class CarStateConverter:
             self.sweeps_out_of_view += 1
             return
         out.append(Measurement(stamp, lighthouse_sensor(sweep.station, plane), angles))
+
+
+def _newer(a: LighthouseSweep, b: LighthouseSweep) -> bool:
+    """Whether sweep ``a`` was measured after ``b`` (deck ticks, within half a wrap)."""
+    return tick_difference(a.first_timestamp, b.first_timestamp) > 0
 
 
 # --------------------------------------------------------------------------- car side

@@ -17,6 +17,7 @@ Every received datagram lands in exactly one bucket of :attr:`CarLink.counts`:
 bucket        meaning
 ============  ==================================================================================
 car_state     a valid car state, converted (returned by :meth:`CarLink.poll`)
+duplicate     a valid car state already received (:class:`DatagramFilter`), not converted again
 ping          a valid discovery ping (answered with ``should_bounce=false`` when it asked to be)
 foreign       from another endpoint than the paired car's (or another IP than ``car_ip``)
 oversize      more than 255 bytes (the firmware's buffer), not decoded
@@ -37,6 +38,13 @@ many were suppressed). Outgoing datagrams are counted in :attr:`CarLink.sent`.
 Stamps: measurements carry the packet's ``timestamp`` when the car sent one (its clock is
 SNTP-synchronised), else the receipt time ``now`` given to :meth:`CarLink.poll`
 (:class:`~chronos_bridge.car_state.CarStateConverter`).
+
+Wi-Fi loses, delays, duplicates and reorders datagrams. A car state is converted at most once
+(:class:`DatagramFilter`: by its ``timestamp``, or by its bytes when it has none) and in the order
+it arrives: the converter pairs the Lighthouse planes whatever the order, every measurement keeps
+its measurement time, and the estimator orders measurements by stamp.
+:attr:`CarLink.arrival` counts what came out of order (``reordered`` datagrams, Lighthouse
+``sweeps_out_of_order``, ``sweeps_duplicate``); :meth:`CarLink.summary` reports it.
 """
 
 from __future__ import annotations
@@ -48,6 +56,7 @@ import math
 import re
 import socket
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Literal
 
@@ -64,10 +73,19 @@ from chronos_bridge.codec import (
     encode_velocity_command,
     now_us,
 )
-from chronos_bridge.packets import CarState, Ping
+from chronos_bridge.packets import CarState, Packet, Ping
 
 #: The buckets of :attr:`CarLink.counts`, in report order.
-BUCKETS = ("car_state", "ping", "foreign", "oversize", "undecodable", "invalid", "error")
+BUCKETS = (
+    "car_state",
+    "duplicate",
+    "ping",
+    "foreign",
+    "oversize",
+    "undecodable",
+    "invalid",
+    "error",
+)
 #: Largest UDP payload; the receive buffer takes any datagram whole (an oversize one is counted,
 #: not cut to look valid).
 _RECV_SIZE = 65_536
@@ -79,6 +97,9 @@ RECEIVE_BUFFER = 1 << 21
 #: second a ROS ``builtin_interfaces/Time`` (int32 ``sec``) holds. The codec accepts up to the
 #: year 2100; a later stamp would wrap to a negative ROS time, so the link refuses it.
 STAMP_MAX_US = (2**31 - 1) * 1_000_000
+#: How long :class:`DatagramFilter` remembers a car state, s (the car's clock with a timestamp, the
+#: receipt time without): far longer than a datagram stays in a Wi-Fi router's queues.
+DUPLICATE_MEMORY_S = 2.0
 
 _log = logging.getLogger(__name__)
 _INDEX = re.compile(r"\[\d+\]")
@@ -98,6 +119,67 @@ def _ipv4(name: str, value: str) -> str:
         return str(ipaddress.IPv4Address(value))
     except ValueError:
         raise ValueError(f"{name}: not an IPv4 address, got {value!r}") from None
+
+
+class DatagramFilter:
+    """Recognises the car states already received (UDP may deliver a datagram twice).
+
+    A car state with a ``timestamp`` (µs, the car's clock; one per 250 Hz step) is a duplicate
+    when a car state with the same timestamp was accepted within the last ``memory_s`` s of the
+    car's clock; without a timestamp (an unsynchronised car), when the same bytes were accepted
+    within the last ``memory_s`` s of receipt time (two different steps of a real car never
+    give the same bytes: the IMU is noisy). A timestamp more than ``memory_s`` before the
+    newest is taken for a step back of the car's clock (SNTP) and starts the memory afresh.
+
+    Counters: ``duplicates`` (rejected), ``reordered`` (accepted with a timestamp older than
+    the newest accepted: overtaken on the way).
+    """
+
+    def __init__(self, memory_s: float = DUPLICATE_MEMORY_S) -> None:
+        if not memory_s > 0.0:
+            raise ValueError(f"memory_s: must be > 0, got {memory_s!r}")
+        self.memory_us = round(memory_s * 1e6)
+        self.memory_s = float(memory_s)
+        self.duplicates = 0
+        self.reordered = 0
+        self._newest: int | None = None
+        self._stamps: set[int] = set()
+        self._stamp_order: deque[int] = deque()
+        self._payloads: dict[bytes, float] = {}  # receipt order
+
+    def accept(self, packet: Packet, data: bytes, now: float) -> bool:
+        """True for a car state not received before (remembered from now on); False for a
+        duplicate. ``data``: the datagram's bytes; ``now``: receipt time, s."""
+        stamp = packet.timestamp_us
+        if stamp is None:
+            return self._accept_payload(data, now)
+        if self._newest is not None and stamp < self._newest - self.memory_us:
+            self._newest = None
+            self._stamps.clear()
+            self._stamp_order.clear()
+        if stamp in self._stamps:
+            self.duplicates += 1
+            return False
+        if self._newest is not None and stamp < self._newest:
+            self.reordered += 1
+        self._newest = stamp if self._newest is None else max(self._newest, stamp)
+        self._stamps.add(stamp)
+        self._stamp_order.append(stamp)
+        while self._stamp_order[0] < self._newest - self.memory_us:
+            self._stamps.discard(self._stamp_order.popleft())
+        return True
+
+    def _accept_payload(self, data: bytes, now: float) -> bool:
+        while self._payloads:
+            oldest = next(iter(self._payloads))
+            if self._payloads[oldest] >= now - self.memory_s:
+                break
+            del self._payloads[oldest]
+        if data in self._payloads:
+            self.duplicates += 1
+            return False
+        self._payloads[data] = now
+        return True
 
 
 class CarLink:
@@ -148,6 +230,7 @@ class CarLink:
         self.car_ip = _ipv4("car_ip", car_ip) if car_ip else ""
         self.car_port = int(car_port)
         self.converter = CarStateConverter(imu_sensor)
+        self.filter = DatagramFilter()
         self._warn = warn or _log.warning
         self.warn_period = float(warn_period)
         self.max_per_poll = int(max_per_poll)
@@ -186,6 +269,17 @@ class CarLink:
     def received(self) -> int:
         """Datagrams received so far (the sum of :attr:`counts`)."""
         return sum(self.counts.values())
+
+    @property
+    def arrival(self) -> dict[str, int]:
+        """Car states and sweeps that did not come once and in order: ``reordered`` datagrams
+        (overtaken on the way), Lighthouse ``sweeps_out_of_order`` (second plane before the
+        first) and ``sweeps_duplicate`` (dropped); duplicate datagrams are in :attr:`counts`."""
+        return {
+            "reordered": self.filter.reordered,
+            "sweeps_out_of_order": self.converter.sweeps_out_of_order,
+            "sweeps_duplicate": self.converter.sweeps_duplicate,
+        }
 
     def fileno(self) -> int:
         """The socket's file descriptor (to wait on it with ``select``)."""
@@ -250,6 +344,9 @@ class CarLink:
             return
         if not isinstance(contents, CarState):  # decode_from_car returns nothing else
             self.counts["error"] += 1
+            return
+        if not self.filter.accept(packet, data, now):
+            self.counts["duplicate"] += 1
             return
         try:
             converted = self.converter.convert(packet, now)
@@ -316,14 +413,16 @@ class CarLink:
 
     # ------------------------------------------------------------------ reporting, closing
     def summary(self) -> str:
-        """One line: the receive buckets, the top rejected fields, what was sent."""
+        """One line: the receive buckets, the arrival order, the top rejected fields, what was
+        sent."""
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
+        arrival = ", ".join(f"{k} {v}" for k, v in self.arrival.items())
         top = sorted(self.rejected_fields.items(), key=lambda kv: -kv[1])[:5]
         fields = ", ".join(f"{k} {v}" for k, v in top)
         sent = ", ".join(f"{k} {v}" for k, v in self.sent.items())
         peer = f"{self.endpoint[0]}:{self.endpoint[1]}" if self.endpoint else "not paired"
         return (
-            f"car {peer}; received {self.received}: {counts}"
+            f"car {peer}; received {self.received}: {counts}; arrival: {arrival}"
             + (f"; top rejected fields: {fields}" if fields else "")
             + f"; sent: {sent}"
         )

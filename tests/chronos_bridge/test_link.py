@@ -156,7 +156,7 @@ def test_every_datagram_lands_in_exactly_one_bucket_and_rejects_name_the_field(l
     assert set(link.counts) == set(BUCKETS) and link.received == len(sends)
     # throttled: one warning for the burst, naming its first reject
     assert len(link.warnings) == 1 and "datagram: 300 bytes > 255" in link.warnings[0]
-    assert "received 7: car_state 1, ping 0, foreign 0, oversize 1" in link.summary()
+    assert "received 7: car_state 1, duplicate 0, ping 0, foreign 0, oversize 1" in link.summary()
 
 
 def test_a_stamp_beyond_what_a_ros_time_holds_is_refused(link, car):
@@ -200,3 +200,22 @@ def test_field_keys_are_folded():
         "car_state.lighthouse_sweeps[].angle_0"
     )
     assert field_key("car_state.<field 12345>") == "car_state.<unknown field>"
+
+
+def test_a_resent_datagram_is_converted_once_and_overtaken_ones_are_counted(link, car):
+    """Wi-Fi may deliver a datagram twice and out of order: by its timestamp, or by its bytes
+    when the car's clock is not synchronised."""
+    stamped = [encode_car_state(make_state(), STAMP_US + k * 4000) for k in range(3)]
+    bare = encode_car_state(make_state())
+    for data in (stamped[0], stamped[2], stamped[1], stamped[2], bare, bare):
+        car.sendto(data, link.address)
+    out = _poll_until(link, 6)
+    assert [c.telemetry.stamp for c in out] == [
+        STAMP_US * 1e-6,
+        (STAMP_US + 8000) * 1e-6,
+        (STAMP_US + 4000) * 1e-6,
+        NOW,
+    ]
+    assert link.counts["car_state"] == 4 and link.counts["duplicate"] == 2
+    assert link.arrival["reordered"] == 1
+    assert "duplicate 2" in link.summary() and "arrival: reordered 1" in link.summary()
