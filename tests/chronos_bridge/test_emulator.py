@@ -366,12 +366,27 @@ def test_an_outage_cuts_the_motors_and_is_logged_on_the_packets_clock(tmp_path: 
     stamps = np.array(stamps)
     inside = (stamps > start[0] + 1e-5) & (stamps < end[0] - 1e-5)
     assert not np.any(inside) and np.sum(stamps < start[0]) > 50 and np.sum(stamps > end[0]) > 50
-    # the cut-off 200 ms into the outage (on the ticks' clock), driving again at the first
-    # reference after it (read on the wall clock: a late tick reads later)
-    assert log["pause_t"].size == 1 and start[0] + 0.19 < log["pause_t"][0] < end[0]
+    # the cut-off 200 ms after the last reference before the outage (on the ticks' clock),
+    # driving again at the first reference after it (read on the wall clock: a late tick
+    # reads later)
+    assert log["pause_t"].size == 1 and start[0] < log["pause_t"][0] < end[0]
+    last = log["pause_last_command_t"][0]
+    assert last < start[0] and 0.2 - 1e-6 <= log["pause_t"][0] - last <= 0.2 + 0.004 + 1e-6
     assert log["resume_t"].size == 1 and end[0] <= log["resume_t"][0] < end[0] + 0.1
     assert "motors cut (pause 1)" in errors and "references again: drives" in errors
     assert int(log["link_up_lost_outage"]) == pytest.approx(75, abs=2)  # 300 ms at 250 Hz
     assert f"lost {int(log['link_up_lost_outage'])} (random 0, burst 0, outage " in summary
     assert 20 <= int(log["link_down_lost_outage"]) <= 32  # ~100 Hz of references in 300 ms
     assert int(log["link_down_lost_random"]) == 0
+
+
+def test_link_option_errors_name_the_option_and_key(capsys: pytest.CaptureFixture[str]) -> None:
+    from launch_scripts.cli import main
+
+    base = ["car-emulator", "--host", "127.0.0.1", "--host-port", "9"]
+    assert main([*base, "--link-up", "loss=3%,delay=3"]) == 2
+    assert capsys.readouterr().err == (
+        "crs car-emulator: error: --link-up: delay: '3' needs a unit (ms or s)\n"
+    )
+    assert main([*base, "--link", "bad", "--link-seed", "-1"]) == 2
+    assert capsys.readouterr().err == "crs car-emulator: error: --link-seed: -1 must be >= 0\n"

@@ -334,7 +334,8 @@ def test_emulator_through_a_bad_link_loses_and_reorders_and_says_so() -> None:
     assert steps.size - unique.size <= duplicated  # the copies we saw
     gaps = np.diff(unique) / 0.004
     assert np.sum(np.round(gaps) - 1) >= 0.5 * lost  # the stamps lost (the rest: in flight)
-    assert down_sent == commands_sent and 0 < down_lost < 0.3 * commands_sent
+    # the last references may reach the socket after the emulator's last read
+    assert commands_sent - 3 <= down_sent <= commands_sent and 0 < down_lost < 0.3 * down_sent
 
 
 def test_crs_launch_car_passes_the_link_to_each_emulator_with_its_own_seed(tmp_path) -> None:
