@@ -151,6 +151,10 @@ class EstimatorNode(Node):
         from tf2_msgs.msg import TFMessage
 
         self._checked_subscriptions: list = []
+        #: Sensor messages received, by sensor name.
+        self.received: dict[str, int] = {}
+        #: Velocity-mode commands received (ignored: they carry no torque).
+        self.velocity_references = 0
         late = throttled_warning(self)  # late data and deadline misses share one throttle
         self._warn = {
             "late": late,
@@ -179,9 +183,6 @@ class EstimatorNode(Node):
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
         self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
-        self.received: dict[str, int] = {}
-        #: Velocity-mode commands received (ignored: they carry no torque).
-        self.velocity_references = 0
         self._timer = self.create_timer(1.0 / self.rate_hz, self._update)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
