@@ -121,6 +121,7 @@ class Mpcc:
         self.p = (parameters or self.model.parameters).vector()
         s = self.settings
         self._rti = self.problem.real_time_iteration()
+        self._rollout = self.problem.dynamics.mapaccum("mpcc_rollout", self.problem.N)
         self._nxc = self.model.nx
         self._v_lower = np.array([-s.steer_max, s.torque_min, 0.0, 0.0])
         self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
@@ -221,7 +222,7 @@ class Mpcc:
                     f"{solution.violation:.3g})"
                 )
                 break
-            Z, V = solution.Z, solution.V
+            Z, V = self._rolled_out(z0, solution.V), solution.V
             iterations += solution.iterations
         if not reason or (cold and iterations):  # a cold start's successful iterations count
             return self._accept(Z, V, z0, refs, iterations, started)
@@ -261,9 +262,8 @@ class Mpcc:
         N, nxc = self.problem.N, self._nxc
         dt = self.settings.dt
         if self._Z is not None and self._V is not None:
-            Z, V = self._shifted()
-            Z[0] = z0
-            return Z, V
+            _, V = self._shifted()
+            return self._rolled_out(z0, V), V
         speed = max(float(z0[3]), 0.5)
         V = np.tile([0.0, 0.0, speed, 0.0], (N, 1))
         V[:, :2] = self._command
@@ -273,6 +273,15 @@ class Mpcc:
             Z[k + 1] = np.asarray(self.problem.dynamics(Z[k], V[k], self.p)).ravel()
             Z[k + 1, nxc] = z0[nxc] + (k + 1) * dt * speed
         return Z, V
+
+    def _rolled_out(self, z0: np.ndarray, V: np.ndarray) -> np.ndarray:
+        """The stage states of inputs ``V`` from ``z0`` under the nonlinear model: a guess
+        the model can follow. The QP's plan satisfies only the dynamics linearised at the
+        previous guess; continuing from it let the real-time iteration drift to states no
+        car reaches, where the next linearisation broke down."""
+        N = self.problem.N
+        states = self._rollout(z0, V.T, np.tile(self.p[:, None], (1, N)))
+        return np.vstack((z0, np.asarray(states).T))
 
     def _shifted(self) -> tuple[np.ndarray, np.ndarray]:
         """The plan one stage on: its last input held for one more stage."""
@@ -286,11 +295,31 @@ class Mpcc:
         point = self.path.evaluate(theta)
         return np.column_stack((point.x, point.y, point.heading, theta))
 
+    def qp_data(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> tuple:
+        """The QP of one SQP iteration from the guess ``Z`` (N+1, nz), ``V`` (N, nv) with the
+        path linearised at ``refs`` (N+1, 4): its data in the order of
+        :data:`~crs_core.control.mpcc_problem.QP_ARGUMENTS` (CasADi matrices), with this
+        call's input bounds."""
+        return self._rti.data(
+            Z.T,
+            V.T,
+            refs.T,
+            Z[0],
+            self._weights,
+            self.p,
+            self._v_lower,
+            self._v_upper,
+            self._half_width,
+        )
+
     def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> _Iterate:
-        """One SQP iteration from the guess; the new plan and whether it is usable."""
+        """One SQP iteration from the guess; the new plan and whether it is usable. Data that
+        are not finite never reach the solver (a failed iterate, status ``non-finite data``)."""
         rti = self._rti
-        guess = (Z.T, V.T, refs.T, Z[0], self._weights, self.p)
-        data = rti.data(*guess, self._v_lower, self._v_upper, self._half_width)
+        data = self.qp_data(Z, V, refs)
+        for name, value in zip(QP_ARGUMENTS, data, strict=True):
+            if not np.all(np.isfinite(value.nonzeros())):
+                return _Iterate(Z, V, False, math.inf, -1, f"non-finite data in {name}")
         w_opt = rti.solver(**dict(zip(QP_ARGUMENTS, data, strict=True)))["x"]
         violation = float(rti.violation(w_opt, *data[2:7]))
         w = np.asarray(w_opt, dtype=float).ravel()
@@ -335,7 +364,9 @@ class Mpcc:
             float(np.max(V[:, 3])),
             0,
         )
-        return self._out(self._command, Z)
+        # a velocity reference comes from states the model reaches (the QP's plan follows only
+        # the linearised dynamics, far from them after a poor guess: once 12.97 m/s)
+        return self._out(self._command, self._rolled_out(z0, V) if self.output == "velocity" else Z)
 
     def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
@@ -366,4 +397,4 @@ class Mpcc:
         if self.output == "torque":
             return command.copy()
         speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
-        return np.array([command[0], max(speed, 0.0)])
+        return np.array([command[0], min(max(speed, 0.0), self.settings.velocity_max)])

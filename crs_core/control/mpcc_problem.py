@@ -112,6 +112,8 @@ class MpccSettings:
     velocity_lead_s : float
         Velocity output: the reference is the plan's speed this far ahead, s (rounded to a
         stage, at least one), ahead of the car's velocity loop's lag.
+    velocity_max : float
+        Velocity output: the reference is clipped to ``[0, velocity_max]``, m/s.
     """
 
     horizon: int = 40
@@ -140,6 +142,7 @@ class MpccSettings:
     cold_start_iterations: int = 10
     feasibility_tolerance: float = 1e-6
     velocity_lead_s: float = 0.15
+    velocity_max: float = 5.0
 
     def __post_init__(self) -> None:
         self.validate()

@@ -141,17 +141,7 @@ def test_a_solution_that_breaks_its_constraints_is_not_accepted(mpcc: Mpcc, trac
     mpcc.reset()
     mpcc(_start(track))
     Z, V, refs = mpcc.last_guess
-    data = mpcc._rti.data(
-        Z.T,
-        V.T,
-        refs.T,
-        Z[0],
-        mpcc._weights,
-        mpcc.p,
-        mpcc._v_lower,
-        mpcc._v_upper,
-        mpcc._half_width,
-    )
+    data = mpcc.qp_data(Z, V, refs)
     solved = mpcc._rti.solver(**dict(zip(QP_ARGUMENTS, data, strict=True)))["x"]
     assert float(mpcc._rti.violation(solved, *data[2:7])) <= 1e-6
     broken = np.asarray(solved).ravel().copy()
@@ -269,3 +259,51 @@ def test_a_short_stop_keeps_the_plan_shifted_in_time_and_a_long_one_forgets_it(t
     controller(x)
     controller.stop(None, "stopped")
     assert controller.plan is None
+
+
+@pytest.mark.parametrize(
+    "case, offset, speed_limit",
+    [
+        # before the plans were rolled out on the model, these planned 774, 61 and 156 m/s
+        # (or rad/s), and linearising there next put NaN into the QP's bounds
+        ("2 m/s under a 0.5 m/s cap", [0, 0, 0, 2.0, 0, 0], 0.5),
+        ("a noisy estimate at rest", [0, 0, 0, 0.02, 0.05, 0.3], None),
+        ("4 m/s, 0.2 rad off the heading", [0, 0, 0.2, 4.0, 0, 0], None),
+    ],
+)
+@pytest.mark.parametrize("output", ["torque", "velocity"])
+def test_plans_stay_where_a_car_can_be_after_a_poor_guess(
+    track, case: str, offset: list[float], speed_limit: float | None, output: str
+) -> None:
+    """One closed loop of 1 s on the model from a state far from the last plan: every QP's
+    data are finite, every plan is one the model can drive (a plan rolled out on it: at
+    worst a slide or a spin, 15 rad/s when a 0.5 m/s cap meets a car at 2 m/s, which is why
+    the supervisor ramps the cap; before, plans of 60-1800 m/s) and every command within its limits."""
+    controller = Mpcc(track, output=output)
+    model, p = controller.model, controller.p
+    checked: list[bool] = []
+    qp_data = controller.qp_data
+
+    def finite_data(Z, V, refs):
+        data = qp_data(Z, V, refs)
+        checked.append(all(np.all(np.isfinite(d.nonzeros())) for d in data))
+        return data
+
+    controller.qp_data = finite_data
+    x = _start(track, 0.0) + np.array(offset)
+    s = controller.settings
+    for _ in range(30):
+        u = controller(x, speed_limit)
+        assert np.all(np.isfinite(u)) and abs(u[0]) <= s.steer_max
+        if output == "velocity":
+            assert 0.0 <= u[1] <= s.velocity_max
+            torque = controller.plan[1][0, 1] if controller.plan is not None else 0.0
+        else:
+            assert s.torque_min <= u[1] <= s.torque_max
+            torque = u[1]
+        plan = controller.plan
+        if plan is not None:
+            speeds = np.abs(plan[0][:, 3:6]).max(axis=0)
+            assert np.all(speeds <= 25.0), (case, speeds)
+        x = np.asarray(model.numeric.step(x, np.array([u[0], torque]), p, s.dt)).ravel()
+    assert checked and all(checked)
