@@ -65,6 +65,7 @@ from launch_scripts.sim_stack import (
     run_folder,
     run_watched,
 )
+from launch_scripts.warm_cache import warm_compile_cache
 
 #: The bridge of car N listens on ``HOST_PORT + N - 1`` (the firmware's default host port first).
 HOST_PORT = 20211
@@ -236,6 +237,7 @@ def run_car_stack(
         ports=ports,
         link=link,
     )
+    warm_compile_cache(estimator, controller, output, params_file)
     launcher = Launcher(nodes, domain, out / "logs")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
     print(

@@ -19,6 +19,7 @@ from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rm
 from crs_core.track import Track, load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
+from launch_scripts.warm_cache import warm_compile_cache
 
 #: What ``crs launch --record`` records, per car (relative topics) and globally. ``all``:
 #: everything, so the bag replays the estimator offline to its estimates exactly
@@ -93,12 +94,18 @@ def stack_nodes(
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
-            # waits for the estimator and the recorder before its clock starts
+            # waits for the estimator, the recorder and the controller before its clock starts
             NodeSpec(
                 "simulator",
                 "ros4crs.simulator_node",
                 ns,
-                {"seed": seed + i, "wait_for_subscribers": 2, **onboard_loop, **files},
+                {
+                    "seed": seed + i,
+                    "wait_for_subscribers": 2,
+                    "wait_for_commands": True,
+                    **onboard_loop,
+                    **files,
+                },
             ),
             NodeSpec(
                 "estimator",
@@ -156,6 +163,7 @@ def run_stack(
         onboard=onboard,
     )
     track = Track.from_yaml(track_file) if track_file else load_demo_track()
+    warm_compile_cache(estimator, controller, output, params_file)
     launcher = Launcher(nodes, domain, out / "logs")
     print(
         f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator}, {controller} "

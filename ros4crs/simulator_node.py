@@ -15,7 +15,11 @@ Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackout
 ``initial_state`` (6 floats; default the track's start), ``track_file`` (CRS track YAML; default
 DEMO_TRACK), ``params_file`` (parameter YAML of the simulated car), ``duration`` (s, 0 = forever),
 ``wait_for_subscribers`` (simulated time starts once every sensor topic has this many
-subscribers, so a launched stack misses nothing at the start; 0 = start at once), ``onboard``
+subscribers, so a launched stack misses nothing at the start; 0 = start at once),
+``wait_for_commands`` (bool, default false: simulated time also waits for a publisher on
+``input``, the controller, which exists once the controller is built: on a cold compile cache
+the controller came 7 s after the simulator had started, and the estimator ran those 7 s beside
+its compiler), ``onboard``
 (bool, default false: run the onboard loop; with ``noise_free`` its potentiometer is ideal).
 """
 
@@ -101,7 +105,10 @@ class SimulatorNode(Node):
             "hold t = 0 until every sensor topic has this many subscribers",
             in_range(0, 100),
         )
-        self._waiting = self.wait_for_subscribers > 0
+        self.wait_for_commands = declare(
+            self, "wait_for_commands", False, "hold t = 0 until a controller publishes input"
+        )
+        self._waiting = self.wait_for_subscribers > 0 or self.wait_for_commands
         self.onboard = declare(
             self, "onboard", False, "run the car's 250 Hz onboard loop (steering and velocity PIDs)"
         )
@@ -154,9 +161,15 @@ class SimulatorNode(Node):
             listeners = min(p.get_subscription_count() for p in self._sensor_publishers.values())
             if listeners < self.wait_for_subscribers:
                 return
+            controllers = self.count_publishers(self._inputs.subscription.topic_name)
+            if self.wait_for_commands and controllers < 1:
+                return
             self._waiting = False  # the clock starts when the stack is listening
             self.epoch, self._wall_start = time.time(), time.monotonic()
-            self.get_logger().info(f"{listeners} subscribers to the sensors: starting")
+            self.get_logger().info(
+                f"{listeners} subscribers to the sensors, {controllers} publisher(s) of "
+                "commands: starting"
+            )
         self._inputs.take_pending()  # commands that arrived apply before time advances
         t = (time.monotonic() - self._wall_start) * self.rate_factor
         if self.duration and t >= self.duration:

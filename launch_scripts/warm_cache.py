@@ -1,0 +1,57 @@
+"""Compile the car stack's functions before its processes start.
+
+On a cold compile cache (a fresh clone, a new parameter file) every node compiles its CasADi
+functions with gcc when it starts: the MPCC about 7 s and the MHE about 18 s on this 2-core
+machine. A car (or the car emulator) does not wait for that: its data flow into an estimator
+that shares two cores with the compilers of the others, and on fresh clones the controller came
+about 7 s after the rest; a race of ``--duration`` s raced for 20 s less. :func:`warm_compile_cache`
+builds the same objects the nodes build, one after the other in the launcher, so that every node
+then loads its functions from the cache (about 1.5 s for all of them when they are there).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+__all__ = ["warm_compile_cache"]
+
+
+def warm_compile_cache(
+    estimator: str, controller: str, output: str, params_file: Path | None = None
+) -> float:
+    """Build (and so compile and cache) the estimator's, the controller's and the simulated
+    car's functions with the nodes' default settings, with a line before and after on stdout;
+    returns the time taken, s.
+
+    Parameters
+    ----------
+    estimator : {"ekf", "mhe"}
+        The estimator node's kind (default sensors ``lh+imu+we``).
+    controller : {"mpcc", "path"}
+        The controller node's kind (only the MPCC compiles).
+    output : {"torque", "velocity"}
+        The controller's output.
+    params_file : Path, optional
+        The parameter YAML the nodes get.
+    """
+    from chronos_bridge.emulator import CarEmulator
+    from crs_core.control.mpcc import Mpcc
+    from crs_core.control.mpcc_problem import MpccSettings
+    from crs_core.estimation import EkfSettings, MheSettings, make_estimator
+    from crs_core.model import CarModel
+    from crs_core.track import load_demo_track
+
+    print("[launch] preparing the compiled model functions (compiled once, then cached)")
+    started = time.perf_counter()
+    model = CarModel()
+    if params_file is not None:
+        model = CarModel(parameters=model.parameters.updated_from_yaml(params_file))
+    settings = MheSettings(rate_hz=60.0) if estimator == "mhe" else EkfSettings()
+    make_estimator(estimator, "lh+imu+we", model, settings)
+    if controller == "mpcc":
+        Mpcc(load_demo_track(), model, MpccSettings(rate_hz=30.0), output=output)
+    CarEmulator()  # the simulator's truth model with the onboard loop
+    elapsed = time.perf_counter() - started
+    print(f"[launch] compiled model functions ready in {elapsed:.1f} s")
+    return elapsed
