@@ -23,8 +23,11 @@ topic                      type                        content
 ``telemetry/velocity``     ``geometry_msgs/TwistStamped`` the car's own v_x estimate (m/s,
                                                        ``twist.linear.x``, body frame), when sent
 ``bridge/diagnostics``     ``std_msgs/String``         JSON every ``diagnostics_period`` s: the
-                                                       car's endpoint, receive buckets, rejected
-                                                       fields, sent counts, age of the last packet
+                                                       car's endpoint, receive buckets (with
+                                                       ``duplicate``), rejected fields, arrival
+                                                       (reordered datagrams, Lighthouse sweeps
+                                                       out of order or duplicated), sent counts,
+                                                       age of the last packet
 =========================  ==========================  ===========================================
 
 Every ``input`` (``chronos_msgs/CarInput``, validated by ``conversions.input_from_msg``) is sent
@@ -229,6 +232,7 @@ class BridgeNode(Node):
             "received": self.link.received,
             "counts": self.link.counts,
             "rejected_fields": self.link.rejected_fields,
+            "arrival": self.link.arrival,
             "sent": self.link.sent,
             "inputs_dropped": self._inputs.dropped,
             "publish_errors": self.publish_errors,
