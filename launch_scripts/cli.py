@@ -22,12 +22,14 @@ import numpy as np
 import yaml
 
 from chronos_bridge.emulator_process import add_command as add_car_emulator_command
+from chronos_bridge.impairment import PRESET_NAMES, SPEC_HELP
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec, parse_effect
 from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
 from launch_scripts.calibration_command import add_commands as add_calibration_commands
 from launch_scripts.discrepancy_command import add_commands as add_discrepancy_commands
+from launch_scripts.link_benchmark import parse_counts, parse_presets
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.sim_stack import RECORD_SETS
 from launch_scripts.sysid_command import add_commands as add_sysid_commands
@@ -216,6 +218,15 @@ def bench(args: argparse.Namespace) -> None:
     from sim.bench.machine import machine
     from sim.bench.model import model_benchmark
 
+    for option, value, benches in (
+        ("--presets", args.presets, ("link",)),
+        ("--loads", args.loads, ("link",)),
+        ("--cars", args.cars, ("stack", "link")),
+    ):
+        if value is not None and args.what not in benches:
+            raise ValueError(f"{option}: only for crs bench {' and '.join(benches)}")
+    if args.what == "stack" and args.cars is not None and len(args.cars) != 1:
+        raise ValueError("--cars: crs bench stack takes one number of cars")
     if args.resume and args.what != "discrepancy":
         raise ValueError("--resume: only for the discrepancy benchmark")
     if args.resume and not args.out:
@@ -275,13 +286,29 @@ def bench(args: argparse.Namespace) -> None:
 
         runs = Path(args.out).with_suffix("") if args.out else Path("out/bench/stack")
         work = prepare_output(runs.with_name(runs.name + "_runs"), "bench", args.overwrite)
-        result = stack_benchmark(
-            args.cars, args.estimator, args.duration, args.repeats, args.load, work
-        )
+        cars = args.cars[0] if args.cars else 1
+        result = stack_benchmark(cars, args.estimator, args.duration, args.repeats, args.load, work)
         result = {"machine": machine(), "command": "crs " + " ".join(sys.argv[1:]), **result}
         text = json.dumps(result, indent=2)
         print(format_table(result))
         print(f"runs (reports, figures, bags): {work}")
+    elif args.what == "link":
+        from launch_scripts.link_benchmark import PRESET_NAMES, format_table, link_benchmark
+
+        runs = Path(args.out).with_suffix("") if args.out else Path("out/bench/link")
+        work = prepare_output(runs.with_name(runs.name + "_runs"), "bench", args.overwrite)
+        result = link_benchmark(
+            work,
+            presets=args.presets or PRESET_NAMES,
+            loads=args.loads if args.loads is not None else (0, 1, 2),
+            car_counts=args.cars or (1, 2),
+            duration=args.duration,
+            seed=args.seed,
+        )
+        result = {"machine": machine(), "command": "crs " + " ".join(sys.argv[1:]), **result}
+        text = json.dumps(result, indent=2)
+        print(format_table(result))
+        print(f"runs (reports, figures, bags, emulator logs): {work}")
     else:
         from sim.bench.estimation import format_table, run_all
 
@@ -307,6 +334,11 @@ def launch(args: argparse.Namespace) -> None:
     for option, given in (("--emulate", args.emulate), ("--car-ip", args.car_ip)):
         if given:
             raise ValueError(f"{option}: only for crs launch car")
+    for option, given in _link_options(args):
+        if given is not None:
+            raise ValueError(
+                f"{option}: only for crs launch car --emulate (the simulator has no radio link)"
+            )
 
     # the nodes check these too, but a mistake is cheaper to hear before four processes start
     if args.output == "velocity" and args.controller != "mpcc":
@@ -336,12 +368,33 @@ def launch(args: argparse.Namespace) -> None:
     print(summary(report, Path(args.out)))
 
 
+def _link_options(args: argparse.Namespace) -> list[tuple[str, object]]:
+    """``crs launch``'s link options and their values (None: not given)."""
+    return [
+        ("--link", args.link),
+        ("--link-up", args.link_up),
+        ("--link-down", args.link_down),
+        ("--link-seed", args.link_seed),
+    ]
+
+
 def launch_car(args: argparse.Namespace) -> None:
-    """``crs launch car (--emulate | --car-ip IP[,IP...])``: the stack against cars over UDP."""
-    from launch_scripts.car_stack import parse_car_ips, run_car_stack, summary
+    """``crs launch car (--emulate | --car-ip IP[,IP...])``: the stack against cars over UDP
+    (emulated cars: ``--link``, ``--link-up``, ``--link-down``, ``--link-seed`` impair their
+    link like Wi-Fi)."""
+    from launch_scripts.car_stack import EmulatedLink, parse_car_ips, run_car_stack, summary
 
     if args.emulate == (args.car_ip is not None):
         raise ValueError("car: needs either --emulate or --car-ip IP (a real car), not both")
+    if not args.emulate:
+        for option, given in _link_options(args):
+            if given is not None:
+                raise ValueError(
+                    f"{option}: only with --emulate (a real car's link is the real Wi-Fi; "
+                    "impair it with the router, not here)"
+                )
+    link = EmulatedLink(args.link, args.link_up, args.link_down, args.link_seed)
+    link.arguments(1)  # checks the specs and the seed before anything starts
     car_ips = None
     if args.car_ip is not None:
         car_ips = parse_car_ips(args.car_ip)
@@ -375,6 +428,7 @@ def launch_car(args: argparse.Namespace) -> None:
         output=args.output,
         blind_start=args.blind_start,
         params_file=args.params,
+        link=link,
     )
     print(summary(report, Path(args.out)))
 
@@ -566,6 +620,13 @@ def make_parser() -> argparse.ArgumentParser:
         "car over loopback UDP through the bridge) for the same --duration and --seed, side by "
         "side: laps, RMSE, deadline misses, latencies (sensor packet -> estimate -> command "
         "packet), bridge counts, CPU per process; ~2 x duration + 30 s. "
+        "link: crs launch car --emulate over a Wi-Fi-like link, every --presets x --loads "
+        "(busy loops beside the race) x --cars, one --duration race each: laps, mean flying "
+        "lap (and its ratio to the clean run), seconds off the track (the emulator's truth "
+        "and the car's footprint), motor cut-offs, estimation RMSE, QP failures, "
+        "re-initialisations, sensor -> command latency, per outage the cut-off and the time "
+        "to race again, CPU per process, and the issue's targets per run; a Markdown table; "
+        "~24 x (duration + 30 s) for the full matrix. "
         "sysid: identification speed (a real run, 3000 simulated samples), real-data "
         "cross-validation (run 1 <-> run 2) and the simulated coverage study (--seeds, "
         "default 5; 10 for the README figures); ~10 min. "
@@ -581,7 +642,16 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument(
         "what",
-        choices=["model", "estimation", "stack", "bridge", "sysid", "discrepancy", "control"],
+        choices=[
+            "model",
+            "estimation",
+            "stack",
+            "bridge",
+            "link",
+            "sysid",
+            "discrepancy",
+            "control",
+        ],
         help="which benchmark",
     )
     sub.add_argument("--out", type=Path, help="also write the JSON to this file")
@@ -607,19 +677,28 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument(
         "--cars",
-        type=bounded_number("cars", "", 0, 8, int),
-        default=1,
-        help="stack: 1..8 (default 1)",
+        type=argument_type(parse_counts("cars", 1, 8)),
+        help="stack: 1..8 (default 1); link: N[,N...] (default 1,2)",
+    )
+    sub.add_argument(
+        "--presets",
+        type=argument_type(parse_presets),
+        help=f"link: link presets PRESET[,PRESET...] (default {','.join(PRESET_NAMES)})",
+    )
+    sub.add_argument(
+        "--loads",
+        type=argument_type(parse_counts("loads", 0, 16)),
+        help="link: busy-looping processes beside each race, N[,N...] (default 0,1,2)",
     )
     sub.add_argument(
         "--estimator", choices=["ekf", "mhe"], default="mhe", help="stack, bridge: (default mhe)"
     )
-    sub.add_argument("--seed", type=int, default=0, help="bridge: noise seed (default 0)")
+    sub.add_argument("--seed", type=int, default=0, help="bridge, link: noise seed (default 0)")
     sub.add_argument(
         "--duration",
         type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
         default=40.0,
-        help="stack: wall-clock s per repeat; bridge: per run (default 40)",
+        help="stack: wall-clock s per repeat; bridge, link: per run (default 40)",
     )
     sub.add_argument(
         "--repeats",
@@ -660,6 +739,24 @@ def make_parser() -> argparse.ArgumentParser:
     sub.add_argument(
         "--car-ip",
         help="car: the real car's IPv4 address (several cars: IP,IP,...; one bridge each)",
+    )
+    sub.add_argument(
+        "--link",
+        metavar="SPEC",
+        help="car --emulate: impair the emulated cars' link both ways like Wi-Fi (default "
+        "clean): " + SPEC_HELP,
+    )
+    sub.add_argument(
+        "--link-up", metavar="SPEC", help="car --emulate: car -> host only (overrides --link)"
+    )
+    sub.add_argument(
+        "--link-down", metavar="SPEC", help="car --emulate: host -> car only (overrides --link)"
+    )
+    sub.add_argument(
+        "--link-seed",
+        type=bounded_number("link-seed", "", 0, 2**31, int, include_low=True),
+        help="car --emulate: seed of the links' draws; car i uses LINK_SEED + i (default: from "
+        "each emulator's own seed)",
     )
     sub.add_argument(
         "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
