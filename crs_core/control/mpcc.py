@@ -123,6 +123,8 @@ class Mpcc:
         self._rti = self.problem.real_time_iteration()
         self._rollout = self.problem.dynamics.mapaccum("mpcc_rollout", self.problem.N)
         self._nxc = self.model.nx
+        values = parameters or self.model.parameters
+        self._wheelbase_parts = (values.value("lf"), values.value("lr"))
         self._v_lower = np.array([-s.steer_max, s.torque_min, 0.0, 0.0])
         self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
         self._half_width = self.path.half_width - s.track_margin
@@ -231,6 +233,7 @@ class Mpcc:
     # --- steps ---------------------------------------------------------------------------
     def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
         nxc = self._nxc
+        state = self._kinematic_at_low_speed(state)
         if state.size == nxc:
             car = state
         elif self._Z is not None:  # effect states from the plan
@@ -242,6 +245,22 @@ class Mpcc:
         near = None if self._Z is None else float(self._Z[1, nxc])
         theta = self.path.progress(car[0], car[1], near)
         return np.concatenate((car, [theta], self._command, [self._progress_speed]))
+
+    def _kinematic_at_low_speed(self, state: np.ndarray) -> np.ndarray:
+        """Below ``kinematic_speed`` the lateral velocity and yaw rate of ``state`` are replaced
+        by the kinematic bicycle's at its ``v_x`` and the last steering command: at walking pace
+        the tires' slip angles are undefined and an estimate's ``v_y`` and ``omega`` are noise
+        (0.1-0.27 m/s and 0.2 rad/s at rest behind a lossy link), which the plan answered with
+        full lock and full reverse torque."""
+        vx = float(state[3])
+        if abs(vx) >= self.settings.kinematic_speed:
+            return state
+        lf, lr = self._wheelbase_parts
+        tan_delta = math.tan(float(self._command[0]))
+        state = state.copy()
+        state[4] = vx * lr * tan_delta / (lf + lr)
+        state[5] = vx * tan_delta / (lf + lr)
+        return state
 
     def _through_delay(self, car: np.ndarray) -> np.ndarray:
         """The state when a command issued now acts: carried over the model's input delay

@@ -114,6 +114,9 @@ class MpccSettings:
         stage, at least one), ahead of the car's velocity loop's lag.
     velocity_max : float
         Velocity output: the reference is clipped to ``[0, velocity_max]``, m/s.
+    kinematic_speed : float
+        Below this longitudinal speed (m/s) the plan starts from the kinematic bicycle's
+        lateral velocity and yaw rate instead of the estimate's (0: never).
     """
 
     horizon: int = 40
@@ -143,6 +146,7 @@ class MpccSettings:
     feasibility_tolerance: float = 1e-6
     velocity_lead_s: float = 0.15
     velocity_max: float = 5.0
+    kinematic_speed: float = 0.3
 
     def __post_init__(self) -> None:
         self.validate()
