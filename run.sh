@@ -244,7 +244,8 @@ case "$cmd" in
         mkdir -p "$out"
         echo "written by ./run.sh" >"$out/.crs-output"
         "$VENV/bin/crs" demo --out "$out/simulation"
-        exec "$VENV/bin/crs" launch sim --cars 1 --estimator mhe --duration 45 --out "$out/stack"
+        exec "$VENV/bin/crs" launch sim --cars 1 --estimator mhe --duration 45 --require-laps 3 \
+            --out "$out/stack"
         ;;
     test)
         shift

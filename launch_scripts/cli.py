@@ -366,6 +366,23 @@ def launch(args: argparse.Namespace) -> None:
         output=args.output,
     )
     print(summary(report, Path(args.out)))
+    return _verdict(report, args.require_laps)
+
+
+def _verdict(report: dict, require_laps: int) -> int:
+    """0, or 1 with a headline on stderr when a node died or a car raced fewer than
+    ``require_laps`` laps (``--require-laps``; 0: no requirement)."""
+    failures = [f"{d['node']} died" for d in report.get("node_deaths", [])]
+    if require_laps > 0:
+        failures += [
+            f"{name} raced {car['laps_completed']} laps, fewer than the {require_laps} required"
+            for name, car in report["cars"].items()
+            if car["laps_completed"] < require_laps
+        ]
+    if not failures:
+        return 0
+    print(f"crs launch: FAILED: {'; '.join(failures)}", file=sys.stderr)
+    return 1
 
 
 def _link_options(args: argparse.Namespace) -> list[tuple[str, object]]:
@@ -431,6 +448,7 @@ def launch_car(args: argparse.Namespace) -> None:
         link=link,
     )
     print(summary(report, Path(args.out)))
+    return _verdict(report, args.require_laps)
 
 
 def bag_tool(args: argparse.Namespace) -> int:
@@ -792,6 +810,12 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub.add_argument(
         "--seed", type=int, default=0, help="noise seed; car i uses SEED + i (default 0)"
+    )
+    sub.add_argument(
+        "--require-laps",
+        type=bounded_number("require-laps", "", 0, 1000, int),
+        default=0,
+        help="exit 1 with a FAILED headline when a car races fewer laps (default 0: none)",
     )
     sub.add_argument(
         "--blind-start",
