@@ -179,7 +179,9 @@ class Mpcc:
         self.status = MpccStatus("stop", 0.0, -1, math.nan, math.nan, 0.0, 0, reason)
         return self._out(command, None)
 
-    def __call__(self, x: ArrayLike, speed_limit: float | None = None) -> np.ndarray:
+    def __call__(
+        self, x: ArrayLike, speed_limit: float | None = None, elapsed: float | None = None
+    ) -> np.ndarray:
         """The command for state ``x`` (the car's state now).
 
         Parameters
@@ -190,6 +192,10 @@ class Mpcc:
         speed_limit : float, optional
             A lower bound than ``progress_speed_max`` on the progress speed for this call, m/s
             (e.g. while the state estimate is degraded).
+        elapsed : float, optional
+            Time since the previous call, s: the plan is carried on by that many stages
+            (rounded, 1 to N/2; default one stage). A loaded machine's late call otherwise
+            starts from a plan one stage on while three or four have passed.
 
         Returns
         -------
@@ -206,7 +212,8 @@ class Mpcc:
             self._v_upper[2] = min(max(float(speed_limit), 0.0), self._v_upper[2])
         z0 = self._initial_stage_state(state)
         cold = self._Z is None
-        Z, V = self._guess(z0)
+        stages = 1 if elapsed is None else round(float(elapsed) * self.settings.rate_hz)
+        Z, V = self._guess(z0, min(max(stages, 1), self.problem.N // 2))
         refs = self._references(Z[:, self._nxc])
         self.last_guess = (Z.copy(), V.copy(), refs)
         iterations, reason = 0, ""
@@ -275,13 +282,13 @@ class Mpcc:
                 car = numeric.step(car, self._in_flight[-j], self.p, end - start)
         return car
 
-    def _guess(self, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The previous plan shifted by one stage, or a cold start: hold the last command
-        with progress at the car's speed."""
+    def _guess(self, z0: np.ndarray, stages: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """The previous plan's inputs shifted by ``stages`` and rolled out from ``z0``, or a
+        cold start: hold the last command with progress at the car's speed."""
         N, nxc = self.problem.N, self._nxc
         dt = self.settings.dt
         if self._Z is not None and self._V is not None:
-            _, V = self._shifted()
+            V = np.vstack((self._V[stages:], np.repeat(self._V[-1:], stages, axis=0)))
             return self._rolled_out(z0, V), V
         speed = max(float(z0[3]), 0.5)
         V = np.tile([0.0, 0.0, speed, 0.0], (N, 1))
@@ -370,6 +377,7 @@ class Mpcc:
         s = self.settings
         V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
         V[:, 1] = np.clip(V[:, 1], s.torque_min, s.torque_max)
+        self._never_into_reverse(V, float(z0[3]))
         self._Z, self._V, self._failures = Z, V, 0
         self._command = V[0, :2].copy()
         self._progress_speed = float(V[0, 2])
@@ -387,6 +395,12 @@ class Mpcc:
         # the linearised dynamics, far from them after a poor guess: once 12.97 m/s)
         return self._out(self._command, self._rolled_out(z0, V) if self.output == "velocity" else Z)
 
+    def _never_into_reverse(self, V: np.ndarray, vx: float) -> None:
+        """Limit the first stage's braking to the safe stop's, ``-brake_gain * v_x`` (none at
+        or below standstill): a race never reverses, and full reverse torque held through a
+        late control period drove a car that had just stopped backwards at 1.8 m/s."""
+        V[0, 1] = max(V[0, 1], -self.settings.brake_gain * max(vx, 0.0))
+
     def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
         failures = self._failures
@@ -394,6 +408,7 @@ class Mpcc:
             command = self.stop(z0, f"{reason}; {failures} failed solves in a row")
             mode, slack = "stop", 0.0
         else:  # the shifted previous plan: the guess is that plan shifted by one stage
+            self._never_into_reverse(V, float(z0[3]))
             self._Z, self._V = Z, V
             self._command = V[0, :2].copy()
             command = self._out(self._command, Z)

@@ -251,7 +251,7 @@ class Supervisor:
             self._update_cap(now, dt, float(x[3]), events)
             s = self.settings
             limit = self.speed_cap if self.speed_cap < s.max_speed else None
-            u, solve_time = self._command(now, x, limit, events)
+            u, solve_time = self._command(now, x, limit, dt, events)
             problem = self._problem(u)
             if problem:
                 self.rejected_commands += 1
@@ -341,13 +341,14 @@ class Supervisor:
             self.speed_cap = min(self.speed_cap + step, s.max_speed)
 
     def _command(
-        self, now: float, x: np.ndarray, limit: float | None, events: list
+        self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list
     ) -> tuple[np.ndarray, float | None]:
-        """The controller's command and its call's wall time (None if it raised)."""
+        """The controller's command and its call's wall time (None if it raised); the MPCC
+        carries its plan on by the ``elapsed`` s since the last tick."""
         started = time.perf_counter()
         try:
             if self._mpcc is not None:
-                u = self._mpcc(x, limit)
+                u = self._mpcc(x, limit, elapsed)
                 status = self._mpcc.status
                 if status is not None and status.mode != "solved":
                     events.append(

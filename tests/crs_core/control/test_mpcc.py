@@ -278,7 +278,8 @@ def test_plans_stay_where_a_car_can_be_after_a_poor_guess(
     """One closed loop of 1 s on the model from a state far from the last plan: every QP's
     data are finite, every plan is one the model can drive (a plan rolled out on it: at
     worst a slide or a spin, 15 rad/s when a 0.5 m/s cap meets a car at 2 m/s, which is why
-    the supervisor ramps the cap; before, plans of 60-1800 m/s) and every command within its limits."""
+    the supervisor ramps the cap; before, plans of 60-1800 m/s) and every command within its
+    limits."""
     controller = Mpcc(track, output=output)
     model, p = controller.model, controller.p
     checked: list[bool] = []
@@ -307,3 +308,27 @@ def test_plans_stay_where_a_car_can_be_after_a_poor_guess(
             assert np.all(speeds <= 25.0), (case, speeds)
         x = np.asarray(model.numeric.step(x, np.array([u[0], torque]), p, s.dt)).ravel()
     assert checked and all(checked)
+
+
+def test_a_late_call_carries_the_plan_on_by_the_time_that_passed(track) -> None:
+    controller = Mpcc(track)
+    x = _start(track, 1.0)
+    controller(x)
+    _, V = controller.plan
+    controller(x, elapsed=4 / controller.settings.rate_hz)  # four periods late
+    _, guess_V, _ = controller.last_guess
+    assert guess_V[:-4] == pytest.approx(V[4:])
+    assert guess_V[-4:] == pytest.approx(np.repeat(V[-1:], 4, axis=0))
+
+
+@pytest.mark.parametrize("vx", [-0.3, 0.0, 0.2, 1.5])
+def test_the_controller_never_brakes_the_car_into_reverse(track, vx: float) -> None:
+    """Facing backwards along the track, the plan wants to turn round; the command's braking
+    stays within the safe stop's ``-brake_gain v_x`` (none at or below standstill)."""
+    controller = Mpcc(track)
+    x = _start(track, 0.0)
+    x[2] += math.pi
+    x[3] = vx
+    for _ in range(5):
+        u = controller(x)
+        assert u[1] >= -controller.settings.brake_gain * max(vx, 0.0) - 1e-12, u
