@@ -180,7 +180,13 @@ def car_nodes(
                 "estimator",
                 "ros4crs.estimator_node",
                 ns,
-                {"estimator": estimator, "blind_start": blind_start, **files},
+                {
+                    "estimator": estimator,
+                    "blind_start": blind_start,
+                    # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
+                    "input_topic": "input/applied",
+                    **files,
+                },
             ),
             NodeSpec(
                 "controller",

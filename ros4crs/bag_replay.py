@@ -51,10 +51,16 @@ class BagContents:
     #: Velocity-mode commands on ``input``: not in ``inputs`` (they carry no torque; the
     #: estimator node ignores them too, so a replay sees what the node saw).
     velocity_references: int = 0
+    #: The topic (relative to the car) the inputs were read from.
+    input_topic: str = "input"
 
 
-def read_car(bag: str | Path, namespace: str = "") -> BagContents:
+def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -> BagContents:
     """Sensors, inputs, published estimates, queries and truth of the car in ``namespace``.
+
+    ``input_topic``: where the model inputs are read from, the commands sent (``input``) or
+    the inputs the car reported applying (``input/applied``, as the estimator of a real or
+    emulated car takes them).
 
     A cut-off bag is read up to its last complete message, with a
     :class:`~ros4crs.bag_repair.BagDamagedWarning` saying what was lost.
@@ -69,6 +75,8 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
         for connection, _, data in reader.messages(wanted) if wanted else ():
             relative = connection.topic[len(prefix) :]
             family = _FAMILY_OF_TOPIC.get(relative)
+            if family in ("input", "applied_input"):
+                family = "input" if relative == input_topic else None
             if family is None:
                 continue
             msg = store.deserialize_cdr(bytes(data), connection.msgtype)
@@ -101,6 +109,7 @@ def read_car(bag: str | Path, namespace: str = "") -> BagContents:
         malformed,
         queries=queries,
         velocity_references=velocity_references,
+        input_topic=input_topic,
     )
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)
@@ -120,6 +129,8 @@ def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[
         for connection, received, data in reader.messages(wanted) if wanted else ():
             relative = connection.topic[len(prefix) :]
             kind = next((k for key, k in kinds.items() if relative.startswith(key)), None)
+            if kind == "input" and relative != "input":  # input/applied: reported by the car
+                continue
             if kind is None:
                 continue
             msg = store.deserialize_cdr(bytes(data), connection.msgtype)
@@ -148,7 +159,7 @@ def replay_estimator(
         )
     streams: dict[str, list[Measurement | InputSample]] = {}
     for item in in_stamp_order(contents.measurements, contents.inputs):
-        streams.setdefault(_stream_of(item), []).append(item)
+        streams.setdefault(_stream_of(item, contents.input_topic), []).append(item)
     taken = dict.fromkeys(streams, 0)
     out: list[Estimate | None] = []
     for query in queries:
@@ -180,8 +191,8 @@ def replay_estimator(
     return out
 
 
-def _stream_of(item: Measurement | InputSample) -> str:
+def _stream_of(item: Measurement | InputSample, input_topic: str) -> str:
     """The topic (relative to the car) an item came on."""
     if isinstance(item, InputSample):
-        return conversions.TOPICS["input"]
+        return input_topic
     return conversions.TOPICS[conversions.topic_family(item.sensor)]

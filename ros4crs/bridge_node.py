@@ -22,6 +22,9 @@ topic                      type                        content
                                                        power [-1, 1]
 ``telemetry/velocity``     ``geometry_msgs/TwistStamped`` the car's own v_x estimate (m/s,
                                                        ``twist.linear.x``, body frame), when sent
+``input/applied``          ``chronos_msgs/CarInput``   the input the car applies: its measured
+                                                       steering angle and drive motor power,
+                                                       stamped by its packets (for estimators)
 ``bridge/diagnostics``     ``std_msgs/String``         JSON every ``diagnostics_period`` s: the
                                                        car's endpoint, receive buckets (with
                                                        ``duplicate``), rejected fields, arrival
@@ -108,6 +111,12 @@ def _ipv4(value: str) -> str | None:
     return _ipv4_or_empty(value) if value else "must be an IPv4 address"
 
 
+#: ``input/applied`` is published when the car's steering angle moved by more than this, rad ...
+APPLIED_STEER_STEP = 0.01
+#: ... or its drive power changed, or this long after the last, s.
+APPLIED_PERIOD_S = 0.02
+
+
 class BridgeNode(Node):
     """One car's UDP link as ROS topics (see the module docstring)."""
 
@@ -153,6 +162,10 @@ class BridgeNode(Node):
         self._drive = self.create_publisher(JointState, BRIDGE_TOPICS["drive"], STREAM_QOS)
         self._velocity = self.create_publisher(TwistStamped, BRIDGE_TOPICS["velocity"], STREAM_QOS)
         self._diagnostics = self.create_publisher(String, BRIDGE_TOPICS["diagnostics"], 10)
+        self._applied = self.create_publisher(
+            CarInput, conversions.TOPICS["applied_input"], STREAM_QOS
+        )
+        self._last_applied: tuple[float, float, float] | None = None  # stamp, steer, torque
         self._inputs = CheckedSubscription(
             self,
             CarInput,
@@ -192,6 +205,7 @@ class BridgeNode(Node):
             family = conversions.topic_family(measurement.sensor)
             self._sensors[family].publish(conversions.measurement_to_msg(measurement, self.frame))
         t = converted.telemetry
+        self._publish_applied(t.stamp, t.steer_angle, t.drive_power)
         # by the host's clock (a packet's stamp is the car's: a bad one must not mute these)
         now = time.monotonic()
         if now < self._telemetry_due:
@@ -214,6 +228,22 @@ class BridgeNode(Node):
             velocity.twist.linear.x = t.longitudinal_velocity
             self._stamp(velocity, t.stamp)
             self._velocity.publish(velocity)
+
+    def _publish_applied(self, stamp: float, steer: float, torque: float) -> None:
+        """``input/applied``: the input the car applies, ``[steer, torque]`` = its measured
+        steering angle and its drive motor power (0 during a cut-off), stamped by the car's
+        packet; published when the power changes, the angle moves by more than
+        :data:`APPLIED_STEER_STEP`, or the last is older than :data:`APPLIED_PERIOD_S`."""
+        last = self._last_applied
+        if (
+            last is not None
+            and torque == last[2]
+            and abs(steer - last[1]) <= APPLIED_STEER_STEP
+            and 0.0 <= stamp - last[0] < APPLIED_PERIOD_S
+        ):
+            return
+        self._last_applied = (stamp, steer, torque)
+        self._applied.publish(conversions.car_input_msg((steer, torque), stamp))
 
     def _stamp(self, msg, seconds: float) -> None:
         msg.header.frame_id = self.frame

@@ -53,6 +53,7 @@ TOPICS = {
     "lighthouse": "sensors/lighthouse",
     "pose": "sensors/pose",
     "input": "input",
+    "applied_input": "input/applied",
     "ground_truth": "ground_truth",
     "state": "estimate/state",
     "odometry": "estimate/odometry",

@@ -1,6 +1,9 @@
 """Estimator node: EKF or MHE from ``crs_core`` on whatever sensors publish.
 
-Subscribes to ``sensors/*`` and ``input``; every message is validated and converted at the
+Subscribes to ``sensors/*`` and ``input`` (or, with ``input_topic`` ``input/applied``, the
+inputs the car reports applying, published by the bridge: behind Wi-Fi a command reaches the car
+late, out of order or not at all, and during a motor cut-off the car applies none; the car stack
+uses them); every message is validated and converted at the
 boundary (a malformed one is logged and dropped). The subscriptions are polled: the update tick
 takes everything that has arrived in one batch per topic (no executor wake-up per message, the
 plain sensor messages read straight from their bytes), and a message's arrival time is when the
@@ -32,7 +35,8 @@ estimator that has switched to the commanded model (a torque-mode command came f
 and holds the last torque command if the car switches to velocity mode later: restart it for such a
 run.
 
-Parameters: ``estimator`` (ekf | mhe), ``sensors`` (e.g. "lh+imu+we"), ``rate_hz``, ``lag`` (s,
+Parameters: ``estimator`` (ekf | mhe), ``input_topic`` (input | input/applied), ``sensors``
+(e.g. "lh+imu+we"), ``rate_hz``, ``lag`` (s,
 default 0.02), ``max_lag`` (s; default 0.1 for the EKF, which drops late data, and 0 for the MHE,
 which takes them into its window at its next update, where a longer lag would only delay the
 controller: an MPCC fed estimates 110-180 ms old steered bang-bang and spun the car; not above
@@ -120,6 +124,13 @@ class EstimatorNode(Node):
             self, "inputs", "auto", "auto, commanded or estimated", one_of(*INPUT_MODES)
         )
         self.inputs = inputs
+        self.input_topic = declare(
+            self,
+            "input_topic",
+            conversions.TOPICS["input"],
+            "model inputs from: input (commands sent) or input/applied (what the car applied)",
+            one_of(conversions.TOPICS["input"], conversions.TOPICS["applied_input"]),
+        )
         blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
         if blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
             raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
@@ -193,7 +204,7 @@ class EstimatorNode(Node):
         self._input_subscription = CheckedSubscription(
             self,
             CarInput,
-            conversions.TOPICS["input"],
+            self.input_topic,
             conversions.input_from_msg,
             None,
             "input",
@@ -226,7 +237,7 @@ class EstimatorNode(Node):
                     )
                 )
             return
-        warning = self.realtime.deliver(command.input_sample(), now, conversions.TOPICS["input"])
+        warning = self.realtime.deliver(command.input_sample(), now, self.input_topic)
         if warning is not None:
             self._warn[warning.kind](warning.message)
 

@@ -50,14 +50,52 @@ def test_typical_wifi_races_clean_laps(tmp_path, warm_codegen) -> None:
     assert link["counts"]["car_state"] > 3000  # 250 Hz less 2 % loss
 
 
-def test_bad_wifi_still_races_and_the_bridge_sees_the_disorder(tmp_path, warm_codegen) -> None:
-    car, figures = _race(tmp_path, "bad", 22.0)
-    assert figures["laps"] >= 1, figures
-    assert figures["off_track"]["seconds"] == 0.0, figures["off_track"]
-    assert car["estimation_rmse"]["x"] < 0.02 and car["estimation_rmse"]["y"] < 0.02
-    diagnostics = car["bridge_diagnostics"]
+def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_codegen) -> None:
+    """The host side under bad Wi-Fi: datagrams arrive reordered and duplicated, yet every
+    Lighthouse sweep is published once with its right plane (within 0.05 rad of the sensor
+    model at the emulator's true state: a wrong plane is 1 rad off), and the estimate follows
+    the truth in the first 5 s. Whether the race holds for 40 s is ``crs bench link``'s
+    question (its laps and time off the track)."""
+    from crs_core.model import CarModel
+    from ros4crs.bag_replay import read_car
+
+    out = tmp_path / "bad"
+    report = run_car_stack(
+        1,
+        "mhe",
+        12.0,
+        out,
+        True,
+        domain_id=DOMAINS["bad"],
+        ports=PORTS["bad"],
+        link=EmulatedLink(both="bad", seed=7),
+    )
+    assert report["node_deaths"] == []
+    diagnostics = report["cars"]["car1"]["bridge_diagnostics"]
     assert diagnostics["arrival"]["reordered"] > 100  # datagrams overtaken on the way
     assert diagnostics["counts"]["duplicate"] > 0  # dropped, never converted twice
+    contents = read_car(out / "bag", "/car1")
+    with np.load(out / "truth_car1.npz") as log:
+        t, x = log["t"], log["x"]
+    model = CarModel()
+    p = model.parameters.vector()
+
+    def truth_at(stamp: float) -> np.ndarray:
+        return np.array([np.interp(stamp, t, x[:, j]) for j in range(6)])
+
+    sweeps = [m for m in contents.measurements if m.sensor.startswith("lighthouse")]
+    sweeps = [m for m in sweeps if t[0] <= m.stamp <= t[-1]]
+    assert len(sweeps) > 500
+    stamps = [(m.sensor, m.stamp) for m in sweeps]
+    assert len(set(stamps)) == len(stamps)  # each sweep once
+    residuals = [
+        m.values - model.output_function(m.sensor)(truth_at(m.stamp), np.zeros(2), p) for m in sweeps
+    ]
+    worst = max(float(np.max(np.abs(r))) for r in residuals)
+    assert worst < 0.05, worst
+    early = [(s, e) for s, e in contents.estimates if s <= t[0] + 5.0]
+    errors = [np.hypot(*(e[:2] - truth_at(s)[:2])) for s, e in early]
+    assert len(errors) > 200 and float(np.sqrt(np.mean(np.square(errors)))) < 0.02
 
 
 def test_each_outage_cuts_the_motors_and_the_car_races_again_within_a_second(
