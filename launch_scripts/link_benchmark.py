@@ -24,9 +24,12 @@ commands, ``EmulatedLink(both=PRESET)``) runs into a folder of its own, and per 
   during it, and the time from the link's return to **racing again**, defined as the first
   instant after the return at which (1) the car has read a reference sent after the return's
   first driving command (one that is not the supervisor's stop command, straight wheels and zero
-  torque) and (2) its true speed is above :data:`RACING_SPEED` (0.5 m/s). A window is evaluated
-  only when the car was racing at its start (true speed above 0.5 m/s and a reference read in the
-  200 ms before) and the run lasted 1 s past its end (or the car recovered before that).
+  torque) and (2) its true speed is above :data:`RACING_SPEED` (0.5 m/s) and stays so for
+  :data:`RACING_HOLD_S` (1 s: a car still coasting after the cut-off, which then stops, is not
+  racing again; without it the first runs counted 0.04 s for a car that stood for 2 s). A
+  window is evaluated only when the car was racing at its start (true speed above 0.5 m/s and a
+  reference read in the 200 ms before) and the run lasted 1 s past its end (or the car recovered
+  before that).
 
 And per run the CPU (% of one core) of every process once running. The summary compares each run
 with the clean run of the same load and number of cars (``lap_time_ratio``), and :func:`targets`
@@ -36,6 +39,7 @@ evaluates the issue's targets per run (booleans; None when they cannot be evalua
 from __future__ import annotations
 
 import contextlib
+import json
 import math
 import os
 import signal
@@ -64,6 +68,8 @@ RACING_REFERENCE_S = 0.2
 LAP_TIME_TOLERANCE = 0.05
 #: Targets: laps a car must complete in a ``bad`` race (40 s: about 5 laps when clean).
 MIN_LAPS_BAD = 3
+#: A car races again once its true speed stays above RACING_SPEED this long, s.
+RACING_HOLD_S = 1.0
 #: Targets: the longest time from the link's return to racing again, s.
 MAX_RECOVERY_S = 1.0
 #: The controller's log lines of a failed QP (the MPCC's fallback or stop).
@@ -296,11 +302,11 @@ def outage_recovery(
         recovery = None
         after = np.flatnonzero((read_t >= end) & driving)
         if after.size:
-            later = np.flatnonzero((t >= read_t[after[0]]) & (speed > RACING_SPEED))
-            if later.size:
-                recovery = round(float(t[later[0]] - end), 3)
+            since = _racing_from(t, speed, read_t[after[0]])
+            if since is not None:
+                recovery = round(since - end, 3)
         racing = bool(fast and fed)
-        complete = recovery is not None or (t.size > 0 and t[-1] >= end + MAX_RECOVERY_S)
+        complete = recovery is not None or bool(t.size > 0 and t[-1] >= end + MAX_RECOVERY_S)
         out.append(
             {
                 "start": round(float(start), 3),
@@ -312,6 +318,20 @@ def outage_recovery(
             }
         )
     return out
+
+
+def _racing_from(t: np.ndarray, speed: np.ndarray, start: float) -> float | None:
+    """The first instant from ``start`` on after which the true speed stays above
+    :data:`RACING_SPEED` for :data:`RACING_HOLD_S` (or to the end of the truth): a car still
+    coasting after a cut-off is not racing, however fast it rolls for a moment."""
+    above = speed > RACING_SPEED
+    for i in np.flatnonzero((t >= start) & above):
+        if i > 0 and above[i - 1] and t[i - 1] >= start:
+            continue  # inside a run already checked
+        stays = (t >= t[i]) & (t <= t[i] + RACING_HOLD_S)
+        if np.all(above[stays]):
+            return float(t[i])
+    return None
 
 
 def qp_failure_seconds(log_path: Path) -> int:
@@ -598,3 +618,39 @@ def format_table(result: dict[str, Any]) -> str:
             f"{row['cars']} car(s): {text}"
         )
     return "\n".join(lines)
+
+
+def reanalysed(result: dict[str, Any]) -> dict[str, Any]:
+    """``result`` with every run's figures computed again from its folder (its
+    ``report.json``, truth and bag) by the current metric functions, and summarised again."""
+    rows = []
+    for old in result["runs"]:
+        run_dir = Path(old["folder"])
+        report = json.loads((run_dir / "report.json").read_text())
+        row = _run_row(old["preset"], old["load"], old["cars"], report, run_dir)
+        row["ports"] = old.get("ports")
+        rows.append(row)
+    summarise(rows)
+    return {**result, "definitions": __doc__, "runs": rows}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m launch_scripts.link_benchmark table FILE`` prints the Markdown table of a
+    saved ``crs bench link`` JSON (the docs' table); ``reanalyse FILE`` computes its runs'
+    figures again from their folders and rewrites FILE."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m launch_scripts.link_benchmark")
+    parser.add_argument("action", choices=("table", "reanalyse"))
+    parser.add_argument("file", type=Path)
+    args = parser.parse_args(argv)
+    result = json.loads(args.file.read_text())
+    if args.action == "reanalyse":
+        result = reanalysed(result)
+        args.file.write_text(json.dumps(result, indent=2))
+    print(format_table(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

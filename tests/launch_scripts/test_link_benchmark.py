@@ -140,9 +140,18 @@ def test_outage_recovery_on_a_synthetic_speed_trace():
     assert outage["recovery_s"] == pytest.approx(5.85 - 5.3, abs=0.005)
     assert late["racing_before"] and not late["motors_cut"]
     assert late["recovery_s"] is None and not late["evaluated"]  # 10 s < 9.8 + 1 s
-    # without knowing the stop commands, the coasting car would count as racing at once
+    # without knowing the stop commands the coasting car still does not count: its speed does
+    # not stay above 0.5 m/s
     coasting = outage_recovery(case["windows"][1:2], case["t"], case["speed"], pause, case["read"])
-    assert coasting[0]["recovery_s"] < 0.05
+    assert coasting[0]["recovery_s"] == pytest.approx(5.85 - 5.3, abs=0.005)
+
+
+def test_a_car_that_coasts_after_the_return_and_stops_is_not_racing_again():
+    t = np.arange(0.0, 8.0, 0.004)
+    speed = np.interp(t, [0, 1, 5.0, 6.0, 8.0], [2, 2, 2, 0.0, 0.0])  # rolls to a stand
+    read = np.arange(1.0, 8.0, 1 / 30)
+    result = outage_recovery(np.array([[4.7, 5.0]]), t, speed, np.array([4.9]), read)
+    assert result[0]["racing_before"] and result[0]["recovery_s"] is None
 
 
 def car(**changes: Any) -> dict[str, Any]:
