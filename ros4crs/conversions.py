@@ -32,8 +32,6 @@ one ROS graph share one TF tree.
 from __future__ import annotations
 
 import math
-import struct
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -381,116 +379,6 @@ SENSOR_PARSERS = {
     "wheel_encoders": wheel_speeds_from_msg,
     "lighthouse": lighthouse_from_msg,
     "pose": pose_from_msg,
-}
-
-
-# --- sensors straight from their CDR bytes (the estimator's hot path) ------------------------
-# A sensor message as it arrives (~600 a second per car): building the rclpy message object
-# (deserialize_message, ~12-25 us: a Header, a Time, Vector3s, ... each a Python object) costs
-# more than converting it. For the plain case, little-endian CDR with an ASCII frame id and
-# every value valid, these read the few fields they need straight from the bytes (~2 us).
-# Anything else (big-endian, another layout, a NaN, a bad plane or nanosec, a truncated or
-# padded message) returns ``None`` and the caller takes the full path
-# (``deserialize_message`` + ``*_from_msg``), which validates and names the problem exactly as
-# always: a fast result is always the Measurement the full path returns
-# (tests/ros4crs/test_sensor_cdr.py checks that on valid, invalid and corrupted messages).
-_CDR_LE = b"\x00\x01\x00\x00"  # encapsulation: plain CDR, little-endian, no options
-_HEADER = struct.Struct("<iII")  # header.stamp.sec, .nanosec, len(header.frame_id) + 1 (NUL)
-_F64 = struct.Struct("<d")
-_F64x4 = struct.Struct("<4d")
-_IMU = struct.Struct("<d72xdd")  # angular_velocity.z, (its covariance), linear_acceleration.x/.y
-_U8x2 = struct.Struct("<BB")
-_finite_value = math.isfinite
-
-
-def _cdr_header(data: bytes) -> tuple[float, int] | None:
-    """(stamp, offset after the frame id) of a plain little-endian CDR message whose header is
-    valid and whose frame id is ASCII, else None."""
-    if len(data) < 17 or data[:4] != _CDR_LE:
-        return None
-    sec, nanosec, length = _HEADER.unpack_from(data, 4)
-    end = 16 + length
-    if not nanosec < 1_000_000_000 or length < 1 or end > len(data) or data[end - 1]:
-        return None
-    frame_id = data[16 : end - 1]
-    if not frame_id.isascii() or b"\x00" in frame_id:
-        return None
-    return float(sec) + 1e-9 * float(nanosec), end
-
-
-def _aligned8(offset: int) -> int:
-    """``offset`` (in the bytes, after the 4-byte encapsulation) rounded up for a float64."""
-    return offset + (-(offset - 4) % 8)
-
-
-def _plain_size(data: bytes, end: int) -> bool:
-    """The message ends at ``end`` (up to CDR's padding to a multiple of 8 bytes)."""
-    return end <= len(data) < end + 8
-
-
-def imu_from_cdr(data: bytes) -> Measurement | None:
-    """:func:`imu_from_msg` of a serialized ``sensor_msgs/Imu``; None: use the full path."""
-    header = _cdr_header(data)
-    if header is None:
-        return None
-    # orientation (4 f64), its covariance (9), angular_velocity (3), its covariance (9),
-    # linear_acceleration (3), its covariance (9)
-    at = _aligned8(header[1])
-    if not _plain_size(data, at + 296):
-        return None
-    omega, ax, ay = _IMU.unpack_from(data, at + 120)
-    if not _finite_value(omega):
-        return None
-    if _F64.unpack_from(data, at + 224)[0] == -1.0:  # REP 145: acceleration not measured
-        return Measurement(header[0], "gyro", (omega,))
-    if not (_finite_value(ax) and _finite_value(ay)):
-        return None
-    return Measurement(header[0], "imu", (ax, ay, omega))
-
-
-def wheel_speeds_from_cdr(data: bytes) -> Measurement | None:
-    """:func:`wheel_speeds_from_msg` of a serialized ``chronos_msgs/WheelSpeeds``; None: use
-    the full path."""
-    header = _cdr_header(data)
-    if header is None:
-        return None
-    at = _aligned8(header[1])
-    if not _plain_size(data, at + 32):
-        return None
-    values = _F64x4.unpack_from(data, at)
-    if not all(map(_finite_value, values)):
-        return None
-    return Measurement(header[0], "wheel_encoders", values)
-
-
-_LIGHTHOUSE_SENSORS = {(s, p): lighthouse_sensor(s, p) for s in range(256) for p in (1, 2)}
-
-
-def lighthouse_from_cdr(data: bytes) -> Measurement | None:
-    """:func:`lighthouse_from_msg` of a serialized ``chronos_msgs/LighthouseSweep``; None: use
-    the full path."""
-    header = _cdr_header(data)
-    if header is None:
-        return None
-    ids = header[1]  # base_station, plane (uint8), angles (4 f64), two uint32 timestamps
-    at = _aligned8(ids + 2)
-    if not _plain_size(data, at + 40):
-        return None
-    sensor = _LIGHTHOUSE_SENSORS.get(_U8x2.unpack_from(data, ids))  # None: plane not 1 or 2
-    if sensor is None:
-        return None
-    angles = _F64x4.unpack_from(data, at)
-    if not all(map(_finite_value, angles)):
-        return None
-    return Measurement(header[0], sensor, angles)
-
-
-#: The fast path of each sensor topic family that has one (see :func:`imu_from_cdr`).
-SENSOR_CDR_PARSERS: dict[str, Callable[[bytes], Measurement | None]] = {
-    "imu": imu_from_cdr,
-    "gyro": imu_from_cdr,
-    "wheel_encoders": wheel_speeds_from_cdr,
-    "lighthouse": lighthouse_from_cdr,
 }
 
 

@@ -4,10 +4,7 @@ Subscribes to ``sensors/*`` and ``input`` (or, with ``input_topic`` ``input/appl
 inputs the car reports applying, published by the bridge: behind Wi-Fi a command reaches the car
 late, out of order or not at all, and during a motor cut-off the car applies none; the car stack
 uses them); every message is validated and converted at the
-boundary (a malformed one is logged and dropped). The subscriptions are polled: the update tick
-takes everything that has arrived in one batch per topic (no executor wake-up per message, the
-plain sensor messages read straight from their bytes), and a message's arrival time is when the
-middleware received it. The real-time policy (start, query grid,
+boundary (a malformed one is logged and dropped). The real-time policy (start, query grid,
 adaptive lag, late data, clock jumps, deadlines) is a
 :class:`~crs_core.estimation.realtime.RealtimeEstimator`; the node feeds it, publishes what it
 returns and logs its warnings. A timer at ``rate_hz`` asks the estimator for
@@ -52,7 +49,6 @@ track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track'
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -68,6 +64,7 @@ from crs_core.estimation import (
 )
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.estimation.realtime import RealtimeEstimator, RealtimeSettings
+from crs_core.measurements import Measurement
 from ros4crs import conversions
 from ros4crs.node_support import (
     LOG_QOS,
@@ -85,14 +82,6 @@ from ros4crs.node_support import (
     run,
     throttled_warning,
 )
-
-
-def _arrivals(receipts: list[int], now: float | None, origin: float | None) -> list:
-    """Arrival times on the node's clock of messages received at ``receipts`` (ns, system
-    clock; 0: unknown, then ``now``); all None when ``now`` is (delays not tracked)."""
-    if now is None or origin is None:
-        return [None] * len(receipts)
-    return [origin + 1e-9 * r if r else now for r in receipts]
 
 
 class EstimatorNode(Node):
@@ -172,6 +161,7 @@ class EstimatorNode(Node):
         from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, EstimatorQuery
         from tf2_msgs.msg import TFMessage
 
+        self._checked_subscriptions: list = []
         #: Sensor messages received, by sensor name.
         self.received: dict[str, int] = {}
         #: Velocity-mode commands received (ignored: they carry no torque).
@@ -184,34 +174,18 @@ class EstimatorNode(Node):
             "status": throttled_warning(self),
             "restart": self.get_logger().warning,
         }
-        # polled at the update tick, in one batch (no executor wake-up per message)
-        self._sensor_subscriptions = [
-            (
-                conversions.TOPICS[family],
-                CheckedSubscription(
-                    self,
-                    msg_type,
-                    conversions.TOPICS[family],
-                    conversions.SENSOR_PARSERS[family],
-                    None,
-                    family,
-                    polled=True,
-                    fast_parse=conversions.SENSOR_CDR_PARSERS.get(family),
-                ),
+        for family, msg_type in conversions.sensor_message_types().items():
+            self._subscribe(family, msg_type)
+        self._checked_subscriptions.append(
+            CheckedSubscription(
+                self,
+                CarInput,
+                self.input_topic,
+                conversions.input_from_msg,
+                self._on_input,
+                "input",
             )
-            for family, msg_type in conversions.sensor_message_types().items()
-        ]
-        self._input_subscription = CheckedSubscription(
-            self,
-            CarInput,
-            self.input_topic,
-            conversions.input_from_msg,
-            None,
-            "input",
-            polled=True,
         )
-        self._checked_subscriptions = [s for _, s in self._sensor_subscriptions]
-        self._checked_subscriptions.append(self._input_subscription)
         self._state = self.create_publisher(CarState, conversions.TOPICS["state"], LOG_QOS)
         self._odometry = self.create_publisher(Odometry, conversions.TOPICS["odometry"], 10)
         self._tf = self.create_publisher(TFMessage, "/tf", 100)
@@ -224,7 +198,25 @@ class EstimatorNode(Node):
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
 
-    def _on_input(self, command: conversions.CarCommand, now: float | None) -> None:
+    def _subscribe(self, family: str, msg_type: type) -> None:
+        topic = conversions.TOPICS[family]
+        received = self.received
+        realtime = self.realtime
+
+        def handle(measurement: Measurement) -> None:
+            received[measurement.sensor] = received.get(measurement.sensor, 0) + 1
+            now = self._now() if realtime.tracks_delays else None
+            warning = realtime.deliver(measurement, now, topic)
+            if warning is not None:
+                self._warn[warning.kind](warning.message)
+
+        self._checked_subscriptions.append(
+            CheckedSubscription(
+                self, msg_type, topic, conversions.SENSOR_PARSERS[family], handle, family
+            )
+        )
+
+    def _on_input(self, command: conversions.CarCommand) -> None:
         if command.mode != "torque":  # a velocity reference: the torque is the car's secret
             self.velocity_references += 1
             if self.velocity_references == 1:
@@ -237,6 +229,7 @@ class EstimatorNode(Node):
                     )
                 )
             return
+        now = self._now() if self.realtime.tracks_delays else None
         warning = self.realtime.deliver(command.input_sample(), now, self.input_topic)
         if warning is not None:
             self._warn[warning.kind](warning.message)
@@ -250,35 +243,9 @@ class EstimatorNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _take_pending(self) -> None:
-        """Everything that has arrived, in one batch per topic (the update tick's drain).
-
-        The arrival time of each message (for the lag, which covers arrival minus stamp: only
-        tracked when it can rise) is when the middleware received it, not this drain: its age
-        on the system clock taken from the node's clock now (the same when the node runs on
-        the system clock; with ``/clock`` it assumes a clock running at the wall's rate)."""
-        realtime = self.realtime
-        deliver, received, warn = realtime.deliver, self.received, self._warn
-        now = origin = None
-        if realtime.tracks_delays:
-            now = self._now()
-            origin = now - 1e-9 * time.time_ns()  # the node's clock minus the system clock, s
-        for topic, subscription in self._sensor_subscriptions:
-            measurements, receipts = subscription.take_all()
-            arrivals = _arrivals(receipts, now, origin)
-            for measurement, arrival in zip(measurements, arrivals, strict=True):
-                sensor = measurement.sensor
-                received[sensor] = received.get(sensor, 0) + 1
-                warning = deliver(measurement, arrival, topic)
-                if warning is not None:
-                    warn[warning.kind](warning.message)
-        commands, receipts = self._input_subscription.take_all()
-        for command, arrival in zip(commands, _arrivals(receipts, now, origin), strict=True):
-            self._on_input(command, arrival)
-
-    def destroy_node(self) -> None:
+        """Everything that has arrived (rclpy runs a due timer before queued messages)."""
         for subscription in self._checked_subscriptions:
-            subscription.destroy()
-        super().destroy_node()
+            subscription.take_pending()
 
     def _update(self) -> None:
         realtime = self.realtime

@@ -213,15 +213,6 @@ class CheckedSubscription:
     runs a due timer before the messages queued behind it and takes one message per
     subscription per wake-up, so a node that fell behind would otherwise compute at its timer
     without data that are already in the process.
-
-    ``polled=True``: the executor never sees the subscription (no wake-up, no callback per
-    message; DDS keeps the messages, up to the QoS depth); the node takes them in batches with
-    :meth:`take_all` (``handle`` may then be None) or :meth:`take_pending` at its own timer, and
-    must call :meth:`destroy` before it is destroyed. The subscription still belongs to
-    ``node`` in the ROS graph.
-    ``fast_parse(bytes)`` (optional) converts a message straight from its CDR bytes or returns
-    ``None`` for anything but the plain valid case, which then takes the full path above; it
-    must return only what the full path would (e.g. :data:`ros4crs.conversions.SENSOR_CDR_PARSERS`).
     """
 
     def __init__(
@@ -230,88 +221,38 @@ class CheckedSubscription:
         msg_type: type,
         topic: str,
         parse: Callable[[Any], Any],
-        handle: Callable[[Any], None] | None,
+        handle: Callable[[Any], None],
         what: str,
-        *,
-        polled: bool = False,
-        fast_parse: Callable[[bytes], Any] | None = None,
     ) -> None:
         self.dropped = 0
         self._msg_type, self._topic, self._what = msg_type, topic, what
-        self._parse, self._handle, self._fast_parse = parse, handle, fast_parse
+        self._parse, self._handle = parse, handle
         self._warn = throttled_warning(node)
-        if polled:
-            from rclpy.impl.implementation_singleton import rclpy_implementation
-            from rclpy.type_support import check_is_valid_msg_type
+        self.subscription = node.create_subscription(
+            msg_type, topic, self._on_message, STREAM_QOS, raw=True
+        )
 
-            check_is_valid_msg_type(msg_type)  # loads the type support
-            self.subscription = None
-            with node.handle:  # on the node (its name in the graph), not in its executor
-                self.handle = rclpy_implementation.Subscription(
-                    node.handle, msg_type, topic, STREAM_QOS.get_c_qos_profile()
-                )
-        else:
-            self.subscription = node.create_subscription(
-                msg_type, topic, self._on_message, STREAM_QOS, raw=True
-            )
-            self.handle = self.subscription.handle
-
-    def _parsed(self, data: bytes) -> Any:
-        """The converted message, or ``None`` when it was dropped (counted and logged)."""
-        if self._fast_parse is not None:
-            try:
-                value = self._fast_parse(data)
-            except Exception:  # never trusted: the full path decides
-                value = None
-            if value is not None:
-                return value
+    def _on_message(self, data: bytes) -> None:
         from rclpy.serialization import deserialize_message
 
         try:
-            return self._parse(deserialize_message(bytes(data), self._msg_type))
+            value = self._parse(deserialize_message(bytes(data), self._msg_type))
         except Exception as error:
             self.dropped += 1
             self._warn(f"dropped malformed {self._what} on {self._topic}: {error}")
-            return None
-
-    def _on_message(self, data: bytes) -> None:
-        value = self._parsed(data)
-        if value is not None:
-            self._handle(value)
+            return
+        self._handle(value)
 
     def take_pending(self) -> int:
         """Handle every message waiting in the queue, in arrival order; how many there were."""
         taken = 0
-        handle = self.handle
-        with handle:
+        with self.subscription.handle:
             while True:
-                message = handle.take_message(self._msg_type, True)
+                message = self.subscription.handle.take_message(self._msg_type, True)
                 if message is None:
                     return taken
                 self._on_message(message[0])
                 taken += 1
-
-    def take_all(self) -> tuple[list[Any], list[int]]:
-        """Every message waiting in the queue, converted, in arrival order (without
-        ``handle``), and when each was received (ns on the system clock, as rmw stamps it; 0
-        if the middleware does not say). Malformed ones are dropped, counted and logged."""
-        values: list[Any] = []
-        received: list[int] = []
-        handle, msg_type, parsed = self.handle, self._msg_type, self._parsed
-        with handle:
-            while True:
-                message = handle.take_message(msg_type, True)
-                if message is None:
-                    return values, received
-                value = parsed(message[0])
-                if value is not None:
-                    values.append(value)
-                    received.append(message[1].get("received_timestamp") or 0)
-
-    def destroy(self) -> None:
-        """Destroy a polled subscription (the node destroys the others)."""
-        if self.subscription is None:
-            self.handle.destroy_when_not_in_use()
 
 
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:
