@@ -41,11 +41,8 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import signal
 import socket
-import subprocess
-import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -55,7 +52,7 @@ import numpy as np
 from chronos_bridge.impairment import PRESET_NAMES
 from crs_core.track import Track, load_demo_track
 from launch_scripts.car_stack import EMULATOR_PORT, HOST_PORT, EmulatedLink, run_car_stack
-from launch_scripts.stack_benchmark import BUSY_LOOP
+from launch_scripts.stack_benchmark import busy_loops
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH, footprint_outside
 
 #: True speed above which a car counts as racing, m/s.
@@ -107,30 +104,6 @@ def parse_presets(text: str) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError(f"--presets: {text!r} names a preset twice")
     return names
-
-
-@contextlib.contextmanager
-def busy_loops(count: int) -> Iterator[list[subprocess.Popen]]:
-    """``count`` processes each keeping one core busy (``python -c "while True: pass"``, in
-    sessions of their own so a Ctrl-C on the terminal does not reach them) for the ``with``
-    block; killed (SIGKILL) and reaped when it ends, however it ends."""
-    processes: list[subprocess.Popen] = []
-    try:
-        for _ in range(count):
-            processes.append(
-                subprocess.Popen(
-                    [sys.executable, "-c", BUSY_LOOP],
-                    start_new_session=True,
-                    stdin=subprocess.DEVNULL,
-                    stdout=subprocess.DEVNULL,
-                )
-            )
-        yield processes
-    finally:
-        for process in processes:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
 
 
 def free_ports(cars: int, attempts: int = 50) -> tuple[int, int]:

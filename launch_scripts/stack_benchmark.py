@@ -9,10 +9,12 @@ for the whole measurement (a machine that is busy with something else).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +22,30 @@ from launch_scripts.sim_stack import rmse_text, run_stack
 
 #: A process that keeps one core busy until it is killed.
 BUSY_LOOP = "while True:\n    pass\n"
+
+
+@contextlib.contextmanager
+def busy_loops(count: int) -> Iterator[list[subprocess.Popen]]:
+    """``count`` processes each keeping one core busy (``python -c "while True: pass"``, in
+    sessions of their own so a Ctrl-C on the terminal does not reach them) for the ``with``
+    block; killed (SIGKILL) and reaped when it ends, however it ends."""
+    processes: list[subprocess.Popen] = []
+    try:
+        for _ in range(count):
+            processes.append(
+                subprocess.Popen(
+                    [sys.executable, "-c", BUSY_LOOP],
+                    start_new_session=True,
+                    stdin=subprocess.DEVNULL,
+                    stdout=subprocess.DEVNULL,
+                )
+            )
+        yield processes
+    finally:
+        for process in processes:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
 
 
 def stack_benchmark(
@@ -38,12 +64,8 @@ def stack_benchmark(
     ``node_deaths``) and ``worst`` (per car over the repeats: fewest laps, largest position
     RMSE, most deadline misses).
     """
-    busy = [
-        subprocess.Popen([sys.executable, "-c", BUSY_LOOP], start_new_session=True)
-        for _ in range(load)
-    ]
     runs = []
-    try:
+    with busy_loops(load):
         for repeat in range(1, repeats + 1):
             print(f"[bench] repeat {repeat} of {repeats}", flush=True)
             report = run_stack(
@@ -51,10 +73,6 @@ def stack_benchmark(
             )
             keys = ("cars", "cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
             runs.append({key: report[key] for key in keys if key in report})
-    finally:
-        for process in busy:
-            os.killpg(process.pid, signal.SIGKILL)
-            process.wait()
     return {
         "cars": cars,
         "estimator": estimator,
