@@ -14,8 +14,11 @@ once per tick. It holds the newest state estimate ``(stamp, x, status)`` and dec
   ``ramp_rate`` to ``degraded_speed``, starting from the lower of the current cap and the car's
   speed (a step from 4 to 0.5 m/s at 1.1 m/s gave full-lock steering and braking into reverse
   in an offline closed loop; a 1.5 m/s^2 ramp kept ``v_x >= 0.49`` m/s). It rises back at
-  ``ramp_rate`` only once the status has stayed ``ok`` for ``ok_hold`` s (an estimator at the
-  edge toggles degraded / ok several times a second).
+  ``rise_rate`` once the status has stayed ``ok`` as long as it was degraded since the cap began
+  to fall, ``ok_hold`` s at most: an estimator at the edge, toggling degraded / ok several times
+  a second, keeps the car slow, while the few degraded ticks of a link outage (dead reckoning
+  until the first Lighthouse sample after it) cost no more than themselves. Waiting a fixed
+  1 s there kept a car that came out of a 300 ms outage at 0.5 m/s for another 1.3 s.
 * **Every command is checked**: finite, steering within ``±steer_max``, torque within
   ``[torque_min, torque_max]`` (velocity mode: the reference within ``[0, velocity_max]``). A
   bad one is replaced by the stop command, counted in :attr:`Supervisor.rejected_commands` and
@@ -68,10 +71,14 @@ class SupervisorSettings:
         ``progress_speed_max``, the path follower's ``v_ref``); at this cap the controller is
         called without a limit.
     ramp_rate : float
-        Rate at which the speed cap falls and rises, m/s^2 (1.5 m/s^2 kept ``v_x >= 0.49`` m/s
-        offline where a step from 4 to 0.5 m/s at 1.1 m/s braked the car into reverse).
+        Rate at which the speed cap falls, m/s^2 (1.5 m/s^2 kept ``v_x >= 0.49`` m/s offline
+        where a step from 4 to 0.5 m/s at 1.1 m/s braked the car into reverse).
+    rise_rate : float
+        Rate at which the speed cap rises again, m/s^2 (a rising cap only allows speed: the
+        car's own acceleration is the limit).
     ok_hold : float
-        The status must have stayed ``ok`` this long (s) before the cap ramps back up.
+        Longest time (s) the status must have stayed ``ok`` before the cap rises: the wait is
+        the time the status was degraded since the cap began to fall, up to this.
     steer_max : float
         Largest steering command magnitude, rad.
     torque_min, torque_max : float
@@ -84,6 +91,7 @@ class SupervisorSettings:
     degraded_speed: float = 0.5
     max_speed: float = 4.0
     ramp_rate: float = 1.5
+    rise_rate: float = 3.0
     ok_hold: float = 1.0
     steer_max: float = 0.34
     torque_min: float = -1.0
@@ -91,7 +99,14 @@ class SupervisorSettings:
     velocity_max: float = 5.0
 
     def __post_init__(self) -> None:
-        for name in ("stale_timeout", "degraded_speed", "max_speed", "ramp_rate", "steer_max"):
+        for name in (
+            "stale_timeout",
+            "degraded_speed",
+            "max_speed",
+            "ramp_rate",
+            "rise_rate",
+            "steer_max",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
@@ -197,6 +212,7 @@ class Supervisor:
         self._stale = True
         self._limited = False  # the cap is held at or ramping to degraded_speed
         self._ok_since: float | None = None
+        self._degraded_for = 0.0  # s degraded since the cap began to fall
         self._last_tick: float | None = None
         #: the speed cap in effect, m/s
         self.speed_cap = self.settings.max_speed
@@ -312,8 +328,11 @@ class Supervisor:
         status = self._latest[2]
         if status == "degraded":
             self._ok_since = None
-            if not self._limited:
+            if self._limited:
+                self._degraded_for += dt
+            else:
                 self._limited = True
+                self._degraded_for = 0.0
                 self.speed_cap = min(self.speed_cap, max(speed, s.degraded_speed))
                 events.append(
                     SupervisorEvent(
@@ -325,20 +344,21 @@ class Supervisor:
         elif self._limited:
             if self._ok_since is None:
                 self._ok_since = now
-            if now - self._ok_since >= s.ok_hold:
+            hold = min(s.ok_hold, self._degraded_for)
+            if now - self._ok_since >= hold:
                 self._limited = False
                 events.append(
                     SupervisorEvent(
                         "recovered",
-                        f"state estimate ok for {s.ok_hold:g} s: back to full speed "
-                        f"(at {s.ramp_rate:g} m/s^2)",
+                        f"state estimate ok for {now - self._ok_since:.2f} s after "
+                        f"{self._degraded_for:.2f} s degraded: back to full speed "
+                        f"(at {s.rise_rate:g} m/s^2)",
                     )
                 )
-        step = s.ramp_rate * dt
         if self._limited:
-            self.speed_cap = max(self.speed_cap - step, s.degraded_speed)
+            self.speed_cap = max(self.speed_cap - s.ramp_rate * dt, s.degraded_speed)
         else:
-            self.speed_cap = min(self.speed_cap + step, s.max_speed)
+            self.speed_cap = min(self.speed_cap + s.rise_rate * dt, s.max_speed)
 
     def _command(
         self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list

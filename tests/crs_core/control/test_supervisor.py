@@ -41,8 +41,11 @@ def state(speed: float) -> np.ndarray:
 def test_speed_cap_ramps_and_never_steps_under_a_toggling_status(speed):
     """ok for 0.5 s, then degraded / ok toggling every 100 ms for 3 s, then ok: the cap falls
     from the car's speed at the ramp rate to degraded_speed, does not rise while toggling, and
-    rises at the ramp rate once ok has held for ok_hold."""
-    settings = SupervisorSettings(max_speed=4.0, degraded_speed=0.5, ramp_rate=1.5, ok_hold=1.0)
+    rises at the rise rate once ok has held for ok_hold (1.5 s degraded in all: the full
+    hold)."""
+    settings = SupervisorSettings(
+        max_speed=4.0, degraded_speed=0.5, ramp_rate=1.5, rise_rate=3.0, ok_hold=1.0
+    )
     controller = Recorder()
     supervisor = Supervisor(controller, settings)
     ticks = np.arange(0.0, 9.0, DT)
@@ -60,11 +63,11 @@ def test_speed_cap_ramps_and_never_steps_under_a_toggling_status(speed):
     caps = np.array(caps)
     change = np.diff(caps)
     ramp = settings.ramp_rate * DT + 1e-12
-    assert np.all(change <= ramp)  # never rises faster than the ramp
+    assert np.all(change <= settings.rise_rate * DT + 1e-12)  # never rises faster than that
     # never falls faster than the ramp below the car's speed (a fall starts there)
     assert np.all(caps[1:] >= np.minimum(caps[:-1], speed) - ramp)
-    if speed >= settings.max_speed:  # the car at full speed: no step at all
-        assert np.all(np.abs(change) <= ramp)
+    if speed >= settings.max_speed:  # the car at full speed: no step down at all
+        assert np.all(-change <= ramp)
     assert caps.min() == pytest.approx(0.5)
     toggling = (ticks >= 0.5) & (ticks < 3.5)
     assert np.all(change[toggling[1:]] <= 1e-12)  # no rise while the status toggles
@@ -73,9 +76,31 @@ def test_speed_cap_ramps_and_never_steps_under_a_toggling_status(speed):
     held = ticks < ok_from + 1.0 - 1e-9
     assert np.allclose(caps[held & (ticks > 3.0)], 0.5)
     rising = ~held[1:] & (caps[1:] < 4.0)
-    assert rising.sum() > 50 and np.allclose(change[rising], 1.5 * DT)
+    assert rising.sum() > 25 and np.allclose(change[rising], 3.0 * DT)
     assert caps[-1] == 4.0
     assert kinds.count("degraded") == 1 and kinds.count("recovered") == 1
+
+
+def test_after_a_short_degraded_episode_the_cap_rises_as_soon_as_ok_held_as_long():
+    """A link outage: 2 s ok at 2 m/s, 0.1 s degraded (dead reckoning until the first
+    Lighthouse sample after it), then ok: the cap falls for 0.1 s, is held for 0.1 s of ok,
+    not ok_hold, and is back at full speed at the rise rate."""
+    settings = SupervisorSettings(ramp_rate=1.5, rise_rate=3.0, ok_hold=1.0)
+    supervisor = Supervisor(Recorder(), settings)
+    caps, kinds = {}, []
+    for now in np.arange(0.0, 4.0, DT):
+        status = "degraded" if 2.0 <= now < 2.1 - 1e-9 else "ok"
+        supervisor.observe(now - 0.02, state(2.0), status)
+        step = supervisor(now)
+        caps[round(now, 4)] = step.speed_cap
+        kinds += [e.kind for e in step.events]
+    assert kinds == ["fresh", "degraded", "recovered"]
+    lowest = min(caps.values())
+    # fell from the car's 2 m/s at 1.5 m/s^2 while degraded and held: about 0.2 s
+    assert 1.65 < lowest < 1.8
+    recovered_at = min(t for t, cap in caps.items() if t > 2.1 and cap > lowest + 1e-9)
+    assert recovered_at <= 2.1 + 0.1 + 2 * DT  # held for the 0.1 s it was degraded
+    assert caps[max(caps)] == settings.max_speed  # 2 -> 4 m/s within 0.7 s at 3 m/s^2
 
 
 def test_a_fall_from_the_cars_speed_reaches_degraded_speed_at_the_ramp_rate():
