@@ -332,3 +332,52 @@ def test_the_controller_never_brakes_the_car_into_reverse(track, vx: float) -> N
     for _ in range(5):
         u = controller(x)
         assert u[1] >= -controller.settings.brake_gain * max(vx, 0.0) - 1e-12, u
+
+
+def _on_the_centreline(track, s: float, lateral: float, heading_offset: float) -> np.ndarray:
+    x, y, heading, _ = (float(v[0]) for v in track.interpolate(np.array([s])))
+    return np.array(
+        [
+            x - lateral * math.sin(heading),
+            y + lateral * math.cos(heading),
+            heading + heading_offset,
+            0.0,
+            0.0,
+            0.0,
+        ]
+    )
+
+
+@pytest.mark.parametrize(
+    "s, lateral, heading_offset", [(2.8, 0.0, 0.0), (2.8, 0.1, 0.4), (5.0, 0.1, 0.4)]
+)
+def test_from_rest_in_a_bend_the_car_drives_off(track, s, lateral, heading_offset) -> None:
+    """Standing in a bend, or a little off the path, the car drives on: 3 s on the model
+    cover more than a metre of the track. Linearised at a standing car (where the steering
+    has no effect), the plans stayed put in these three poses (0.35, 1.05, 0.21 m)."""
+    controller = Mpcc(track)
+    model, p = controller.model, controller.p
+    x = _on_the_centreline(track, s, lateral, heading_offset)
+    for _ in range(90):
+        u = controller(x, None, controller.settings.dt)
+        x = model.numeric.step(x, u, p, controller.settings.dt)
+    travelled = (track.project(x[0], x[1]).s - s) % track.length
+    assert 1.0 < travelled < 8.0, travelled
+    assert x[3] > 0.5
+
+
+def test_far_from_its_plan_the_controller_iterates_as_from_cold(track) -> None:
+    """Racing at 1.5 m/s, then an estimate 0.2 m and 0.3 rad away from where the plan put the
+    car (after a link outage, the plan had followed a dead-reckoned estimate): the command is
+    the one a controller starting cold there gives, not one iteration from the stale plan."""
+    controller = Mpcc(track)
+    model, p, dt = controller.model, controller.p, controller.settings.dt
+    x = _start(track, 1.5)
+    for _ in range(10):
+        u = controller(x, None, dt)
+        x = model.numeric.step(x, u, p, dt)
+    jumped = x + np.array([0.2 * -math.sin(x[2]), 0.2 * math.cos(x[2]), 0.3, 0, 0, 0])
+    warm = controller(jumped, None, dt)
+    assert controller.status.qp_iterations > 0
+    cold = Mpcc(track)(jumped)
+    np.testing.assert_allclose(warm, cold, atol=0.02)
