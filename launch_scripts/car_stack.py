@@ -170,7 +170,13 @@ def car_nodes(
             arguments += ["--truth-out", str(Path(out).resolve() / f"truth_car{i}.npz")]
             arguments += link.arguments(i)
             emulators.append(
-                NodeSpec("emulator", "chronos_bridge.emulator_process", ns, arguments=arguments)
+                NodeSpec(
+                    "emulator",
+                    "chronos_bridge.emulator_process",
+                    ns,
+                    arguments=arguments,
+                    stops_first=True,
+                )
             )
         else:
             bridge = {"port": host_port, "bind": "0.0.0.0", "car_ip": car_ips[i - 1]}

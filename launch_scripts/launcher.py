@@ -40,6 +40,9 @@ class NodeSpec:
         For a plain (non-ROS) process: its command-line arguments. When given, the process
         runs as ``python -m <module> *arguments``; ``namespace`` then only names it (and its
         log) and ``parameters`` must be empty.
+    stops_first : bool
+        Stopped, and waited for, before the others (an emulated car: stopped while the host
+        still sends, it never sees the host go away, which it would count as a motor cut-off).
     """
 
     name: str
@@ -47,6 +50,7 @@ class NodeSpec:
     namespace: str = ""
     parameters: dict[str, Any] = field(default_factory=dict)
     arguments: list[str] | None = None
+    stops_first: bool = False
 
     def __post_init__(self) -> None:
         if self.arguments is not None and self.parameters:
@@ -177,9 +181,16 @@ class Launcher:
         return out
 
     def stop(self, timeout: float = 5.0) -> None:
-        """SIGINT every node, then SIGTERM, then SIGKILL whatever is still running."""
+        """Stop the nodes marked ``stops_first``, then the others: SIGINT, then SIGTERM, then
+        SIGKILL whatever is still running."""
+        first = {spec.full_name for spec in self.nodes if spec.stops_first}
+        for group in (first, set(self.processes) - first):
+            self._stop([p for name, p in self.processes.items() if name in group], timeout)
+
+    @staticmethod
+    def _stop(processes: list[subprocess.Popen], timeout: float) -> None:
         for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
-            running = [p for p in self.processes.values() if p.poll() is None]
+            running = [p for p in processes if p.poll() is None]
             if not running:
                 return
             for process in running:
