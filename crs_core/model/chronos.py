@@ -38,7 +38,7 @@ _DYNAMICS = (
     ("Cd1", 0.03031928, "N s/m", 0.0, 0.5, 0.01, "friction", "viscous drag"),
     ("Cd2", 0.08473512, "N s^2/m^2", 0.0, 0.5, 0.02, "friction", "quadratic drag"),
     ("gamma", 0.50199235, "-", 0.0, 1.0, 0.05, "motor", "share of motor force on rear axle"),
-    ("eps", 0.2, "m/s", 0.01, 1.0, 0.0, "tire", "low-speed slip-polynomial threshold"),
+    ("eps", 0.2, "m/s", 0.01, 1.0, 0.0, "tire", "low-speed slip threshold"),
     ("r", 0.0175, "m", 0.01, 0.03, 0.0005, "encoder", "wheel radius"),
     # only the encoder model uses it: the track width the wheel speeds see. The real recordings
     # imply 0.040 m (r * (right - left) / yaw rate, front and rear alike) against 0.12 m wheel to

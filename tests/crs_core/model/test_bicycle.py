@@ -80,6 +80,45 @@ def test_standstill_with_zero_input_stays_at_rest(model):
         np.testing.assert_array_equal(x_end, x)
 
 
+@pytest.mark.parametrize("vy, omega", [(0.0, 0.5), (0.1, 0.0), (-0.05, -2.0)])
+def test_a_car_that_stops_while_turning_or_sliding_stops_turning(model, vy, omega):
+    """At rest the tires oppose the contact patches' sliding: a yaw rate or lateral velocity
+    left at standstill dies out: the yaw rate to a tenth within 0.2 s, all of it within 0.8 s
+    (the paper's cubics
+    made no force at v_x = 0, and an emulated car kept turning on the spot at 0.5 rad/s
+    for seconds)."""
+    numeric, p = model.numeric, model.parameters.vector()
+    x = np.array([0.0, 0.0, 0.0, 0.0, vy, omega])
+    for k in range(200):
+        x = numeric.step(x, np.array([0.3, 0.0]), p, 0.004)
+        if k == 49:
+            assert abs(x[5]) <= 0.1 * max(abs(omega), 0.5), x
+    assert abs(x[5]) < 0.005 and abs(x[4]) < 0.001 and abs(x[3]) < 0.001, x
+
+
+@pytest.mark.parametrize("vx", [-0.5, -0.1, 0.1, 0.5])
+def test_the_tires_oppose_sideways_sliding_in_both_directions(model, vx):
+    """A car sliding sideways, forwards or reversing, straight wheels: the lateral tire force
+    opposes v_y (the paper's atan(N / v_x) pushes a reversing car's slide on)."""
+    x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
+    forces = axle_forces(x, u, model.parameters.value)
+    lateral = ca.Function("fy", [x, u], [forces.fy_front + forces.fy_rear])
+    for vy in (0.05, -0.05):
+        total = float(lateral([0, 0, 0, vx, vy, 0], [0.0, 0.0]))
+        assert total * vy < 0, (vx, vy, total)
+
+
+def test_reversing_the_steering_turns_the_car_the_other_way(model):
+    """Steered left, a car going forwards turns left (omega > 0) and one reversing turns right,
+    as a kinematic bicycle does (yaw rate v_x tan(delta) / L)."""
+    numeric, p = model.numeric, model.parameters.vector()
+    for vx in (0.5, -0.5):
+        x = np.array([0.0, 0.0, 0.0, vx, 0.0, 0.0])
+        for _ in range(50):
+            x = numeric.step(x, np.array([0.2, 0.0]), p, 0.004)
+        assert np.sign(x[5]) == np.sign(vx), (vx, x)
+
+
 def test_coasting_car_stops_without_reversing(model):
     """Released at 0.5 m/s, friction brings the car to (near) rest and never drives it backwards."""
     numeric, p = model.numeric, model.parameters.vector()
