@@ -9,7 +9,11 @@ messages, reads parameters and logs what the supervisor reports. When the newest
 older than ``stale_timeout``, ``lost`` (or none arrived yet), the car gets zero torque and
 straight wheels and rolls to a stop (said once per episode; the MPCC keeps its plan through a gap
 of up to half its horizon); while it is ``degraded`` the speed cap ramps down at ``speed_ramp``
-to ``degraded_speed``, and back up once the status has stayed ok for ``ok_hold``. With
+to ``degraded_speed``, and back up at ``speed_rise`` once the status has stayed ok as long as it
+was degraded (``ok_hold`` at most). With ``recover`` (default, torque commands) a car that has
+stood for half a second while driven is reversed towards facing along the track
+(:mod:`crs_core.control.recovery`: the MPCC never reverses, and a car stopped at the track's edge
+facing out has no forward way back). With
 ``predict`` (default) the estimate, tens of ms old when it arrives, is carried forward to the
 time the command acts with the model and the commands sent since its stamp. A controller that
 raises, or a command that is not finite or out of its limits, is answered by a stop command and a
@@ -22,7 +26,8 @@ zero velocity reference.
 
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
-``degraded_speed`` (m/s), ``speed_ramp`` (m/s^2), ``ok_hold`` (s), ``predict``, ``track_file``
+``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``recover``,
+``predict``, ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
 """
@@ -38,6 +43,7 @@ from rclpy.node import Node
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
+from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
@@ -86,11 +92,15 @@ class ControllerNode(Node):
             self, "degraded_speed", 0.5, "speed while the estimate is degraded, m/s", positive
         )
         speed_ramp = declare(
-            self, "speed_ramp", 1.5, "rate of change of the speed cap, m/s^2", positive
+            self, "speed_ramp", 1.5, "rate at which the speed cap falls, m/s^2", positive
+        )
+        speed_rise = declare(
+            self, "speed_rise", 3.0, "rate at which the speed cap rises again, m/s^2", positive
         )
         ok_hold = declare(
-            self, "ok_hold", 1.0, "ok this long before the cap ramps back up, s", non_negative
+            self, "ok_hold", 1.0, "longest wait of ok before the cap rises, s", non_negative
         )
+        recover = declare(self, "recover", True, "back a stuck car out (torque commands only)")
         model = declare_model(self)
         predict = declare(
             self, "predict", True, "predict the estimate forward to now with the commands sent"
@@ -112,6 +122,7 @@ class ControllerNode(Node):
                 degraded_speed=min(degraded_speed, max_speed),  # as the controllers clamp it
                 max_speed=max_speed,
                 ramp_rate=speed_ramp,
+                rise_rate=speed_rise,
                 ok_hold=ok_hold,
                 steer_max=limits.steer_max,
                 torque_min=limits.torque_min,
@@ -120,8 +131,11 @@ class ControllerNode(Node):
             )
         except ValueError as error:
             raise ParameterError(str(error)) from None
+        recovery = None
+        if recover and self.output == "torque":
+            recovery = StuckRecovery(track, limits.steer_max)
         self.supervisor = Supervisor(
-            controller, settings, model if predict else None, output=self.output
+            controller, settings, model if predict else None, self.output, recovery
         )
         self._log = {
             "stale": throttled_warning(self),
@@ -129,6 +143,8 @@ class ControllerNode(Node):
             "controller": throttled_warning(self),
             "fresh": self.get_logger().info,
             "recovered": self.get_logger().info,
+            "stuck": self.get_logger().warning,
+            "unstuck": self.get_logger().info,
             "failed": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
             "rejected": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
         }

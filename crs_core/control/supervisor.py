@@ -19,6 +19,9 @@ once per tick. It holds the newest state estimate ``(stamp, x, status)`` and dec
   a second, keeps the car slow, while the few degraded ticks of a link outage (dead reckoning
   until the first Lighthouse sample after it) cost no more than themselves. Waiting a fixed
   1 s there kept a car that came out of a 300 ms outage at 0.5 m/s for another 1.3 s.
+* **A stuck car is backed out** (with a :class:`~crs_core.control.recovery.StuckRecovery`):
+  standing for half a second while driven, it reverses towards facing along the track, then the
+  controller starts over from cold.
 * **Every command is checked**: finite, steering within ``±steer_max``, torque within
   ``[torque_min, torque_max]`` (velocity mode: the reference within ``[0, velocity_max]``). A
   bad one is replaced by the stop command, counted in :attr:`Supervisor.rejected_commands` and
@@ -44,6 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from crs_core.control.mpcc import OUTPUTS, Mpcc
+from crs_core.control.recovery import StuckRecovery
 from crs_core.model import CarModel
 
 __all__ = ["STATUSES", "Supervisor", "SupervisorEvent", "SupervisorSettings", "SupervisorStep"]
@@ -140,7 +144,8 @@ class SupervisorEvent:
         ``"stale"`` (the car is being stopped), ``"fresh"`` (driving again), ``"degraded"`` (the
         cap starts ramping down), ``"recovered"`` (the cap starts ramping back up),
         ``"controller"`` (the MPCC did not solve: fallback or stop), ``"failed"`` (the controller
-        raised) or ``"rejected"`` (a bad command was replaced by the stop command).
+        raised), ``"rejected"`` (a bad command was replaced by the stop command), ``"stuck"``
+        (the car stands: backing it out) or ``"unstuck"`` (the controller drives again).
     message : str
         One line saying what and why.
     """
@@ -189,6 +194,8 @@ class Supervisor:
         sent (its parameter values). None: the estimate is used as it is.
     output : {"torque", "velocity"}
         What the commands are: ``[delta, T]`` or ``[delta, v_x]`` (the MPCC only).
+    recovery : StuckRecovery, optional
+        Backs a stuck car out (torque commands only; a velocity reference cannot reverse).
     """
 
     def __init__(
@@ -197,9 +204,13 @@ class Supervisor:
         settings: SupervisorSettings | None = None,
         model: CarModel | None = None,
         output: str = "torque",
+        recovery: StuckRecovery | None = None,
     ) -> None:
         if output not in OUTPUTS:
             raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
+        if recovery is not None and output != "torque":
+            raise ValueError("recovery: backs out with torque commands only")
+        self.recovery = recovery
         self.controller = controller
         self.settings = settings or SupervisorSettings()
         self.output = output
@@ -255,6 +266,8 @@ class Supervisor:
                 )
             self._stale = True
             self._ok_since = None
+            if self.recovery is not None:
+                self.recovery.reset()
             u = self._stop(keep_plan=True, reason="state estimate stale or lost")
         else:
             if self._stale:
@@ -267,7 +280,9 @@ class Supervisor:
             self._update_cap(now, dt, float(x[3]), events)
             s = self.settings
             limit = self.speed_cap if self.speed_cap < s.max_speed else None
-            u, solve_time = self._command(now, x, limit, dt, events)
+            u = self._backing_out(now, x, events)
+            if u is None:
+                u, solve_time = self._command(now, x, limit, dt, events)
             problem = self._problem(u)
             if problem:
                 self.rejected_commands += 1
@@ -359,6 +374,29 @@ class Supervisor:
             self.speed_cap = max(self.speed_cap - s.ramp_rate * dt, s.degraded_speed)
         else:
             self.speed_cap = min(self.speed_cap + s.rise_rate * dt, s.max_speed)
+
+    def _backing_out(self, now: float, x: np.ndarray, events: list) -> np.ndarray | None:
+        """The recovery's reverse command while it backs a stuck car out, else None; the
+        controller starts over from cold once it ends."""
+        if self.recovery is None:
+            return None
+        was_active = self.recovery.active
+        u = self.recovery(now, x)
+        if u is not None and not was_active:
+            s = self.recovery.settings
+            events.append(
+                SupervisorEvent(
+                    "stuck",
+                    f"the car has stood for {s.stuck_after:g} s: reversing to face along the "
+                    f"track (backed out {self.recovery.count} time(s) so far)",
+                )
+            )
+        elif u is None and was_active:
+            events.append(SupervisorEvent("unstuck", "backed out: driving again"))
+            reset = getattr(self.controller, "reset", None)
+            if reset is not None:
+                reset()
+        return u
 
     def _command(
         self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list
