@@ -143,7 +143,8 @@ class ControllerNode(Node):
             "controller": throttled_warning(self),
             "fresh": self.get_logger().info,
             "recovered": self.get_logger().info,
-            "stuck": self.get_logger().warning,
+            # its own call site: rclpy refuses a second severity from one (the info above)
+            "stuck": lambda message: self.get_logger().warning(message),
             "unstuck": self.get_logger().info,
             "failed": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
             "rejected": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),

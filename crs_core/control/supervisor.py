@@ -50,10 +50,29 @@ from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.recovery import StuckRecovery
 from crs_core.model import CarModel
 
-__all__ = ["STATUSES", "Supervisor", "SupervisorEvent", "SupervisorSettings", "SupervisorStep"]
+__all__ = [
+    "EVENT_KINDS",
+    "STATUSES",
+    "Supervisor",
+    "SupervisorEvent",
+    "SupervisorSettings",
+    "SupervisorStep",
+]
 
 #: Statuses an estimate can carry (:mod:`crs_core.estimation.health`).
 STATUSES = ("ok", "degraded", "lost")
+#: Kinds of :class:`SupervisorEvent`.
+EVENT_KINDS = (
+    "stale",
+    "fresh",
+    "degraded",
+    "recovered",
+    "controller",
+    "failed",
+    "rejected",
+    "stuck",
+    "unstuck",
+)
 #: The stop command: straight wheels and zero torque (velocity mode: a zero reference).
 STOP = np.array([0.0, 0.0])
 STOP.flags.writeable = False
