@@ -35,6 +35,13 @@ named (indices and unknown field numbers folded, e.g. ``car_state.lighthouse_swe
 with the field and reason, throttled to one call per ``warn_period`` s (the message says how
 many were suppressed). Outgoing datagrams are counted in :attr:`CarLink.sent`.
 
+Commands are repeated: the newest reference is sent again every ``repeat_period`` s (by
+:meth:`CarLink.repeat`, called as often as the caller polls) for ``repeat_for`` s after it was
+first sent, the same bytes (its stamp is the time it was first sent). The car cuts its motors
+after 200 ms without a reference, so at the controller's 30 Hz six datagrams lost in a row
+stopped it; bad Wi-Fi loses them in bursts (6 cut-offs in a 40 s race with the ``bad`` link
+preset). A controller that stops sending still stops the car: at most ``repeat_for`` later.
+
 Stamps: measurements carry the packet's ``timestamp`` when the car sent one (its clock is
 SNTP-synchronised), else the receipt time ``now`` given to :meth:`CarLink.poll`
 (:class:`~chronos_bridge.car_state.CarStateConverter`).
@@ -205,6 +212,10 @@ class CarLink:
     max_per_poll : int
         At most this many datagrams per :meth:`poll` (a flood cannot starve the caller; the rest
         wait in the socket for the next poll).
+    repeat_period : float
+        The newest reference is sent again this often, s (0: never; :meth:`repeat`).
+    repeat_for : float
+        ... for this long after it was first sent, s.
     """
 
     def __init__(
@@ -217,6 +228,8 @@ class CarLink:
         warn: Callable[[str], None] | None = None,
         warn_period: float = 1.0,
         max_per_poll: int = 2000,
+        repeat_period: float = 0.01,
+        repeat_for: float = 0.1,
     ) -> None:
         if not 0 <= int(port) <= 65535:
             raise ValueError(f"port: must be in 0..65535, got {port!r}")
@@ -226,6 +239,9 @@ class CarLink:
             raise ValueError(f"car_port: needs car_ip (the port alone cannot pair), got {car_port}")
         if max_per_poll < 1:
             raise ValueError(f"max_per_poll: must be >= 1, got {max_per_poll}")
+        for name, value in (("repeat_period", repeat_period), ("repeat_for", repeat_for)):
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name}: must be a finite number >= 0 s, got {value!r}")
         bind = _ipv4("bind", bind)
         self.car_ip = _ipv4("car_ip", car_ip) if car_ip else ""
         self.car_port = int(car_port)
@@ -239,8 +255,12 @@ class CarLink:
         self.counts: dict[str, int] = dict.fromkeys(BUCKETS, 0)
         self.rejected_fields: dict[str, int] = {}
         self.sent: dict[str, int] = dict.fromkeys(
-            ("commands", "ping_replies", "unpaired", "invalid_commands", "send_errors"), 0
+            ("commands", "repeats", "ping_replies", "unpaired", "invalid_commands", "send_errors"),
+            0,
         )
+        self.repeat_period, self.repeat_for = float(repeat_period), float(repeat_for)
+        #: the newest reference sent: its bytes, when it was first and last sent (monotonic s)
+        self._reference: tuple[bytes, float, float] | None = None
         #: Receipt time (``now`` of poll) of the last valid datagram from the car, or ``None``.
         self.last_valid: float | None = None
         self._last_warning = -math.inf
@@ -392,7 +412,22 @@ class CarLink:
             self.sent["invalid_commands"] += 1
             self._throttled("command", f"command not sent: {error}")
             return False
+        sent_at = time.monotonic()
+        self._reference = (data, sent_at, sent_at)
         return self._send(data, "commands")
+
+    def repeat(self, now: float | None = None) -> bool:
+        """Send the newest reference again when ``repeat_period`` s have passed since it was
+        last sent and no more than ``repeat_for`` s since it was first sent; True when sent.
+        ``now``: monotonic s (default :func:`time.monotonic`)."""
+        if self._reference is None or self.repeat_period <= 0 or self.endpoint is None:
+            return False
+        now = time.monotonic() if now is None else float(now)
+        data, first, last = self._reference
+        if now - last < self.repeat_period or now - first > self.repeat_for:
+            return False
+        self._reference = (data, first, now)
+        return self._send(data, "repeats")
 
     def _send(self, data: bytes, what: str) -> bool:
         try:

@@ -376,6 +376,10 @@ def command_latencies(
     est_recv = np.array([r for _, r in estimates])
     keep = np.isfinite(sent)
     sent, read = sent[keep], read[keep]
+    # a reference the bridge repeated (the same stamp) counts once, at its first read
+    order = np.argsort(read, kind="stable")
+    _, first = np.unique(sent[order], return_index=True)
+    sent, read = sent[order][first], read[order][first]
     # the input each command was sent for: the newest stamped at or before its send stamp,
     # within one controller period (a command with no recorded input is left out)
     k = np.searchsorted(input_stamps, sent, side="right") - 1

@@ -36,8 +36,10 @@ topic                      type                        content
 Every ``input`` (``chronos_msgs/CarInput``, validated by ``conversions.input_from_msg``) is sent
 to the car at once as a ``CarReference`` (``MODE_TORQUE``: throttle + steering angle;
 ``MODE_VELOCITY``: longitudinal velocity + steering angle), stamped with the host clock: the car
-gets commands at the controller's rate (the car stops after 200 ms without one). Nothing is sent
-before the car is paired.
+gets commands at the controller's rate (the car stops after 200 ms without one). The newest one
+is sent again every ``command_repeat_period`` s (10 ms) for ``command_repeat_for`` s (0.1 s)
+after it was first sent (``CarLink.repeat``, at each poll): Wi-Fi loses datagrams in bursts,
+and six lost in a row at 30 Hz cut the motors. Nothing is sent before the car is paired.
 
 The battery and ``telemetry/*`` topics are published at ``telemetry_hz`` at most (default 50 Hz:
 the packet read when a period of the host's clock has passed); the sensor topics carry every
@@ -60,7 +62,7 @@ shutdown. Nothing a sender can put in a datagram stops the node.
 Parameters: ``port`` (20211), ``bind`` (``127.0.0.1``; ``0.0.0.0`` for a real car), ``car_ip``
 (empty: learn the car from its first valid datagram), ``car_port`` (0: learn), ``imu_sensor``
 (``imu`` | ``gyro``), ``poll_hz`` (200), ``telemetry_hz`` (50), ``diagnostics_period`` (1 s),
-``log_period`` (10 s).
+``log_period`` (10 s), ``command_repeat_period`` (0.01 s), ``command_repeat_for`` (0.1 s).
 """
 
 from __future__ import annotations
@@ -81,6 +83,7 @@ from ros4crs.node_support import (
     CheckedSubscription,
     declare,
     in_range,
+    non_negative,
     one_of,
     positive,
     run,
@@ -140,8 +143,25 @@ class BridgeNode(Node):
         )
         log_period = declare(self, "log_period", 10.0, "counts summary log period, s", positive)
         self._warn = throttled_warning(self)
+        repeat_period = declare(
+            self,
+            "command_repeat_period",
+            0.01,
+            "resend the newest command this often, s (0: no)",
+            non_negative,
+        )
+        repeat_for = declare(
+            self, "command_repeat_for", 0.1, "... for this long after it was sent, s", non_negative
+        )
         self.link = CarLink(
-            port, bind, car_ip, car_port, imu_sensor, warn=self.get_logger().warning
+            port,
+            bind,
+            car_ip,
+            car_port,
+            imu_sensor,
+            warn=self.get_logger().warning,
+            repeat_period=repeat_period,
+            repeat_for=repeat_for,
         )
         self.frame = conversions.body_frame(self.get_namespace())
         self.publish_errors = 0
@@ -186,6 +206,7 @@ class BridgeNode(Node):
 
     # ------------------------------------------------------------------ car -> ROS
     def _poll(self) -> None:
+        self.link.repeat()
         now = time.time()
         for converted in self.link.poll(now):
             try:

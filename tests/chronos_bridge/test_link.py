@@ -7,6 +7,7 @@ import socket
 import struct
 import time
 
+import numpy as np
 import pytest
 from bridge_builders import STAMP_US, make_state
 
@@ -219,3 +220,40 @@ def test_a_resent_datagram_is_converted_once_and_overtaken_ones_are_counted(link
     assert link.counts["car_state"] == 4 and link.counts["duplicate"] == 2
     assert link.arrival["reordered"] == 1
     assert "duplicate 2" in link.summary() and "arrival: reordered 1" in link.summary()
+
+
+def test_the_newest_command_is_repeated_for_a_while_then_no_more(car):
+    """Wi-Fi loses datagrams in bursts and the car stops after 200 ms without a reference: the
+    newest command is sent again, the same bytes, every repeat_period for repeat_for after it
+    was first sent; a new command takes over; a controller that stops sending stops the car."""
+    with CarLink(
+        port=0,
+        car_ip="127.0.0.1",
+        car_port=car.getsockname()[1],
+        repeat_period=0.01,
+        repeat_for=0.1,
+    ) as link:
+        assert not link.repeat(0.0)  # nothing sent yet
+        assert link.send_command([0.1, 0.2], "torque", NOW)
+        original = car.recvfrom(512)[0]
+        start = time.monotonic()
+        repeats = [t for t in start + np.arange(0.001, 0.2, 0.001) if link.repeat(t)]
+        assert np.allclose(np.diff(repeats), 0.01, atol=1.5e-3)  # every 10 ms ...
+        assert 9 <= len(repeats) <= 10 and repeats[-1] - start <= 0.1  # ... for 0.1 s
+        assert link.sent == {**link.sent, "commands": 1, "repeats": len(repeats)}
+        car.settimeout(1.0)
+        for _ in repeats:
+            assert car.recvfrom(512)[0] == original  # its stamp is the first send's
+        assert link.send_command([-0.1, 0.3], "torque", NOW + 0.1)
+        newer = car.recvfrom(512)[0]
+        assert link.repeat(time.monotonic() + 0.01)
+        assert car.recvfrom(512)[0] == newer
+
+
+def test_repeats_can_be_switched_off_and_bad_periods_name_the_field():
+    with CarLink(port=0, car_ip="127.0.0.1", car_port=9, repeat_period=0.0) as link:
+        link.send_command([0.0, 0.1], "torque", NOW)
+        assert not link.repeat(time.monotonic() + 0.05)
+    for field, value in (("repeat_period", -0.01), ("repeat_for", math.nan)):
+        with pytest.raises(ValueError, match=field):
+            CarLink(port=0, **{field: value})

@@ -140,7 +140,10 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
             x = log["x"]
         travelled = np.sum(np.hypot(np.diff(x[:, 0]), np.diff(x[:, 1])))
         assert travelled > 5.0, (i, travelled)  # it raced off (a lap is 11.6 m)
-        # every reference this car's bridge sent, this car's emulator read (and no other's)
-        sent = int(car["bridge_final_log"].split("sent: commands ")[1].split(",")[0])
+        # the references this car's bridge sent (the commands and their repeats) this car's
+        # emulator read (and no other's), but for the last ones: the cars stop first
+        sent_log = car["bridge_final_log"].split("sent: commands ")[1]
+        commands = int(sent_log.split(",")[0])
+        sent = commands + int(sent_log.split("repeats ")[1].split(",")[0])
         read = int(car["emulator_summary"].split(" commands received")[0].rsplit(" ", 1)[1])
-        assert sent > 200 and abs(sent - read) <= 2, (i, sent, read)
+        assert commands > 200 and 0.9 * sent <= read <= sent, (i, commands, sent, read)
