@@ -31,7 +31,7 @@ DOMAIN_TWO_EMULATED = 125
 
 def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
     report = run_car_stack(
-        1, "mhe", 25.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
+        1, "mhe", 20.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
     )
     assert report["node_deaths"] == []
     car = report["cars"]["car1"]
@@ -44,7 +44,7 @@ def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) ->
     counts = diagnostics["counts"]
     assert counts["car_state"] > 2000 and counts["invalid"] == counts["undecodable"] == 0
     latency = car["latency_ms"]
-    assert latency["commands_matched"] > 300
+    assert latency["commands_matched"] > 250
     chain = latency["sensor_to_command_read"]
     assert 20.0 < chain["median"] <= chain["p95"] < 100.0, latency
     assert car["motor_cutoffs"]["count"] == 0  # references at 30 Hz all the way
@@ -123,7 +123,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     report = run_car_stack(
         2,
         "mhe",
-        25.0,
+        18.0,
         tmp_path / "run",
         True,
         domain_id=DOMAIN_TWO_EMULATED,
@@ -146,4 +146,4 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
         commands = int(sent_log.split(",")[0])
         sent = commands + int(sent_log.split("repeats ")[1].split(",")[0])
         read = int(car["emulator_summary"].split(" commands received")[0].rsplit(" ", 1)[1])
-        assert commands > 200 and 0.9 * sent <= read <= sent, (i, commands, sent, read)
+        assert commands > 150 and 0.9 * sent <= read <= sent, (i, commands, sent, read)

@@ -40,14 +40,14 @@ def _race(tmp_path, preset: str, duration: float) -> tuple[dict, dict]:
 
 
 def test_typical_wifi_races_clean_laps(tmp_path, warm_codegen) -> None:
-    car, figures = _race(tmp_path, "typical", 22.0)
+    car, figures = _race(tmp_path, "typical", 19.0)
     assert figures["laps"] >= 2, figures
     assert figures["off_track"]["seconds"] == 0.0, figures["off_track"]
     assert figures["motor_cutoffs"] == 0
     assert car["estimation_rmse"]["x"] < 0.01 and car["estimation_rmse"]["y"] < 0.01
     assert car["estimator_reinitializations"] == 0
     link = car["bridge_diagnostics"]
-    assert link["counts"]["car_state"] > 3000  # 250 Hz less 2 % loss
+    assert link["counts"]["car_state"] > 2500  # 250 Hz less 2 % loss
 
 
 def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_codegen) -> None:
@@ -106,7 +106,7 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
 
 
 def test_each_outage_cuts_the_motors_and_the_car_races_again(tmp_path, warm_codegen) -> None:
-    car, figures = _race(tmp_path, "outages", 22.0)
+    car, figures = _race(tmp_path, "outages", 17.0)
     evaluated = [o for o in figures["outages"] if o["evaluated"]]
     assert len(evaluated) >= 2, figures["outages"]
     for outage in evaluated:
