@@ -37,7 +37,7 @@ Every ``input`` (``chronos_msgs/CarInput``, validated by ``conversions.input_fro
 to the car at once as a ``CarReference`` (``MODE_TORQUE``: throttle + steering angle;
 ``MODE_VELOCITY``: longitudinal velocity + steering angle), stamped with the host clock: the car
 gets commands at the controller's rate (the car stops after 200 ms without one). The newest one
-is sent again every ``command_repeat_period`` s (10 ms) for ``command_repeat_for`` s (0.1 s)
+is sent again every ``command_repeat_period`` s (20 ms) for ``command_repeat_for`` s (0.1 s)
 after it was first sent (``CarLink.repeat``, at each poll): Wi-Fi loses datagrams in bursts,
 and six lost in a row at 30 Hz cut the motors. Nothing is sent before the car is paired.
 
@@ -62,7 +62,7 @@ shutdown. Nothing a sender can put in a datagram stops the node.
 Parameters: ``port`` (20211), ``bind`` (``127.0.0.1``; ``0.0.0.0`` for a real car), ``car_ip``
 (empty: learn the car from its first valid datagram), ``car_port`` (0: learn), ``imu_sensor``
 (``imu`` | ``gyro``), ``poll_hz`` (200), ``telemetry_hz`` (50), ``diagnostics_period`` (1 s),
-``log_period`` (10 s), ``command_repeat_period`` (0.01 s), ``command_repeat_for`` (0.1 s).
+``log_period`` (10 s), ``command_repeat_period`` (0.02 s), ``command_repeat_for`` (0.1 s).
 """
 
 from __future__ import annotations
@@ -146,7 +146,7 @@ class BridgeNode(Node):
         repeat_period = declare(
             self,
             "command_repeat_period",
-            0.01,
+            0.02,
             "resend the newest command this often, s (0: no)",
             non_negative,
         )
