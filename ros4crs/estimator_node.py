@@ -166,10 +166,11 @@ class EstimatorNode(Node):
         self.received: dict[str, int] = {}
         #: Velocity-mode commands received (ignored: they carry no torque).
         self.velocity_references = 0
-        late = throttled_warning(self)  # late data and deadline misses share one throttle
+        # each its own throttle: a deadline miss on a loaded machine hid the warning of the
+        # late data that followed within the second
         self._warn = {
-            "late": late,
-            "deadline": late,
+            "late": throttled_warning(self),
+            "deadline": throttled_warning(self),
             "lag": throttled_warning(self),
             "status": throttled_warning(self),
             "restart": self.get_logger().warning,
