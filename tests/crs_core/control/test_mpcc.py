@@ -334,30 +334,16 @@ def test_the_controller_never_brakes_the_car_into_reverse(track, vx: float) -> N
         assert u[1] >= -controller.settings.brake_gain * max(vx, 0.0) - 1e-12, u
 
 
-def _on_the_centreline(track, s: float, lateral: float, heading_offset: float) -> np.ndarray:
-    x, y, heading, _ = (float(v[0]) for v in track.interpolate(np.array([s])))
-    return np.array(
-        [
-            x - lateral * math.sin(heading),
-            y + lateral * math.cos(heading),
-            heading + heading_offset,
-            0.0,
-            0.0,
-            0.0,
-        ]
-    )
-
-
 @pytest.mark.parametrize(
     "s, lateral, heading_offset", [(2.8, 0.0, 0.0), (2.8, 0.1, 0.4), (5.0, 0.1, 0.4)]
 )
-def test_from_rest_in_a_bend_the_car_drives_off(track, s, lateral, heading_offset) -> None:
+def test_from_rest_in_a_bend_the_car_drives_off(track, pose_at, s, lateral, heading_offset) -> None:
     """Standing in a bend, or a little off the path, the car drives on: 3 s on the model
     cover more than a metre of the track. Linearised at a standing car (where the steering
     has no effect), the plans stayed put in these three poses (0.35, 1.05, 0.21 m)."""
     controller = Mpcc(track)
     model, p = controller.model, controller.p
-    x = _on_the_centreline(track, s, lateral, heading_offset)
+    x = pose_at(track, s, lateral, heading_offset)
     for _ in range(90):
         u = controller(x, None, controller.settings.dt)
         x = model.numeric.step(x, u, p, controller.settings.dt)

@@ -21,20 +21,6 @@ def track():
     return load_demo_track()
 
 
-def facing_out(track, s: float, lateral: float, heading_offset: float) -> np.ndarray:
-    x, y, heading, _ = (float(v[0]) for v in track.interpolate(np.array([s])))
-    return np.array(
-        [
-            x - lateral * math.sin(heading),
-            y + lateral * math.cos(heading),
-            heading + heading_offset,
-            0.0,
-            0.0,
-            0.0,
-        ]
-    )
-
-
 def heading_error(track, x: np.ndarray) -> float:
     return float(wrap_angle(x[2] - track.project(x[0], x[1]).heading))
 
@@ -53,7 +39,7 @@ class Standing:
 
 
 @pytest.mark.parametrize("side", [1.0, -1.0])
-def test_a_car_standing_at_the_edge_facing_out_is_backed_out_to_face_along(track, side):
+def test_a_car_standing_at_the_edge_facing_out_is_backed_out_to_face_along(track, pose_at, side):
     """0.26 m off the centreline (outside the 0.23 m half-width), facing 1 rad further out, as
     the car stood after an outage in a hairpin: driven by a controller that keeps it standing,
     it is noticed after stuck_after, reversed with the steering that turns its nose in, and
@@ -63,7 +49,7 @@ def test_a_car_standing_at_the_edge_facing_out_is_backed_out_to_face_along(track
     controller = Standing()
     settings = RecoverySettings()
     supervisor = Supervisor(controller, recovery=StuckRecovery(track, 0.34, settings))
-    x = facing_out(track, 1.0, 0.26 * side, 1.0 * side)
+    x = pose_at(track, 1.0, 0.26 * side, 1.0 * side)
     start_error = abs(heading_error(track, x))
     kinds: list[tuple[float, str]] = []
     for k in range(60):
@@ -86,23 +72,23 @@ def test_a_car_standing_at_the_edge_facing_out_is_backed_out_to_face_along(track
     assert abs(track.project(x[0], x[1]).lateral_error) < 0.23
 
 
-def test_a_moving_car_is_never_backed_out(track):
+def test_a_moving_car_is_never_backed_out(track, pose_at):
     """A car rolling at walking pace through a hairpin (0.3 m/s, above stuck_speed) for 3 s,
     and one that stops for less than stuck_after, are left to the controller."""
     recovery = StuckRecovery(track, 0.34, RecoverySettings(stuck_speed=0.2, stuck_after=0.5))
-    x = facing_out(track, 5.2, 0.0, 0.0)
+    x = pose_at(track, 5.2, 0.0, 0.0)
     for k in range(90):
         x[3] = 0.3 if k % 20 else 0.0  # stops for a tick now and then
         assert recovery(k * DT, x) is None
     assert recovery.count == 0
 
 
-def test_stale_estimates_reset_the_standing_time(track):
+def test_stale_estimates_reset_the_standing_time(track, pose_at):
     """A car stopped by the supervisor (stale estimates) is not stuck: the standing time starts
     again when it drives."""
     recovery = StuckRecovery(track, 0.34, RecoverySettings(stuck_after=0.5))
     supervisor = Supervisor(Standing(), recovery=recovery)
-    x = facing_out(track, 1.0, 0.0, 0.0)
+    x = pose_at(track, 1.0, 0.0, 0.0)
     supervisor.observe(0.0, x, "ok")
     for k in range(12):  # 0.4 s driven, standing
         supervisor(k * DT)
