@@ -31,7 +31,7 @@ from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
-from crs_core.track import Track
+from crs_core.track import Track, wrap_angle
 
 __all__ = ["Mpcc", "MpccStatus"]
 
@@ -311,7 +311,7 @@ class Mpcc:
         position, yaw, speed = OFF_PLAN
         return bool(
             math.hypot(z0[0] - planned[0], z0[1] - planned[1]) > position
-            or abs(math.remainder(z0[2] - planned[2], math.tau)) > yaw
+            or abs(wrap_angle(z0[2] - planned[2])) > yaw
             or abs(z0[3] - planned[3]) > speed
         )
 

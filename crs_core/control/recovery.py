@@ -99,9 +99,9 @@ class StuckRecovery:
         """The reverse command for state ``x`` at ``now`` while backing out, else None (the
         controller drives). Call once per control tick while the car is driven."""
         s = self.settings
-        heading_error = float(wrap_angle(x[2] - self.track.project(x[0], x[1]).heading))
         if self._started is not None:
             elapsed = now - self._started
+            heading_error = self._heading_error(x)
             aligned = abs(heading_error) < s.aligned_heading and elapsed >= s.reverse_time / 4
             if elapsed >= s.reverse_time or aligned:
                 self.reset()
@@ -116,7 +116,12 @@ class StuckRecovery:
             return None
         self._started = now
         self.count += 1
-        return self._reverse(heading_error)
+        return self._reverse(self._heading_error(x))
+
+    def _heading_error(self, x: np.ndarray) -> float:
+        """The car's heading minus the track's at its projection, rad (projected only while
+        standing or backing out: a global projection every tick of a racing car is waste)."""
+        return float(wrap_angle(x[2] - self.track.project(x[0], x[1]).heading))
 
     def _reverse(self, heading_error: float) -> np.ndarray:
         """Reverse with the steering that turns the nose towards the track's direction:

@@ -291,9 +291,8 @@ class Supervisor:
         else:
             if self._stale:
                 events.append(SupervisorEvent("fresh", "state estimate is fresh: driving"))
-                reset = getattr(self.controller, "reset", None)
-                if self._mpcc is None and reset is not None:
-                    reset()
+                if self._mpcc is None:
+                    self._reset_controller()
             self._stale = False
             x = self.predicted(now)
             self._update_cap(now, dt, float(x[3]), events)
@@ -412,10 +411,14 @@ class Supervisor:
             )
         elif u is None and was_active:
             events.append(SupervisorEvent("unstuck", "backed out: driving again"))
-            reset = getattr(self.controller, "reset", None)
-            if reset is not None:
-                reset()
+            self._reset_controller()
         return u
+
+    def _reset_controller(self) -> None:
+        """Make the controller start over (``controller.reset()``, if it has one)."""
+        reset = getattr(self.controller, "reset", None)
+        if reset is not None:
+            reset()
 
     def _command(
         self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list
