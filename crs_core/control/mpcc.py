@@ -43,6 +43,8 @@ OFF_PLAN = (0.1, 0.25, 0.4)
 #: SQP iterations of a call whose car is off its plan: each costs a QP (14 ms median on this
 #: machine), and ten of them under a busy loop took 230 ms, past the car's 200 ms cut-off.
 OFF_PLAN_ITERATIONS = 3
+#: Fractions of the QP's step tried after the full one (:meth:`Mpcc._step`).
+STEP_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
 
 
 @dataclass(frozen=True)
@@ -129,6 +131,7 @@ class Mpcc:
         s = self.settings
         self._rti = self.problem.real_time_iteration()
         self._rollout = self.problem.dynamics.mapaccum("mpcc_rollout", self.problem.N)
+        self._merit_function = self.problem.merit()
         self._nxc = self.model.nx
         values = parameters or self.model.parameters
         self._wheelbase_parts = (values.value("lf"), values.value("lr"))
@@ -229,9 +232,10 @@ class Mpcc:
         stages = min(max(stages, 1), self.problem.N // 2)
         cold = self._Z is None
         iterations_now = self.settings.cold_start_iterations if cold else 1
+        Z, V = self._guess(z0, stages)
         if not cold and self._off_plan(z0, stages):
             iterations_now = OFF_PLAN_ITERATIONS
-        Z, V = self._guess(z0, stages)
+            Z, V = min((Z, V), self._driving_guess(z0), key=lambda g: self._merit(*g))
         refs = self._references(Z[:, self._nxc])
         self.last_guess = (Z.copy(), V.copy(), refs)
         iterations, reason = 0, ""
@@ -249,7 +253,7 @@ class Mpcc:
                     f"{solution.violation:.3g})"
                 )
                 break
-            Z, V = self._rolled_out(z0, solution.V), solution.V
+            Z, V = self._step(z0, Z, V, solution.V)
             iterations += solution.iterations
         if not reason or (iterations_now > 1 and iterations):  # earlier iterations count
             return self._accept(Z, V, z0, refs, iterations, started)
@@ -349,6 +353,39 @@ class Mpcc:
             theta[k + 1] = self.path.progress(car[0], car[1], theta[k])
         V[:, 2] = np.clip(np.diff(theta) / dt, 0.0, limit)
         return self._rolled_out(z0, V), V
+
+    def _step(
+        self, z0: np.ndarray, Z: np.ndarray, V: np.ndarray, V_qp: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The plan towards the QP's inputs ``V_qp`` from the guess ``(Z, V)`` (``Z`` its
+        rollout from ``z0``): the full step, or the first of its halvings (down to
+        :data:`STEP_FRACTIONS`' last) whose rollout costs no more than the guess's
+        (:meth:`_merit`); the guess itself if none costs less. A plan never costs more than
+        the guess it came from.
+
+        The QP sees the dynamics linearised at the guess. Past the tires' peak (full lock at
+        speed, entering a bend too fast) less lock gives more lateral force, and the full step
+        followed that slope from full right lock to full left lock: a car that came out of an
+        outage at the hairpin's entry at 1.95 m/s was steered out of it and braked to a stand
+        at the edge, a plan that costs 2.1 times one with its first input turned right."""
+        reference = self._merit(Z, V)
+        best = (reference, Z, V)
+        for fraction in STEP_FRACTIONS:
+            trial = V + fraction * (V_qp - V)
+            rolled = self._rolled_out(z0, trial)
+            cost = self._merit(rolled, trial)
+            if cost < best[0]:
+                best = (cost, rolled, trial)
+            if cost <= reference:
+                break
+        return best[1], best[2]
+
+    def _merit(self, Z: np.ndarray, V: np.ndarray) -> float:
+        """The nonlinear cost of the plan ``(Z, V)`` (``Z`` a rollout of ``V``), the path at
+        each stage's own progress (:meth:`MpccProblem.merit`)."""
+        refs = self._references(Z[:, self._nxc])
+        cost = self._merit_function(Z.T, V.T, refs.T, self._weights, self.p, self._half_width)
+        return float(cost)
 
     def _rolled_out(self, z0: np.ndarray, V: np.ndarray) -> np.ndarray:
         """The stage states of inputs ``V`` from ``z0`` under the nonlinear model: a guess

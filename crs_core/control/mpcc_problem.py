@@ -364,6 +364,36 @@ class MpccProblem:
             SX_OPTIONS,
         )
 
+    def merit(self) -> ca.Function:
+        """The horizon's nonlinear cost ``merit(Z, V, REF, w, p, half_width)``: the stage costs
+        (slack input ignored) and the terminal cost with the path at ``REF`` (4, N+1), plus the
+        boundary's exact penalty ``slack_linear e + slack_quadratic e^2`` on each stage's
+        excess ``e = max(|e_c| - half_width, 0)`` from stage 1 on (what the QP's slack
+        measures, on the states themselves)."""
+        N, nz, nv = self.N, self.nz, self.nv
+        Z, V = ca.SX.sym("Z", nz, N + 1), ca.SX.sym("V", nv, N)
+        REF, w = ca.SX.sym("REF", 4, N + 1), ca.SX.sym("w", len(_WEIGHTS))
+        p, half = self.model.p_sym, ca.SX.sym("half_width")
+        W = dict(zip(_WEIGHTS, ca.vertsplit(w), strict=True))
+        no_slack = ca.vertcat(V[:3, :], ca.SX.zeros(1, N))
+        stages = self.stage_cost.map(N)(Z[:, :N], no_slack, REF[:, :N], w, p)
+        contours = self.contouring_error.map(N)(Z[:, 1:], REF[:, 1:])
+        excess = ca.fmax(ca.fabs(contours) - half, 0)
+        cost = (
+            ca.sum2(stages)
+            + self.terminal_cost(Z[:, N], REF[:, N], w)
+            + W["slack_linear"] * ca.sum2(excess)
+            + W["slack_quadratic"] * ca.sumsqr(excess)
+        )
+        return ca.Function(
+            "mpcc_merit",
+            [Z, V, REF, w, p, half],
+            [cost],
+            ["Z", "V", "REF", "w", "p", "half_width"],
+            ["cost"],
+            SX_OPTIONS,
+        )
+
     # --- the real-time iteration's QP ------------------------------------------------------
     def real_time_iteration(self, solver: str | None = None) -> RtiFunctions:
         """The QP of one SQP iteration as CasADi functions (see :class:`RtiFunctions`).
