@@ -108,13 +108,14 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
 def test_each_outage_cuts_the_motors_and_the_car_races_again(tmp_path, warm_codegen) -> None:
     car, figures = _race(tmp_path, "outages", 22.0)
     evaluated = [o for o in figures["outages"] if o["evaluated"]]
-    assert len(evaluated) >= 2, figures["outages"]
     for outage in evaluated:
         assert outage["motors_cut"], outage  # 300 ms without a reference: the car stops
-    # racing again within the 1 s: every outage but one (0.02 s typically); the one
-    # that ends as the car enters the hairpin too fast (it coasted) leaves it stopped at the
-    # edge until it is backed out, 2-4 s (docs/link.md)
+    # racing again within the 1 s (0.02 s typically) after every outage but one: an
+    # outage that began under full torque just before a bend leaves the car entering it
+    # too fast (it held that torque 200 ms, then coasted), where only a stop stays near the
+    # track; it then stands at the edge until it is backed out, 1.5-2 s (docs/link.md)
     quick = [o for o in evaluated if o["recovery_s"] is not None and o["recovery_s"] <= 1.0]
     assert len(evaluated) >= 3 and len(quick) >= len(evaluated) - 1, figures["outages"]
+    assert all(o["recovery_s"] is not None and o["recovery_s"] <= 3.0 for o in evaluated)
     assert figures["laps"] >= 1
     assert np.isfinite(car["estimation_rmse"]["x"])
