@@ -13,11 +13,13 @@ to ``degraded_speed``, and back up at ``speed_rise`` once the status has stayed 
 was degraded (``ok_hold`` at most). With ``recover`` (default, torque commands) a car that has
 stood for half a second while driven is reversed towards facing along the track
 (:mod:`crs_core.control.recovery`: the MPCC never reverses, and a car stopped at the track's edge
-facing out has no forward way back). With
-``predict`` (default) the estimate, tens of ms old when it arrives, is carried forward to the
-time the command acts with the model and the commands sent since its stamp. A controller that
-raises, or a command that is not finite or out of its limits, is answered by a stop command and a
-throttled error; the node keeps running.
+facing out has no forward way back). The MPCC's iterations in one call end within
+``solve_budget`` s (default 0.08 s: the bridge repeats a command for 0.1 s, so the car never goes
+without one while the controller thinks; ten cold-start iterations took 292 ms under load, and
+the car cut its motors). With ``predict`` (default) the estimate, tens of ms old when it
+arrives, is carried forward to the time the command acts with the model and the commands sent
+since its stamp. A controller that raises, or a command that is not finite or out of its limits,
+is answered by a stop command and a throttled error; the node keeps running.
 
 With ``output`` velocity (MPCC only) it publishes ``MODE_VELOCITY`` commands ``[delta, v_x]`` for
 a car that tracks its speed on board (the MPCC's planned speed a short lead ahead; the simulator
@@ -27,7 +29,7 @@ zero velocity reference.
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
 ``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``recover``,
-``predict``, ``track_file``
+``solve_budget`` (s), ``predict``, ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
 """
@@ -101,13 +103,21 @@ class ControllerNode(Node):
             self, "ok_hold", 1.0, "longest wait of ok before the cap rises, s", non_negative
         )
         recover = declare(self, "recover", True, "back a stuck car out (torque commands only)")
+        solve_budget = declare(
+            self,
+            "solve_budget",
+            0.08,
+            "MPCC: wall time within which a call's SQP iterations end, s (0: no limit)",
+            non_negative,
+        )
         model = declare_model(self)
         predict = declare(
             self, "predict", True, "predict the estimate forward to now with the commands sent"
         )
         track = declare_track(self)
         if kind == "mpcc":
-            controller = Mpcc(track, model, MpccSettings(rate_hz=rate_hz), output=self.output)
+            tuning = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
+            controller = Mpcc(track, model, tuning, output=self.output)
             limits = controller.settings
             max_speed = limits.progress_speed_max
         else:

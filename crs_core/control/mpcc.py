@@ -239,8 +239,12 @@ class Mpcc:
         refs = self._references(Z[:, self._nxc])
         self.last_guess = (Z.copy(), V.copy(), refs)
         iterations, reason = 0, ""
+        budget, iteration_time = self.settings.solve_time_budget, 0.0
         for iteration in range(iterations_now):
+            iteration_started = time.perf_counter()
             if iteration:
+                if budget and iteration_started + iteration_time - started > budget:
+                    break
                 refs = self._references(Z[:, self._nxc])
             try:
                 solution = self._solve_qp(Z, V, refs)
@@ -255,6 +259,7 @@ class Mpcc:
                 break
             Z, V = self._step(z0, Z, V, solution.V)
             iterations += solution.iterations
+            iteration_time = time.perf_counter() - iteration_started
         if not reason or (iterations_now > 1 and iterations):  # earlier iterations count
             return self._accept(Z, V, z0, refs, iterations, started)
         return self._fall_back(Z, V, z0, started, reason)

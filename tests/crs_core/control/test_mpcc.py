@@ -409,3 +409,17 @@ def test_no_plan_costs_more_than_the_guess_it_came_from(track, pose_at) -> None:
         Z, V = controller.plan
         assert controller._merit(Z, V) <= controller._merit(Z_guess, V_guess) + 1e-9
         x = model.numeric.step(x, u, p, dt)
+
+
+def test_a_solve_time_budget_ends_the_iterations_of_a_call(track) -> None:
+    """With a budget shorter than one SQP iteration, a cold start makes one iteration (the
+    same plan as ``cold_start_iterations=1``), not ten; without one (0) it makes ten."""
+    x = _start(track, 1.0)
+    hurried = Mpcc(track, settings=MpccSettings(solve_time_budget=1e-9))
+    once = Mpcc(track, settings=MpccSettings(cold_start_iterations=1))
+    unhurried = Mpcc(track)
+    for controller in (hurried, once, unhurried):
+        controller(x)
+    np.testing.assert_allclose(hurried.plan[1], once.plan[1])
+    assert hurried.status.qp_iterations == once.status.qp_iterations
+    assert unhurried.status.qp_iterations > 3 * once.status.qp_iterations
