@@ -35,6 +35,8 @@ from crs_core.parameters import ParameterSet
 
 #: The paper's open-loop horizon, s.
 DEFAULT_HORIZON_S = 2.0
+#: The compiled maps take a multiple of this many starts (see :class:`OpenLoopPredictor`).
+CAPACITY_STEP = 128
 
 
 @dataclass
@@ -90,18 +92,22 @@ class OpenLoopPredictor:
         self.steps = int(np.max(self.end[self.starts] - self.starts))
         self._sub_u, self._sub_h = _substeps(dataset)
         n = len(self.starts)
+        # compiled for the number of starts rounded up to a multiple of CAPACITY_STEP (a
+        # compile per exact number made 20 of them in the test suite); the columns past n
+        # repeat the last start
+        self._capacity = CAPACITY_STEP * math.ceil(n / CAPACITY_STEP)
         functions = compile_functions(
             [
                 model.step_function(1, "rk4_validation").map(
-                    "rk4_validation_map", "serial", n, [], []
+                    "rk4_validation_map", "serial", self._capacity, [], []
                 ),
                 ca.Function(
                     "h_validation",
                     [model.x_sym, model.u_sym, model.p_sym],
                     [ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))],
-                ).map("h_validation_map", "serial", n, [], []),
+                ).map("h_validation_map", "serial", self._capacity, [], []),
             ],
-            f"fie_validation_{model.tag}_{model.n_base_stations}bs_{n}",
+            f"fie_validation_{model.tag}_{model.n_base_stations}bs_{self._capacity}",
         )
         self._step, self._output = functions["rk4_validation_map"], functions["h_validation_map"]
 
@@ -109,26 +115,29 @@ class OpenLoopPredictor:
         """Predict with the model's parameter vector ``p`` (default: the model's own)."""
         t, u, starts, n = self.dataset.t, self.dataset.u, self.starts, len(self.starts)
         p = self.model.parameters.vector() if p is None else np.asarray(p, dtype=float)
-        p_all = np.tile(p[:, None], (1, n))
-        x = self.states[starts].T.copy()
+        capacity = self._capacity
+        padded = np.concatenate((starts, np.full(capacity - n, starts[-1])))
+        p_all = np.tile(p[:, None], (1, capacity))
+        x = self.states[padded].T.copy()
         positions = np.full((n, self.steps, 2), np.nan)
         predicted = np.full((n, self.steps, len(Y_CHANNELS)), np.nan)
         for i in range(self.steps):
-            k = starts + i  # interval being integrated, per start
-            active = k + 1 <= self.end[starts]
+            k = padded + i  # interval being integrated, per start
+            active = k + 1 <= self.end[padded]
             kk = np.minimum(k, len(t) - 2)
             for s in range(self._sub_h.shape[1]):
                 h_s = np.where(active, self._sub_h[kk, s], 0.0)
                 if not np.any(h_s > 0):
                     break
                 x = self._step(x, self._sub_u[kk, s].T, p_all, h_s)[0].reshape(
-                    self.model.nx, n, order="F"
+                    self.model.nx, capacity, order="F"
                 )
-            positions[active, i] = x[:2, active].T
+            ours = active[:n]
+            positions[ours, i] = x[:2, :n][:, ours].T
             if outputs:
                 u_next = u[np.minimum(kk + 1, len(t) - 1)].T
-                y = self._output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), n, order="F").T
-                predicted[active, i] = y[active]
+                y = self._output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), capacity, order="F")
+                predicted[ours, i] = y[:, :n][:, ours].T
         return OpenLoopPrediction(self.horizon_s, starts, self.steps, positions, predicted)
 
 
