@@ -7,6 +7,10 @@ that shares two cores with the compilers of the others, and on fresh clones the 
 about 7 s after the rest; a race of ``--duration`` s raced for 20 s less. :func:`warm_compile_cache`
 builds the same objects the nodes build, one after the other in the launcher, so that every node
 then loads its functions from the cache (about 1.5 s for all of them when they are there).
+
+``python -m launch_scripts.warm_cache`` is the last step of ``./run.sh``'s set-up: it compiles
+the functions of the main job's stack and of the EKF, so that a fresh clone's first run, and its
+test suite, start from a warm cache.
 """
 
 from __future__ import annotations
@@ -18,7 +22,11 @@ __all__ = ["warm_compile_cache"]
 
 
 def warm_compile_cache(
-    estimator: str, controller: str, output: str, params_file: Path | None = None
+    estimator: str,
+    controller: str,
+    output: str,
+    params_file: Path | None = None,
+    label: str = "[launch]",
 ) -> float:
     """Build (and so compile and cache) the estimator's, the controller's and the simulated
     car's functions with the nodes' default settings, with a line before and after on stdout;
@@ -34,6 +42,8 @@ def warm_compile_cache(
         The controller's output.
     params_file : Path, optional
         The parameter YAML the nodes get.
+    label : str
+        Prefix of the two lines printed.
     """
     from chronos_bridge.emulator import CarEmulator
     from crs_core.control.mpcc import Mpcc
@@ -42,7 +52,7 @@ def warm_compile_cache(
     from crs_core.model import CarModel
     from crs_core.track import load_demo_track
 
-    print("[launch] preparing the compiled model functions (compiled once, then cached)")
+    print(f"{label} preparing the compiled model functions (compiled once, then cached)")
     started = time.perf_counter()
     model = CarModel()
     if params_file is not None:
@@ -53,5 +63,16 @@ def warm_compile_cache(
         Mpcc(load_demo_track(), model, MpccSettings(rate_hz=30.0), output=output)
     CarEmulator()  # the simulator's truth model with the onboard loop
     elapsed = time.perf_counter() - started
-    print(f"[launch] compiled model functions ready in {elapsed:.1f} s")
+    print(f"{label} compiled model functions ready in {elapsed:.1f} s")
     return elapsed
+
+
+def main() -> int:
+    """Compile the main job's stack (MHE, MPCC, the simulated car) and the EKF."""
+    warm_compile_cache("mhe", "mpcc", "torque", label="[setup]")
+    warm_compile_cache("ekf", "path", "torque", label="[setup]")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
