@@ -48,6 +48,7 @@ def result(train) -> DiscrepancyResult:
     settings = DiscrepancySettings(
         identification=FieSettings(fit=("Cm1", "Df", "Dr", "Iz"), process_scale=0.1),
         candidates=("gyro_bias", "steering_offset"),
+        workers=2,  # one candidate per core: the same fits, in half the time
     )
     return find_discrepancy(train, CarModel(), validation, settings)
 
