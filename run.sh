@@ -158,8 +158,8 @@ for path in pathlib.Path(sys.argv[1]).glob("*/cmake/*.cmake"):
 PYEOF
 }
 
-# Compiles the generated C code of the main job's stack and the EKF into $CRS_CACHE_DIR (about
-# 30 s on a cold cache, 3 s to check a warm one), so that the first run and the tests load it.
+# Compiles the generated C code of the main job's stack and the EKF into $CRS_CACHE_DIR (17-24 s
+# on a cold cache, 2.5 s to check a warm one), so that the first run and the tests load it.
 warm_compile() {
     mkdir -p "$CRS_CACHE_DIR"
     "$VENV/bin/python" -m launch_scripts.warm_cache || die "compiling the model functions failed"

@@ -95,19 +95,20 @@ class OpenLoopPredictor:
         # compiled for the number of starts rounded up to a multiple of CAPACITY_STEP (a
         # compile per exact number made 20 of them in the test suite); the columns past n
         # repeat the last start
-        self._capacity = CAPACITY_STEP * math.ceil(n / CAPACITY_STEP)
+        capacity = CAPACITY_STEP * math.ceil(n / CAPACITY_STEP)
+        self._padded = np.concatenate((self.starts, np.full(capacity - n, self.starts[-1])))
         functions = compile_functions(
             [
                 model.step_function(1, "rk4_validation").map(
-                    "rk4_validation_map", "serial", self._capacity, [], []
+                    "rk4_validation_map", "serial", capacity, [], []
                 ),
                 ca.Function(
                     "h_validation",
                     [model.x_sym, model.u_sym, model.p_sym],
                     [ca.vertcat(*(model.output_expressions[name] for name, _ in Y_LAYOUT))],
-                ).map("h_validation_map", "serial", self._capacity, [], []),
+                ).map("h_validation_map", "serial", capacity, [], []),
             ],
-            f"fie_validation_{model.tag}_{model.n_base_stations}bs_{self._capacity}",
+            f"fie_validation_{model.tag}_{model.n_base_stations}bs_{capacity}",
         )
         self._step, self._output = functions["rk4_validation_map"], functions["h_validation_map"]
 
@@ -115,8 +116,8 @@ class OpenLoopPredictor:
         """Predict with the model's parameter vector ``p`` (default: the model's own)."""
         t, u, starts, n = self.dataset.t, self.dataset.u, self.starts, len(self.starts)
         p = self.model.parameters.vector() if p is None else np.asarray(p, dtype=float)
-        capacity = self._capacity
-        padded = np.concatenate((starts, np.full(capacity - n, starts[-1])))
+        padded = self._padded
+        capacity = len(padded)
         p_all = np.tile(p[:, None], (1, capacity))
         x = self.states[padded].T.copy()
         positions = np.full((n, self.steps, 2), np.nan)
