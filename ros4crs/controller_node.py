@@ -18,8 +18,12 @@ facing out has no forward way back). The MPCC's iterations in one call end withi
 without one while the controller thinks; ten cold-start iterations took 292 ms under load, and
 the car cut its motors). With ``predict`` (default) the estimate, tens of ms old when it
 arrives, is carried forward to the time the command acts with the model and the commands sent
-since its stamp. A controller that raises, or a command that is not finite or out of its limits,
-is answered by a stop command and a throttled error; the node keeps running.
+since its stamp: the tick plus the command delay, measured by matching the car's reports of the
+drive power it applies (``input/applied``) to the commands' torques
+(:mod:`crs_core.control.command_delay`; ``command_delay`` s until measured, and in velocity
+mode or in the simulator, which report none). A controller that raises, or a command that is
+not finite or out of its limits, is answered by a stop command and a throttled error; the node
+keeps running.
 
 With ``output`` velocity (MPCC only) it publishes ``MODE_VELOCITY`` commands ``[delta, v_x]`` for
 a car that tracks its speed on board (the MPCC's planned speed a short lead ahead; the simulator
@@ -29,7 +33,7 @@ zero velocity reference.
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
 ``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``recover``,
-``solve_budget`` (s), ``predict``, ``track_file``
+``solve_budget`` (s), ``predict``, ``command_delay`` (s), ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
 """
@@ -42,6 +46,7 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
+from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
@@ -114,6 +119,13 @@ class ControllerNode(Node):
         predict = declare(
             self, "predict", True, "predict the estimate forward to now with the commands sent"
         )
+        initial_delay = declare(
+            self,
+            "command_delay",
+            CommandDelaySettings.initial,
+            "delay from a tick to the car applying its command until measured, s",
+            non_negative,
+        )
         track = declare_track(self)
         if kind == "mpcc":
             tuning = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
@@ -139,13 +151,14 @@ class ControllerNode(Node):
                 torque_max=limits.torque_max,
                 velocity_max=conversions.VELOCITY_LIMIT,
             )
+            delay = CommandDelay(CommandDelaySettings(initial=initial_delay))
         except ValueError as error:
             raise ParameterError(str(error)) from None
         recovery = None
         if recover and self.output == "torque":
             recovery = StuckRecovery(track, limits.steer_max)
         self.supervisor = Supervisor(
-            controller, settings, model if predict else None, self.output, recovery
+            controller, settings, model if predict else None, self.output, recovery, delay
         )
         self._log = {
             "stale": throttled_warning(self),
@@ -164,6 +177,14 @@ class ControllerNode(Node):
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_QOS
         )
+        self._applied = CheckedSubscription(
+            self,
+            CarInput,
+            conversions.TOPICS["applied_input"],
+            conversions.input_from_msg,
+            self._on_applied,
+            "applied input",
+        )
         self._estimates = CheckedSubscription(
             self,
             CarState,
@@ -180,7 +201,12 @@ class ControllerNode(Node):
     def _on_state(self, value: tuple[float, np.ndarray, str]) -> None:
         self.supervisor.observe(*value)
 
+    def _on_applied(self, applied: conversions.CarCommand) -> None:
+        if applied.mode == "torque":
+            self.supervisor.command_delay.applied(applied.stamp, float(applied.u[1]))
+
     def _control(self) -> None:
+        self._applied.take_pending()
         self._estimates.take_pending()  # act on the newest estimate that has arrived
         now = self.get_clock().now().nanoseconds * 1e-9
         step = self.supervisor(now)
@@ -194,10 +220,13 @@ class ControllerNode(Node):
         self.solve_times.append(seconds)
         self._calls += 1
         if self._calls % self.solve_times.maxlen == 0:  # every 30 s at 30 Hz
+            delay = self.supervisor.command_delay
             ms = 1e3 * np.array(self.solve_times)
             self.get_logger().info(
                 f"controller call: median {np.median(ms):.2f} ms, "
-                f"p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms"
+                f"p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms; command delay "
+                f"{1e3 * delay.delay:.1f} ms ({delay.matched} commands matched to the car's "
+                "reports)"
             )
 
 

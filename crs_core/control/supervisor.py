@@ -8,8 +8,10 @@ once per tick. It holds the newest state estimate ``(stamp, x, status)`` and dec
   the stop command (straight wheels, zero torque; in velocity mode a zero velocity reference),
   so the car rolls to a stop; each such episode is counted in :attr:`Supervisor.stops`. The MPCC
   keeps its plan through a gap of up to half its horizon (:meth:`Mpcc.stop`).
-* **Fresh**: the controller's command for the estimate carried forward to ``now`` with the model
-  and the commands sent since its stamp (the estimate is tens of ms old when it arrives), under a
+* **Fresh**: the controller's command for the estimate carried forward with the model and the
+  commands sent since its stamp to when the command will act: ``now`` plus the command delay
+  measured on the link (:class:`~crs_core.control.command_delay.CommandDelay`; the estimate is
+  tens of ms old when it arrives, the command acts tens of ms after the tick), under a
   **speed cap** that ramps, never steps. While the status is ``degraded`` the cap falls at
   ``ramp_rate`` to ``degraded_speed``, starting from the lower of the current cap and the car's
   speed (a step from 4 to 0.5 m/s at 1.1 m/s gave full-lock steering and braking into reverse
@@ -46,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from crs_core.control.command_delay import CommandDelay
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.recovery import StuckRecovery
 from crs_core.model import CarModel
@@ -215,6 +218,10 @@ class Supervisor:
         What the commands are: ``[delta, T]`` or ``[delta, v_x]`` (the MPCC only).
     recovery : StuckRecovery, optional
         Backs a stuck car out (torque commands only; a velocity reference cannot reverse).
+    command_delay : CommandDelay, optional
+        Measures how long after a tick its command acts (fed by the caller with the car's
+        reports, :meth:`CommandDelay.applied`); the estimate is carried that far beyond the
+        tick. None: to the tick.
     """
 
     def __init__(
@@ -224,12 +231,14 @@ class Supervisor:
         model: CarModel | None = None,
         output: str = "torque",
         recovery: StuckRecovery | None = None,
+        command_delay: CommandDelay | None = None,
     ) -> None:
         if output not in OUTPUTS:
             raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
         if recovery is not None and output != "torque":
             raise ValueError("recovery: backs out with torque commands only")
         self.recovery = recovery
+        self.command_delay = command_delay
         self.controller = controller
         self.settings = settings or SupervisorSettings()
         self.output = output
@@ -316,30 +325,35 @@ class Supervisor:
         self._sent.append((now, self._model_input(u)))
         while len(self._sent) > 1 and self._sent[1][0] <= now - self.settings.stale_timeout:
             self._sent.popleft()
+        if self.command_delay is not None and self.output == "torque":
+            self.command_delay.sent(now, float(u[1]))
         return SupervisorStep(u, not self._stale, self.speed_cap, tuple(events), solve_time)
 
     def predicted(self, now: float) -> np.ndarray:
-        """The newest estimate carried forward to ``now``, when the command will act, with the
-        model and the commands sent since its stamp, each from its own tick (the estimate is
-        tens of ms old: the estimator's lag and the transport; on an emulated lap the carried
-        state is 3.9 mm from the truth (median; 54 mm not carried), and the commands' history
-        matters once estimates are older than a control period); as it is without a model.
-        Only the last ``stale_timeout`` s are carried over."""
+        """The newest estimate carried forward to when a command issued at ``now`` acts (``now``
+        plus the command delay, if measured), with the model and the commands sent since its
+        stamp, each acting from its own tick plus that delay (the estimate is tens of ms old:
+        the estimator's lag and the transport; on an emulated lap the state carried to the tick
+        is 3.9 mm from the truth (median; 54 mm not carried), and the commands' history matters
+        once estimates are older than a control period); as it is without a model. Only the
+        last ``stale_timeout`` s are carried over."""
         if self._latest is None:
             raise ValueError("no estimate observed yet")
         stamp, x, _ = self._latest
-        if self._numeric is None or now <= stamp:
+        delay = self.command_delay.delay if self.command_delay is not None else 0.0
+        target = now + delay
+        if self._numeric is None or target <= stamp:
             return x
-        t = max(stamp, now - self.settings.stale_timeout)
+        t = max(stamp, target - self.settings.stale_timeout)
         sent = self._sent
         for k, (_issued, u) in enumerate(sent):
-            until = sent[k + 1][0] if k + 1 < len(sent) else now
+            until = sent[k + 1][0] + delay if k + 1 < len(sent) else target
             if until <= t:
                 continue  # replaced before the estimate's stamp
             x = self._numeric.step(x, u, self._p, until - t)
             t = until
-        if t < now:  # no command sent yet (the first tick)
-            x = self._numeric.step(x, STOP, self._p, now - t)
+        if t < target:  # no command sent yet (the first tick)
+            x = self._numeric.step(x, STOP, self._p, target - t)
         return x
 
     # --- steps ---------------------------------------------------------------------------

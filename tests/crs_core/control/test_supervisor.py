@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
 from crs_core.control.supervisor import STOP, Supervisor, SupervisorSettings
 from crs_core.model import CarModel
 
@@ -239,3 +240,32 @@ def test_prediction_over_the_commands_sent_equals_stepping_the_model_by_hand():
     no_model = Supervisor(Recorder())
     no_model.observe(0.0, x0, "ok")
     assert np.array_equal(no_model.predicted(0.04), x0)
+
+
+def test_with_a_command_delay_the_estimate_is_carried_to_when_the_command_acts():
+    """A command acts ``delay`` after its tick: the estimate is carried to ``now + delay``,
+    each command sent acting from its own tick plus the delay; the torque of each tick's
+    command is recorded for the measurement."""
+    model = CarModel()
+    numeric, p = model.numeric, model.parameters.vector()
+    commands = [np.array([0.05 * k, 0.1 + 0.05 * k]) for k in range(10)]
+    delay = CommandDelay(CommandDelaySettings(initial=0.045))
+    supervisor = Supervisor(
+        Recorder(lambda k: commands[k]), SupervisorSettings(), model=model, command_delay=delay
+    )
+    x0 = state(1.2)
+    ticks = [k * DT for k in range(5)]
+    for now in ticks[:4]:
+        supervisor.observe(now, x0, "ok")
+        supervisor(now)
+    stamp = ticks[2] + 0.005
+    supervisor.observe(stamp, x0, "ok")
+    now = ticks[4]
+    carried = supervisor.predicted(now)
+    # at the stamp the car still applies the command of tick 0 (tick 1's acts from 78 ms)
+    x = numeric.step(x0, commands[0], p, ticks[1] + 0.045 - stamp)
+    x = numeric.step(x, commands[1], p, ticks[2] - ticks[1])
+    x = numeric.step(x, commands[2], p, ticks[3] - ticks[2])
+    x = numeric.step(x, commands[3], p, now - ticks[3])
+    np.testing.assert_allclose(carried, x, rtol=0, atol=1e-12)
+    assert delay.applied(ticks[3] + 0.04, float(commands[3][1])) == pytest.approx(0.04)
