@@ -97,7 +97,7 @@ class ReplayerNode(Node):
 
     def _open_bag(self) -> tuple[Reader, list]:
         """The open reader (kept open while replaying: messages are read as they are due, not
-        loaded at once) and the wanted connections."""
+        loaded at once) and the wanted connections that hold messages."""
         if not self.bag:
             raise ValueError("bag: no bag directory given")
         try:
@@ -107,7 +107,10 @@ class ReplayerNode(Node):
             reason = " ".join(str(error).split()) or type(error).__name__
             where = "" if str(Path(self.bag)) in reason else f"cannot read {self.bag}: "
             raise ValueError(f"bag: {where}{reason}") from None
-        return reader, [c for c in reader.connections if self._wanted(c.topic)]
+        # a topic that was only subscribed to while recording has no message: no publisher for
+        # it (its subscribers would be waited for, and a replay into a node that does not
+        # subscribe to it would never start)
+        return reader, [c for c in reader.connections if c.msgcount > 0 and self._wanted(c.topic)]
 
     def _stream(self) -> Iterator[tuple[str, int, bytes]]:
         """``(topic, log time ns, CDR bytes)`` of the wanted messages, in log-time order."""
