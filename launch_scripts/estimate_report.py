@@ -10,12 +10,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 from matplotlib.gridspec import GridSpec
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from crs_core.analysis.figures import (
@@ -127,7 +125,7 @@ def error_bands(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | 
 def write_figure(result: OfflineEstimates, dataset: Dataset, path: Path, title: str) -> Path:
     """``estimate.png``: the x-y path (with DEMO_TRACK and the reference), the six states, and
     the x, y, yaw error against the reference with the estimator's ±2σ band over time."""
-    fig = plt.figure(figsize=(22, 9.5))
+    fig = Figure(figsize=(22, 9.5))
     grid = GridSpec(
         1, 3, figure=fig, width_ratios=(1.0, 1.15, 1.15), wspace=0.2, left=0.04, right=0.985
     )
@@ -142,7 +140,6 @@ def write_figure(result: OfflineEstimates, dataset: Dataset, path: Path, title: 
     _plot_errors(error_axes, result, dataset)
     fig.suptitle(title)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return path
 
 
@@ -171,7 +168,7 @@ def _plot_errors(axes, result: OfflineEstimates, dataset: Dataset) -> None:
     handles = []
     if bands is not None:
         handles.append(
-            plt.Line2D([], [], color="tab:blue", lw=0.7, label=f"estimate − {_reference(dataset)}")
+            Line2D([], [], color="tab:blue", lw=0.7, label=f"estimate − {_reference(dataset)}")
         )
     handles.append(Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL))
     handles += [
@@ -228,9 +225,9 @@ def _plot_states(axes, result: OfflineEstimates, dataset: Dataset) -> None:
         ax.grid(alpha=0.3)
         if i < 5:
             ax.tick_params(labelbottom=False)
-    handles = [plt.Line2D([], [], color="tab:blue", lw=0.8, label="estimate")]
+    handles = [Line2D([], [], color="tab:blue", lw=0.8, label="estimate")]
     if reference is not None:
-        handles.append(plt.Line2D([], [], color="0.45", lw=1.0, label=_reference(dataset)))
+        handles.append(Line2D([], [], color="0.45", lw=1.0, label=_reference(dataset)))
     handles += [Patch(color=c, alpha=0.25, label=s) for s, c in STATUS_COLOURS.items()]
     axes[0].legend(
         handles=handles, loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize=8, ncol=4

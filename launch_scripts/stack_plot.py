@@ -95,10 +95,8 @@ def plot(
     x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
     ±2σ band of the covariance the estimator published. ``truths`` (per car number) replaces
     the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the figure's title."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
+    from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
     track = track or load_demo_track()
@@ -113,7 +111,7 @@ def plot(
             runs[i] = (estimates, truth, *estimate_errors(estimates, truth))
     t0 = min((run[0].t[0] for run in runs.values()), default=0.0)
 
-    fig = plt.figure(figsize=(13.5, 7.5), layout="constrained")
+    fig = Figure(figsize=(13.5, 7.5), layout="constrained")
     grid = fig.add_gridspec(3, 2, width_ratios=(1.2, 1))
     ax = fig.add_subplot(grid[:, 0])
     error_axes = [fig.add_subplot(grid[0, 1])]
@@ -174,7 +172,7 @@ def plot(
         if k < 2:
             axis.tick_params(labelbottom=False)
     handles = [
-        plt.Line2D([], [], color=f"C{2 * i - 1}", lw=0.8, label=f"car{i} estimate − truth")
+        Line2D([], [], color=f"C{2 * i - 1}", lw=0.8, label=f"car{i} estimate − truth")
         for i in runs
     ]
     band_colour = f"C{2 * next(iter(runs)) - 1}" if len(runs) == 1 else "0.5"
@@ -188,4 +186,3 @@ def plot(
         title or f"ROS 2 stack in simulation: {cars} car(s), {name} vs the simulator's truth"
     )
     fig.savefig(out / "path.png", dpi=110)
-    plt.close(fig)

@@ -21,11 +21,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from crs_core.analysis.figures import (
@@ -186,7 +184,6 @@ def write_report(
 
 def _save(fig, path: Path, dpi: int) -> None:
     fig.savefig(path, dpi=dpi)
-    plt.close(fig)
 
 
 def _summary_text(result: SimulationResult, summary: dict[str, Any]) -> str:
@@ -223,7 +220,8 @@ def _summary_text(result: SimulationResult, summary: dict[str, Any]) -> str:
 def path_figure(result: SimulationResult, track: Track):
     """``path.png``: track borders, centreline, the true path coloured by forward speed (scale
     from :func:`speed_colour_limits`), start marker and colour bar."""
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig = Figure(figsize=(8, 6))
+    ax = fig.subplots()
     for edge, label in zip(track.borders(), ("track borders", None), strict=True):
         ax.plot(edge[:, 0], edge[:, 1], color="0.3", lw=1, label=label)
     ax.plot(track.x, track.y, "--", color="0.6", lw=0.8, label="centerline")
@@ -269,14 +267,8 @@ def sensors_figure(result: SimulationResult):
     photodiode's offset, then wheel speeds, IMU, yaw rate, steering and torque commands."""
     stations = _lighthouse_stations(result)
     heights = [1.0, 0.9, 0.9] * len(stations) + [0.9, 0.9, 0.9, 0.7, 0.7]
-    fig, axes = plt.subplots(
-        len(heights),
-        1,
-        figsize=(11, 1.9 * sum(heights) + 0.6),
-        sharex=True,
-        gridspec_kw={"height_ratios": heights},
-        layout="constrained",
-    )
+    fig = Figure(figsize=(11, 1.9 * sum(heights) + 0.6), layout="constrained")
+    axes = fig.subplots(len(heights), 1, sharex=True, gridspec_kw={"height_ratios": heights})
     for k, station in enumerate(stations):
         _plot_lighthouse(result, station, axes[3 * k : 3 * k + 3])
     axes = axes[3 * len(stations) :]
@@ -345,7 +337,8 @@ def estimation_figure(estimation: dict[str, Any]):
     summary = estimation["summary"]
     t = estimates.t
     lost = estimates.status == "lost"
-    fig, axes = plt.subplots(3, 1, figsize=(11, 7.5), sharex=True, layout="constrained")
+    fig = Figure(figsize=(11, 7.5), layout="constrained")
+    axes = fig.subplots(3, 1, sharex=True)
     for k, (ax, (name, unit, factor)) in enumerate(zip(axes, ERROR_COMPONENTS, strict=True)):
         error = estimation["errors"][:, k] * factor
         sigma = np.where(lost, np.nan, estimation["sigmas"][:, k] * factor)
@@ -356,7 +349,7 @@ def estimation_figure(estimation: dict[str, Any]):
         label_band_panel(ax, name, unit, [("", band_statistics(error, sigma))], off_scale)
         ax.grid(alpha=0.3)
     handles = [
-        plt.Line2D([], [], color="tab:blue", lw=0.7, label="estimate − simulation truth"),
+        Line2D([], [], color="tab:blue", lw=0.7, label="estimate − simulation truth"),
         Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL),
         *(
             Patch(color=c, alpha=0.8, label=f"status {s} (bottom strip)")

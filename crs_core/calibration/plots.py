@@ -1,4 +1,4 @@
-"""Figures of a calibration (matplotlib, Agg backend; imported only when drawing).
+"""Figures of a calibration (matplotlib, object-oriented API; imported only when drawing).
 
 Static: ``angle_residuals.png`` (per point, station, plane and photodiode),
 ``position_residuals.png`` (floor map with the reprojection errors drawn 30x enlarged, and
@@ -21,28 +21,18 @@ _PLANE_MARKERS = {1: "o", 2: "s"}
 _DIODE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red")
 
 
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def static_figures(out: Path, summary: dict[str, Any], fixes: list | None = None) -> list[Path]:
     """Draw the three static figures into ``out``; ``fixes``: per point the all-station fix
     ``(x, y, yaw)`` or None (the arrows). Returns the paths."""
-    plt = _pyplot()
+    from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
 
     points = summary["per_point"]
     paths = []
     # --- angle residuals per point ---------------------------------------------------------
     keys = sorted({k for p in points for k in p["angle_residuals_rad"]})
-    fig, axes = plt.subplots(
-        len(keys), 1, figsize=(10, 2.2 + 1.6 * len(keys)), sharex=True, squeeze=False
-    )
+    fig = Figure(figsize=(10, 2.2 + 1.6 * len(keys)))
+    axes = fig.subplots(len(keys), 1, sharex=True, squeeze=False)
     for ax, key in zip(axes[:, 0], keys, strict=True):
         for k in range(4):
             xs = [p["index"] + (k - 1.5) * 0.12 for p in points if key in p["angle_residuals_rad"]]
@@ -67,11 +57,10 @@ def static_figures(out: Path, summary: dict[str, Any], fixes: list | None = None
     fig.suptitle("Sweep-angle residuals per point (measured mean − model; ○ plane 1, □ plane 2)")
     axes[-1, 0].set_xlabel("point index")
     fig.tight_layout(rect=(0, 0.04, 1, 1))
-    paths.append(_save(fig, out / "angle_residuals.png", plt))
+    paths.append(_save(fig, out / "angle_residuals.png"))
     # --- floor map and error per point ------------------------------------------------------
-    fig, (ax_map, ax_bar) = plt.subplots(
-        1, 2, figsize=(13, 5.2), gridspec_kw={"width_ratios": [1.35, 1]}
-    )
+    fig = Figure(figsize=(13, 5.2))
+    ax_map, ax_bar = fig.subplots(1, 2, gridspec_kw={"width_ratios": [1.35, 1]})
     xy = np.array([p["position_m"] for p in points])
     errors = np.array(
         [np.nan if p["position_error_m"] is None else p["position_error_m"] for p in points],
@@ -115,11 +104,12 @@ def static_figures(out: Path, summary: dict[str, Any], fixes: list | None = None
     ax_bar.grid(alpha=0.3, axis="y")
     ax_bar.legend(fontsize=8)
     fig.tight_layout()
-    paths.append(_save(fig, out / "position_residuals.png", plt))
+    paths.append(_save(fig, out / "position_residuals.png"))
     # --- mean/max vs n ----------------------------------------------------------------------
     rows = summary["versus_n"]["rows"]
     if rows:
-        fig, ax = plt.subplots(figsize=(7.5, 4.5))
+        fig = Figure(figsize=(7.5, 4.5))
+        ax = fig.subplots()
         n = [r["n"] for r in rows]
 
         def series(key):
@@ -146,20 +136,20 @@ def static_figures(out: Path, summary: dict[str, Any], fixes: list | None = None
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        paths.append(_save(fig, out / "residual_vs_n.png", plt))
+        paths.append(_save(fig, out / "residual_vs_n.png"))
     return paths
 
 
 def moving_figures(out: Path, calibration, fixes) -> list[Path]:
     """Draw the moving figures into ``out``; returns their paths."""
-    plt = _pyplot()
+    from matplotlib.figure import Figure
+
     recording = calibration.recording
     obs, residuals = recording.observations, calibration.fit.residuals
     t0 = float(recording.stamps[0])
     keys = sorted({(int(s), int(p)) for s, p in zip(obs.station, obs.plane, strict=True)})
-    fig, axes = plt.subplots(
-        len(keys) + 1, 1, figsize=(11, 2.2 + 1.8 * (len(keys) + 1)), sharex=True, squeeze=False
-    )
+    fig = Figure(figsize=(11, 2.2 + 1.8 * (len(keys) + 1)))
+    axes = fig.subplots(len(keys) + 1, 1, sharex=True, squeeze=False)
     for ax, (s, plane) in zip(axes[:-1, 0], keys, strict=True):
         rows = (obs.station == s) & (obs.plane == plane)
         for k in range(4):
@@ -186,10 +176,11 @@ def moving_figures(out: Path, calibration, fixes) -> list[Path]:
     ax.set_xlabel("time since first sweep (s)")
     ax.grid(alpha=0.3)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
-    paths = [_save(fig, out / "moving_residuals.png", plt)]
+    paths = [_save(fig, out / "moving_residuals.png")]
     offsets, costs = calibration.scan
     if offsets.size:
-        fig, ax = plt.subplots(figsize=(7.5, 4.2))
+        fig = Figure(figsize=(7.5, 4.2))
+        ax = fig.subplots()
         ax.plot(1e3 * offsets, costs, "-", color="tab:blue", label="cost, start stations")
         ax.axvline(
             1e3 * calibration.offset,
@@ -204,11 +195,10 @@ def moving_figures(out: Path, calibration, fixes) -> list[Path]:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        paths.append(_save(fig, out / "offset_scan.png", plt))
+        paths.append(_save(fig, out / "offset_scan.png"))
     return paths
 
 
-def _save(fig, path: Path, plt) -> Path:
+def _save(fig, path: Path) -> Path:
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

@@ -11,11 +11,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from crs_core.analysis.figures import clip_to_band
 from crs_core.dataset import Y_CHANNELS
@@ -37,7 +34,8 @@ def hypotheses_figure(result: DiscrepancyResult, path: Path, chosen: Hypothesis 
     """
     hypotheses = result.hypotheses
     n = max(len(hypotheses), 1)
-    fig, ax = plt.subplots(figsize=(8, 0.45 * n + 1.6))
+    fig = Figure(figsize=(8, 0.45 * n + 1.6))
+    ax = fig.subplots()
     rows = np.arange(len(hypotheses))
     values = np.array([100 * h.comparison.improvement if h.comparison else 0.0 for h in hypotheses])
     colours = ["tab:green" if h.significant else "0.65" for h in hypotheses]
@@ -66,7 +64,6 @@ def hypotheses_figure(result: DiscrepancyResult, path: Path, chosen: Hypothesis 
     )
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def gap_figure(summary: dict[str, Any], path: Path) -> None:
@@ -74,7 +71,8 @@ def gap_figure(summary: dict[str, Any], path: Path) -> None:
     and the held-out position RMSE of both (``summary``: the summary of ``report.json``)."""
     before, after = summary["residual_rms_before"] or {}, summary["residual_rms_after"] or {}
     names = [n for n in Y_CHANNELS if before.get(n) and after.get(n) is not None]
-    fig, (ax, ax_pos) = plt.subplots(1, 2, figsize=(13, 4.5), gridspec_kw={"width_ratios": [4, 1]})
+    fig = Figure(figsize=(13, 4.5))
+    ax, ax_pos = fig.subplots(1, 2, gridspec_kw={"width_ratios": [4, 1]})
     x = np.arange(len(names))
     ratio = np.array([after[n] / before[n] for n in names])
     ax.bar(x - 0.2, np.ones(len(names)), 0.4, color=COLOURS["current"], label="current model")
@@ -107,7 +105,6 @@ def gap_figure(summary: dict[str, Any], path: Path) -> None:
         ax_pos.set_title(f"{format_number(horizon, 'g')} s open-loop position RMSE", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=90)
-    plt.close(fig)
 
 
 def residuals_figure(result: DiscrepancyResult, path: Path) -> None:
@@ -122,13 +119,8 @@ def residuals_figure(result: DiscrepancyResult, path: Path) -> None:
         "current": {d.channel: d for d in result.diagnostics_before},
         "final": {d.channel: d for d in result.diagnostics_after},
     }
-    fig, axes = plt.subplots(
-        max(len(channels), 1),
-        1,
-        figsize=(12, 2.4 * max(len(channels), 1) + 0.6),
-        sharex=True,
-        squeeze=False,
-    )
+    fig = Figure(figsize=(12, 2.4 * max(len(channels), 1) + 0.6))
+    axes = fig.subplots(max(len(channels), 1), 1, sharex=True, squeeze=False)
     t0 = float(result.current.t[0])
     for ax, channel in zip(axes[:, 0], channels, strict=False):
         unit, factor = DISPLAY_UNITS.get(CHANNEL_UNITS.get(channel, ""), ("", 1.0))
@@ -161,7 +153,6 @@ def residuals_figure(result: DiscrepancyResult, path: Path) -> None:
     )
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
 
 
 def _group_series(result: FieResult) -> tuple[dict[str, np.ndarray], dict[str, float]]:

@@ -12,12 +12,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import yaml
+from matplotlib.figure import Figure
 
 from crs_core.dataset import Y_CHANNELS
 from crs_core.identification.solve import FieResult
@@ -137,7 +134,8 @@ def write_sysid_report(result: FieResult, folder: Path, dataset_name: str) -> di
 
 def _fit_figure(result: FieResult, path: Path) -> None:
     t = result.t - result.t[0]
-    fig, axes = plt.subplots(5, 3, figsize=(14, 14), sharex=True)
+    fig = Figure(figsize=(14, 14))
+    axes = fig.subplots(5, 3, sharex=True)
     for c, (name, ax) in enumerate(zip(Y_CHANNELS, axes.ravel(), strict=False)):
         used = result.data.weight[:, c] > 0
         ax.plot(t[used], result.data.y[used, c], ".", ms=2, color="0.5", label="measured")
@@ -149,11 +147,11 @@ def _fit_figure(result: FieResult, path: Path) -> None:
     fig.supxlabel("time (s)")
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
 
 
 def _residual_figure(result: FieResult, path: Path) -> None:
-    fig, axes = plt.subplots(5, 3, figsize=(12, 12))
+    fig = Figure(figsize=(12, 12))
+    axes = fig.subplots(5, 3)
     for c, (name, ax) in enumerate(zip(Y_CHANNELS, axes.ravel(), strict=False)):
         used = result.data.weight[:, c] > 0
         residual = (result.outputs[used, c] - result.data.y[used, c]) * result.data.weight[used, c]
@@ -163,12 +161,12 @@ def _residual_figure(result: FieResult, path: Path) -> None:
         ax.axis("off")
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
 
 
 def _parameter_figure(result: FieResult, path: Path) -> None:
     n = len(result.fit)
-    fig, ax = plt.subplots(figsize=(8, 0.4 * n + 1.5))
+    fig = Figure(figsize=(8, 0.4 * n + 1.5))
+    ax = fig.subplots()
     rows = np.arange(n)
     scale = np.where(result.theta_prior != 0, np.abs(result.theta_prior), 1.0)
     ax.errorbar(
@@ -196,19 +194,18 @@ def _parameter_figure(result: FieResult, path: Path) -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
 
 
 def _correlation_figure(result: FieResult, path: Path) -> None:
     n = len(result.fit)
-    fig, ax = plt.subplots(figsize=(0.45 * n + 2, 0.45 * n + 1.5))
+    fig = Figure(figsize=(0.45 * n + 2, 0.45 * n + 1.5))
+    ax = fig.subplots()
     image = ax.imshow(result.uncertainty.correlation, vmin=-1, vmax=1, cmap="RdBu_r")
     ax.set_xticks(range(n), result.fit, rotation=90)
     ax.set_yticks(range(n), result.fit)
     fig.colorbar(image, ax=ax, label="correlation")
     fig.tight_layout()
     fig.savefig(path, dpi=80)
-    plt.close(fig)
 
 
 def write_validation_report(
@@ -219,7 +216,8 @@ def write_validation_report(
 ) -> None:
     """``validation.json`` and ``validation.png`` (predicted vs reference trajectories)."""
     (folder / "validation.json").write_text(json.dumps(summary, indent=2))
-    fig, ax = plt.subplots(figsize=(8, 7))
+    fig = Figure(figsize=(8, 7))
+    ax = fig.subplots()
     ax.plot(reference[:, 0], reference[:, 1], color="0.3", lw=1.5, label="reference")
     colours = {"prior": "tab:orange", "identified": "tab:blue"}
     for label, prediction in predictions.items():
@@ -248,7 +246,6 @@ def write_validation_report(
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(folder / "validation.png", dpi=90)
-    plt.close(fig)
     lines = [
         "# Open-loop validation",
         "",

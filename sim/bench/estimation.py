@@ -389,13 +389,11 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
 
 
 def _plot_real(name: str, reference: np.ndarray, trajectories: dict, folder: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     folder.mkdir(parents=True, exist_ok=True)
-    fig, ax = plt.subplots(figsize=(8, 6))
+    fig = Figure(figsize=(8, 6))
+    ax = fig.subplots()
     ax.plot(reference[:, 0], reference[:, 1], "k", lw=1.5, label="on-board estimate (x.npy)")
     for kind, estimate in trajectories.items():
         ax.plot(estimate[:, 0], estimate[:, 1], lw=0.8, label=kind)
@@ -406,7 +404,6 @@ def _plot_real(name: str, reference: np.ndarray, trajectories: dict, folder: Pat
     ax.legend()
     fig.tight_layout()
     fig.savefig(folder / f"real_{name}.png", dpi=110)
-    plt.close(fig)
 
 
 def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
