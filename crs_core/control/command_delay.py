@@ -32,6 +32,15 @@ import numpy as np
 __all__ = ["CommandDelay", "CommandDelaySettings"]
 
 
+@dataclass(slots=True)
+class _Sent:
+    """A command sent: its tick (s), its torque, and whether an application matched it."""
+
+    tick: float
+    torque: float
+    matched: bool = False
+
+
 @dataclass(frozen=True)
 class CommandDelaySettings:
     """How the command delay is measured.
@@ -87,10 +96,8 @@ class CommandDelay:
 
     def __init__(self, settings: CommandDelaySettings | None = None) -> None:
         self.settings = settings or CommandDelaySettings()
-        self._sent: deque[tuple[float, float]] = deque()  # (tick, torque)
+        self._sent: deque[_Sent] = deque()
         self._matches: deque[float] = deque(maxlen=self.settings.samples)
-        #: ticks of the commands matched lately (each command is matched once)
-        self._matched_ticks: deque[float] = deque(maxlen=64)
         #: commands matched to an application so far
         self.matched = 0
 
@@ -104,9 +111,9 @@ class CommandDelay:
 
     def sent(self, tick: float, torque: float) -> None:
         """Record that the command of the tick at ``tick`` (s) carries ``torque``."""
-        self._sent.append((float(tick), float(torque)))
+        self._sent.append(_Sent(float(tick), float(torque)))
         horizon = float(tick) - self.settings.max_delay
-        while self._sent and self._sent[0][0] < horizon:
+        while self._sent and self._sent[0].tick < horizon:
             self._sent.popleft()
 
     def applied(self, stamp: float, torque: float) -> float | None:
@@ -116,16 +123,14 @@ class CommandDelay:
         s = self.settings
         if not (math.isfinite(stamp) and math.isfinite(torque)) or abs(torque) <= s.tolerance:
             return None
-        candidates = [
-            k for k, (_, value) in enumerate(self._sent) if abs(value - torque) <= s.tolerance
-        ]
+        candidates = [sent for sent in self._sent if abs(sent.torque - torque) <= s.tolerance]
         if len(candidates) != 1:
             return None
-        tick = self._sent[candidates[0]][0]
-        if tick in self._matched_ticks or not 0.0 <= stamp - tick <= s.max_delay:
+        (command,) = candidates
+        delay = stamp - command.tick
+        if command.matched or not 0.0 <= delay <= s.max_delay:
             return None
-        self._matched_ticks.append(tick)
-        delay = stamp - tick
+        command.matched = True
         self._matches.append(delay)
         self.matched += 1
         return delay
