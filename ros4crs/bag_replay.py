@@ -83,6 +83,10 @@ def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -
             try:
                 if family in conversions.SENSOR_PARSERS:
                     measurements.append(conversions.SENSOR_PARSERS[family](msg))
+                elif family == "batch":
+                    readings = conversions.batch_from_msg(msg)
+                    measurements.extend(readings.measurements)
+                    malformed += len(readings.rejected)
                 elif family == "input":
                     command = conversions.input_from_msg(msg)
                     if command.mode == "torque":
@@ -119,7 +123,8 @@ def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -
 
 
 def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[float, float]]]:
-    """``(header stamp, recorder receive time)`` in s for sensors, estimates and inputs."""
+    """``(header stamp, recorder receive time)`` in s for sensors, estimates and inputs (for a
+    ``sensors/batch`` message, each reading's stamp with the batch's receive time)."""
     store = typestore()
     prefix = namespace.rstrip("/") + "/"
     kinds = {"sensors/": "sensor", "estimate/state": "estimate", "input": "input"}
@@ -134,6 +139,10 @@ def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[
             if kind is None:
                 continue
             msg = store.deserialize_cdr(bytes(data), connection.msgtype)
+            if relative == conversions.TOPICS["batch"]:
+                readings = conversions.batch_from_msg(msg).measurements
+                out[kind].extend((m.stamp, received * 1e-9) for m in readings)
+                continue
             out[kind].append((conversions.seconds_from_stamp(msg.header.stamp), received * 1e-9))
     return out
 

@@ -7,12 +7,18 @@ non-blocking socket at ``poll_hz`` and publishes each valid ``CarState``:
 =========================  ==========================  ===========================================
 topic                      type                        content
 =========================  ==========================  ===========================================
-``sensors/imu``            ``sensor_msgs/Imu``         ``[a_x, a_y, ω]`` body frame (board x, y
-                                                       negated); ``sensors/gyro`` instead with
-                                                       ``imu_sensor: gyro``
-``sensors/wheel_speeds``   ``chronos_msgs/WheelSpeeds`` rad/s, when the packet has them
-``sensors/lighthouse``     ``chronos_msgs/LighthouseSweep`` paired planes, angle offsets, out of
-                                                       view dropped (spec; ``CarStateConverter``)
+``sensors/batch``          ``chronos_msgs/SensorBatch`` the readings of the last ``batch_period``
+                                                       (10 ms; :mod:`ros4crs.sensor_output`):
+                                                       ``imu`` ``[a_x, a_y, ω]`` body frame (board
+                                                       x, y negated; ``gyro`` with ``imu_sensor:
+                                                       gyro``), ``wheel_encoders`` rad/s when the
+                                                       packet has them, ``lighthouse/<bs>/<plane>``
+                                                       paired planes, angle offsets, out of view
+                                                       dropped (spec; ``CarStateConverter``); with
+                                                       ``sensor_messages: each`` one message per
+                                                       reading on ``sensors/imu`` (or ``gyro``),
+                                                       ``sensors/wheel_speeds``,
+                                                       ``sensors/lighthouse`` instead
 ``sensors/battery``        ``sensor_msgs/BatteryState`` voltage (V), current (A; 0 when the car
                                                        does not send it), when sent
 ``telemetry/steering``     ``sensor_msgs/JointState``  joint ``steering``: position = measured
@@ -42,11 +48,12 @@ after it was first sent (``CarLink.repeat``, at each poll): Wi-Fi loses datagram
 and six lost in a row at 30 Hz cut the motors. Nothing is sent before the car is paired.
 
 The battery and ``telemetry/*`` topics are published at ``telemetry_hz`` at most (default 50 Hz:
-the packet read when a period of the host's clock has passed); the sensor topics carry every
-packet. With telemetry at the car's 250 Hz and 500 socket polls a second (most of them empty)
+the packet read when a period of the host's clock has passed); the sensor readings of every
+packet go out in batches (a batch is published at the first poll a ``batch_period`` after the
+previous one). With telemetry at the car's 250 Hz and 500 socket polls a second (most of them empty)
 the bridge took 27-32 % of a core, 21-24 % with 50 Hz telemetry and 200 polls a second (the
 node beside an emulated car, three runs each, alternating): several cars share a laptop. A poll
-delays a sample by at most 5 ms, well inside the estimator's 20 ms ``lag``.
+and its batch delay a sample by at most 15 ms, inside the estimator's 20 ms ``lag``.
 
 Stamps: the packet's ``timestamp`` (µs since the Unix epoch) when the car sent one (its clock is
 SNTP-synchronised to the host), else the host's wall clock when the poll read the datagram
@@ -62,7 +69,8 @@ shutdown. Nothing a sender can put in a datagram stops the node.
 Parameters: ``port`` (20211), ``bind`` (``127.0.0.1``; ``0.0.0.0`` for a real car), ``car_ip``
 (empty: learn the car from its first valid datagram), ``car_port`` (0: learn), ``imu_sensor``
 (``imu`` | ``gyro``), ``poll_hz`` (200), ``telemetry_hz`` (50), ``diagnostics_period`` (1 s),
-``log_period`` (10 s), ``command_repeat_period`` (0.02 s), ``command_repeat_for`` (0.1 s).
+``log_period`` (10 s), ``command_repeat_period`` (0.02 s), ``command_repeat_for`` (0.1 s),
+``sensor_messages`` (``batch`` | ``each``) and ``batch_period`` (0.01 s).
 """
 
 from __future__ import annotations
@@ -70,7 +78,8 @@ from __future__ import annotations
 import ipaddress
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from rclpy.node import Node
 
@@ -89,6 +98,7 @@ from ros4crs.node_support import (
     run,
     throttled_warning,
 )
+from ros4crs.sensor_output import declare_sensor_output
 
 #: The bridge's own topics (relative to the car's namespace), besides the sensor topics.
 BRIDGE_TOPICS = {
@@ -172,11 +182,7 @@ class BridgeNode(Node):
 
         from chronos_msgs.msg import CarInput
 
-        types = conversions.sensor_message_types()
-        families = (imu_sensor, "wheel_encoders", "lighthouse")
-        self._sensors = {
-            f: self.create_publisher(types[f], conversions.TOPICS[f], STREAM_QOS) for f in families
-        }
+        self._sensors = declare_sensor_output(self, self.frame)
         self._battery = self.create_publisher(BatteryState, BRIDGE_TOPICS["battery"], STREAM_QOS)
         self._steering = self.create_publisher(JointState, BRIDGE_TOPICS["steering"], STREAM_QOS)
         self._drive = self.create_publisher(JointState, BRIDGE_TOPICS["drive"], STREAM_QOS)
@@ -209,22 +215,24 @@ class BridgeNode(Node):
         self.link.repeat()
         now = time.time()
         for converted in self.link.poll(now):
-            try:
-                self._publish(converted)
-            except Exception as error:  # never expected: the values were validated
-                self.publish_errors += 1
-                self._warn(f"not published: {error!r} ({self.publish_errors} so far)")
+            self._guarded(self._publish, converted)
+        self._guarded(self._sensors.add, (), time.monotonic())  # a batch due, no new packet
         if self.link.endpoint != self._paired:
             self._paired = self.link.endpoint
             self.get_logger().info("paired with the car at {}:{}".format(*self._paired))
+
+    def _guarded(self, publish: Callable[..., None], *args: Any) -> None:
+        try:
+            publish(*args)
+        except Exception as error:  # never expected: the values were validated
+            self.publish_errors += 1
+            self._warn(f"not published: {error!r} ({self.publish_errors} so far)")
 
     def _publish(self, converted: Converted) -> None:
         from geometry_msgs.msg import TwistStamped
         from sensor_msgs.msg import BatteryState, JointState
 
-        for measurement in converted.measurements:
-            family = conversions.topic_family(measurement.sensor)
-            self._sensors[family].publish(conversions.measurement_to_msg(measurement, self.frame))
+        self._sensors.add(converted.measurements, time.monotonic())
         t = converted.telemetry
         self._publish_applied(t.stamp, t.steer_angle, t.drive_power)
         # by the host's clock (a packet's stamp is the car's: a bad one must not mute these)

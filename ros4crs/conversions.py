@@ -15,6 +15,7 @@ sensors/gyro          sensor_msgs/Imu                  yaw rate only (accel cova
 sensors/wheel_speeds  chronos_msgs/WheelSpeeds         rad/s
 sensors/lighthouse    chronos_msgs/LighthouseSweep     one plane of one base station
 sensors/pose          geometry_msgs/PoseStamped        motion capture
+sensors/batch         chronos_msgs/SensorBatch         many readings of any of the above
 input                 chronos_msgs/CarInput            steer (rad), torque (-) or v_x (m/s)
 ground_truth          chronos_msgs/CarState            simulator truth
 estimate/state        chronos_msgs/CarState            estimate with covariance
@@ -32,6 +33,8 @@ one ROS graph share one TF tree.
 from __future__ import annotations
 
 import math
+from array import array
+from collections.abc import Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -42,6 +45,7 @@ from crs_core.measurements import (
     Measurement,
     lighthouse_sensor,
     parse_lighthouse,
+    sensor_size,
 )
 
 TOPICS = {
@@ -50,6 +54,7 @@ TOPICS = {
     "wheel_encoders": "sensors/wheel_speeds",
     "lighthouse": "sensors/lighthouse",
     "pose": "sensors/pose",
+    "batch": "sensors/batch",
     "input": "input",
     "applied_input": "input/applied",
     "ground_truth": "ground_truth",
@@ -76,13 +81,15 @@ def seconds_from_stamp(stamp: Any) -> float:
 
 def fill_stamp(stamp: Any, seconds: float) -> None:
     """Write float seconds (>= 0) into a ``builtin_interfaces/Time``."""
+    stamp.sec, stamp.nanosec = divmod(stamp_ns(seconds), 1_000_000_000)
+
+
+def stamp_ns(seconds: float) -> int:
+    """Float seconds (>= 0) -> integer nanoseconds, as :func:`fill_stamp` writes them."""
     if not math.isfinite(seconds) or seconds < 0:
         raise ValueError(f"header.stamp: must be finite and >= 0, got {seconds}")
     sec = math.floor(seconds)
-    nanosec = round((seconds - sec) * 1e9)
-    if nanosec >= 1_000_000_000:
-        sec, nanosec = sec + 1, nanosec - 1_000_000_000
-    stamp.sec, stamp.nanosec = int(sec), int(nanosec)
+    return int(sec) * 1_000_000_000 + round((seconds - sec) * 1e9)
 
 
 def _finite(name: str, values: Any, size: int | None = None) -> np.ndarray:
@@ -176,6 +183,67 @@ def pose_from_msg(msg: Any) -> Measurement:
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     position = _finite("pose.position", [msg.pose.position.x, msg.pose.position.y], 2)
     return Measurement(seconds_from_stamp(msg.header.stamp), "pose", np.append(position, yaw))
+
+
+class BatchReadings(NamedTuple):
+    """A ``chronos_msgs/SensorBatch`` converted: its valid readings (in message order) and, for
+    each reading dropped, why (``"readings[3] (imu): ..."``)."""
+
+    measurements: list[Measurement]
+    rejected: list[str]
+
+
+def batch_msg(measurements: Sequence[Measurement], frame_id: str = "base_link") -> Any:
+    """``chronos_msgs/SensorBatch`` holding ``measurements`` (at least one), stamped with the
+    newest of them."""
+    from chronos_msgs.msg import SensorBatch
+
+    if not measurements:
+        raise ValueError("measurements: a batch needs at least one reading")
+    msg = SensorBatch()
+    msg.header.frame_id = frame_id
+    stamps = [stamp_ns(m.stamp) for m in measurements]
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(max(stamps), 1_000_000_000)
+    msg.sensors = [m.sensor for m in measurements]
+    msg.stamps_ns = array("q", stamps)
+    msg.values = array("d", np.concatenate([m.values for m in measurements]).tobytes())
+    return msg
+
+
+def batch_from_msg(msg: Any) -> BatchReadings:
+    """``chronos_msgs/SensorBatch`` -> :class:`BatchReadings`.
+
+    A batch whose arrays do not fit together (as many stamps as sensors, the values the sensors
+    need) raises ``ValueError`` naming the field; a reading with an unknown sensor, a negative
+    stamp or a NaN is dropped alone, the others are kept.
+    """
+    sensors, stamps = list(msg.sensors), np.asarray(msg.stamps_ns, dtype=np.int64)
+    values = np.asarray(msg.values, dtype=float)
+    if stamps.size != len(sensors):
+        raise ValueError(f"stamps_ns: {stamps.size} stamps for {len(sensors)} sensors")
+    sizes = []
+    for i, sensor in enumerate(sensors):
+        try:
+            sizes.append(sensor_size(sensor))
+        except ValueError as error:
+            raise ValueError(f"sensors[{i}]: {error}") from None
+    if sum(sizes) != values.size:
+        raise ValueError(
+            f"values: the {len(sensors)} readings need {sum(sizes)} values, got {values.size}"
+        )
+    whole = stamps // 1_000_000_000
+    seconds = whole.astype(float) + 1e-9 * (stamps - whole * 1_000_000_000).astype(float)
+    measurements, rejected, start = [], [], 0
+    for i, (sensor, size) in enumerate(zip(sensors, sizes, strict=True)):
+        reading = values[start : start + size]
+        start += size
+        try:
+            if stamps[i] < 0:
+                raise ValueError(f"stamps_ns: must be >= 0, got {stamps[i]}")
+            measurements.append(Measurement(float(seconds[i]), sensor, reading))
+        except ValueError as error:
+            rejected.append(f"readings[{i}] ({sensor}): {error}")
+    return BatchReadings(measurements, rejected)
 
 
 # --- inputs and states -----------------------------------------------------------------------

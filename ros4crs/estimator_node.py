@@ -1,6 +1,7 @@
 """Estimator node: EKF or MHE from ``crs_core`` on whatever sensors publish.
 
-Subscribes to ``sensors/*`` and ``input`` (or, with ``input_topic`` ``input/applied``, the
+Subscribes to ``sensors/batch`` (the readings of a car in batches, :mod:`ros4crs.sensor_output`),
+the per-reading ``sensors/*`` topics and ``input`` (or, with ``input_topic`` ``input/applied``, the
 inputs the car reports applying, published by the bridge: behind Wi-Fi a command reaches the car
 late, out of order or not at all, and during a motor cut-off the car applies none; the car stack
 uses them); every message is validated and converted at the
@@ -158,7 +159,13 @@ class EstimatorNode(Node):
         self.kind = kind
         from nav_msgs.msg import Odometry
 
-        from chronos_msgs.msg import CarInput, CarState, EstimatorDiagnostics, EstimatorQuery
+        from chronos_msgs.msg import (
+            CarInput,
+            CarState,
+            EstimatorDiagnostics,
+            EstimatorQuery,
+            SensorBatch,
+        )
         from tf2_msgs.msg import TFMessage
 
         self._checked_subscriptions: list = []
@@ -173,10 +180,23 @@ class EstimatorNode(Node):
             "deadline": throttled_warning(self),
             "lag": throttled_warning(self),
             "status": throttled_warning(self),
+            "batch": throttled_warning(self),
             "restart": self.get_logger().warning,
         }
+        #: Readings of ``sensors/batch`` messages dropped alone (a NaN, an unknown sensor).
+        self.rejected_readings = 0
         for family, msg_type in conversions.sensor_message_types().items():
             self._subscribe(family, msg_type)
+        self._checked_subscriptions.append(
+            CheckedSubscription(
+                self,
+                SensorBatch,
+                conversions.TOPICS["batch"],
+                conversions.batch_from_msg,
+                self._on_batch,
+                "batch",
+            )
+        )
         self._checked_subscriptions.append(
             CheckedSubscription(
                 self,
@@ -201,21 +221,39 @@ class EstimatorNode(Node):
 
     def _subscribe(self, family: str, msg_type: type) -> None:
         topic = conversions.TOPICS[family]
-        received = self.received
-        realtime = self.realtime
-
-        def handle(measurement: Measurement) -> None:
-            received[measurement.sensor] = received.get(measurement.sensor, 0) + 1
-            now = self._now() if realtime.tracks_delays else None
-            warning = realtime.deliver(measurement, now, topic)
-            if warning is not None:
-                self._warn[warning.kind](warning.message)
-
         self._checked_subscriptions.append(
             CheckedSubscription(
-                self, msg_type, topic, conversions.SENSOR_PARSERS[family], handle, family
+                self,
+                msg_type,
+                topic,
+                conversions.SENSOR_PARSERS[family],
+                lambda measurement: self._on_measurement(measurement, topic),
+                family,
             )
         )
+
+    def _on_batch(self, readings: conversions.BatchReadings) -> None:
+        """The readings of a ``sensors/batch`` message, each into the stream of its own topic
+        (what the estimator's query log names and a replay feeds, whichever form it came in)."""
+        for measurement in readings.measurements:
+            family = conversions.topic_family(measurement.sensor)
+            self._on_measurement(measurement, conversions.TOPICS[family])
+        if readings.rejected:
+            self.rejected_readings += len(readings.rejected)
+            self._warn["batch"](
+                f"dropped {len(readings.rejected)} reading(s) of a batch on "
+                f"{conversions.TOPICS['batch']}: {readings.rejected[0]} "
+                f"({self.rejected_readings} so far)"
+            )
+
+    def _on_measurement(self, measurement: Measurement, source: str) -> None:
+        received = self.received
+        received[measurement.sensor] = received.get(measurement.sensor, 0) + 1
+        realtime = self.realtime
+        now = self._now() if realtime.tracks_delays else None
+        warning = realtime.deliver(measurement, now, source)
+        if warning is not None:
+            self._warn[warning.kind](warning.message)
 
     def _on_input(self, command: conversions.CarCommand) -> None:
         if command.mode != "torque":  # a velocity reference: the torque is the car's secret
@@ -237,8 +275,8 @@ class EstimatorNode(Node):
 
     @property
     def malformed(self) -> int:
-        """Messages dropped at the boundary so far."""
-        return sum(s.dropped for s in self._checked_subscriptions)
+        """Messages and batch readings dropped at the boundary so far."""
+        return sum(s.dropped for s in self._checked_subscriptions) + self.rejected_readings
 
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9

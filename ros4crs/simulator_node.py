@@ -1,6 +1,7 @@
 """Simulator node: the ``sim`` engine in real time (or faster, publishing ``/clock``).
 
-Publishes every sensor at its own rate with its own stamp (``sensors/*``), the ground truth
+Publishes every sensor at its own rate with its own stamp (in batches on ``sensors/batch``, or
+one message each on ``sensors/*``: :mod:`ros4crs.sensor_output`), the ground truth
 (``ground_truth``), and applies each ``input`` command when it arrives. With ``onboard`` the car's
 250 Hz onboard loop runs in the simulation (:mod:`sim.onboard`, as on the real car): a command is
 then a reference for its steering PID and either a torque (``MODE_TORQUE``) or a velocity reference
@@ -20,7 +21,9 @@ subscribers, so a launched stack misses nothing at the start; 0 = start at once)
 ``input``, the controller, which exists once the controller is built: on a cold compile cache
 the controller came 7 s after the simulator had started, and the estimator ran those 7 s beside
 its compiler), ``onboard``
-(bool, default false: run the onboard loop; with ``noise_free`` its potentiometer is ideal).
+(bool, default false: run the onboard loop; with ``noise_free`` its potentiometer is ideal),
+``sensor_messages`` and ``batch_period`` (:mod:`ros4crs.sensor_output`; the period in simulated
+time).
 """
 
 from __future__ import annotations
@@ -35,7 +38,6 @@ from rclpy.node import Node
 from crs_core.model.effects import effect_spec, parse_effect
 from ros4crs import conversions
 from ros4crs.node_support import (
-    STREAM_QOS,
     CheckedSubscription,
     declare,
     declare_model,
@@ -48,6 +50,7 @@ from ros4crs.node_support import (
     run,
     throttled_warning,
 )
+from ros4crs.sensor_output import declare_sensor_output
 from sim.onboard import OnboardSettings
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
@@ -126,10 +129,8 @@ class SimulatorNode(Node):
         self.refused_commands = 0
         self.epoch = time.time()
         self._wall_start = time.monotonic()
-        self._sensor_publishers = {
-            family: self.create_publisher(msg_type, conversions.TOPICS[family], STREAM_QOS)
-            for family, msg_type in conversions.sensor_message_types().items()
-        }
+        self.body_frame = conversions.body_frame(self.get_namespace())
+        self._sensors = declare_sensor_output(self, self.body_frame)
         from chronos_msgs.msg import CarInput, CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
@@ -146,7 +147,6 @@ class SimulatorNode(Node):
             from rosgraph_msgs.msg import Clock
 
             self._clock_publisher = self.create_publisher(Clock, "/clock", 10)
-        self.body_frame = conversions.body_frame(self.get_namespace())
         self._next_truth = 0.0
         self._truth_period = 1.0 / truth_hz
         self.create_timer(1.0 / tick_hz, self._tick)
@@ -158,7 +158,7 @@ class SimulatorNode(Node):
 
     def _tick(self) -> None:
         if self._waiting:  # every sensor topic heard by the estimator and the recorder
-            listeners = min(p.get_subscription_count() for p in self._sensor_publishers.values())
+            listeners = self._sensors.subscription_count()
             if listeners < self.wait_for_subscribers:
                 return
             controllers = self.count_publishers(self._inputs.subscription.topic_name)
@@ -176,14 +176,10 @@ class SimulatorNode(Node):
             self.get_logger().info(f"simulated {self.duration:g} s; stopping")
             rclpy.try_shutdown()
             return
-        for measurement in self.session.advance(t):
-            stamped = type(measurement)(
-                self.epoch + measurement.stamp, measurement.sensor, measurement.values
-            )
-            family = conversions.topic_family(measurement.sensor)
-            self._sensor_publishers[family].publish(
-                conversions.measurement_to_msg(stamped, self.body_frame)
-            )
+        self._sensors.add(
+            (type(m)(self.epoch + m.stamp, m.sensor, m.values) for m in self.session.advance(t)),
+            t,
+        )
         if self._clock_publisher is not None:
             from rosgraph_msgs.msg import Clock
 

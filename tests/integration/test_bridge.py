@@ -245,26 +245,43 @@ def _malformed(topic: str, msg) -> str | None:
     return None if ok else topic
 
 
+#: The per-reading topic key (as in :func:`_malformed`) of each sensor in a ``SensorBatch``.
+_READING_TOPIC = {"imu": "imu", "gyro": "gyro", "wheel_encoders": "wheel_speeds"}
+
+
 def _collect_all(probe: Probe, namespace: str) -> dict[str, list]:
+    """``(receive time, msg)`` per topic key; the readings of the bridge's ``sensors/batch``
+    messages land under ``imu`` / ``gyro`` / ``wheel_speeds`` / ``lighthouse`` as the messages
+    the bridge would publish for each with ``sensor_messages: each`` (same fields, stamps and
+    frame), and any reading the batch conversion rejects under ``batch_rejected``."""
     from geometry_msgs.msg import TwistStamped
-    from sensor_msgs.msg import BatteryState, Imu, JointState
+    from sensor_msgs.msg import BatteryState, JointState
     from std_msgs.msg import String
 
-    from chronos_msgs.msg import LighthouseSweep as SweepMsg
-    from chronos_msgs.msg import WheelSpeeds as WheelMsg
+    from chronos_msgs.msg import SensorBatch
+    from ros4crs.node_support import STREAM_QOS
 
     topics = {
-        "imu": (Imu, "sensors/imu"),
-        "gyro": (Imu, "sensors/gyro"),
-        "wheel_speeds": (WheelMsg, "sensors/wheel_speeds"),
-        "lighthouse": (SweepMsg, "sensors/lighthouse"),
         "battery": (BatteryState, "sensors/battery"),
         "steering": (JointState, "telemetry/steering"),
         "drive": (JointState, "telemetry/drive"),
         "velocity": (TwistStamped, "telemetry/velocity"),
         "diagnostics": (String, "bridge/diagnostics"),
     }
-    return {k: probe.collect(t, f"{namespace}/{name}") for k, (t, name) in topics.items()}
+    collected = {k: probe.collect(t, f"{namespace}/{name}") for k, (t, name) in topics.items()}
+    for key in ("imu", "gyro", "wheel_speeds", "lighthouse", "batch_rejected"):
+        collected[key] = []
+
+    def on_batch(batch) -> None:
+        received = time.time()
+        readings = conversions.batch_from_msg(batch)
+        collected["batch_rejected"].extend((received, r) for r in readings.rejected)
+        for m in readings.measurements:
+            msg = conversions.measurement_to_msg(m, batch.header.frame_id)
+            collected[_READING_TOPIC.get(m.sensor, "lighthouse")].append((received, msg))
+
+    probe.node.create_subscription(SensorBatch, f"{namespace}/sensors/batch", on_batch, STREAM_QOS)
+    return collected
 
 
 def _diagnostics(collected: dict[str, list]) -> dict:
@@ -331,11 +348,12 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
         bad = [
             problem
             for topic, messages in collected.items()
-            if topic not in ("diagnostics", "gyro")
+            if topic not in ("diagnostics", "gyro", "batch_rejected")
             for _, msg in messages
             if (problem := _malformed(topic, msg))
         ]
         assert bad == [], f"{len(bad)} malformed publishes, e.g. {bad[:5]}"
+        assert collected["batch_rejected"] == []
         assert collected["gyro"] == []
         # the car was served throughout: no gap over 0.25 s in its IMU stream during the fuzz
         times = [t for t, _ in collected["imu"] if fuzz_start - 0.5 <= t <= fuzz_end + 0.5]

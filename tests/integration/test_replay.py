@@ -106,8 +106,9 @@ def recording(tmp_path_factory, warm_codegen) -> Recording:
 
 
 def test_launch_bag_has_what_foxglove_and_the_replay_need(recording: Recording):
-    """The default recording holds every sensor stream, the inputs, the truth, the estimates
-    as CarState, Odometry and TF (``world`` -> ``car1/base_link``) and the query log."""
+    """The default recording holds every sensor stream (in ``sensors/batch``), the inputs, the
+    truth, the estimates as CarState, Odometry and TF (``world`` -> ``car1/base_link``) and the
+    query log."""
     store = typestore()
     with Reader(recording.bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
@@ -117,9 +118,7 @@ def test_launch_bag_has_what_foxglove_and_the_replay_need(recording: Recording):
             for c, _, data in reader.messages([c for c in reader.connections if c.topic == "/tf"])
         )
     for topic in (
-        "/car1/sensors/imu",
-        "/car1/sensors/wheel_speeds",
-        "/car1/sensors/lighthouse",
+        "/car1/sensors/batch",
         "/car1/input",
         "/car1/ground_truth",
         "/car1/estimate/state",
@@ -128,7 +127,9 @@ def test_launch_bag_has_what_foxglove_and_the_replay_need(recording: Recording):
         "/tf",
     ):
         assert counts.get(topic, 0) > 0, (topic, counts)
-    assert types["/car1/sensors/imu"] == "sensor_msgs/msg/Imu"
+    assert types["/car1/sensors/batch"] == "chronos_msgs/msg/SensorBatch"
+    sensors = {m.sensor for m in recording.contents.measurements}
+    assert {"imu", "wheel_encoders", "lighthouse/0/1", "lighthouse/0/2"} <= sensors
     assert types["/car1/estimate/odometry"] == "nav_msgs/msg/Odometry"
     assert types["/tf"] == "tf2_msgs/msg/TFMessage"
     (transform,) = tf.transforms

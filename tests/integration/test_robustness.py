@@ -87,15 +87,18 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     (a) a LighthouseSweep with a NaN angle, (b) an Imu with an infinite acceleration, (c) a
     CarInput with a NaN steer (the simulator drops it too), (d) raw CDR bytes on the
     WheelSpeeds topic that do not deserialize (truncated, and a string length past the end),
-    (e) a valid WheelSpeeds stamped 0.5 s before one the estimator already processed.
+    (e) a valid WheelSpeeds stamped 0.5 s before one the estimator already processed,
+    (f) a SensorBatch whose two readings are bad (a NaN, a negative stamp), (g) a SensorBatch
+    with fewer stamps than sensors.
     Afterwards the node is alive, publishes finite estimates, its log names each problem
     ("dropped malformed lighthouse on sensors/lighthouse: angles: contains NaN ..."), and its
-    diagnostics count the five malformed messages as ignored (nothing else is ignored: the
-    simulator publishes only sensors the estimator uses) and the out-of-order one as late.
+    diagnostics count the five malformed messages, the batch and its two readings as ignored
+    (nothing else is ignored: the simulator publishes only sensors the estimator uses) and the
+    out-of-order one as late.
     """
     from sensor_msgs.msg import Imu
 
-    from chronos_msgs.msg import CarInput, LighthouseSweep, WheelSpeeds
+    from chronos_msgs.msg import CarInput, LighthouseSweep, SensorBatch, WheelSpeeds
 
     launcher, probe, estimates, diagnostics = stack
     assert launcher.poll() == [], "a node died before the test (the kill test runs last)"
@@ -104,6 +107,7 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     imu = probe.publisher(Imu, "/car1/sensors/imu")
     command = probe.publisher(CarInput, "/car1/input", subscribers=2)
     wheels = probe.publisher(WheelSpeeds, "/car1/sensors/wheel_speeds")
+    batches = probe.publisher(SensorBatch, "/car1/sensors/batch")
     late_before = diagnostics[-1][1].late_measurements
     assert diagnostics[-1][1].ignored_measurements == 0
 
@@ -122,6 +126,15 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     cdr = serialize_message(valid)
     wheels.publish(cdr[:20])  # truncated
     wheels.publish(cdr[:12] + b"\xf0\xff\xff\x7f" + cdr[16:])  # frame_id length past the end
+    stamp_ns = conversions.stamp_ns(now)
+    batches.publish(
+        SensorBatch(
+            sensors=["imu", "wheel_encoders"],
+            stamps_ns=[stamp_ns, -1],
+            values=[0.0, math.nan, 0.0, 1.0, 1.0, 1.0, 1.0],
+        )
+    )
+    batches.publish(SensorBatch(sensors=["gyro", "gyro"], stamps_ns=[stamp_ns], values=[0.0, 0.0]))
     sent = time.time()
 
     # (e) out of order: once an estimate past ``now`` is out, data stamped before it are late
@@ -148,7 +161,7 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     def counted():
         fresh = _after(diagnostics, checked)
         return next(
-            (m for m in fresh if m.ignored_measurements >= 5 and m.late_measurements > late_before),
+            (m for m in fresh if m.ignored_measurements >= 8 and m.late_measurements > late_before),
             None,
         )
 
@@ -157,7 +170,7 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
         10.0,
         lambda: f"diagnostics counting the drops (late before {late_before}): {diagnostics[-1]}",
     )
-    assert report.ignored_measurements == 5, report
+    assert report.ignored_measurements == 8, report
 
     expected = {
         "/car1/estimator": [
@@ -165,6 +178,8 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
             "dropped malformed imu on sensors/imu: linear_acceleration: contains NaN or inf",
             "dropped malformed input on input: steer: contains NaN",
             "dropped malformed wheel_encoders on sensors/wheel_speeds: failed to deserialize",
+            "dropped 2 reading(s) of a batch on sensors/batch: readings[0] (imu): values: imu at",
+            "dropped malformed batch on sensors/batch: stamps_ns: 1 stamps for 2 sensors",
             f"dropped out-of-order data stamped {late_stamp:.3f} s",
         ],
         "/car1/simulator": ["dropped malformed input on input: steer: contains NaN"],
@@ -186,9 +201,10 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
 
 def test_a_killed_recorder_leaves_a_bag_readable_up_to_its_last_second(stack, tmp_path):
     """``kill -9`` of a recorder (no clean close: no MCAP summary, no metadata.yaml) after ~4 s
-    of 250 Hz IMU: the bag is read up to its last flushed chunk, with a warning saying what was
-    lost, and that chunk is at most ~``flush_period`` (1 s) older than the kill."""
-    del stack  # the running simulator publishes the IMU
+    of 100 Hz sensor batches: the bag is read up to its last flushed chunk, with a warning
+    saying what was lost, and that chunk is at most ~``flush_period`` (1 s) older than the
+    kill."""
+    del stack  # the running simulator publishes the sensor batches
     bag = tmp_path / "bag"
     recorder = Launcher(
         [
@@ -196,7 +212,7 @@ def test_a_killed_recorder_leaves_a_bag_readable_up_to_its_last_second(stack, tm
                 "recorder",
                 "ros4crs.recorder_node",
                 "",
-                {"output": str(bag), "topics": "/car1/sensors/imu", "flush_period": 1.0},
+                {"output": str(bag), "topics": "/car1/sensors/batch", "flush_period": 1.0},
             )
         ],
         DOMAIN,
@@ -215,7 +231,7 @@ def test_a_killed_recorder_leaves_a_bag_readable_up_to_its_last_second(stack, tm
         recorder.stop()
     assert not (bag / "metadata.yaml").exists()
     with pytest.warns(BagDamagedWarning, match="cut off: read"):
-        imu = read_car(bag, "/car1").measurements
+        imu = [m for m in read_car(bag, "/car1").measurements if m.sensor == "imu"]
     assert len(imu) > 250 * 2.0, len(imu)  # more than 2 of the ~4 s
     last = imu[-1].stamp
     assert killed - last < 1.0 + 0.6, killed - last  # one flush period, and a busy machine

@@ -172,9 +172,7 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
             "/car2/input": ([], ["/car2/estimator", "/car2/simulator"]),
         }
         for car in ("car1", "car2"):
-            for sensor in ("imu", "wheel_speeds", "lighthouse"):
-                topic = f"/{car}/sensors/{sensor}"
-                wiring[topic] = ([f"/{car}/simulator"], [f"/{car}/estimator"])
+            wiring[f"/{car}/sensors/batch"] = ([f"/{car}/simulator"], [f"/{car}/estimator"])
 
         def wired() -> bool:
             return all(

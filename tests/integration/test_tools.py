@@ -24,11 +24,19 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_topics_echo_and_rate_of_a_running_simulator(tmp_path, monkeypatch, warm_codegen):
     """The tools list the simulator's topics with their types, echo a wheel-speed message and
-    measure the 250 Hz IMU stream (within 20 %) from another process's graph."""
+    measure the 250 Hz IMU stream (within 20 %) from another process's graph (the simulator
+    publishing one message per reading: ``sensor_messages: each``)."""
     from sensor_msgs.msg import Imu
 
     launcher = Launcher(
-        [NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 3})],
+        [
+            NodeSpec(
+                "simulator",
+                "ros4crs.simulator_node",
+                "/car1",
+                {"seed": 3, "sensor_messages": "each"},
+            )
+        ],
         DOMAIN,
         tmp_path / "logs",
     )
@@ -55,8 +63,9 @@ def test_tools_see_the_node_on_every_one_of_repeated_calls(tmp_path, warm_codege
     """8 ``crs ros topics`` and 2 ``crs ros hz`` calls in a row, each a new process with the
     default discovery wait, all see the simulator: a running node's reply to a new process's
     first announcement is often lost (Fast DDS), so that process finds the node only at the
-    node's next announcement, which the launcher makes come every 0.25 s instead of 3 s."""
-    from sensor_msgs.msg import Imu
+    node's next announcement, which the launcher makes come every 0.25 s instead of 3 s. The
+    simulator publishes its readings in 10 ms batches (the default): 100 a second."""
+    from chronos_msgs.msg import SensorBatch
 
     launcher = Launcher(
         [NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 3})],
@@ -74,22 +83,24 @@ def test_tools_see_the_node_on_every_one_of_repeated_calls(tmp_path, warm_codege
         assert done.returncode == 0, done.stderr[-2000:]
         return done.stdout
 
-    expected = ["/car1/sensors/imu  [sensor_msgs/msg/Imu]", "/car1/sensors/lighthouse  ["]
+    expected = ["/car1/sensors/batch  [chronos_msgs/msg/SensorBatch]", "/car1/ground_truth  ["]
     probe = Probe(DOMAIN_REPEATED)
-    imu = probe.collect(Imu, "/car1/sensors/imu")
+    batches = probe.collect(SensorBatch, "/car1/sensors/batch")
     try:
         launcher.start()
         try:
-            wait_for(lambda: len(imu) > 50, 60.0, "the simulator's IMU stream")
+            wait_for(lambda: len(batches) > 20, 60.0, "the simulator's sensor batches")
         finally:
-            probe.close()  # its subscription would show /car1/sensors/imu in the listings too
+            probe.close()  # its subscription would show /car1/sensors/batch in the listings too
         started = time.monotonic()
         listings = [crs_ros("topics") for _ in range(8)]
-        rates = [json.loads(crs_ros("hz", "/car1/sensors/imu", "--window", "1")) for _ in range(2)]
+        rates = [
+            json.loads(crs_ros("hz", "/car1/sensors/batch", "--window", "1")) for _ in range(2)
+        ]
         seconds = time.monotonic() - started
         misses = [i for i, text in enumerate(listings) if not all(t in text for t in expected)]
         assert not misses, f"calls {misses} of 8 missed /car1 topics:\n{listings[misses[0]]}"
-        assert [r["rate_hz"] for r in rates] == [pytest.approx(250.0, rel=0.2)] * 2
+        assert [r["rate_hz"] for r in rates] == [pytest.approx(100.0, rel=0.2)] * 2
         assert launcher.poll() == []
         print(f"10 tool calls in {seconds:.1f} s")
     finally:

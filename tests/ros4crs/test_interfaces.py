@@ -21,7 +21,14 @@ from std_msgs.msg import Header
 
 from ros4crs.interfaces import PACKAGE, msg_dir, typestore
 
-NAMES = ["CarInput", "CarState", "EstimatorDiagnostics", "LighthouseSweep", "WheelSpeeds"]
+NAMES = [
+    "CarInput",
+    "CarState",
+    "EstimatorDiagnostics",
+    "LighthouseSweep",
+    "SensorBatch",
+    "WheelSpeeds",
+]
 
 HEADER = {"stamp": {"sec": 1_700_000_123, "nanosec": 456_789_012}, "frame_id": "world"}
 
@@ -61,6 +68,11 @@ SAMPLES: dict[str, dict[str, object]] = {
         "angles": [-0.5, 0.25, 1.0e-9, 0.75],
         "sensor_timestamp": 4_294_967_295,
         "sync_timestamp": 123_456,
+    },
+    "SensorBatch": {
+        "sensors": ["imu", "lighthouse/1/2"],
+        "stamps_ns": [9_223_372_036_854_775_807, 0],
+        "values": [0.5, -0.25, 3.0, 1.0, 1.0e-9, -2.0, 0.75],
     },
     "WheelSpeeds": {"front_left": 50.5, "front_right": 51.0, "rear_left": -1.5, "rear_right": 0.0},
 }
