@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 OVERWRITE_HELP = (
-    "replace an --out folder written by an earlier crs run (a folder holding other files is "
-    "always refused)"
+    "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
 
 
@@ -54,3 +54,35 @@ def bounded_number(
 
     parse.__name__ = name
     return parse
+
+
+#: Longest simulation, race or benchmark run the CLI accepts, s.
+MAX_DURATION_S = 3600.0
+
+
+def add_out(parser: argparse.ArgumentParser, help_text: str, **kwargs: Any) -> None:
+    """``--out`` (a ``Path``) and ``--overwrite`` (replace what an earlier run wrote there)."""
+    parser.add_argument("--out", type=Path, help=help_text, **kwargs)
+    parser.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+
+
+def add_duration(parser: argparse.ArgumentParser, default: float, what: str) -> None:
+    """``--duration``: ``what`` in s, ``(0, MAX_DURATION_S]``."""
+    parser.add_argument(
+        "--duration",
+        type=bounded_number("duration", "s", 0.0, MAX_DURATION_S),
+        default=default,
+        help=f"{what}, s (default {default:g}, at most {MAX_DURATION_S:g})",
+    )
+
+
+def add_estimator(parser: argparse.ArgumentParser) -> None:
+    """``--estimator ekf|mhe`` (default mhe)."""
+    parser.add_argument(
+        "--estimator", choices=["ekf", "mhe"], default="mhe", help="(default mhe, at 60 Hz)"
+    )
+
+
+def add_seed(parser: argparse.ArgumentParser, help_text: str = "seed of all noise") -> None:
+    """``--seed`` (an integer, default 0)."""
+    parser.add_argument("--seed", type=int, default=0, help=f"{help_text} (default 0)")

@@ -9,7 +9,7 @@
 * :mod:`~crs_core.calibration.evaluation`, :mod:`~crs_core.calibration.report`,
   :mod:`~crs_core.calibration.plots`: residuals, reprojected positions, mean/max vs n, outputs.
 
-Command line: ``crs calibrate-lighthouse`` (:mod:`launch_scripts.calibration_command`).
+Command line: ``crs calibrate-lighthouse`` (:mod:`launch_scripts.commands.calibration`).
 """
 
 from crs_core.calibration.moving import MovingCalibration, calibrate_moving

@@ -310,13 +310,13 @@ def test_estimate_missing_dataset_or_unwritable_out(
 
 
 def test_a_launch_that_races_too_few_laps_or_loses_a_node_fails_with_a_headline(capsys) -> None:
-    from launch_scripts.cli import _verdict
+    from launch_scripts.commands.launch import verdict
 
     report = {"node_deaths": [], "cars": {"car1": {"laps_completed": 5}}}
-    assert _verdict(report, 3) == 0 and _verdict(report, 0) == 0
+    assert verdict(report, 3) == 0 and verdict(report, 0) == 0
     report["cars"]["car2"] = {"laps_completed": 0}
-    assert _verdict(report, 3) == 1
+    assert verdict(report, 3) == 1
     assert "FAILED: car2 raced 0 laps, fewer than the 3 required" in capsys.readouterr().err
     report = {"node_deaths": [{"node": "/car1/estimator", "returncode": -11}], "cars": {}}
-    assert _verdict(report, 0) == 1
+    assert verdict(report, 0) == 1
     assert "/car1/estimator died" in capsys.readouterr().err

@@ -12,7 +12,7 @@ import yaml
 
 from crs_core.dataset import Dataset
 from crs_core.model import CarModel
-from launch_scripts import sysid_command
+from launch_scripts.commands import sysid as sysid_command
 from launch_scripts.output_folder import MARKER
 from sim.scenarios import simulate_dataset
 

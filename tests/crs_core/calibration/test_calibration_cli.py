@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from crs_core.dataset import Dataset, Geometry
-from launch_scripts.calibration_command import add_commands
+from launch_scripts.commands.calibration import add_commands
 from launch_scripts.output_folder import MARKER
 
 

@@ -162,23 +162,6 @@ def add_commands(subparsers) -> None:
     recording.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     recording.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     recording.set_defaults(handler=run_simulate_moving)
-    bench = modes.add_parser(
-        "bench",
-        help="accuracy on simulated data (JSON): static mean/max vs n, moving offset recovery",
-        description="Static: 24 simulated points (1 mrad per sweep) for 1 or 20 sweeps per "
-        "point and 0 or 2 mm error of the known positions; mean/max reprojected error and the "
-        "true station error vs n = 4..24, mean over --seeds. Moving: 20 s recordings with a "
-        "20 ms clock offset; offset and station errors. Prints JSON (about 1 min).",
-    )
-    bench.add_argument("--out", type=Path, help="also write the JSON to this file")
-    bench.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
-    bench.add_argument(
-        "--seeds",
-        type=bounded_number("seeds", "", 1, 50, int, include_low=True),
-        default=5,
-        help="static seeds per setting (default 5; moving uses min(seeds, 3))",
-    )
-    bench.set_defaults(handler=run_bench)
 
 
 def _command_line() -> str:
@@ -317,28 +300,3 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
         f"{1e3 * args.offset:.1f} ms; true geometry in dataset.yaml)"
     )
     return out
-
-
-def run_bench(args: argparse.Namespace) -> int:
-    """The ``bench`` mode: print (and save) the JSON of :mod:`sim.bench.calibration`."""
-    import json
-    import time
-
-    from sim.bench.calibration import moving_study, static_study
-    from sim.bench.machine import machine
-
-    if args.out is not None:
-        prepare_output_file(args.out, args.overwrite)
-    started = time.perf_counter()
-    result = {
-        "command": _command_line(),
-        "machine": machine(),
-        "static": static_study(seeds=args.seeds),
-        "moving": moving_study(seeds=min(args.seeds, 3)),
-    }
-    result["elapsed_s"] = round(time.perf_counter() - started, 1)
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out is not None:
-        args.out.write_text(text + "\n")
-    return 0

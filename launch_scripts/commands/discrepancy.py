@@ -13,13 +13,13 @@ from crs_core.identification.data import FieData
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS
 from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
-from launch_scripts.output_folder import prepare_output
-from launch_scripts.sysid_command import (
+from launch_scripts.commands.sysid import (
     EFFECT_OPTION,
     identification_model,
     load_dataset,
     parse_fit,
 )
+from launch_scripts.output_folder import prepare_output
 
 
 def parse_candidates(text: str | None) -> tuple[str, ...] | None:

@@ -1,0 +1,1 @@
+"""The ``crs`` commands, one module each (registered in :mod:`launch_scripts.cli`)."""

@@ -1,0 +1,336 @@
+"""``crs bench NAME``: the benchmarks, each a sub-command with its own options, each printing
+its figures and writing them as JSON to ``--out``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from launch_scripts.arguments import (
+    add_duration,
+    add_estimator,
+    add_out,
+    add_seed,
+    argument_type,
+    bounded_number,
+)
+from launch_scripts.output_folder import prepare_output, prepare_output_file
+from sim.bench.machine import REAL_DATA
+
+#: What a benchmark gives: the JSON-ready result and the text to print.
+Outcome = tuple[dict[str, Any], str]
+
+
+def _command_line() -> str:
+    return "crs " + " ".join(sys.argv[1:])
+
+
+def _runs(args: argparse.Namespace, name: str) -> Path:
+    """The folder of a benchmark's launched runs: ``<--out without .json>_runs`` (or
+    ``out/bench/<name>_runs``), new or written by an earlier ``crs bench``."""
+    runs = Path(args.out).with_suffix("") if args.out else Path("out/bench") / name
+    return prepare_output(runs.with_name(runs.name + "_runs"), "bench", args.overwrite)
+
+
+def _with_machine(result: dict[str, Any]) -> dict[str, Any]:
+    from sim.bench.machine import machine
+
+    return {"machine": machine(), "command": _command_line(), **result}
+
+
+def model(args: argparse.Namespace) -> Outcome:
+    from sim.bench.model import model_benchmark
+
+    result = model_benchmark()
+    return result, json.dumps(result, indent=2)
+
+
+def estimation(args: argparse.Namespace) -> Outcome:
+    from sim.bench.estimation import format_table, run_all
+
+    folders = sorted(p for p in REAL_DATA.iterdir() if p.is_dir()) if REAL_DATA.is_dir() else []
+    plots = Path(args.out).parent / "estimation_plots" if args.out else None
+    rows = run_all(tuple(range(args.seeds)), folders, plots, peers=not args.no_peers)
+    return _with_machine({"rows": rows}), format_table(rows)
+
+
+def stack(args: argparse.Namespace) -> Outcome:
+    from launch_scripts.stack_benchmark import format_table, stack_benchmark
+
+    work = _runs(args, "stack")
+    result = stack_benchmark(
+        args.cars, args.estimator, args.duration, args.repeats, args.load, work
+    )
+    return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
+
+
+def bridge(args: argparse.Namespace) -> Outcome:
+    from launch_scripts.bridge_benchmark import bridge_benchmark, format_table
+
+    work = _runs(args, "bridge")
+    result = _with_machine(bridge_benchmark(args.duration, work, args.estimator, args.seed))
+    return result, f"{format_table(result)}\nruns (reports, figures, bags, emulator logs): {work}"
+
+
+def link(args: argparse.Namespace) -> Outcome:
+    from launch_scripts.link_benchmark import format_table, link_benchmark
+
+    work = _runs(args, "link")
+    result = link_benchmark(
+        work,
+        presets=args.presets,
+        loads=args.loads,
+        car_counts=args.cars,
+        duration=args.duration,
+        seed=args.seed,
+    )
+    result = _with_machine(result)
+    return result, f"{format_table(result)}\nruns (reports, figures, bags, emulator logs): {work}"
+
+
+def sysid(args: argparse.Namespace) -> Outcome:
+    from sim.bench.sysid import sysid_benchmark
+
+    result = {"command": _command_line(), **sysid_benchmark(None, args.seeds)}
+    return result, json.dumps(result, indent=2)
+
+
+def discrepancy(args: argparse.Namespace) -> Outcome:
+    from sim.bench.discrepancy import discrepancy_benchmark, markdown
+
+    result = {
+        "command": _command_line(),
+        **discrepancy_benchmark(
+            args.out,
+            seeds=args.seeds,
+            clean_seeds=args.clean_seeds,
+            progress=lambda line: print(f"discrepancy bench: {line}", file=sys.stderr),
+            speed_run=not args.no_speed,
+            resume=args.resume,
+        ),
+    }
+    headline = json.dumps({k: result[k] for k in ("summary", "wall_time_s") if k in result})
+    return result, f"{headline}\n{markdown(result['cases'])}"
+
+
+def control(args: argparse.Namespace) -> Outcome:
+    from sim.bench.control import control_benchmark, format_table
+
+    progress = lambda line: print(f"control bench: {line}", file=sys.stderr)  # noqa: E731
+    result = {"command": _command_line(), **control_benchmark(progress=progress)}
+    return result, format_table(result)
+
+
+def calibration(args: argparse.Namespace) -> Outcome:
+    import time
+
+    from sim.bench.calibration import moving_study, static_study
+
+    started = time.perf_counter()
+    result = _with_machine(
+        {
+            "static": static_study(seeds=args.seeds),
+            "moving": moving_study(seeds=min(args.seeds, 3)),
+        }
+    )
+    result["elapsed_s"] = round(time.perf_counter() - started, 1)
+    return result, json.dumps(result, indent=2)
+
+
+def run(args: argparse.Namespace) -> None:
+    """Run the benchmark ``args.benchmark``; print its figures; write ``--out``."""
+    resume = getattr(args, "resume", False)
+    if resume and not args.out:
+        raise ValueError("--resume: needs --out FILE (the run to continue)")
+    if args.out:
+        prepare_output_file(args.out, args.overwrite or resume)
+    result, text = args.benchmark(args)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(json.dumps(result, indent=2))
+        print(f"JSON: {args.out}")
+
+
+def _seeds(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--seeds",
+        type=bounded_number("seeds", "", 0, 50, int),
+        default=5,
+        help=f"{what} (default 5)",
+    )
+
+
+def _stack_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
+    )
+    add_estimator(parser)
+    add_duration(parser, 40.0, "wall-clock time per repeat")
+    parser.add_argument(
+        "--repeats",
+        type=bounded_number("repeats", "", 0, 20, int),
+        default=1,
+        help="runs (default 1)",
+    )
+    parser.add_argument(
+        "--load",
+        type=bounded_number("load", "", -1, 16, int),
+        default=0,
+        help="busy-looping processes beside the stack, 0..16 (default 0)",
+    )
+
+
+def _bridge_options(parser: argparse.ArgumentParser) -> None:
+    add_estimator(parser)
+    add_seed(parser, "noise seed")
+    add_duration(parser, 40.0, "wall-clock time of each run")
+
+
+def _link_options(parser: argparse.ArgumentParser) -> None:
+    from launch_scripts.link_benchmark import PRESET_NAMES, parse_counts, parse_presets
+
+    parser.add_argument(
+        "--presets",
+        type=argument_type(parse_presets),
+        default=PRESET_NAMES,
+        help=f"link presets PRESET[,PRESET...] (default {','.join(PRESET_NAMES)})",
+    )
+    parser.add_argument(
+        "--loads",
+        type=argument_type(parse_counts("loads", 0, 16)),
+        default=(0, 1, 2),
+        help="busy-looping processes beside each race, N[,N...] (default 0,1,2)",
+    )
+    parser.add_argument(
+        "--cars",
+        type=argument_type(parse_counts("cars", 1, 8)),
+        default=(1, 2),
+        help="emulated cars racing at once, N[,N...] (default 1,2)",
+    )
+    add_duration(parser, 40.0, "wall-clock time of each race")
+    add_seed(parser, "noise seed")
+
+
+def _sysid_options(parser: argparse.ArgumentParser) -> None:
+    _seeds(parser, "seeds of the simulated coverage study")
+
+
+def _calibration_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--seeds",
+        type=bounded_number("seeds", "", 1, 50, int, include_low=True),
+        default=5,
+        help="static seeds per setting (default 5; moving uses min(seeds, 3))",
+    )
+
+
+def _estimation_options(parser: argparse.ArgumentParser) -> None:
+    _seeds(parser, "seeds per row")
+    parser.add_argument("--no-peers", action="store_true", help="skip filterpy and do-mpc")
+
+
+def _discrepancy_options(parser: argparse.ArgumentParser) -> None:
+    _seeds(parser, "runs per hidden effect and magnitude")
+    parser.add_argument(
+        "--clean-seeds",
+        type=bounded_number("clean-seeds", "", 0, 200, int),
+        default=20,
+        help="clean runs for the false-alarm rate (default 20)",
+    )
+    parser.add_argument("--no-speed", action="store_true", help="skip the 60 s speed run")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the run in --out (keep its cases, run the missing ones)",
+    )
+
+
+#: name: (function, options, description).
+BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] = {
+    "model": (model, None, "model evaluation speed and the simulator's real-time factor (s)"),
+    "estimation": (
+        estimation,
+        _estimation_options,
+        "EKF / MHE accuracy and speed on simulated runs (and on the real recordings in "
+        f"{REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min",
+    ),
+    "stack": (
+        stack,
+        _stack_options,
+        "the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, deadline "
+        "misses, re-initialisations, latencies, and CPU and peak memory per node; --load K busy "
+        "processes beside it; the runs go to <out without .json>_runs/",
+    ),
+    "bridge": (
+        bridge,
+        _bridge_options,
+        "crs launch sim (direct simulator) and crs launch car --emulate (the emulated car over "
+        "loopback UDP through the bridge) for the same --duration and --seed, side by side: "
+        "laps, RMSE, deadline misses, latencies (sensor packet -> estimate -> command packet), "
+        "bridge counts, CPU per process; ~2 x duration + 30 s",
+    ),
+    "link": (
+        link,
+        _link_options,
+        "crs launch car --emulate over a Wi-Fi-like link, every --presets x --loads (busy loops "
+        "beside the race) x --cars, one --duration race each: laps, mean flying lap (and its "
+        "ratio to the clean run), seconds off the track (the emulator's truth and the car's "
+        "footprint), motor cut-offs, estimation RMSE, QP failures, re-initialisations, sensor "
+        "-> command latency, per outage the cut-off and the time to race again, CPU per "
+        "process, and the issue's targets per run; a Markdown table; ~24 x (duration + 30 s) "
+        "for the full matrix",
+    ),
+    "sysid": (
+        sysid,
+        _sysid_options,
+        "identification speed (a real run, 3000 simulated samples), real-data "
+        "cross-validation (run 1 <-> run 2) and the simulated coverage study; ~10 min",
+    ),
+    "discrepancy": (
+        discrepancy,
+        _discrepancy_options,
+        "every registry effect hidden at two magnitudes, the steering gain at three (--seeds "
+        "runs each) and --clean-seeds clean runs (every third with mismatched sensor noise): "
+        "the confusion table, false-alarm rate, parameter accuracy, gap before / after, and "
+        "the time of one run on 60 s of data; ~1 h with --seeds 1",
+    ),
+    "calibration": (
+        calibration,
+        _calibration_options,
+        "Lighthouse calibration accuracy on simulated data: static, 24 simulated points (1 mrad "
+        "per sweep) for 1 or 20 sweeps per point and 0 or 2 mm error of the known positions, "
+        "the mean/max reprojected error and the true station error vs n = 4..24, mean over "
+        "--seeds; moving, 20 s recordings with a 20 ms clock offset, the offset and station "
+        "errors; ~1 min",
+    ),
+    "control": (
+        control,
+        None,
+        "the MPCC's solve time (N = 40, 30 Hz) against an IPOPT peer on the same problem, the "
+        "QP solvers (HPIPM, qpOASES, OSQP, qrqp), and 5-lap races on the true state and with "
+        "the MHE, with and without a 1.127 s Lighthouse blackout per lap, on a mismatched car "
+        "and with velocity references; ~5 min",
+    ),
+}
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``bench`` and its sub-commands."""
+    parser = commands.add_parser(
+        "bench",
+        help="benchmarks that print and save JSON",
+        description="Benchmarks: each prints its figures and, with --out FILE, saves them as "
+        "JSON. crs bench NAME --help for one.",
+    )
+    benchmarks = parser.add_subparsers(dest="what", required=True, metavar="NAME")
+    for name, (function, add_options, description) in BENCHMARKS.items():
+        headline = description.split(": ")[0].split("; ")[0]
+        sub = benchmarks.add_parser(name, help=headline, description=f"{description}.")
+        add_out(sub, "also write the JSON to this file")
+        if add_options is not None:
+            add_options(sub)
+        sub.set_defaults(handler=run, benchmark=function)

@@ -1,0 +1,58 @@
+"""``crs consistency``: the sensor models against the real recordings."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from launch_scripts.arguments import add_out
+from launch_scripts.output_folder import prepare_output_file
+from sim.bench.machine import REAL_DATA
+
+
+def consistency(args: argparse.Namespace) -> None:
+    """Real-data consistency of the sensor models (median / p95 error per channel)."""
+    from crs_core.analysis.consistency import channel_errors
+    from crs_core.dataset import Dataset
+
+    if args.out:
+        prepare_output_file(args.out, args.overwrite)
+    if not args.data and not REAL_DATA.is_dir():
+        raise ValueError(
+            f"--data: no dataset given, and the real recordings are not at {REAL_DATA} (they "
+            "come with the project's shared data); pass --data DATASET_FOLDER"
+        )
+    folders = args.data or sorted(p for p in REAL_DATA.iterdir() if p.is_dir())
+    rows = {}
+    for folder in folders:
+        rows[Path(folder).name] = channel_errors(Dataset.load(folder))
+    text = json.dumps({"command": " ".join(sys.argv), "runs": rows}, indent=2)
+    if args.out:
+        Path(args.out).write_text(text)
+    print(f"{'channel':18s}" + "".join(f"{name[-12:]:>26s}" for name in rows))
+    for channel in next(iter(rows.values())):
+        cells = "".join(
+            f"{r[channel]['median']:12.4g} /{r[channel]['p95']:11.4g}" for r in rows.values()
+        )
+        print(f"{channel:18s}{cells}")
+    print("(median / p95 of |recorded - model(recorded state)|; rad for Lighthouse, rad/s else)")
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``consistency``."""
+    sub = commands.add_parser(
+        "consistency",
+        help="sensor models vs. the real recordings",
+        description="Replay recorded states through the sensor models and print the error per "
+        "channel (median / p95).",
+    )
+    sub.add_argument(
+        "--data",
+        type=Path,
+        action="append",
+        help=f"dataset folder (repeatable; default: the real recordings in {REAL_DATA})",
+    )
+    add_out(sub, "also write the table as JSON to this file")
+    sub.set_defaults(handler=consistency)

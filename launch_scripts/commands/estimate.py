@@ -1,0 +1,152 @@
+"""``crs estimate``: an EKF or MHE over a recorded dataset, offline."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
+from launch_scripts.arguments import add_out
+from launch_scripts.output_folder import prepare_output
+
+
+def parse_x0(text: str | None) -> np.ndarray | None:
+    """``--x0 x,y,yaw`` or ``x,y,yaw,vx,vy,omega`` (SI units); ValueError naming ``--x0``."""
+    from crs_core.estimation.offline import initial_state
+
+    if text is None:
+        return None
+    try:
+        values = np.array([float(v) for v in text.split(",")])
+        initial_state(values)
+    except ValueError:
+        raise ValueError(
+            f"--x0: {text!r} must be 3 (x,y,yaw) or 6 (x,y,yaw,vx,vy,omega) finite numbers "
+            "separated by commas"
+        ) from None
+    return values
+
+
+def parse_rate(text: str | None) -> float | None:
+    """``--rate HZ``: a finite number > 0; ValueError naming ``--rate``."""
+    if text is None:
+        return None
+    try:
+        rate = float(text)
+    except ValueError:
+        rate = math.nan
+    if not (math.isfinite(rate) and rate > 0):
+        raise ValueError(f"--rate: must be a finite number of Hz > 0, got {text!r}")
+    return rate
+
+
+def estimate(args: argparse.Namespace) -> None:
+    """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
+    from tqdm import tqdm
+
+    from crs_core.dataset import Dataset
+    from crs_core.estimation.offline import dataset_model, estimate_dataset, reference_comparison
+    from launch_scripts.estimate_report import format_summary, write_figure
+
+    x0 = parse_x0(args.x0)
+    rate = parse_rate(args.rate)
+    if args.sensors != "auto":
+        try:
+            parse_sensor_set(args.sensors)
+        except ValueError as error:
+            raise ValueError(f"--sensors: {str(error).partition(': ')[2]}") from None
+    dataset = Dataset.load(args.dataset)
+    try:
+        model = dataset_model(dataset, args.params)
+    except yaml.YAMLError as error:
+        problem = str(error).splitlines()[0]
+        raise ValueError(f"--params: {args.params} is not valid YAML ({problem})") from None
+    except KeyError as error:
+        raise ValueError(f"--params: {error.args[0]}") from None
+    except OSError as error:
+        raise ValueError(f"--params: cannot read {args.params} ({error.strerror})") from None
+    out = prepare_output(Path(args.out), "estimate", args.overwrite)
+    name = Path(args.dataset).resolve().name
+    with tqdm(total=1000, desc=f"estimate {name}", file=sys.stderr, disable=None) as bar:
+        try:
+            result = estimate_dataset(
+                dataset,
+                args.estimator,
+                args.sensors,
+                model=model,
+                inputs=args.inputs,
+                x0=x0,
+                rate_hz=rate,
+                progress=lambda fraction: bar.update(round(1000 * fraction) - bar.n),
+            )
+        except ValueError as error:  # name the option, not the argument of the function
+            field, _, message = str(error).partition(": ")
+            options = {"x0": "--x0", "rate_hz": "--rate", "sensors": "--sensors"}
+            raise ValueError(f"{options.get(field, field)}: {message}") from None
+    comparison = reference_comparison(result, dataset)
+    result.save_npz(out / "estimates.npz")
+    report = {
+        "command": "crs " + " ".join(sys.argv[1:]),
+        "dataset": str(Path(args.dataset).resolve()),
+        "params": str(args.params) if args.params else None,
+        **result.diagnostics,
+        "reference": comparison,
+    }
+    (out / "diagnostics.json").write_text(json.dumps(report, indent=2) + "\n")
+    duration = float(result.t[-1] - result.t[0])
+    title = (
+        f"{name}: {args.estimator.upper()} on {result.diagnostics['sensors']}, inputs "
+        f"{args.inputs}, {'blind start' if x0 is None else 'given x0'}"
+    )
+    write_figure(result, dataset, out / "estimate.png", title)
+    print(format_summary(name, result.diagnostics, comparison, duration))
+    print(f"wrote {out / 'estimates.npz'}, diagnostics.json, estimate.png")
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``estimate``."""
+    sub = commands.add_parser(
+        "estimate",
+        help="run an EKF or MHE over a recorded dataset (offline)",
+        description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) and "
+        "write DIR/estimates.npz (t, x (6, N), status 0 ok / 1 degraded / 2 lost, "
+        "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
+    )
+    sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("--estimator", choices=KINDS, required=True, help="EKF or MHE")
+    sub.add_argument(
+        "--sensors",
+        default="auto",
+        help="sensor groups joined by '+' from lh, imu, gyro, we, pose (default auto: the "
+        "groups among lh, imu, gyro, we the dataset has)",
+    )
+    sub.add_argument(
+        "--inputs",
+        choices=INPUT_MODES,
+        default="auto",
+        help="commanded inputs: auto (use them if recorded), commanded (required), estimated "
+        "(withheld; steering and torque estimated)",
+    )
+    sub.add_argument(
+        "--x0",
+        metavar="x,y,yaw[,vx,vy,omega]",
+        help="initial state at the first stamp (m, rad, m/s, rad/s); default: blind start "
+        "from the Lighthouse",
+    )
+    sub.add_argument(
+        "--rate", metavar="HZ", help="MHE grid rate, Hz (default 60; the EKF has no grid)"
+    )
+    sub.add_argument(
+        "--params",
+        type=Path,
+        help="parameter YAML applied to the model (default: the Chronos parameters with the "
+        "dataset's Lighthouse geometry)",
+    )
+    add_out(sub, "output folder", required=True)
+    sub.set_defaults(handler=estimate)

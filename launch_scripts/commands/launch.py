@@ -1,0 +1,248 @@
+"""``crs launch sim|car``: the ROS 2 node suite against simulated cars, or against cars over
+UDP (emulated or real), then its report."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from chronos_bridge.impairment import SPEC_HELP
+from launch_scripts.arguments import add_duration, add_estimator, add_out, bounded_number
+from launch_scripts.commands.simulate import build_model
+from launch_scripts.output_folder import prepare_output
+from launch_scripts.sim_stack import RECORD_SETS
+
+
+def launch(args: argparse.Namespace) -> None:
+    """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``; ``crs launch
+    car --emulate | --car-ip IP``: the same against cars over UDP (emulated or real)."""
+    from crs_core.track import Track
+    from launch_scripts.sim_stack import run_stack, summary
+
+    if args.scenario == "car":
+        return launch_car(args)
+    for option, given in (("--emulate", args.emulate), ("--car-ip", args.car_ip)):
+        if given:
+            raise ValueError(f"{option}: only for crs launch car")
+    for option, given in _link_options(args):
+        if given is not None:
+            raise ValueError(
+                f"{option}: only for crs launch car --emulate (the simulator has no radio link)"
+            )
+
+    # the nodes check these too, but a mistake is cheaper to hear before four processes start
+    if args.output == "velocity" and args.controller != "mpcc":
+        raise ValueError(
+            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
+            "commands torque)"
+        )
+    if args.track is not None:
+        Track.from_yaml(args.track)
+    if args.params is not None:
+        build_model([], 1, args.params)
+    prepare_output(Path(args.out), "launch", args.overwrite)
+    report = run_stack(
+        args.cars,
+        args.estimator,
+        args.duration,
+        args.out,
+        args.domain,
+        args.seed,
+        blind_start=args.blind_start,
+        record=args.record,
+        track_file=args.track,
+        params_file=args.params,
+        controller=args.controller,
+        output=args.output,
+    )
+    print(summary(report, Path(args.out)))
+    return verdict(report, args.require_laps)
+
+
+def verdict(report: dict, require_laps: int) -> int:
+    """0, or 1 with a headline on stderr when a node died or a car raced fewer than
+    ``require_laps`` laps (``--require-laps``; 0: no requirement)."""
+    failures = [f"{d['node']} died" for d in report.get("node_deaths", [])]
+    if require_laps > 0:
+        failures += [
+            f"{name} raced {car['laps_completed']} laps, fewer than the {require_laps} required"
+            for name, car in report["cars"].items()
+            if car["laps_completed"] < require_laps
+        ]
+    if not failures:
+        return 0
+    print(f"crs launch: FAILED: {'; '.join(failures)}", file=sys.stderr)
+    return 1
+
+
+def _link_options(args: argparse.Namespace) -> list[tuple[str, object]]:
+    """``crs launch``'s link options and their values (None: not given)."""
+    return [
+        ("--link", args.link),
+        ("--link-up", args.link_up),
+        ("--link-down", args.link_down),
+        ("--link-seed", args.link_seed),
+    ]
+
+
+def launch_car(args: argparse.Namespace) -> None:
+    """``crs launch car (--emulate | --car-ip IP[,IP...])``: the stack against cars over UDP
+    (emulated cars: ``--link``, ``--link-up``, ``--link-down``, ``--link-seed`` impair their
+    link like Wi-Fi)."""
+    from launch_scripts.car_stack import EmulatedLink, parse_car_ips, run_car_stack, summary
+
+    if args.emulate == (args.car_ip is not None):
+        raise ValueError("car: needs either --emulate or --car-ip IP (a real car), not both")
+    if not args.emulate:
+        for option, given in _link_options(args):
+            if given is not None:
+                raise ValueError(
+                    f"{option}: only with --emulate (a real car's link is the real Wi-Fi; "
+                    "impair it with the router, not here)"
+                )
+    link = EmulatedLink(args.link, args.link_up, args.link_down, args.link_seed)
+    link.arguments(1)  # checks the specs and the seed before anything starts
+    car_ips = None
+    if args.car_ip is not None:
+        car_ips = parse_car_ips(args.car_ip)
+        if args.cars not in (1, len(car_ips)):
+            raise ValueError(
+                f"--cars: {args.cars} cars with {len(car_ips)} --car-ip address(es); give one "
+                "address per car (IP,IP,...)"
+            )
+        args.cars = len(car_ips)
+    if args.track is not None:
+        raise ValueError("--track: crs launch car races DEMO_TRACK (where the emulator starts)")
+    if args.output == "velocity" and args.controller != "mpcc":
+        raise ValueError(
+            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
+            "commands torque)"
+        )
+    if args.params is not None:
+        build_model([], 1, args.params)
+    prepare_output(Path(args.out), "launch", args.overwrite)
+    report = run_car_stack(
+        args.cars,
+        args.estimator,
+        args.duration,
+        Path(args.out),
+        args.emulate,
+        car_ips,
+        args.domain,
+        args.seed,
+        record=args.record,
+        controller=args.controller,
+        output=args.output,
+        blind_start=args.blind_start,
+        params_file=args.params,
+        link=link,
+    )
+    print(summary(report, Path(args.out)))
+    return verdict(report, args.require_laps)
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``launch``."""
+    sub = commands.add_parser(
+        "launch",
+        help="run the ROS 2 node suite",
+        description="sim: per car a simulator, an estimator and a controller node (namespaces "
+        "/car1, /car2, ...) and one recorder, as processes on DDS (loopback), for --duration; "
+        "then OUT/report.json (laps, estimation RMSE, deadline misses, latencies, CPU), "
+        "OUT/path.png, OUT/bag (MCAP) and OUT/logs. car: per car a bridge node (UDP port "
+        "20211, 20212, ...), an estimator and a controller, against emulated cars on loopback "
+        "(--emulate: one crs car-emulator per car on port 20311, 20312, ...; truth and link "
+        "timing in OUT/truth_carN.npz) or real cars (--car-ip IP[,IP...]: the bridge binds "
+        "0.0.0.0 and pairs only with that address); the report adds the latency sensor packet "
+        "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs.",
+    )
+    sub.add_argument(
+        "scenario",
+        choices=["sim", "car"],
+        help="sim: simulated cars (no car needed); car: cars over UDP (--emulate or --car-ip)",
+    )
+    sub.add_argument(
+        "--emulate",
+        action="store_true",
+        help="car: emulated cars (crs car-emulator) on loopback UDP, exactly as real ones",
+    )
+    sub.add_argument(
+        "--car-ip",
+        help="car: the real car's IPv4 address (several cars: IP,IP,...; one bridge each)",
+    )
+    sub.add_argument(
+        "--link",
+        metavar="SPEC",
+        help="car --emulate: impair the emulated cars' link both ways like Wi-Fi (default "
+        "clean): " + SPEC_HELP,
+    )
+    sub.add_argument(
+        "--link-up", metavar="SPEC", help="car --emulate: car -> host only (overrides --link)"
+    )
+    sub.add_argument(
+        "--link-down", metavar="SPEC", help="car --emulate: host -> car only (overrides --link)"
+    )
+    sub.add_argument(
+        "--link-seed",
+        type=bounded_number("link-seed", "", 0, 2**31, int, include_low=True),
+        help="car --emulate: seed of the links' draws; car i uses LINK_SEED + i (default: from "
+        "each emulator's own seed)",
+    )
+    sub.add_argument(
+        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
+    )
+    add_estimator(sub)
+    sub.add_argument(
+        "--controller",
+        choices=["mpcc", "path"],
+        default="mpcc",
+        help="mpcc: race (MPCC, 30 Hz; default); path: follow the centreline at 1 m/s (50 Hz)",
+    )
+    sub.add_argument(
+        "--output",
+        choices=["torque", "velocity"],
+        default="torque",
+        help="what the controllers command: torque (steering and motor torque; default) or "
+        "velocity (steering and a velocity reference for the car's onboard 250 Hz velocity PID, "
+        "which the simulators then run; --controller mpcc only)",
+    )
+    add_duration(sub, 40.0, "wall-clock time")
+    add_out(sub, "output folder", required=True)
+    sub.add_argument(
+        "--domain",
+        type=bounded_number("domain", "", -1, 232, int),
+        help="ROS_DOMAIN_ID, 0..232 (default: $ROS_DOMAIN_ID, else 42)",
+    )
+    sub.add_argument(
+        "--seed", type=int, default=0, help="noise seed; car i uses SEED + i (default 0)"
+    )
+    sub.add_argument(
+        "--require-laps",
+        type=bounded_number("require-laps", "", 0, 1000, int),
+        default=0,
+        help="exit 1 with a FAILED headline when a car races fewer laps (default 0: none)",
+    )
+    sub.add_argument(
+        "--blind-start",
+        action="store_true",
+        help="estimators initialise from the Lighthouse instead of the known start pose",
+    )
+    sub.add_argument(
+        "--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK) for every car"
+    )
+    sub.add_argument(
+        "--params",
+        type=Path,
+        help="parameter YAML of the cars: the simulated truth and the model of the estimators "
+        "and controllers (default: the Chronos parameters)",
+    )
+    sub.add_argument(
+        "--record",
+        choices=list(RECORD_SETS),
+        default="all",
+        help="what the bag (OUT/bag, MCAP) holds: all (default: sensors, inputs, truth, "
+        "estimates, odometry, /tf; replays the estimator offline exactly), estimates (no 250 Hz "
+        "sensor streams) or sensors (no estimates)",
+    )
+    sub.set_defaults(handler=launch)

@@ -1,0 +1,62 @@
+"""``crs ros topics|echo|hz``: small stand-ins for the ``ros2`` command line."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from launch_scripts.arguments import bounded_number
+
+
+def ros_tool(args: argparse.Namespace) -> None:
+    """``crs ros topics|echo|hz``."""
+    if args.tool in ("echo", "hz") and not args.topic:
+        raise ValueError(f"TOPIC: {args.tool} needs a topic, e.g. crs ros {args.tool} /car1/input")
+    from ros4crs import tools
+
+    if args.tool == "topics":
+        for name, msgtype in tools.list_topics(args.wait):
+            print(f"{name}  [{msgtype}]")
+    elif args.tool == "echo":
+        for message in tools.echo(args.topic, args.count, args.timeout):
+            print(message)
+    else:
+        print(json.dumps(tools.rate(args.topic, args.window, args.timeout)))
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``ros``."""
+    sub = commands.add_parser(
+        "ros",
+        help="topics, echo, hz (no ros2 CLI here)",
+        description="topics: list the topics and types seen in the ROS domain ($ROS_DOMAIN_ID). "
+        "echo: print the next messages of a topic. hz: its receive rate (JSON: rate_hz, "
+        "messages, gap_ms_median, gap_ms_max).",
+    )
+    sub.add_argument("tool", choices=["topics", "echo", "hz"], help="which tool")
+    sub.add_argument("topic", nargs="?", help="echo, hz: the topic, e.g. /car1/estimate/state")
+    sub.add_argument(
+        "--count",
+        type=bounded_number("count", "", 0, 1e6, int),
+        default=1,
+        help="echo: messages to print (default 1)",
+    )
+    sub.add_argument(
+        "--window",
+        type=bounded_number("window", "s", 0.0, 3600.0),
+        default=2.0,
+        help="hz: seconds to listen (default 2)",
+    )
+    sub.add_argument(
+        "--wait",
+        type=bounded_number("wait", "s", 0.0, 3600.0),
+        default=1.0,
+        help="topics: discovery time, s (default 1)",
+    )
+    sub.add_argument(
+        "--timeout",
+        type=bounded_number("timeout", "s", 0.0, 3600.0),
+        default=5.0,
+        help="echo, hz: give up after this many s without a message (default 5)",
+    )
+    sub.set_defaults(handler=ros_tool)

@@ -1,0 +1,150 @@
+"""``crs sim`` and ``crs demo``: the ROS-free simulator with the path follower in the loop."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from crs_core.model import EFFECTS, CarModel
+from crs_core.model.effects import effect_spec, parse_effect
+from launch_scripts.arguments import (
+    OVERWRITE_HELP,
+    add_duration,
+    add_seed,
+    argument_type,
+    bounded_number,
+)
+from launch_scripts.output_folder import prepare_output
+from sim.sensors import SensorSuite, parse_blackout
+
+#: The effects and their parameters (name, unit, default), for ``--help``.
+EFFECTS_EPILOG = "effects (--effect NAME[.PARAM][=VALUE]; parameter, unit, default):\n" + "\n".join(
+    f"  {effect.name:20s} "
+    + "; ".join(f"{p.name} [{p.unit}] {p.value:g}: {p.description}" for p in effect.parameters)
+    for effect in EFFECTS.values()
+)
+
+
+def build_model(
+    effects: Sequence[tuple[str, str | None, float | None]], stations: int, params_yaml: Path | None
+) -> CarModel:
+    """The car model with ``effects``, ``stations`` base stations and the parameters of
+    ``params_yaml`` (``None``: the Chronos parameters)."""
+    spec = effect_spec(effects)
+    model = CarModel(spec, n_base_stations=stations)
+    if params_yaml is not None:
+        model = CarModel(spec, stations, model.parameters.updated_from_yaml(params_yaml))
+    return model
+
+
+def simulate(args: argparse.Namespace) -> Path:
+    """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
+    from crs_core.control.path_following import PathFollower, PathFollowerSettings
+    from crs_core.track import Track, load_demo_track
+    from sim.report import write_report
+    from sim.simulator import Simulator
+
+    track = Track.from_yaml(args.track) if args.track else load_demo_track()
+    model = build_model(args.effect or [], args.stations, args.params)
+    out = prepare_output(Path(args.out), args.command, args.overwrite)
+    sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
+    if args.noise_free:
+        sensors = sensors.ideal()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=args.speed))
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    simulator = Simulator(model, sensors, seed=args.seed)
+    started = time.perf_counter()
+    result = simulator.run(controller, args.duration, x0, progress=sys.stderr.isatty())
+    elapsed = time.perf_counter() - started
+    result.extra_meta["noise_free"] = bool(args.noise_free)
+    result.to_dataset().save(out)
+    print(
+        f"dataset: {out}  ({len(result.measurements)} measurements, "
+        f"{args.duration / elapsed:.0f}x real time)"
+    )
+    if args.report:
+        report = write_report(
+            result, track, out / "report", {"real_time_factor": round(args.duration / elapsed, 1)}
+        )
+        print(f"report:  {report}/summary.txt, path.png, sensors.png, estimation.png")
+        print((report / "summary.txt").read_text(), end="")
+    return out
+
+
+def add_command(commands: argparse._SubParsersAction) -> None:
+    """Add ``sim`` and ``demo`` (the same simulation; ``demo`` has defaults and a report)."""
+    for name, help_text, duration in (
+        ("sim", "simulate the car on a track and save a dataset", 30.0),
+        ("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0),
+    ):
+        sub = commands.add_parser(
+            name,
+            help=help_text,
+            description=f"{help_text[0].upper()}{help_text[1:]}: the ROS-free simulator "
+            "(noisy sensors at their own rates) with the path follower in the loop; writes a "
+            "dataset folder (crs_core.dataset format) and, with --report, OUT/report/ "
+            "(summary.txt, summary.json, path.png, sensors.png, estimation.png).",
+            epilog=EFFECTS_EPILOG,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        add_duration(sub, duration, "simulated time")
+        add_seed(sub)
+        sub.add_argument(
+            "--out",
+            required=name == "sim",
+            default="out/demo",
+            help="output folder" + (" (default out/demo)" if name == "demo" else ""),
+        )
+        sub.add_argument(
+            "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
+        )
+        sub.add_argument(
+            "--effect",
+            type=argument_type(parse_effect),
+            action="append",
+            metavar="NAME[.PARAM][=VALUE]",
+            help="hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME "
+            "alone uses the default; the effects and parameters are listed below",
+        )
+        sub.add_argument(
+            "--blackout",
+            type=argument_type(parse_blackout),
+            action="append",
+            metavar="SENSOR:START:DURATION",
+            help="no samples of SENSOR (lighthouse, lighthouse/<station>, imu, wheel_encoders, "
+            "gyro, pose) from START for DURATION, s of simulated time (repeatable), e.g. "
+            "lighthouse:10:1.127",
+        )
+        sub.add_argument(
+            "--stations",
+            type=bounded_number("stations", "", 0, 8, int),
+            default=1,
+            help="Lighthouse base stations, 1..8 (default 1)",
+        )
+        sub.add_argument(
+            "--speed",
+            type=bounded_number("speed", "m/s", 0.0, 5.0),
+            default=1.0,
+            help="reference speed of the path follower, m/s (default 1.0, at most 5)",
+        )
+        sub.add_argument(
+            "--params",
+            type=Path,
+            help="parameter YAML applied to the simulated car (a top-level 'parameters:' "
+            "mapping of name: value; default: the Chronos parameters)",
+        )
+        sub.add_argument("--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK)")
+        sub.add_argument(
+            "--report",
+            action=argparse.BooleanOptionalAction,
+            default=name == "demo",
+            help=f"write OUT/report/ (default: {'on' if name == 'demo' else 'off'})",
+        )
+        sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+        sub.set_defaults(handler=simulate)
