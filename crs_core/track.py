@@ -32,13 +32,14 @@ import yaml
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import KDTree
 
+from crs_core.analysis.angles import wrap_angle
+
 __all__ = [
     "DEMO_TRACK_PATH",
     "LapCounter",
     "Projection",
     "Track",
     "load_demo_track",
-    "wrap_angle",
 ]
 
 #: Packaged compact copy of the CRS demo race track (every 10th sample of ``DEMO_TRACK.yaml``).
@@ -61,23 +62,6 @@ _FIELD_TO_KEY: dict[str, str] = {
 _MIN_POINTS = 10
 #: Number of nearest samples examined by the global (KD-tree) projection.
 _GLOBAL_CANDIDATES = 8
-
-
-def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
-    """Wrap angles to ``[-pi, pi)``.
-
-    Parameters
-    ----------
-    angle : array_like
-        Angle(s), rad.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        The wrapped angle(s), rad; a float for a scalar input.
-    """
-    wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
-    return float(wrapped) if wrapped.ndim == 0 else wrapped
 
 
 @dataclass(frozen=True)

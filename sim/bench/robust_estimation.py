@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.stats import chi2
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.estimation import LighthousePoseSolver, SweepPairer, make_estimator
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import Measurement
@@ -223,7 +224,7 @@ def pose_solver_rows(seeds: Sequence[int], duration: float = 20.0) -> list[dict]
                     continue
                 solved += 1
                 e = fix.pose - truth[:3]
-                e[2] = np.arctan2(np.sin(e[2]), np.cos(e[2]))
+                e[2] = wrap_angle(e[2])
                 position.append(float(np.hypot(e[0], e[1])))
                 yaw.append(abs(float(e[2])))
                 nees.append(float(e @ np.linalg.solve(fix.covariance, e)))

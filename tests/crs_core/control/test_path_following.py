@@ -197,5 +197,6 @@ def test_controller_is_model_free() -> None:
         "dataclasses",
         "numpy",
         "numpy.typing",
+        "crs_core.analysis.angles",
         "crs_core.track",
     }
