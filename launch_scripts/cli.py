@@ -60,11 +60,11 @@ def build_model(
 def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
     from crs_core.control.path_following import PathFollower, PathFollowerSettings
-    from crs_core.track import Track, load_demo_track
+    from crs_core.track import load_demo_track, read_track
     from sim.report import write_report
     from sim.simulator import Simulator
 
-    track = Track.from_yaml(args.track) if args.track else load_demo_track()
+    track = read_track(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
     out = prepare_output(Path(args.out), args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
@@ -326,7 +326,7 @@ def bench(args: argparse.Namespace) -> None:
 def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``; ``crs launch
     car --emulate | --car-ip IP``: the same against cars over UDP (emulated or real)."""
-    from crs_core.track import Track
+    from crs_core.track import read_track
     from launch_scripts.sim_stack import run_stack, summary
 
     if args.scenario == "car":
@@ -347,7 +347,7 @@ def launch(args: argparse.Namespace) -> None:
             "commands torque)"
         )
     if args.track is not None:
-        Track.from_yaml(args.track)
+        read_track(args.track)
     if args.params is not None:
         build_model([], 1, args.params)
     prepare_output(Path(args.out), "launch", args.overwrite)

@@ -17,7 +17,7 @@ import numpy as np
 
 from crs_core.analysis.latency import latencies
 from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
-from crs_core.track import Track, load_demo_track
+from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
 from launch_scripts.warm_cache import warm_compile_cache
@@ -163,7 +163,7 @@ def run_stack(
         output=output,
         onboard=onboard,
     )
-    track = Track.from_yaml(track_file) if track_file else load_demo_track()
+    track = read_track(track_file) if track_file else load_demo_track()
     warm_compile_cache(estimator, controller, output, params_file)
     launcher = Launcher(nodes, domain, out / "logs")
     print(

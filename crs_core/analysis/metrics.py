@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.track import LapCounter, Track
+from crs_core.analysis.laps import LapCounter
+from crs_core.track import Track
 
 #: Names of the base states ``[x, y, yaw, vx, vy, omega]``, in order.
 STATE_NAMES = ("x", "y", "yaw", "vx", "vy", "omega")
@@ -193,7 +194,8 @@ def lap_statistics(
     states : array_like
         (n, >= 2) states ``[x, y, ...]``, m (world frame).
     track : Track
-        The track; laps are counted at its start/finish line (:class:`~crs_core.track.LapCounter`).
+        The track; laps are counted at its start/finish line
+        (:class:`~crs_core.analysis.laps.LapCounter`).
     line_tolerance : float, optional
         A first sample within this distance past the line (m) counts as starting on it.
 
