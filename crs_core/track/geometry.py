@@ -33,6 +33,15 @@ _MIN_POINTS = 10
 _GLOBAL_CANDIDATES = 8
 
 
+def _check_arc_length(name: str, s: NDArray[np.float64]) -> None:
+    """Arc lengths start at 0 and increase strictly; ``ValueError`` naming ``name`` if not."""
+    if s[0] != 0.0:
+        raise ValueError(f"{name}: must start at 0, got {s[0]!r}")
+    if np.any(np.diff(s) <= 0.0):
+        bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
+        raise ValueError(f"{name}: must be strictly increasing (index {bad})")
+
+
 @dataclass(frozen=True)
 class Projection:
     """Closest point of the track centerline to a query point.
@@ -139,11 +148,7 @@ class Track:
         width = _as_finite_float("width", self.width)
         start = [_as_finite_float(k, getattr(self, k)) for k in ("start_x", "start_y", "start_yaw")]
         s = arrays["arc_length"]
-        if s[0] != 0.0:
-            raise ValueError(f"arc_length: must start at 0, got {s[0]!r}")
-        if np.any(np.diff(s) <= 0.0):
-            bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
-            raise ValueError(f"arc_length: must be strictly increasing (index {bad})")
+        _check_arc_length("arc_length", s)
         if not length > s[-1]:
             raise ValueError(f"length: {length!r} must exceed the last arc length {s[-1]!r}")
         if not width > 0.0:

@@ -19,7 +19,13 @@ import yaml
 from numpy.typing import NDArray
 
 # the validators Track itself uses, so a file and a direct construction fail alike
-from crs_core.track.geometry import _MIN_POINTS, Track, _as_finite_float, _as_float_array
+from crs_core.track.geometry import (
+    _MIN_POINTS,
+    Track,
+    _as_finite_float,
+    _as_float_array,
+    _check_arc_length,
+)
 
 __all__ = ["DEMO_TRACK_PATH", "load_demo_track", "read_track"]
 
@@ -106,11 +112,10 @@ def read_track(path: str | Path) -> Track:
     if not length > 0.0:
         raise ValueError(f"{path}: track.trackLength: must be positive, got {length!r}")
     s = arrays["arcLength"]
-    if s[0] != 0.0:
-        raise ValueError(f"{path}: track.arcLength: must start at 0, got {s[0]!r}")
-    if np.any(np.diff(s) <= 0.0):
-        bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
-        raise ValueError(f"{path}: track.arcLength: must be strictly increasing (index {bad})")
+    try:
+        _check_arc_length("track.arcLength", s)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
     # One lap; a tolerance of a micrometre drops an end point repeated at s == trackLength.
     keep = s < length - 1e-6
     if np.count_nonzero(keep) < _MIN_POINTS:
