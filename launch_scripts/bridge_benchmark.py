@@ -16,7 +16,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from launch_scripts.car_stack import input_chain_latency, run_car_stack
+from crs_core.analysis.latency import input_chain_latency
+from launch_scripts.car_stack import run_car_stack
 from launch_scripts.sim_stack import run_stack
 
 #: The report keys kept per run.

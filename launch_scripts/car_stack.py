@@ -26,7 +26,7 @@ Latencies (ms, median and p95; the packet stamps are the emulator's wall clock, 
 host's, and the recorder's receive times the host's wall clock):
 
 - ``sensor_to_estimate``, ``sensor_to_input``: as in ``crs launch sim``
-  (:func:`launch_scripts.sim_stack.latencies`; the sensor stamp is the car's packet stamp);
+  (:func:`crs_core.analysis.latency.latencies`; the sensor stamp is the car's packet stamp);
 - ``sensor_to_command_read`` (**sensor packet → estimate → command packet**): for every
   reference the emulated car read, its read time (the emulator's wall clock at ``recvfrom``;
   it reads once per 4 ms tick, as the firmware's loop) minus the stamp of the newest sensor
@@ -53,13 +53,13 @@ from typing import Any
 import numpy as np
 
 from chronos_bridge.impairment import parse_link
+from crs_core.analysis.latency import LATENCY_DEFINITIONS, command_latencies, input_chain_latency
 from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import (
     OUTPUTS,
     RECORD_SETS,
-    _summary,
     analyse,
     process_figures,
     run_folder,
@@ -339,87 +339,6 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
                 car["lap_times_s"] = laps["lap_times_s"]
     report["latency_definitions"] = LATENCY_DEFINITIONS
     return report
-
-
-#: What each latency in ``report.json`` measures (copied into the report).
-LATENCY_DEFINITIONS = {
-    "sensor_to_estimate": "recorder receive time of each estimate minus the stamp of the newest "
-    "sensor packet stamped at or before the estimate's stamp (includes the estimator's 20 ms lag)",
-    "sensor_to_input": "recorder receive time of each input message minus the stamp of the newest "
-    "sensor packet behind the newest estimate received before it",
-    "sensor_to_command_read": "sensor packet -> estimate -> command packet: the emulator's read "
-    "time of each reference minus the stamp of the newest sensor packet behind the estimate it was "
-    "computed from (reference host stamp -> newest input stamped at or before it -> newest "
-    "estimate received by that input's stamp -> newest sensor stamped at or before the estimate)",
-    "sensor_to_input_chain": "the same chain ending at the recorder's receive time of the "
-    "input message (defined alike for the direct simulator)",
-    "sensor_to_command_sent": "the same chain ending at the bridge's send stamp of the reference",
-    "command_sent_to_read": "bridge send stamp -> emulator read (loopback UDP + up to one "
-    "4 ms tick)",
-}
-
-
-def command_latencies(
-    times: dict[str, list[tuple[float, float]]], log: Any
-) -> dict[str, dict[str, float]]:
-    """The command-packet latencies (ms; see the module docstring) from the bag's
-    ``(stamp, receive time)`` pairs and the emulator's log (``command_host_t``,
-    ``command_read_t``)."""
-    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
-    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
-    input_stamps = np.sort(np.array([s for s, _ in times.get("input", [])]))
-    sent = np.asarray(log["command_host_t"], dtype=float)
-    read = np.asarray(log["command_read_t"], dtype=float)
-    if sensors.size == 0 or not estimates or input_stamps.size == 0 or sent.size == 0:
-        return {}
-    est_stamp = np.array([s for s, _ in estimates])
-    est_recv = np.array([r for _, r in estimates])
-    keep = np.isfinite(sent)
-    sent, read = sent[keep], read[keep]
-    # a reference the bridge repeated (the same stamp) counts once, at its first read
-    order = np.argsort(read, kind="stable")
-    _, first = np.unique(sent[order], return_index=True)
-    sent, read = sent[order][first], read[order][first]
-    # the input each command was sent for: the newest stamped at or before its send stamp,
-    # within one controller period (a command with no recorded input is left out)
-    k = np.searchsorted(input_stamps, sent, side="right") - 1
-    ok = (k >= 0) & (sent - input_stamps[np.clip(k, 0, None)] < 0.1)
-    tick = input_stamps[k[ok]]
-    sent, read = sent[ok], read[ok]
-    e = np.searchsorted(est_recv, tick, side="right") - 1
-    ok = e >= 0
-    sent, read, e = sent[ok], read[ok], e[ok]
-    s = np.searchsorted(sensors, est_stamp[e], side="right") - 1
-    ok = s >= 0
-    newest = sensors[s[ok]]
-    sent, read = sent[ok], read[ok]
-    return {
-        "sensor_to_command_read": _summary((read - newest) * 1e3),
-        "sensor_to_command_sent": _summary((sent - newest) * 1e3),
-        "command_sent_to_read": _summary((read - sent) * 1e3),
-        "commands_matched": int(sent.size),
-    }
-
-
-def input_chain_latency(times: dict[str, list[tuple[float, float]]]) -> dict[str, float]:
-    """``sensor_to_input_chain`` (ms): the recorder's receive time of each ``input`` minus the
-    stamp of the newest sensor sample behind the newest estimate received by the input's stamp
-    (the controller's tick): the chain of ``sensor_to_command_*`` ending at the input message,
-    defined alike for the direct simulator (no packets there)."""
-    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
-    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
-    inputs = times.get("input", [])
-    if sensors.size == 0 or not estimates or not inputs:
-        return {}
-    est_stamp = np.array([s for s, _ in estimates])
-    est_recv = np.array([r for _, r in estimates])
-    tick = np.array([s for s, _ in inputs])
-    received = np.array([r for _, r in inputs])
-    e = np.searchsorted(est_recv, tick, side="right") - 1
-    ok = e >= 0
-    s = np.searchsorted(sensors, est_stamp[e[ok]], side="right") - 1
-    good = s >= 0
-    return _summary((received[ok][good] - sensors[s[good]]) * 1e3)
 
 
 def cutoffs(log: Any) -> dict[str, Any]:

@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.analysis.latency import latencies
 from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
-from crs_core.track import Track, load_demo_track
+from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
 from launch_scripts.warm_cache import warm_compile_cache
@@ -162,7 +163,7 @@ def run_stack(
         output=output,
         onboard=onboard,
     )
-    track = Track.from_yaml(track_file) if track_file else load_demo_track()
+    track = read_track(track_file) if track_file else load_demo_track()
     warm_compile_cache(estimator, controller, output, params_file)
     launcher = Launcher(nodes, domain, out / "logs")
     print(
@@ -345,38 +346,3 @@ def analyse(
         car["latency_ms"] = latencies(read_receive_times(bag, ns))
         report["cars"][ns.strip("/")] = car
     return report
-
-
-def latencies(times: dict[str, list[tuple[float, float]]]) -> dict[str, Any]:
-    """End-to-end latencies from (stamp, receive time) pairs per topic kind, ms.
-
-    ``sensor_to_estimate``: receive time of each estimate minus the stamp of the newest sensor
-    sample it could include (stamp <= estimate stamp). ``sensor_to_input``: receive time of each
-    car input minus the stamp of the newest sensor sample behind the estimate it used.
-    """
-    sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))
-    estimates = sorted(times.get("estimate", []), key=lambda p: p[1])
-    inputs = sorted(times.get("input", []), key=lambda p: p[1])
-    if sensors.size == 0 or not estimates:
-        return {}
-    est_stamp = np.array([s for s, _ in estimates])
-    est_recv = np.array([r for _, r in estimates])
-    newest = sensors[np.clip(np.searchsorted(sensors, est_stamp, side="right") - 1, 0, None)]
-    to_estimate = (est_recv - newest) * 1e3
-    out = {"sensor_to_estimate": _summary(to_estimate)}
-    if inputs:
-        in_recv = np.array([r for _, r in inputs])
-        used = np.searchsorted(est_recv, in_recv, side="right") - 1
-        valid = used >= 0
-        to_input = (in_recv[valid] - newest[used[valid]]) * 1e3
-        out["sensor_to_input"] = _summary(to_input)
-    return out
-
-
-def _summary(values: np.ndarray) -> dict[str, float]:
-    if values.size == 0:
-        return {}
-    return {
-        "median": round(float(np.median(values)), 2),
-        "p95": round(float(np.percentile(values, 95)), 2),
-    }

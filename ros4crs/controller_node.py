@@ -46,6 +46,7 @@ from collections.abc import Sequence
 import numpy as np
 from rclpy.node import Node
 
+from crs_core.analysis.statistics import summary
 from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
@@ -221,10 +222,10 @@ class ControllerNode(Node):
         self._calls += 1
         if self._calls % self.solve_times.maxlen == 0:  # every 30 s at 30 Hz
             delay = self.supervisor.command_delay
-            ms = 1e3 * np.array(self.solve_times)
+            ms = summary(1e3 * np.array(self.solve_times), ("median", "p99", "max"))
             self.get_logger().info(
-                f"controller call: median {np.median(ms):.2f} ms, "
-                f"p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms; command delay "
+                f"controller call: median {ms['median']:.2f} ms, "
+                f"p99 {ms['p99']:.2f} ms, max {ms['max']:.2f} ms; command delay "
                 f"{1e3 * delay.delay:.1f} ms ({delay.matched} commands matched to the car's "
                 "reports)"
             )

@@ -145,13 +145,13 @@ def parsed_with(parse: Callable[[str], Any]) -> Callable[[str], str | None]:
 
 def declare_track(node: Node) -> Track:
     """The ``track_file`` parameter: a CRS track YAML, empty for the DEMO_TRACK."""
-    from crs_core.track import Track, load_demo_track
+    from crs_core.track import load_demo_track, read_track
 
     path = declare(
         node, "track_file", "", "track YAML (CRS format); empty: DEMO_TRACK", file_or_empty
     )
     try:
-        return Track.from_yaml(path) if path else load_demo_track()
+        return read_track(path) if path else load_demo_track()
     except (ValueError, KeyError, OSError) as error:
         message = error.args[0] if isinstance(error, KeyError) else error
         raise ParameterError(f"track_file: {message}") from None

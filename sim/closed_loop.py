@@ -23,10 +23,11 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from crs_core.analysis.laps import LapCounter
 from crs_core.analysis.metrics import state_rmse
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import InputSample
-from crs_core.track import LapCounter, Track
+from crs_core.track import Track
 from sim.simulator import Simulator
 
 __all__ = ["CAR_LENGTH", "CAR_WIDTH", "ClosedLoopResult", "footprint_outside", "run_closed_loop"]

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.analysis.statistics import summary
 from crs_core.dataset import Y_CHANNELS, Dataset
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
@@ -48,9 +49,5 @@ def channel_errors(dataset: Dataset, model: CarModel | None = None) -> dict[str,
     out = {}
     for name, column in zip(Y_CHANNELS, residual.T, strict=True):
         column = np.abs(column[np.isfinite(column)])
-        out[name] = {
-            "median": float(np.median(column)),
-            "p95": float(np.percentile(column, 95)),
-            "samples": int(column.size),
-        }
+        out[name] = {**summary(column, ("median", "p95")), "samples": int(column.size)}
     return out

@@ -1,7 +1,7 @@
 """Metrics shared by benchmarks, offline estimation, reports and tests: estimation errors, laps.
 
 SI units throughout (m, rad, m/s, rad/s) unless an argument says otherwise; yaw errors are
-wrapped to (-pi, pi]. The figures that show these numbers draw them with
+wrapped to [-pi, pi). The figures that show these numbers draw them with
 :mod:`crs_core.analysis.figures`.
 """
 
@@ -12,32 +12,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from crs_core.track import LapCounter, Track
+from crs_core.analysis.angles import wrap_angle
+from crs_core.analysis.laps import LapCounter
+from crs_core.track import Track
 
 #: Names of the base states ``[x, y, yaw, vx, vy, omega]``, in order.
 STATE_NAMES = ("x", "y", "yaw", "vx", "vy", "omega")
 
 
-def wrap_angle(angle: ArrayLike) -> np.ndarray:
-    """Angles wrapped to (-pi, pi].
-
-    Parameters
-    ----------
-    angle : array_like
-        Angle(s) or angle differences, rad.
-
-    Returns
-    -------
-    numpy.ndarray
-        The wrapped angle(s), rad. Computed as ``atan2(sin, cos)``, which keeps the full
-        relative precision of small differences (an error of 1e-6 rad stays exact).
-    """
-    angle = np.asarray(angle, dtype=float)
-    return np.arctan2(np.sin(angle), np.cos(angle))
-
-
 def state_errors(estimate: ArrayLike, reference: ArrayLike) -> np.ndarray:
-    """``estimate - reference`` per sample; the yaw error (column 2) wrapped to (-pi, pi].
+    """``estimate - reference`` per sample; the yaw error (column 2) wrapped to [-pi, pi).
 
     Parameters
     ----------
@@ -68,7 +52,7 @@ def pose_errors(estimate: ArrayLike, reference: ArrayLike) -> np.ndarray:
     Returns
     -------
     numpy.ndarray
-        (n, 3) errors: m, m, rad (the yaw error wrapped to (-pi, pi]).
+        (n, 3) errors: m, m, rad (the yaw error wrapped to [-pi, pi)).
     """
     estimate, reference = np.asarray(estimate, dtype=float), np.asarray(reference, dtype=float)
     return state_errors(estimate[:, :3], reference[:, :3])
@@ -210,7 +194,8 @@ def lap_statistics(
     states : array_like
         (n, >= 2) states ``[x, y, ...]``, m (world frame).
     track : Track
-        The track; laps are counted at its start/finish line (:class:`~crs_core.track.LapCounter`).
+        The track; laps are counted at its start/finish line
+        (:class:`~crs_core.analysis.laps.LapCounter`).
     line_tolerance : float, optional
         A first sample within this distance past the line (m) counts as starting on it.
 

@@ -22,9 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.calibration.points import CalibrationPoints
 from crs_core.calibration.static import calibrate_static
-from crs_core.calibration.sweep_model import SweepModel, wrap
+from crs_core.calibration.sweep_model import SweepModel
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import BaseStation
@@ -98,9 +99,9 @@ def point_reports(
                 continue
             mean = point.mean_angles(s, plane)
             means[(s, plane)] = mean
-            residuals[(s, plane)] = wrap(mean - outputs[f"lighthouse/{s}/{plane}"])
+            residuals[(s, plane)] = wrap_angle(mean - outputs[f"lighthouse/{s}/{plane}"])
             spread[(s, plane)] = (
-                float(np.sqrt(np.sum(wrap(rows - mean) ** 2) / (rows.size - N_PHOTODIODES)))
+                float(np.sqrt(np.sum(wrap_angle(rows - mean) ** 2) / (rows.size - N_PHOTODIODES)))
                 if rows.shape[0] > 1
                 else math.nan
             )
@@ -108,7 +109,7 @@ def point_reports(
         known = np.array(point.position)
         error = float(np.linalg.norm(fix.pose[:2] - known)) if fix is not None else math.nan
         yaw_error = (
-            float(abs(wrap(fix.pose[2] - point.yaw)))
+            float(abs(wrap_angle(fix.pose[2] - point.yaw)))
             if fix is not None and point.yaw is not None
             else math.nan
         )
@@ -277,5 +278,5 @@ def moving_fixes(calibration, limit: int = 2000) -> MovingFixes:
         reference = calibration.reference_pose(np.array([stamp]))[0]
         stamps.append(stamp)
         errors.append(float(np.linalg.norm(fix.pose[:2] - reference[:2])))
-        yaw_errors.append(float(abs(wrap(fix.pose[2] - reference[2]))))
+        yaw_errors.append(float(abs(wrap_angle(fix.pose[2] - reference[2]))))
     return MovingFixes(np.array(stamps), np.array(errors), np.array(yaw_errors))

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.model.lighthouse import RECORDED_PHOTODIODES
 from crs_core.model.sensors import N_PHOTODIODES
 
@@ -64,7 +65,7 @@ class CalibrationPoint:
         if rows is None:
             return None
         first = rows[0]
-        return first + np.mean(np.arctan2(np.sin(rows - first), np.cos(rows - first)), axis=0)
+        return first + np.mean(wrap_angle(rows - first), axis=0)
 
 
 @dataclass(frozen=True)

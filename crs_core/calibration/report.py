@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from crs_core.analysis.statistics import summary
 from crs_core.calibration.evaluation import MovingFixes, PointReport, SweepRow
 from crs_core.calibration.moving import MovingCalibration
 from crs_core.calibration.points import CalibrationPoints
@@ -57,16 +58,9 @@ def _station_entry(station: BaseStation, std: np.ndarray) -> dict[str, Any]:
 
 
 def _stats(values: np.ndarray) -> dict[str, float]:
+    """Mean, median, p95 and max of the finite values (NaN when there are none)."""
     values = np.asarray(values, dtype=float)
-    finite = values[np.isfinite(values)]
-    if finite.size == 0:
-        return {"mean": math.nan, "median": math.nan, "p95": math.nan, "max": math.nan}
-    return {
-        "mean": float(np.mean(finite)),
-        "median": float(np.median(finite)),
-        "p95": float(np.percentile(finite, 95)),
-        "max": float(np.max(finite)),
-    }
+    return summary(values[np.isfinite(values)], ("mean", "median", "p95", "max"))
 
 
 def static_summary(

@@ -20,12 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.calibration.sweep_model import (
     N_DIODES,
     N_STATION,
     SweepModel,
     station_from_chart,
-    wrap,
 )
 from crs_core.model.lighthouse import BaseStation
 
@@ -145,10 +145,10 @@ class LighthouseFit:
             sel = np.arange(rows.size)[:, None]
             if jac is None:
                 y = self.model.angles(poses[rows], theta[s], self.rotations0[s], diodes)
-                residuals[rows] = wrap(self.obs.angles[rows] - y[sel, pick])
+                residuals[rows] = wrap_angle(self.obs.angles[rows] - y[sel, pick])
                 continue
             y, jq, jt, jd = self.model.evaluate(poses[rows], theta[s], self.rotations0[s], diodes)
-            residuals[rows] = wrap(self.obs.angles[rows] - y[sel, pick])
+            residuals[rows] = wrap_angle(self.obs.angles[rows] - y[sel, pick])
             jac[rows, :, s * n_free : (s + 1) * n_free] = -jt[sel, pick][:, :, self.free]
             offset = self.n_station_vars
             if self.fit_photodiodes:

@@ -28,9 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.calibration.points import CalibrationPoints
 from crs_core.calibration.solver import FitResult, LighthouseFit, Observations
-from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings, wrap
+from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings
 from crs_core.model.lighthouse import BaseStation
 
 #: Headings tried for a point of unknown yaw before the refinement.
@@ -179,7 +180,7 @@ def calibrate_static(
     )
     fit = problem.solve(yaws[unknown])
     final = yaws.copy()
-    final[unknown] = wrap(fit.extra)
+    final[unknown] = wrap_angle(fit.extra)
     return StaticCalibration(fit, observations, point_of, final, yaw_known, tuple(start))
 
 
@@ -201,7 +202,7 @@ def _best_yaws(model, start, points, observations, point_of, unknown) -> np.ndar
             theta = np.array([0.0, 0.0, 0.0, *station.position, station.dt1, station.dt2])
             angles = model.angles(grid, theta, station.rotation, diodes)
             predicted = angles[:, (plane - 1) * 4 : plane * 4]
-            residual = wrap(observations.angles[k][None, :] - predicted)
+            residual = wrap_angle(observations.angles[k][None, :] - predicted)
             cost += np.sum(np.nan_to_num(residual, nan=math.pi) ** 2, axis=1)
         best.append(candidates[int(np.argmin(cost))])
     return np.array(best)

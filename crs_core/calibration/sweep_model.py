@@ -21,6 +21,7 @@ import math
 import casadi as ca
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.model.lighthouse import BaseStation, rotation_from_angles, sweep_angles
 from crs_core.model.sensors import N_PHOTODIODES
@@ -31,11 +32,6 @@ CHUNK = 128
 N_STATION = 8
 #: Number of photodiode parameters (x, y of each diode).
 N_DIODES = 2 * N_PHOTODIODES
-
-
-def wrap(angle: np.ndarray | float) -> np.ndarray | float:
-    """Angle(s) wrapped to (-pi, pi], rad."""
-    return np.arctan2(np.sin(angle), np.cos(angle))
 
 
 class SweepModel:
@@ -136,7 +132,9 @@ def bearings(alpha1: np.ndarray, alpha2: np.ndarray, dt1: float, dt2: float) -> 
     azimuth = np.arctan2(
         b * np.sin(alpha1) - a * np.sin(alpha2), b * np.cos(alpha1) - a * np.cos(alpha2)
     )
-    azimuth = np.where(np.abs(wrap(alpha1 - azimuth)) < math.pi / 2, azimuth, azimuth + math.pi)
+    azimuth = np.where(
+        np.abs(wrap_angle(alpha1 - azimuth)) < math.pi / 2, azimuth, azimuth + math.pi
+    )
     zeta = np.sin(alpha1 - azimuth) / a
     directions = np.stack([np.cos(azimuth), np.sin(azimuth), zeta], axis=-1)
     return directions / np.linalg.norm(directions, axis=-1, keepdims=True)

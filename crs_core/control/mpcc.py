@@ -26,13 +26,14 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import compile_functions
 from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, MpccProblem, MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
-from crs_core.track import Track, wrap_angle
+from crs_core.track import Track
 
 __all__ = ["Mpcc", "MpccStatus"]
 

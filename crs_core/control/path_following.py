@@ -18,7 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from crs_core.track import Track, wrap_angle
+from crs_core.analysis.angles import wrap_angle
+from crs_core.track import Track
 
 __all__ = ["PathFollower", "PathFollowerSettings", "PathFollowerStatus"]
 

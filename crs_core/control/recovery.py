@@ -20,7 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crs_core.track import Track, wrap_angle
+from crs_core.analysis.angles import wrap_angle
+from crs_core.track import Track
 
 __all__ = ["RecoverySettings", "StuckRecovery"]
 

@@ -60,6 +60,7 @@ class EkfSettings(EstimatorSettings):
 
 
 def _wrap(angle: ca.SX) -> ca.SX:
+    """Symbolic twin of :func:`crs_core.analysis.angles.wrap_angle` (differs only at ±pi)."""
     return ca.atan2(ca.sin(angle), ca.cos(angle))
 
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import Measurement, parse_lighthouse
@@ -112,7 +113,7 @@ class PoseInitializer:
         elif self._use_pose and measurement.sensor == "pose":
             std = np.asarray(self.noise.pose_std)
             pose = measurement.values.copy()
-            pose[2] = math.atan2(math.sin(pose[2]), math.cos(pose[2]))
+            pose[2] = wrap_angle(pose[2])
             fix = PoseFix(measurement.stamp, pose, np.diag(std**2), 0.0, ())
         if fix is None:
             return None
@@ -145,7 +146,7 @@ class PoseInitializer:
         dof = max(len(t) - 2, 1)
         spread = max(float(np.sum((t - t.mean()) ** 2)), 1e-12)
         slope_std = np.sqrt(np.sum(residual**2, axis=0) / dof / spread)
-        yaw = math.atan2(math.sin(value[2]), math.cos(value[2]))
+        yaw = wrap_angle(value[2])
         c, sn = math.cos(yaw), math.sin(yaw)
         vx = c * slope[0] + sn * slope[1]
         vy = -sn * slope[0] + c * slope[1]

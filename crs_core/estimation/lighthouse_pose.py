@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.measurements import Measurement, lighthouse_sensor, parse_lighthouse
 from crs_core.model import CarModel
@@ -34,11 +35,6 @@ _MAX_ITERATIONS = 30
 _STEP_TOLERANCE = 1e-10
 
 
-def _wrap(angle: np.ndarray | float) -> np.ndarray | float:
-    """Angle(s) wrapped to (-pi, pi], rad."""
-    return np.arctan2(np.sin(angle), np.cos(angle))
-
-
 @dataclass(frozen=True)
 class PoseFix:
     """One Lighthouse pose fix.
@@ -49,7 +45,7 @@ class PoseFix:
         Time the fix refers to, s (the stream's clock).
     pose : np.ndarray
         ``(x, y, yaw)`` of the car body frame in the world frame: m, m, rad (yaw wrapped to
-        (-pi, pi], counter-clockwise from world x).
+        [-pi, pi), counter-clockwise from world x).
     covariance : np.ndarray
         3x3 covariance of ``pose`` (m^2, m rad, rad^2): :math:`\\sigma_\\alpha^2 (J^\\top J)^{-1}`.
     residual_rms : float
@@ -245,7 +241,7 @@ class LighthousePoseSolver:
         if rms > self.max_rms_ratio * self.angle_std:
             return None
         covariance = self.angle_std**2 * np.linalg.inv(normal)
-        pose = np.array([pose[0], pose[1], _wrap(pose[2])])
+        pose = np.array([pose[0], pose[1], wrap_angle(pose[2])])
         return PoseFix(stamp, pose, 0.5 * (covariance + covariance.T), rms, stations)
 
     def _closed_form(self, angles, stations) -> np.ndarray | None:
@@ -257,7 +253,7 @@ class LighthousePoseSolver:
             b = math.tan(math.pi / 6 - station.dt2)
             a1, a2 = angles[s, 1], angles[s, 2]
             theta = np.arctan2(b * np.sin(a1) - a * np.sin(a2), b * np.cos(a1) - a * np.cos(a2))
-            theta = np.where(np.abs(_wrap(a1 - theta)) < math.pi / 2, theta, theta + math.pi)
+            theta = np.where(np.abs(wrap_angle(a1 - theta)) < math.pi / 2, theta, theta + math.pi)
             zeta = np.sin(a1 - theta) / a
             rays = station.rotation @ np.vstack([np.cos(theta), np.sin(theta), zeta])
             origin = np.asarray(station.position)

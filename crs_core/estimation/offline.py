@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from crs_core.analysis.metrics import STATE_NAMES, state_rmse
+from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
 from crs_core.estimation.base import (
     SENSOR_GROUPS,
@@ -309,11 +310,7 @@ def estimate_dataset(
         "final_reason": d.reason,
         "reasons": dict(Counter(str(r) for r in reasons if r).most_common(20)),
         "wall_time_s": wall,
-        "time_per_sample_ms": {
-            "median": float(np.median(times) * 1e3),
-            "p95": float(np.percentile(times, 95) * 1e3),
-            "max": float(times.max() * 1e3),
-        },
+        "time_per_sample_ms": summary(times * 1e3),
     }
     return OfflineEstimates(
         np.array(dataset.t, dtype=float), x, variances, status, reasons, diagnostics, estimator

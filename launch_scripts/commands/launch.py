@@ -17,7 +17,7 @@ from launch_scripts.sim_stack import RECORD_SETS
 def launch(args: argparse.Namespace) -> None:
     """``crs launch sim``: the ROS 2 stack in simulation, then ``report.json``; ``crs launch
     car --emulate | --car-ip IP``: the same against cars over UDP (emulated or real)."""
-    from crs_core.track import Track
+    from crs_core.track import read_track
     from launch_scripts.sim_stack import run_stack, summary
 
     if args.scenario == "car":
@@ -38,7 +38,7 @@ def launch(args: argparse.Namespace) -> None:
             "commands torque)"
         )
     if args.track is not None:
-        Track.from_yaml(args.track)
+        read_track(args.track)
     if args.params is not None:
         build_model([], 1, args.params)
     prepare_output(Path(args.out), "launch", args.overwrite)

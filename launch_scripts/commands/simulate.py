@@ -45,11 +45,11 @@ def build_model(
 def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
     from crs_core.control.path_following import PathFollower, PathFollowerSettings
-    from crs_core.track import Track, load_demo_track
+    from crs_core.track import load_demo_track, read_track
     from sim.report import write_report
     from sim.simulator import Simulator
 
-    track = Track.from_yaml(args.track) if args.track else load_demo_track()
+    track = read_track(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
     out = prepare_output(Path(args.out), args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))

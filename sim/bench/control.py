@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.analysis.statistics import summary
 from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.estimation.factory import make_estimator
@@ -43,13 +44,7 @@ MISMATCH_EFFECTS = {"input_delay": 0.02}
 
 def _stats_ms(seconds: np.ndarray) -> dict[str, float]:
     ms = np.asarray(seconds) * 1e3
-    return {
-        "median": round(float(np.median(ms)), 3),
-        "p95": round(float(np.percentile(ms, 95)), 3),
-        "p99": round(float(np.percentile(ms, 99)), 3),
-        "max": round(float(np.max(ms)), 3),
-        "calls": int(ms.size),
-    }
+    return {**summary(ms, ("median", "p95", "p99", "max"), digits=3), "calls": int(ms.size)}
 
 
 def _race(
@@ -226,8 +221,7 @@ def control_benchmark(
         },
         "solve_ms": solve,
         "qp_iterations": {
-            "median": float(np.median(iterations)),
-            "p95": float(np.percentile(iterations, 95)),
+            **summary(iterations, ("median", "p95")),
             "max": int(np.max(iterations)),
         },
         "fallbacks": int(modes.get("fallback", 0)),

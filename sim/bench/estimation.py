@@ -18,6 +18,7 @@ import numpy as np
 
 from crs_core.analysis.consistency import predicted_samples
 from crs_core.analysis.metrics import STATE_NAMES, state_errors, state_rmse
+from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
 from crs_core.estimation import make_estimator
 from crs_core.estimation.base import Estimator
@@ -148,13 +149,7 @@ def rmse(run: Run, result: SimulationResult, after: float = SETTLING_S) -> dict[
 
 
 def time_summary(seconds: Sequence[float]) -> dict[str, float]:
-    ms = np.asarray(seconds) * 1e3
-    return {
-        "median": round(float(np.median(ms)), 4),
-        "p95": round(float(np.percentile(ms, 95)), 4),
-        "p99": round(float(np.percentile(ms, 99)), 4),
-        "max": round(float(ms.max()), 4),
-    }
+    return summary(np.asarray(seconds) * 1e3, ("median", "p95", "p99", "max"), digits=4)
 
 
 def start_state(result: SimulationResult) -> np.ndarray:
@@ -375,10 +370,7 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
                             strict=True,
                         )
                     ),
-                    "lighthouse_residual_rad": {
-                        "median": float(np.median(np.abs(residual))),
-                        "p95": float(np.percentile(np.abs(residual), 95)),
-                    },
+                    "lighthouse_residual_rad": summary(np.abs(residual), ("median", "p95")),
                     "time_ms": time_summary(times),
                     "note": "reference is the car's on-line estimate, not ground truth",
                 }

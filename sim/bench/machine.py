@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.analysis.statistics import summary
+
 #: The two real Chronos recordings, in the shared data beside the project folder (read-only).
 REAL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "chronos_real"
 
@@ -39,9 +41,4 @@ def timing(call: Callable[[], object], repeats: int) -> dict[str, float]:
         start = time.perf_counter()
         call()
         samples[k] = time.perf_counter() - start
-    us = samples * 1e6
-    return {
-        "median_us": round(float(np.median(us)), 2),
-        "p95_us": round(float(np.percentile(us, 95)), 2),
-        "max_us": round(float(us.max()), 2),
-    }
+    return {f"{key}_us": value for key, value in summary(samples * 1e6, digits=2).items()}

@@ -29,6 +29,7 @@ from contextlib import contextmanager
 import casadi as ca
 import numpy as np
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import SX_OPTIONS, compile_functions
 from crs_core.estimation.base import Estimate, Estimator, checked_initial_state, sensor_group
 from crs_core.estimation.ekf import EkfSettings
@@ -46,9 +47,9 @@ def _c_name(text: str) -> str:
 
 
 def _wrap_pose_residual(z: np.ndarray, predicted: np.ndarray) -> np.ndarray:
-    """Pose innovation with the yaw difference wrapped to (-pi, pi], as our EKF does."""
+    """Pose innovation with the yaw difference wrapped to [-pi, pi) (our EKF wraps it alike)."""
     residual = z - predicted
-    residual[2] = math.atan2(math.sin(residual[2]), math.cos(residual[2]))
+    residual[2] = wrap_angle(residual[2])
     return residual
 
 

@@ -24,6 +24,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.stats import chi2
 
+from crs_core.analysis.angles import wrap_angle
+from crs_core.analysis.statistics import summary
 from crs_core.estimation import LighthousePoseSolver, SweepPairer, make_estimator
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import Measurement
@@ -223,7 +225,7 @@ def pose_solver_rows(seeds: Sequence[int], duration: float = 20.0) -> list[dict]
                     continue
                 solved += 1
                 e = fix.pose - truth[:3]
-                e[2] = np.arctan2(np.sin(e[2]), np.cos(e[2]))
+                e[2] = wrap_angle(e[2])
                 position.append(float(np.hypot(e[0], e[1])))
                 yaw.append(abs(float(e[2])))
                 nees.append(float(e @ np.linalg.solve(fix.covariance, e)))
@@ -234,33 +236,21 @@ def pose_solver_rows(seeds: Sequence[int], duration: float = 20.0) -> list[dict]
             "angle_std_rad": angle_std,
             "pairs": pairs,
             "solved_fraction": round(solved / max(pairs, 1), 4),
-            "position_error_mm": _summary(np.array(position) * 1e3),
-            "yaw_error_mrad": _summary(np.array(yaw) * 1e3),
+            "position_error_mm": summary(np.array(position) * 1e3, digits=4),
+            "yaw_error_mrad": summary(np.array(yaw) * 1e3, digits=4),
             "nees": {
-                "mean": round(float(nees_array.mean()), 3),
-                "median": round(float(np.median(nees_array)), 3),
+                **summary(nees_array, ("mean", "median"), digits=3),
                 "within_95_percent": round(float(np.mean(nees_array < chi2.ppf(0.95, 3))), 4),
                 "ideal_mean": 3.0,
             },
-            "solve_time_ms": {
-                "median": round(float(np.median(times)) * 1e3, 4),
-                "p95": round(float(np.percentile(times, 95)) * 1e3, 4),
-            },
+            "solve_time_ms": summary(np.array(times) * 1e3, ("median", "p95"), digits=4),
             "seeds": list(seeds),
             "duration_s": duration,
         }
         if motion:
-            row["motion_between_planes_mm"] = _summary(np.array(motion) * 1e3)
+            row["motion_between_planes_mm"] = summary(np.array(motion) * 1e3, digits=4)
         rows.append(row)
     return rows
-
-
-def _summary(values: np.ndarray) -> dict[str, float]:
-    return {
-        "median": round(float(np.median(values)), 4),
-        "p95": round(float(np.percentile(values, 95)), 4),
-        "max": round(float(values.max()), 4),
-    }
 
 
 # --- 3. pathological timing ------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Tests of crs_core.track: loading, closure, projection, interpolation, laps."""
+"""Tests of crs_core.track: loading the CRS YAML file, closure, projection, interpolation."""
 
 from __future__ import annotations
 
@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from crs_core.track import DEMO_TRACK_PATH, LapCounter, Track, load_demo_track
+from crs_core.analysis.angles import wrap_angle
+from crs_core.track import DEMO_TRACK_PATH, Track, load_demo_track, read_track
 
 ORIGINAL_PATH = (
     Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "tracks" / "DEMO_TRACK.yaml"
@@ -26,7 +27,7 @@ def demo() -> Track:
 def original() -> Track:
     if not ORIGINAL_PATH.is_file():
         pytest.skip(f"original track file not found: {ORIGINAL_PATH}")
-    return Track.from_yaml(ORIGINAL_PATH)
+    return read_track(ORIGINAL_PATH)
 
 
 @pytest.fixture(params=["compact", "original"])
@@ -154,7 +155,7 @@ def test_interpolation_wraps_and_heading_is_continuous(track: Track) -> None:
     # Arc length ``length`` is the start point again.
     assert (x0[-1], y0[-1]) == pytest.approx((track.x[0], track.y[0]))
     # The heading changes by at most curvature * ds between close samples (no 2 pi jumps).
-    dh = np.abs(np.angle(np.exp(1j * np.diff(h0))))
+    dh = np.abs(wrap_angle(np.diff(h0)))
     assert np.max(dh) < 0.2
     assert np.all((h0 >= -np.pi) & (h0 < np.pi))
     # Scalars give 0-d arrays.
@@ -168,7 +169,7 @@ def test_interpolation_rejects_non_finite(demo: Track) -> None:
 
 
 def test_circle_track_loads(tmp_path: Path) -> None:
-    track = Track.from_yaml(_write(tmp_path, _circle_document()))
+    track = read_track(_write(tmp_path, _circle_document()))
     assert track.length == pytest.approx(2.0 * np.pi)
     # Inside the circle, i.e. left of a counter-clockwise loop; the closest point of the
     # 40-gon is on a chord next to the sample at s = pi / 2.
@@ -196,12 +197,12 @@ def test_validation_names_the_field(tmp_path: Path, mutate, field: str) -> None:
     document = _circle_document()
     mutate(document["track"])
     with pytest.raises(ValueError, match=field):
-        Track.from_yaml(_write(tmp_path, document))
+        read_track(_write(tmp_path, document))
 
 
 def test_too_few_points_is_rejected(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="at least 10"):
-        Track.from_yaml(_write(tmp_path, _circle_document(n=8)))
+        read_track(_write(tmp_path, _circle_document(n=8)))
 
 
 def test_open_centerline_is_rejected(tmp_path: Path) -> None:
@@ -209,49 +210,15 @@ def test_open_centerline_is_rejected(tmp_path: Path) -> None:
     for key in ("xCoords", "yCoords", "tangentAngle", "arcLength", "curvature"):
         document["track"][key] = document["track"][key][:30]  # three quarters of the circle
     with pytest.raises(ValueError, match="not closed"):
-        Track.from_yaml(_write(tmp_path, document))
+        read_track(_write(tmp_path, document))
 
 
 def test_missing_track_mapping_is_rejected(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="track"):
-        Track.from_yaml(_write(tmp_path, {"something": 1}))
+        read_track(_write(tmp_path, {"something": 1}))
 
 
 def test_progress_unwrapped(demo: Track) -> None:
     progress = 3.0 + np.linspace(0.0, 30.0, 3001)
     unwrapped = demo.progress_unwrapped(progress % demo.length)
     np.testing.assert_allclose(unwrapped, progress, atol=1e-9)
-
-
-def test_lap_counter_start_off_the_line() -> None:
-    length = DEMO_LENGTH
-    counter = LapCounter(length)
-    speed, s0 = 1.0, 3.0  # m/s, m: the first partial lap is 8.568 m long
-    stamps = np.arange(0.0, 40.0, 0.02)
-    for t in stamps:
-        counter.update(float(t), (s0 + speed * t) % length)
-    assert counter.progress == pytest.approx(s0 + speed * stamps[-1])
-    # Line crossings at t = 8.568, 20.136, 31.704 s: two full laps after the partial one.
-    assert counter.crossing_stamps == pytest.approx([8.568, 20.136, 31.704], abs=1e-9)
-    assert counter.laps_completed == 2
-    assert counter.lap_times == pytest.approx([length / speed] * 2, abs=1e-9)
-
-
-def test_lap_counter_start_on_the_line_and_reversing() -> None:
-    length = 10.0
-    counter = LapCounter(length)
-    counter.update(0.0, 0.0)
-    for stamp in (4.0, 8.0, 9.0):  # steps shorter than half a lap
-        counter.update(stamp, stamp)
-    counter.update(10.0, 1.0)  # crossed the line at t = 9.5
-    assert counter.laps_completed == 1
-    assert counter.lap_times == pytest.approx([9.5])
-    counter.update(11.0, 9.5)  # backwards over the line
-    counter.update(12.0, 1.5)  # and forwards again: not a new lap
-    assert counter.laps_completed == 1
-    assert counter.progress == pytest.approx(11.5)
-    with pytest.raises(ValueError, match="stamp"):
-        counter.update(11.0, 2.0)
-    counter.reset()
-    assert counter.laps_completed == 0
-    assert counter.progress == 0.0

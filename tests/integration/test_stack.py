@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 from stack_probe import Probe, wait_for
 
-from crs_core.track import LapCounter, load_demo_track
+from crs_core.analysis.laps import LapCounter
+from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import analyse, stack_nodes
 

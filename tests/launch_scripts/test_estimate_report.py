@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.dataset import Y_CHANNELS, Dataset
 from crs_core.estimation.offline import OfflineEstimates
 from launch_scripts.estimate_report import _reference, error_bands, write_figure
@@ -27,13 +28,13 @@ def _reference_states() -> np.ndarray:
 
 def _estimates(reference: np.ndarray) -> OfflineEstimates:
     """Estimates off the reference by known amounts: x +1 mm (σ 1 mm: inside ±2σ), y ±3 mm
-    (σ 1 mm: outside), yaw +2 mrad and wrapped to (-pi, pi] (σ 2 mrad: inside); the first
+    (σ 1 mm: outside), yaw +2 mrad and wrapped to [-pi, pi) (σ 2 mrad: inside); the first
     samples lost."""
     t = 100.0 + 0.02 * np.arange(N)
     x = reference.T.copy()
     x[0] += 1e-3
     x[1] += 3e-3 * np.where(np.arange(N) % 2, 1.0, -1.0)
-    x[2] = np.arctan2(np.sin(x[2] + 2e-3), np.cos(x[2] + 2e-3))
+    x[2] = wrap_angle(x[2] + 2e-3)
     x[:, :LOST] = 0.0  # the held guess before the first fix
     variance = np.tile(np.array([1e-3, 1e-3, 2e-3, 0.1, 0.1, 0.1])[:, None] ** 2, (1, N))
     variance[:, :LOST] = 1.0

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
+from crs_core.analysis.angles import wrap_angle
 from launch_scripts.stack_plot import estimate_errors, plot, read_states
 from ros4crs.interfaces import typestore
 
@@ -40,8 +41,8 @@ def _car_state(seconds: float, state, covariance) -> object:
 
 
 def _truth(t: np.ndarray) -> np.ndarray:
-    """(n, 6): around a circle of 1 m, the yaw wrapped to (-pi, pi] (it jumps by 2 pi)."""
-    yaw = np.arctan2(np.sin(t + np.pi / 2), np.cos(t + np.pi / 2))
+    """(n, 6): around a circle of 1 m, the yaw wrapped to [-pi, pi) (it jumps by 2 pi)."""
+    yaw = wrap_angle(t + np.pi / 2)
     return np.stack([np.cos(t), np.sin(t), yaw, np.ones_like(t), 0 * t, np.ones_like(t)], axis=1)
 
 
@@ -63,7 +64,7 @@ def _write_bag(path: Path, cars: int) -> None:
                 writer.write(truth, int(t * 1e9), bytes(store.serialize_cdr(msg, CAR_STATE)))
             covariance = np.diag(SIGMA**2) if car == 1 else np.zeros((6, 6))
             estimates = _truth(estimate_t - T0) + offset
-            estimates[:, 2] = np.arctan2(np.sin(estimates[:, 2]), np.cos(estimates[:, 2]))
+            estimates[:, 2] = wrap_angle(estimates[:, 2])
             for k in np.r_[1 : len(estimate_t), 0]:  # the first estimate written last
                 msg = _car_state(estimate_t[k], estimates[k], covariance)
                 data = bytes(store.serialize_cdr(msg, CAR_STATE))

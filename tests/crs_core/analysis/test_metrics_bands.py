@@ -13,18 +13,8 @@ from crs_core.analysis.metrics import (
     pose_errors,
     state_errors,
     state_rmse,
-    wrap_angle,
 )
 from crs_core.track import load_demo_track
-
-
-def test_wrap_angle_to_minus_pi_pi_keeping_small_angles_exact():
-    """(-pi, pi]: pi stays pi, 3 pi becomes pi, -pi becomes pi up to rounding; a small angle
-    plus whole turns comes back to itself."""
-    wrapped = wrap_angle([0.5, -0.5 + 2 * np.pi, np.pi, 3 * np.pi, 7.0])
-    assert wrapped == pytest.approx([0.5, -0.5, np.pi, np.pi, 7.0 - 2 * np.pi])
-    assert wrap_angle(np.array([1e-9]))[0] == 1e-9
-    assert np.all(np.abs(wrap_angle(np.linspace(-20.0, 20.0, 401))) <= np.pi)
 
 
 def test_state_errors_and_rmse_wrap_the_yaw():

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 import crs_core.control.path_following as path_following
+from crs_core.analysis.laps import LapCounter
 from crs_core.control import PathFollower, PathFollowerSettings
-from crs_core.track import LapCounter, Track, load_demo_track
+from crs_core.track import Track, load_demo_track
 
 WHEELBASE = 0.093  # m, Chronos lf + lr
 # Crude longitudinal model of the test car: v_dot = K_DRIVE * (T - C_DRAG * v); its steady-state
@@ -197,5 +198,6 @@ def test_controller_is_model_free() -> None:
         "dataclasses",
         "numpy",
         "numpy.typing",
+        "crs_core.analysis.angles",
         "crs_core.track",
     }

@@ -8,10 +8,11 @@ import math
 import numpy as np
 import pytest
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.control.recovery import RecoverySettings, StuckRecovery
 from crs_core.control.supervisor import Supervisor
 from crs_core.model import CarModel
-from crs_core.track import load_demo_track, wrap_angle
+from crs_core.track import load_demo_track
 
 DT = 1.0 / 30.0
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.control.reference_path import ReferencePath
-from crs_core.track import load_demo_track, wrap_angle
+from crs_core.track import load_demo_track
 
 
 @pytest.fixture(scope="module")

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.estimation import (
     EkfSettings,
     EstimatorNoise,
@@ -56,7 +57,7 @@ def _position_error(result, queries, xs):
 
 def _yaw_error(result, queries, xs):
     d = xs[:, 2] - result.truth_at(np.asarray(queries))[:, 2]
-    return np.abs(np.arctan2(np.sin(d), np.cos(d)))
+    return np.abs(wrap_angle(d))
 
 
 # --- 1. bounded under any timing ---------------------------------------------------------

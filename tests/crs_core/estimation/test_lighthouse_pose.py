@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from crs_core.analysis.angles import wrap_angle
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
@@ -37,7 +38,7 @@ def _random_poses(rng, n):
 
 def _error(estimate, truth):
     d = np.asarray(estimate, dtype=float) - truth
-    d[2] = math.remainder(d[2], 2 * math.pi)
+    d[2] = wrap_angle(d[2])
     return d
 
 

@@ -1,11 +1,9 @@
 """Race-track geometry: a closed centerline with arc length, heading and curvature.
 
-The track is stored in the CRS YAML format (key ``track`` holding ``xCoords``, ``yCoords``,
-``tangentAngle``, ``arcLength``, ``curvature``, ``trackLength``, ``width_of_track``, ``x_init``,
-``y_init``, ``yaw_init``). All quantities are SI: positions in m in the world frame (REP 103,
-z up), angles in rad measured counter-clockwise from the world x axis, arc length in m along the
-centerline in the direction of travel, curvature in 1/m (positive when the track turns left,
-i.e. counter-clockwise).
+All quantities are SI: positions in m in the world frame (REP 103, z up), angles in rad measured
+counter-clockwise from the world x axis, arc length in m along the centerline in the direction
+of travel, curvature in 1/m (positive when the track turns left, i.e. counter-clockwise). Tracks
+are read from the CRS YAML format by :mod:`crs_core.track.yaml_file`.
 
 Closed-loop convention
 ----------------------
@@ -13,71 +11,35 @@ The centerline is a closed loop of length :attr:`Track.length`. :class:`Track` h
 ``N`` distinct samples with ``arc_length[0] == 0`` and ``arc_length[-1] < length``; the closing
 segment runs from the last sample back to the first and covers the arc-length interval
 ``[arc_length[-1], length)``. Every arc length handed to this module is wrapped modulo ``length``.
-
-The CRS files may hold more than one lap (``DEMO_TRACK.yaml`` holds two laps, 6932 samples with
-``arcLength`` running to ``2 * trackLength``) or repeat the first sample at the end. On loading,
-only the samples with ``arcLength < trackLength`` are kept; ``trackLength`` is authoritative for
-the loop length.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import KDTree
 
-__all__ = [
-    "DEMO_TRACK_PATH",
-    "LapCounter",
-    "Projection",
-    "Track",
-    "load_demo_track",
-    "wrap_angle",
-]
+from crs_core.analysis.angles import wrap_angle
 
-#: Packaged compact copy of the CRS demo race track (every 10th sample of ``DEMO_TRACK.yaml``).
-DEMO_TRACK_PATH: Path = Path(__file__).resolve().parent / "data" / "tracks" / "demo_track.yaml"
+__all__ = ["Projection", "Track"]
 
-_ARRAY_KEYS: tuple[str, ...] = ("xCoords", "yCoords", "tangentAngle", "arcLength", "curvature")
-_SCALAR_KEYS: tuple[str, ...] = ("trackLength", "width_of_track", "x_init", "y_init", "yaw_init")
-_FIELD_TO_KEY: dict[str, str] = {
-    "x": "xCoords",
-    "y": "yCoords",
-    "x, y": "xCoords, yCoords",
-    "heading": "tangentAngle",
-    "arc_length": "arcLength",
-    "length": "trackLength",
-    "width": "width_of_track",
-    "start_x": "x_init",
-    "start_y": "y_init",
-    "start_yaw": "yaw_init",
-}
+#: Fewest centerline samples of a track.
 _MIN_POINTS = 10
 #: Number of nearest samples examined by the global (KD-tree) projection.
 _GLOBAL_CANDIDATES = 8
 
 
-def wrap_angle(angle: ArrayLike) -> NDArray[np.float64] | float:
-    """Wrap angles to ``[-pi, pi)``.
-
-    Parameters
-    ----------
-    angle : array_like
-        Angle(s), rad.
-
-    Returns
-    -------
-    float or numpy.ndarray
-        The wrapped angle(s), rad; a float for a scalar input.
-    """
-    wrapped = np.mod(np.asarray(angle, dtype=float) + np.pi, 2.0 * np.pi) - np.pi
-    return float(wrapped) if wrapped.ndim == 0 else wrapped
+def _check_arc_length(name: str, s: NDArray[np.float64]) -> None:
+    """Arc lengths start at 0 and increase strictly; ``ValueError`` naming ``name`` if not."""
+    if s[0] != 0.0:
+        raise ValueError(f"{name}: must start at 0, got {s[0]!r}")
+    if np.any(np.diff(s) <= 0.0):
+        bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
+        raise ValueError(f"{name}: must be strictly increasing (index {bad})")
 
 
 @dataclass(frozen=True)
@@ -127,8 +89,9 @@ def _as_finite_float(name: str, value: Any) -> float:
 class Track:
     """A closed race-track centerline.
 
-    Construct with :meth:`from_yaml` or :func:`load_demo_track`; direct construction validates
-    the same invariants (with the dataclass field names in the error messages).
+    Read one with :func:`~crs_core.track.yaml_file.read_track` or
+    :func:`~crs_core.track.yaml_file.load_demo_track`; direct construction validates the same
+    invariants (with the dataclass field names in the error messages).
 
     Attributes
     ----------
@@ -185,11 +148,7 @@ class Track:
         width = _as_finite_float("width", self.width)
         start = [_as_finite_float(k, getattr(self, k)) for k in ("start_x", "start_y", "start_yaw")]
         s = arrays["arc_length"]
-        if s[0] != 0.0:
-            raise ValueError(f"arc_length: must start at 0, got {s[0]!r}")
-        if np.any(np.diff(s) <= 0.0):
-            bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
-            raise ValueError(f"arc_length: must be strictly increasing (index {bad})")
+        _check_arc_length("arc_length", s)
         if not length > s[-1]:
             raise ValueError(f"length: {length!r} must exceed the last arc length {s[-1]!r}")
         if not width > 0.0:
@@ -242,105 +201,6 @@ class Track:
         setter(self, "_heading_closed", heading)
         setter(self, "_curvature_closed", closed(arrays["curvature"], float(self.curvature[0])))
         setter(self, "_tree", KDTree(np.column_stack((x, y))))
-
-    # ------------------------------------------------------------------ loading
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> Track:
-        """Load a track from a CRS track YAML file.
-
-        Parameters
-        ----------
-        path : str or pathlib.Path
-            YAML file with a top-level key ``track`` holding ``xCoords``, ``yCoords`` (m),
-            ``tangentAngle`` (rad), ``arcLength`` (m), ``curvature`` (1/m), ``trackLength`` (m),
-            ``width_of_track`` (m), ``x_init``, ``y_init`` (m) and ``yaw_init`` (rad). Other keys
-            (``xRate``, ``yRate``, ``trackWidth``, ``density``) are ignored.
-
-        Returns
-        -------
-        Track
-            One lap: samples with ``arcLength < trackLength`` (files holding several laps or a
-            repeated end point are cut to one lap).
-
-        Raises
-        ------
-        ValueError
-            If the file is not a mapping with ``track``, a required key is missing, a list is
-            not numeric or has non-finite values, the lists differ in length, there are fewer
-            than 10 samples, ``arcLength`` does not start at 0 or does not increase, or the
-            centerline does not close. The message names the offending field.
-        OSError
-            If the file cannot be read.
-        """
-        path = Path(path)
-        with path.open("r", encoding="utf-8") as stream:
-            try:
-                document = yaml.safe_load(stream)
-            except yaml.YAMLError as exc:
-                raise ValueError(f"{path}: not valid YAML ({exc})") from None
-        if not isinstance(document, dict) or not isinstance(document.get("track"), dict):
-            raise ValueError(f"{path}: track: missing top-level mapping 'track'")
-        data = document["track"]
-        missing = [k for k in (*_ARRAY_KEYS, *_SCALAR_KEYS) if k not in data]
-        if missing:
-            raise ValueError(f"{path}: track.{missing[0]}: required key missing")
-        arrays: dict[str, NDArray[np.float64]] = {}
-        for key in _ARRAY_KEYS:
-            value = data[key]
-            if not isinstance(value, list) or not all(
-                isinstance(v, int | float) and not isinstance(v, bool) for v in value
-            ):
-                raise ValueError(f"{path}: track.{key}: must be a list of numbers")
-            try:
-                arrays[key] = _as_float_array(f"track.{key}", value)
-            except ValueError as exc:
-                raise ValueError(f"{path}: {exc}") from None
-        n = arrays["xCoords"].size
-        for key in _ARRAY_KEYS:
-            if arrays[key].size != n:
-                raise ValueError(
-                    f"{path}: track.{key}: has {arrays[key].size} values, xCoords has {n}"
-                )
-        scalars: dict[str, float] = {}
-        for key in _SCALAR_KEYS:
-            try:
-                scalars[key] = _as_finite_float(f"track.{key}", data[key])
-            except ValueError as exc:
-                raise ValueError(f"{path}: {exc}") from None
-        length = scalars["trackLength"]
-        if not length > 0.0:
-            raise ValueError(f"{path}: track.trackLength: must be positive, got {length!r}")
-        s = arrays["arcLength"]
-        if s[0] != 0.0:
-            raise ValueError(f"{path}: track.arcLength: must start at 0, got {s[0]!r}")
-        if np.any(np.diff(s) <= 0.0):
-            bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
-            raise ValueError(f"{path}: track.arcLength: must be strictly increasing (index {bad})")
-        # One lap; a tolerance of a micrometre drops an end point repeated at s == trackLength.
-        keep = s < length - 1e-6
-        if np.count_nonzero(keep) < _MIN_POINTS:
-            raise ValueError(
-                f"{path}: track.xCoords: need at least {_MIN_POINTS} samples in one lap, got "
-                f"{np.count_nonzero(keep)}"
-            )
-        try:
-            return cls(
-                x=arrays["xCoords"][keep],
-                y=arrays["yCoords"][keep],
-                heading=arrays["tangentAngle"][keep],
-                arc_length=s[keep],
-                curvature=arrays["curvature"][keep],
-                length=length,
-                width=scalars["width_of_track"],
-                start_x=scalars["x_init"],
-                start_y=scalars["y_init"],
-                start_yaw=scalars["yaw_init"],
-            )
-        except ValueError as exc:
-            # Name the YAML key rather than the dataclass field.
-            field_name, _, detail = str(exc).partition(": ")
-            key = _FIELD_TO_KEY.get(field_name, field_name)
-            raise ValueError(f"{path}: track.{key}: {detail}") from None
 
     # ------------------------------------------------------------------ queries
     @property
@@ -522,120 +382,3 @@ class Track:
         distance = math.sqrt(float(dist2[i]))
         lateral = math.copysign(distance, cross) if cross != 0.0 else 0.0
         return s, lateral, distance, i
-
-
-def load_demo_track() -> Track:
-    """Load the packaged CRS demo race track.
-
-    The packaged file is a compact copy (every 10th sample, 30 samples per metre, values rounded
-    to 1e-6) of ``DEMO_TRACK.yaml``, the track the real Chronos cars race on in the published
-    CRS experiments (BSD 2-Clause data, see ``data/tracks/LICENSE-data.txt``). Lap length
-    11.568 m, drivable width 0.46 m, driven counter-clockwise.
-
-    Returns
-    -------
-    Track
-        The demo track.
-    """
-    return Track.from_yaml(DEMO_TRACK_PATH)
-
-
-class LapCounter:
-    """Continuous progress, completed laps and lap times from successive arc lengths.
-
-    Feed the projections ``s(t)`` of a car with :meth:`update`. Progress is unwrapped (each step
-    is taken as the shortest way around the loop, so consecutive samples must move less than
-    ``length / 2``) and starts at the first ``s``.
-
-    Laps are counted at the start/finish line ``s = 0``, i.e. when the progress first reaches a
-    multiple ``k * length`` of the lap length. A start away from the line (``s0 > 0``) begins
-    with a partial lap: the first crossing of the line only starts lap timing, and that partial
-    lap is neither counted nor timed. A start on the line (``s0 <= line_tolerance``) counts as a
-    crossing at the first stamp. Each line is counted once: driving backwards over it and forward
-    again does not count a lap twice. Crossing stamps are interpolated linearly between samples.
-
-    Parameters
-    ----------
-    length : float
-        Lap length, m (:attr:`Track.length`).
-    line_tolerance : float, optional
-        A first ``s`` in ``[0, line_tolerance]`` m counts as starting on the line. Default 1e-3.
-    """
-
-    def __init__(self, length: float, line_tolerance: float = 1e-3) -> None:
-        self.length = _as_finite_float("length", length)
-        if not self.length > 0.0:
-            raise ValueError(f"length: must be positive, got {self.length!r}")
-        self.line_tolerance = _as_finite_float("line_tolerance", line_tolerance)
-        self.reset()
-
-    def reset(self) -> None:
-        """Forget all samples, progress and laps."""
-        self._stamp: float | None = None
-        self._s: float = 0.0
-        self._progress: float = 0.0
-        self._highest_line: int = 0
-        self._crossings: list[float] = []
-
-    @property
-    def progress(self) -> float:
-        """Continuous progress, m, since the first sample's arc length (0 before any sample)."""
-        return self._progress
-
-    @property
-    def laps_completed(self) -> int:
-        """Number of full laps driven between start/finish line crossings."""
-        return max(len(self._crossings) - 1, 0)
-
-    @property
-    def crossing_stamps(self) -> list[float]:
-        """Stamps of the start/finish line crossings, s (interpolated)."""
-        return list(self._crossings)
-
-    @property
-    def lap_times(self) -> list[float]:
-        """Durations of the completed laps, s, in order."""
-        return [b - a for a, b in zip(self._crossings[:-1], self._crossings[1:], strict=True)]
-
-    def update(self, stamp: float, s: float) -> float:
-        """Add one sample.
-
-        Parameters
-        ----------
-        stamp : float
-            Time, s; must not decrease between calls.
-        s : float
-            Arc length of the car's projection, m (wrapped into ``[0, length)``).
-
-        Returns
-        -------
-        float
-            The continuous progress after this sample, m.
-
-        Raises
-        ------
-        ValueError
-            If an input is not finite or the stamp decreases.
-        """
-        stamp = _as_finite_float("stamp", stamp)
-        s = _as_finite_float("s", s) % self.length
-        if self._stamp is None:
-            self._stamp, self._s, self._progress = stamp, s, s
-            self._highest_line = 0
-            if s <= self.line_tolerance:
-                self._crossings.append(stamp)
-            return self._progress
-        if stamp < self._stamp:
-            raise ValueError(f"stamp: {stamp!r} is earlier than the previous stamp {self._stamp!r}")
-        step = (s - self._s + 0.5 * self.length) % self.length - 0.5 * self.length
-        previous = self._progress
-        progress = previous + step
-        line = math.floor(progress / self.length)
-        while self._highest_line < line:
-            self._highest_line += 1
-            boundary = self._highest_line * self.length
-            fraction = (boundary - previous) / step if step > 0.0 else 1.0
-            fraction = min(max(fraction, 0.0), 1.0)
-            self._crossings.append(self._stamp + fraction * (stamp - self._stamp))
-        self._stamp, self._s, self._progress = stamp, s, progress
-        return progress

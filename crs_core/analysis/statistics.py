@@ -1,0 +1,72 @@
+"""Summary statistics of a sample: the one place a median, a 95th percentile and friends are
+computed for benchmarks, reports and logs.
+
+Call sites choose which statistics they report (``keys``) and how many decimals they keep
+(``digits``); the numbers are numpy's (``np.median``, ``np.percentile`` with its default linear
+interpolation).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+__all__ = ["summary"]
+
+
+_FUNCTIONS = {"mean": np.mean, "median": np.median, "min": np.min, "max": np.max}
+
+
+def _statistic(values: np.ndarray, key: str) -> float:
+    percentile = key.startswith("p") and key[1:].replace(".", "", 1).isdigit()
+    if key not in _FUNCTIONS and not percentile:
+        raise ValueError(f"keys: unknown statistic {key!r} (mean, median, min, max, pNN or n)")
+    if values.size == 0:
+        return math.nan
+    if percentile:
+        return float(np.percentile(values, float(key[1:])))
+    return float(_FUNCTIONS[key](values))
+
+
+def summary(
+    values: ArrayLike,
+    keys: Sequence[str] = ("median", "p95", "max"),
+    digits: int | None = None,
+) -> dict[str, float]:
+    """Summary statistics of ``values``, keyed by name, in the order of ``keys``.
+
+    Parameters
+    ----------
+    values : array_like
+        The sample, any shape (flattened), in the unit the caller reports. NaN is not skipped:
+        filter it out first if it means "missing".
+    keys : sequence of str, optional
+        Which statistics: ``"mean"``, ``"median"``, ``"min"``, ``"max"``, ``"pNN"`` (the NN-th
+        percentile, e.g. ``"p95"``, ``"p99"``, ``"p99.9"``) and ``"n"`` (the sample size, an
+        int). Default median, p95, max.
+    digits : int, optional
+        Round every statistic (not ``n``) to this many decimals (Python's ``round``). Default:
+        no rounding.
+
+    Returns
+    -------
+    dict
+        ``{key: value}``; every statistic is NaN for an empty sample.
+
+    Raises
+    ------
+    ValueError
+        If a key is not one of the above.
+    """
+    values = np.asarray(values, dtype=float).ravel()
+    out: dict[str, float] = {}
+    for key in keys:
+        if key == "n":
+            out[key] = int(values.size)
+            continue
+        value = _statistic(values, key)
+        out[key] = round(value, digits) if digits is not None else value
+    return out
