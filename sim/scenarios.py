@@ -13,6 +13,7 @@ from crs_core.track import Track, load_demo_track
 
 if TYPE_CHECKING:
     from sim.sensors import SensorSuite
+    from sim.simulator import SimulationResult
 
 
 class SmoothNoise:
@@ -95,3 +96,16 @@ def simulate_dataset(
     x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
     result = Simulator(model, sensors or SensorSuite(), seed=seed).run(controller, duration, x0)
     return result.to_dataset()
+
+
+def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> SimulationResult:
+    """The standard open-loop drive: joystick-like inputs on DEMO_TRACK, default sensor noise."""
+    from sim.sensors import SensorSuite
+    from sim.simulator import Simulator
+
+    track = load_demo_track()
+    model = CarModel()
+    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
+    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    simulator = Simulator(model, SensorSuite(blackouts=tuple(blackouts)), seed=seed)
+    return simulator.run(JoystickDriver(track, wheelbase, seed), duration, x0)

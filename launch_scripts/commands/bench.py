@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import (
     add_duration,
     add_estimator,
@@ -19,7 +20,6 @@ from launch_scripts.arguments import (
     bounded_number,
 )
 from launch_scripts.output_folder import prepare_output, prepare_output_file
-from sim.bench.machine import REAL_DATA
 
 #: What a benchmark gives: the JSON-ready result and the text to print.
 Outcome = tuple[dict[str, Any], str]
@@ -37,20 +37,20 @@ def _runs(args: argparse.Namespace, name: str) -> Path:
 
 
 def _with_machine(result: dict[str, Any]) -> dict[str, Any]:
-    from sim.bench.machine import machine
+    from benchmarks.machine import machine
 
     return {"machine": machine(), "command": _command_line(), **result}
 
 
 def model(args: argparse.Namespace) -> Outcome:
-    from sim.bench.model import model_benchmark
+    from benchmarks.model import model_benchmark
 
     result = model_benchmark()
     return result, json.dumps(result, indent=2)
 
 
 def estimation(args: argparse.Namespace) -> Outcome:
-    from sim.bench.estimation import format_table, run_all
+    from benchmarks.estimation import format_table, run_all
 
     folders = sorted(p for p in REAL_DATA.iterdir() if p.is_dir()) if REAL_DATA.is_dir() else []
     plots = Path(args.out).parent / "estimation_plots" if args.out else None
@@ -59,7 +59,7 @@ def estimation(args: argparse.Namespace) -> Outcome:
 
 
 def stack(args: argparse.Namespace) -> Outcome:
-    from launch_scripts.stack_benchmark import format_table, stack_benchmark
+    from benchmarks.stack import format_table, stack_benchmark
 
     work = _runs(args, "stack")
     result = stack_benchmark(
@@ -69,7 +69,7 @@ def stack(args: argparse.Namespace) -> Outcome:
 
 
 def bridge(args: argparse.Namespace) -> Outcome:
-    from launch_scripts.bridge_benchmark import bridge_benchmark, format_table
+    from benchmarks.bridge import bridge_benchmark, format_table
 
     work = _runs(args, "bridge")
     result = _with_machine(bridge_benchmark(args.duration, work, args.estimator, args.seed))
@@ -77,7 +77,7 @@ def bridge(args: argparse.Namespace) -> Outcome:
 
 
 def link(args: argparse.Namespace) -> Outcome:
-    from launch_scripts.link_benchmark import format_table, link_benchmark
+    from benchmarks.link import format_table, link_benchmark
 
     work = _runs(args, "link")
     result = link_benchmark(
@@ -93,14 +93,14 @@ def link(args: argparse.Namespace) -> Outcome:
 
 
 def sysid(args: argparse.Namespace) -> Outcome:
-    from sim.bench.sysid import sysid_benchmark
+    from benchmarks.sysid import sysid_benchmark
 
     result = {"command": _command_line(), **sysid_benchmark(None, args.seeds)}
     return result, json.dumps(result, indent=2)
 
 
 def discrepancy(args: argparse.Namespace) -> Outcome:
-    from sim.bench.discrepancy import discrepancy_benchmark, markdown
+    from benchmarks.discrepancy import discrepancy_benchmark, markdown
 
     result = {
         "command": _command_line(),
@@ -118,7 +118,7 @@ def discrepancy(args: argparse.Namespace) -> Outcome:
 
 
 def control(args: argparse.Namespace) -> Outcome:
-    from sim.bench.control import control_benchmark, format_table
+    from benchmarks.control import control_benchmark, format_table
 
     progress = lambda line: print(f"control bench: {line}", file=sys.stderr)  # noqa: E731
     result = {"command": _command_line(), **control_benchmark(progress=progress)}
@@ -128,7 +128,7 @@ def control(args: argparse.Namespace) -> Outcome:
 def calibration(args: argparse.Namespace) -> Outcome:
     import time
 
-    from sim.bench.calibration import moving_study, static_study
+    from benchmarks.calibration import moving_study, static_study
 
     started = time.perf_counter()
     result = _with_machine(
@@ -191,7 +191,7 @@ def _bridge_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _link_options(parser: argparse.ArgumentParser) -> None:
-    from launch_scripts.link_benchmark import PRESET_NAMES, parse_counts, parse_presets
+    from benchmarks.link import PRESET_NAMES, parse_counts, parse_presets
 
     parser.add_argument(
         "--presets",

@@ -7,9 +7,9 @@ import json
 import sys
 from pathlib import Path
 
+from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import add_out
 from launch_scripts.output_folder import prepare_output_file
-from sim.bench.machine import REAL_DATA
 
 
 def consistency(args: argparse.Namespace) -> None:

@@ -11,7 +11,7 @@ from crs_core import codegen
 from crs_core.codegen import compile_functions, compiler_available
 from crs_core.dataset import Dataset
 from crs_core.estimation.offline import estimate_dataset
-from sim.bench.estimation import standard_drive
+from sim.scenarios import standard_drive
 
 needs_compiler = pytest.mark.skipif(not compiler_available(), reason="no C compiler")
 

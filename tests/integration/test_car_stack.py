@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 from stack_probe import Probe, log_text, wait_for
 
+from benchmarks.link import off_track
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import car_nodes, run_car_stack
 from launch_scripts.launcher import Launcher, NodeSpec
-from launch_scripts.link_benchmark import off_track
 
 pytestmark = pytest.mark.integration
 

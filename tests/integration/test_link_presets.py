@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.link import car_figures
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import EmulatedLink, run_car_stack
-from launch_scripts.link_benchmark import car_figures
 
 pytestmark = pytest.mark.integration
 

@@ -16,8 +16,8 @@ from crs_core.estimation import (
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
-from sim.bench.estimation import standard_drive, start_state
-from sim.scenarios import JoystickDriver
+from sim.replay import start_state
+from sim.scenarios import JoystickDriver, standard_drive
 from sim.sensors import Blackout, SensorSpec, SensorSuite
 from sim.simulator import Simulator
 

@@ -16,7 +16,7 @@ from crs_core.estimation.offline import (
     estimate_dataset,
     reference_comparison,
 )
-from sim.bench.estimation import standard_drive
+from sim.scenarios import standard_drive
 
 DURATION = 6.0
 

@@ -21,7 +21,7 @@ from crs_core.estimation.realtime import (
 )
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import CarModel
-from sim.bench.estimation import standard_drive
+from sim.scenarios import standard_drive
 
 X0 = np.array([1.0, 2.0, 0.5, 0.0, 0.0, 0.0])
 

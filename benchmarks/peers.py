@@ -4,7 +4,7 @@ The project benchmarks its own :class:`~crs_core.estimation.ExtendedKalmanFilter
 :class:`~crs_core.estimation.mhe.MovingHorizonEstimator` against two widely used open-source
 implementations "on the same model and data". Both peers here sit behind the project's
 :class:`~crs_core.estimation.base.Estimator` interface, so
-:func:`sim.bench.estimation.replay` feeds them exactly what it feeds ours:
+:func:`sim.replay.replay` feeds them exactly what it feeds ours:
 
 - ``filterpy-ekf`` (:class:`FilterpyEkf`): ``filterpy.kalman.ExtendedKalmanFilter`` does the
   covariance prediction and the measurement update algebra.

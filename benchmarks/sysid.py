@@ -12,11 +12,11 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.machine import REAL_DATA, machine
 from crs_core.dataset import Dataset
 from crs_core.identification.models import ROUGH, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
-from sim.bench.machine import REAL_DATA, machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.

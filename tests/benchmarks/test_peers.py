@@ -1,4 +1,4 @@
-"""Peer estimators (sim.bench.peers): filterpy's EKF and do-mpc's MHE on our model and data.
+"""Peer estimators (benchmarks.peers): filterpy's EKF and do-mpc's MHE on our model and data.
 
 All runs use the standard drive (seed 1, 4 s; for do-mpc's MHE 3 s), sensors ``lh+imu+we``,
 queried at 60 Hz from the standard wrong initial state (14 cm and 0.2 rad off); RMSE is taken
@@ -10,12 +10,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.peers import PEERS, DoMpcMhe, FilterpyEkf, make_peer
 from crs_core.estimation import ExtendedKalmanFilter
 from crs_core.estimation.base import Estimate
 from crs_core.estimation.ekf import EkfSettings
 from crs_core.model import CarModel
-from sim.bench.estimation import replay, rmse, standard_drive, start_state
-from sim.bench.peers import PEERS, DoMpcMhe, FilterpyEkf, make_peer
+from sim.replay import replay, rmse, start_state
+from sim.scenarios import standard_drive
 
 SENSORS = "lh+imu+we"
 RATE_HZ = 60.0

@@ -24,6 +24,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from benchmarks.machine import machine
 from crs_core.dataset import Dataset
 from crs_core.discrepancy.workflow import (
     DiscrepancyResult,
@@ -32,7 +33,6 @@ from crs_core.discrepancy.workflow import (
 )
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
-from sim.bench.machine import machine
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 from sim.sensors import SensorSpec, SensorSuite
 

@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.machine import machine, timing
 from crs_core.control.path_following import PathFollower
 from crs_core.model import CarModel
 from crs_core.model.car_model import NumericModel
 from crs_core.track import load_demo_track
-from sim.bench.machine import machine, timing
 from sim.sensors import SensorSuite
 from sim.simulator import Simulator
 

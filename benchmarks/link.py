@@ -49,10 +49,10 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.stack import busy_loops
 from chronos_bridge.impairment import PRESET_NAMES
 from crs_core.track import Track, load_demo_track
 from launch_scripts.car_stack import EMULATOR_PORT, HOST_PORT, EmulatedLink, run_car_stack
-from launch_scripts.stack_benchmark import busy_loops
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH, footprint_outside
 
 #: True speed above which a car counts as racing, m/s.
@@ -608,12 +608,12 @@ def reanalysed(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m launch_scripts.link_benchmark table FILE`` prints the Markdown table of a
+    """``python -m benchmarks.link table FILE`` prints the Markdown table of a
     saved ``crs bench link`` JSON (the docs' table); ``reanalyse FILE`` computes its runs'
     figures again from their folders and rewrites FILE."""
     import argparse
 
-    parser = argparse.ArgumentParser(prog="python -m launch_scripts.link_benchmark")
+    parser = argparse.ArgumentParser(prog="python -m benchmarks.link")
     parser.add_argument("action", choices=("table", "reanalyse"))
     parser.add_argument("file", type=Path)
     args = parser.parse_args(argv)

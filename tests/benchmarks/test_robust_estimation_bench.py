@@ -8,15 +8,18 @@ import math
 import numpy as np
 import pytest
 
-from crs_core.estimation import make_estimator
-from sim.bench.estimation import STATES, format_table, replay, standard_drive
-from sim.bench.robust_estimation import (
+from benchmarks.estimation import format_table
+from benchmarks.robust_estimation import (
     INPUT_VARIANTS,
     TIMING_PATTERNS,
     inputs_withheld_rows,
     pose_solver_rows,
     timing_robustness_rows,
 )
+from crs_core.analysis.metrics import STATE_NAMES
+from crs_core.estimation import make_estimator
+from sim.replay import replay
+from sim.scenarios import standard_drive
 
 
 def _finite(value) -> bool:
@@ -37,7 +40,7 @@ def test_inputs_withheld_rows():
     assert {r["variant"] for r in rows} == set(INPUT_VARIANTS)
     for row in rows:
         assert row["benchmark"] == "inputs_withheld"
-        assert all(_finite(row["rmse"][s]) for s in STATES)
+        assert all(_finite(row["rmse"][s]) for s in STATE_NAMES)
         (run,) = row["runs"]
         for key in (
             "first_estimate_s",

@@ -12,11 +12,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from crs_core.track import Track
-from launch_scripts import car_stack, link_benchmark
-from launch_scripts.car_stack import EmulatedLink
-from launch_scripts.cli import main
-from launch_scripts.link_benchmark import (
+from benchmarks import link as link_benchmark
+from benchmarks.link import (
     busy_loops,
     driving_references,
     format_table,
@@ -26,6 +23,10 @@ from launch_scripts.link_benchmark import (
     outage_windows,
     summarise,
 )
+from crs_core.track import Track
+from launch_scripts import car_stack
+from launch_scripts.car_stack import EmulatedLink
+from launch_scripts.cli import main
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
 
 WIDTH = 0.46

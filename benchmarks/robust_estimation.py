@@ -1,6 +1,6 @@
 """Benchmarks of robust estimation (part of ``crs bench estimation``).
 
-Three row kinds, all on the standard drive (:func:`~sim.bench.estimation.standard_drive`)
+Three row kinds, all on the standard drive (:func:`~sim.scenarios.standard_drive`)
 with its simulated truth:
 
 ``inputs_withheld``
@@ -25,25 +25,25 @@ import numpy as np
 from scipy.stats import chi2
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.analysis.metrics import STATE_NAMES
 from crs_core.analysis.statistics import summary
 from crs_core.estimation import LighthousePoseSolver, SweepPairer, make_estimator
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
-from sim.bench.estimation import (
+from sim.replay import (
     SETTLING_S,
-    STATES,
     Run,
     errors,
     query_grid,
     replay,
     replay_schedule,
     rmse,
-    standard_drive,
     start_state,
     stream_events,
     time_summary,
 )
+from sim.scenarios import standard_drive
 from sim.simulator import LIGHTHOUSE_VIEW_LIMIT, SimulationResult
 
 RATE_HZ = 60.0
@@ -131,7 +131,7 @@ def inputs_withheld_rows(
                     estimator = make_estimator(kind, sensors, inputs=mode)
                     x0 = None if start == "blind" else start_state(result)
                     run = replay(estimator, result, RATE_HZ, x0, inputs=delivered)
-                    values.append([rmse(run, result)[s] for s in STATES])
+                    values.append([rmse(run, result)[s] for s in STATE_NAMES])
                     runs.append({"seed": seed, **run_metrics(run, result, estimator)})
                 values = np.array(values)
                 rows.append(
@@ -144,8 +144,12 @@ def inputs_withheld_rows(
                         "commands_delivered": delivered,
                         "start": start,
                         "rate_hz": RATE_HZ,
-                        "rmse": dict(zip(STATES, values.mean(0).round(6).tolist(), strict=True)),
-                        "rmse_std": dict(zip(STATES, values.std(0).round(6).tolist(), strict=True)),
+                        "rmse": dict(
+                            zip(STATE_NAMES, values.mean(0).round(6).tolist(), strict=True)
+                        ),
+                        "rmse_std": dict(
+                            zip(STATE_NAMES, values.std(0).round(6).tolist(), strict=True)
+                        ),
                         "runs": runs,
                         "worst": _worst(runs),
                         "seeds": list(seeds),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim.bench.machine import REAL_DATA
+from benchmarks.machine import REAL_DATA
 
 PROJECT = Path(__file__).resolve().parents[3]
 

@@ -3,160 +3,43 @@
 Every row is computed on simulated data with known truth, except the real-data rows, whose
 reference is the car's own on-line estimate (not ground truth). The rows of robust estimation
 (inputs withheld and blind start, the Lighthouse pose solver, pathological timing) live in
-:mod:`sim.bench.robust_estimation`; :func:`run_all` and :func:`format_table` include them.
+:mod:`benchmarks.robust_estimation`; :func:`run_all` and :func:`format_table` include them.
 """
 
 from __future__ import annotations
 
-import math
 import time
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from benchmarks.robust_estimation import (
+    format_rows,
+    inputs_withheld_rows,
+    pose_solver_rows,
+    timing_robustness_rows,
+)
 from crs_core.analysis.consistency import predicted_samples
-from crs_core.analysis.metrics import STATE_NAMES, state_errors, state_rmse
+from crs_core.analysis.metrics import STATE_NAMES
 from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
 from crs_core.estimation import make_estimator
-from crs_core.estimation.base import Estimator
 from crs_core.estimation.mhe import MheSettings
-from crs_core.measurements import InputSample, in_stamp_order
+from crs_core.measurements import InputSample
 from crs_core.model import CarModel
-from crs_core.track import load_demo_track
-from sim.scenarios import JoystickDriver
-from sim.sensors import Blackout, SensorSuite
-from sim.simulator import SimulationResult, Simulator
+from sim.replay import (
+    errors,
+    replay,
+    rmse,
+    start_state,
+    time_summary,
+)
+from sim.scenarios import standard_drive
+from sim.sensors import Blackout
 
 #: Sensor combinations of the paper's Table I.
 SENSOR_SETS = ("lh", "lh+imu", "lh+we", "lh+imu+we")
-#: Initial estimate error of the standard runs: x, y (m), yaw (rad), vx, vy, omega.
-INITIAL_ERROR = np.array([0.1, -0.1, 0.2, 0.0, 0.0, 0.0])
-#: RMSE is taken after this settling time, s.
-SETTLING_S = 2.0
-
-
-def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> SimulationResult:
-    """The standard open-loop drive: joystick-like inputs on DEMO_TRACK, default sensor noise."""
-    track = load_demo_track()
-    model = CarModel()
-    wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
-    simulator = Simulator(model, SensorSuite(blackouts=tuple(blackouts)), seed=seed)
-    return simulator.run(JoystickDriver(track, wheelbase, seed), duration, x0)
-
-
-@dataclass
-class Run:
-    """Estimates of one estimator over one simulated run."""
-
-    stamps: np.ndarray
-    estimates: np.ndarray
-    update_times_s: np.ndarray
-    statuses: list[str]
-
-
-def stream_events(result: SimulationResult, inputs: bool = True) -> list[tuple[float, object]]:
-    """The run's data as ``(arrival time, item)`` in stamp order, arriving at their stamps.
-
-    Commanded inputs come before measurements of the same stamp; ``inputs=False`` leaves them
-    out (a recording without commands).
-    """
-    events = in_stamp_order(result.measurements, result.inputs if inputs else ())
-    return [(item.stamp, item) for item in events]
-
-
-def replay_schedule(
-    estimator: Estimator,
-    deliveries: Sequence[tuple[float, object]],
-    queries: Sequence[tuple[float, float]],
-    x0: np.ndarray | None,
-    on_update: Callable[[float], None] | None = None,
-) -> Run:
-    """Feed ``deliveries`` in their order and ask for estimates as ``queries`` say.
-
-    ``deliveries`` are ``(arrival time, item)`` (an :class:`InputSample` or a
-    :class:`Measurement`) with non-decreasing arrival times; ``queries`` are ``(query time,
-    stamp asked)``, by query time. Before each query every item that has arrived by its query
-    time is delivered, then ``estimate(stamp asked)`` is called. ``x0=None`` is a blind start
-    (``reset(0.0)``). The per-update time includes the delivery work.
-    """
-    if x0 is None:
-        estimator.reset(0.0)
-    else:
-        estimator.reset(0.0, x0)
-    stamps, estimates, times, statuses = [], [], [], []
-    k = 0
-    for now, asked in queries:
-        start = time.perf_counter()
-        while k < len(deliveries) and deliveries[k][0] <= now:
-            estimator.add(deliveries[k][1])
-            k += 1
-        estimate = estimator.estimate(asked)
-        times.append(time.perf_counter() - start)
-        stamps.append(asked)
-        estimates.append(estimate.x)
-        statuses.append(estimate.status)
-        if on_update:
-            on_update(asked)
-    return Run(np.array(stamps), np.array(estimates), np.array(times), statuses)
-
-
-def query_grid(result: SimulationResult, rate_hz: float) -> np.ndarray:
-    """The regular query stamps ``1/rate_hz, 2/rate_hz, ...`` before the end of the run."""
-    return np.arange(1.0 / rate_hz, result.duration, 1.0 / rate_hz)
-
-
-def replay(
-    estimator: Estimator,
-    result: SimulationResult,
-    rate_hz: float,
-    x0: np.ndarray | None,
-    on_update: Callable[[float], None] | None = None,
-    *,
-    inputs: bool = True,
-) -> Run:
-    """Feed a run to an estimator as it would arrive live and query it at ``rate_hz``.
-
-    Data stamped up to each query time is delivered before the query, so the per-update time
-    includes the work on the measurements that arrived since the previous query.
-
-    Parameters
-    ----------
-    x0 : array or None
-        Start state at t = 0; ``None`` starts blind (``reset(0.0)``): the estimator initialises
-        itself from Lighthouse pose fixes and is ``lost`` until then.
-    inputs : bool
-        ``False`` withholds the commanded inputs (as in a recording without commands).
-    """
-    grid = query_grid(result, rate_hz)
-    return replay_schedule(
-        estimator, stream_events(result, inputs), [(t, t) for t in grid], x0, on_update
-    )
-
-
-def errors(run: Run, result: SimulationResult) -> np.ndarray:
-    """Estimate minus truth at the query stamps (yaw wrapped), shape (n, 6)."""
-    return state_errors(run.estimates, result.truth_at(run.stamps))
-
-
-def rmse(run: Run, result: SimulationResult, after: float = SETTLING_S) -> dict[str, float]:
-    """Root-mean-square error per state after the settling time, SI units."""
-    values = state_rmse(run.estimates, result.truth_at(run.stamps), run.stamps >= after)
-    return {name: values[name] if values else math.nan for name in STATE_NAMES}
-
-
-def time_summary(seconds: Sequence[float]) -> dict[str, float]:
-    return summary(np.asarray(seconds) * 1e3, ("median", "p95", "p99", "max"), digits=4)
-
-
-def start_state(result: SimulationResult) -> np.ndarray:
-    """The standard wrong initial estimate: truth at t = 0 plus :data:`INITIAL_ERROR`."""
-    return result.truth_x[0] + INITIAL_ERROR
-
-
 # --- the benchmark suite ---------------------------------------------------------------------
 PAPER_TABLE_I = {  # real car, motion-capture reference (paper Table I): mm, mrad, mm/s
     ("ekf", "lh"): (31, 21, 42, 69, 67),
@@ -168,7 +51,6 @@ PAPER_TABLE_I = {  # real car, motion-capture reference (paper Table I): mm, mra
     ("ekf", "lh+imu+we"): (30, 20, 45, 26, 36),
     ("mhe", "lh+imu+we"): (32, 21, 45, 25, 32),
 }
-STATES = STATE_NAMES
 
 
 def accuracy_rows(seeds: Sequence[int], kinds=("ekf", "mhe"), progress=None) -> list[dict]:
@@ -180,7 +62,7 @@ def accuracy_rows(seeds: Sequence[int], kinds=("ekf", "mhe"), progress=None) -> 
             per_seed, times = [], []
             for result in drives.values():
                 run = replay(make_estimator(kind, sensors), result, 60.0, start_state(result))
-                per_seed.append([rmse(run, result)[s] for s in STATES])
+                per_seed.append([rmse(run, result)[s] for s in STATE_NAMES])
                 times.extend(run.update_times_s)
                 if progress:
                     progress()
@@ -191,8 +73,10 @@ def accuracy_rows(seeds: Sequence[int], kinds=("ekf", "mhe"), progress=None) -> 
                     "estimator": kind,
                     "sensors": sensors,
                     "rate_hz": 60.0,
-                    "rmse": dict(zip(STATES, values.mean(0).round(6).tolist(), strict=True)),
-                    "rmse_std": dict(zip(STATES, values.std(0).round(6).tolist(), strict=True)),
+                    "rmse": dict(zip(STATE_NAMES, values.mean(0).round(6).tolist(), strict=True)),
+                    "rmse_std": dict(
+                        zip(STATE_NAMES, values.std(0).round(6).tolist(), strict=True)
+                    ),
                     "time_ms": time_summary(times),
                     "seeds": list(seeds),
                 }
@@ -365,7 +249,7 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
                     "run": Path(folder).name,
                     "rmse_vs_onboard_estimate": dict(
                         zip(
-                            STATES,
+                            STATE_NAMES,
                             np.sqrt(np.mean(difference**2, 0)).round(6).tolist(),
                             strict=True,
                         )
@@ -404,7 +288,7 @@ def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
     do-mpc averages the samples of an interval like our MHE (``combine="mean"``). Each peer row
     carries ``ratio_to_ours``: its RMSE and median time divided by ours (time > 1: slower).
     """
-    from sim.bench.peers import DoMpcMhe, FilterpyEkf
+    from benchmarks.peers import DoMpcMhe, FilterpyEkf
 
     drives = [standard_drive(seed) for seed in seeds]
     makers = {
@@ -418,7 +302,7 @@ def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
         values, times = [], []
         for result in drives:
             run = replay(make(), result, 60.0, start_state(result))
-            values.append([rmse(run, result)[s] for s in STATES])
+            values.append([rmse(run, result)[s] for s in STATE_NAMES])
             times.extend(run.update_times_s)
         measured[name] = (np.mean(values, axis=0), time_summary(times))
     rows = []
@@ -431,15 +315,17 @@ def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
                 "estimator": peer,
                 "sensors": sensors,
                 "rate_hz": 60.0,
-                "rmse": dict(zip(STATES, values.round(6).tolist(), strict=True)),
+                "rmse": dict(zip(STATE_NAMES, values.round(6).tolist(), strict=True)),
                 "time_ms": timing,
                 "compared_with": ours,
                 "ours": {
-                    "rmse": dict(zip(STATES, our_values.round(6).tolist(), strict=True)),
+                    "rmse": dict(zip(STATE_NAMES, our_values.round(6).tolist(), strict=True)),
                     "time_ms": our_timing,
                 },
                 "ratio_to_ours": {
-                    "rmse": dict(zip(STATES, (values / our_values).round(3).tolist(), strict=True)),
+                    "rmse": dict(
+                        zip(STATE_NAMES, (values / our_values).round(3).tolist(), strict=True)
+                    ),
                     "time_median": round(timing["median"] / our_timing["median"], 2),
                 },
                 "seeds": list(seeds),
@@ -457,7 +343,7 @@ def run_all(
 ) -> list[dict]:
     """Every estimation benchmark, in the order of the issue: accuracy, blackout, speed, peers,
     real data; then (``robust``) inputs withheld with a blind start, the Lighthouse pose
-    solver and pathological timing (:mod:`sim.bench.robust_estimation`)."""
+    solver and pathological timing (:mod:`benchmarks.robust_estimation`)."""
     from tqdm import tqdm
 
     bar = tqdm(total=2 * len(SENSOR_SETS) * len(seeds), desc="accuracy", leave=False)
@@ -469,12 +355,6 @@ def run_all(
         rows += peer_rows(seeds[:2])
     rows += real_rows(real_folders, plot_dir)
     if robust:
-        from sim.bench.robust_estimation import (
-            inputs_withheld_rows,
-            pose_solver_rows,
-            timing_robustness_rows,
-        )
-
         rows += inputs_withheld_rows(seeds)
         rows += pose_solver_rows(seeds)
         rows += timing_robustness_rows(seeds)
@@ -492,7 +372,7 @@ def format_table(rows: list[dict]) -> str:
         if row["benchmark"] != "accuracy":
             continue
         cells = " ".join(
-            f"{row['rmse'][s] * 1e3:5.1f}±{row['rmse_std'][s] * 1e3:<5.1f}" for s in STATES
+            f"{row['rmse'][s] * 1e3:5.1f}±{row['rmse_std'][s] * 1e3:<5.1f}" for s in STATE_NAMES
         )
         paper = PAPER_TABLE_I.get((row["estimator"], row["sensors"]), ())
         lines.append(f"{row['estimator']:4s} {row['sensors']:10s} {cells}   {paper}")
@@ -515,8 +395,8 @@ def format_table(rows: list[dict]) -> str:
             extra = ""
             if kind == "peer":
                 ratio = row["ratio_to_ours"]
-                errors_mm = "/".join(f"{row['rmse'][s] * 1e3:.1f}" for s in STATES[:5])
-                ratios = "/".join(f"{ratio['rmse'][s]:.2f}" for s in STATES[:5])
+                errors_mm = "/".join(f"{row['rmse'][s] * 1e3:.1f}" for s in STATE_NAMES[:5])
+                ratios = "/".join(f"{ratio['rmse'][s]:.2f}" for s in STATE_NAMES[:5])
                 extra = (
                     f"; rmse x/y/yaw/vx/vy {errors_mm}; vs {row['compared_with']}: time "
                     f"x{ratio['time_median']:g}, rmse ratios {ratios}"
@@ -533,7 +413,5 @@ def format_table(rows: list[dict]) -> str:
                 f" {r['vx'] * 1e3:.0f} mm/s; LH residual median {lh['median'] * 1e3:.2f} mrad,"
                 f" p95 {lh['p95'] * 1e3:.2f} mrad"
             )
-    from sim.bench.robust_estimation import format_rows
-
     lines += format_rows(rows)
     return "\n".join(lines)

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-import sim.bench.discrepancy as bench
+import benchmarks.discrepancy as bench
 
 
 class _StoppedError(Exception):

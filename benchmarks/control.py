@@ -4,7 +4,7 @@ Measured in one run on this machine:
 
 - **Solve time** of the real-time-iteration MPCC (N = 40, 30 Hz; the whole call from Python:
   guess, path linearisation, compiled linearisation, QP, checks), over a 5-lap race on the true
-  state, with its QP iterations and fallbacks; the **peer** (:class:`~sim.bench.control_peers.
+  state, with its QP iterations and fallbacks; the **peer** (:class:`~benchmarks.control_peers.
   IpoptMpcc`, the same problem solved to convergence by IPOPT) on every ``peer_every``-th of the
   race's problems (same state, guess and path linearisation), after the race: the ratio of the
   medians, and how far one real-time iteration's first command is from the converged one.
@@ -23,14 +23,14 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.control_peers import IpoptMpcc
+from benchmarks.machine import machine
 from crs_core.analysis.statistics import summary
 from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.estimation.factory import make_estimator
 from crs_core.model import CarModel
 from crs_core.track import Track, load_demo_track
-from sim.bench.control_peers import IpoptMpcc
-from sim.bench.machine import machine
 from sim.closed_loop import ClosedLoopResult, run_closed_loop
 from sim.onboard import OnboardSettings
 from sim.sensors import SensorSuite
