@@ -1,5 +1,6 @@
 """Output folders never lose a user's files: created fresh, ours replaced only on request."""
 
+import os
 import subprocess
 from pathlib import Path
 
@@ -83,9 +84,14 @@ def test_run_sh_leaves_a_foreign_file_in_out(tmp_path: Path):
     """``OUT=folder ./run.sh`` with a user's file in the folder refuses and keeps the file
     (it used to ``rm -rf "$OUT"``)."""
     (tmp_path / "mine.txt").write_text("keep me")
+    env = {"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "HOME": str(tmp_path)}
+    # the suite's compile cache (run.sh compiles into it before it looks at OUT): without it a
+    # CRS_CACHE_DIR elsewhere leaves ROOT/.cache/crs cold and this run compiles for ~15 s
+    if "CRS_CACHE_DIR" in os.environ:
+        env["CRS_CACHE_DIR"] = os.environ["CRS_CACHE_DIR"]
     result = subprocess.run(
         [str(ROOT / "run.sh")],
-        env={"PATH": "/usr/bin:/bin", "OUT": str(tmp_path), "HOME": str(tmp_path)},
+        env=env,
         capture_output=True,
         text=True,
         timeout=600,
