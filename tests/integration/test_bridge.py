@@ -392,7 +392,7 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
 def test_two_bridges_serve_two_cars_each_in_its_own_namespace(tmp_path):
     """Two bridge nodes (``/car1``, ``/car2``) on two ports with two fake cars: each publishes
     only its car's data (told apart by the battery voltage) and sends each ``input`` only to its
-    own car. Also measures the nodes' CPU at 250 Hz."""
+    own car."""
     from chronos_msgs.msg import CarInput
 
     ports = {"car1": _free_port(), "car2": _free_port()}
@@ -414,11 +414,12 @@ def test_two_bridges_serve_two_cars_each_in_its_own_namespace(tmp_path):
             car.start()
         for name in cars:
             wait_for(lambda n=name: len(collected[n]["battery"]) > 50, 30.0, f"{name} battery")
-        time.sleep(1.0)
-        cpu0, t0 = launcher.cpu_seconds(), time.monotonic()
-        time.sleep(5.0)
-        cpu1, elapsed = launcher.cpu_seconds(), time.monotonic() - t0
-        cpu = {n: round(100 * (cpu1[n] - cpu0[n]) / elapsed, 1) for n in cpu1}
+        for name in cars:
+            wait_for(
+                lambda n=name: collected[n]["lighthouse"] and collected[n]["wheel_speeds"],
+                10.0,
+                f"{name} Lighthouse and wheel-speed readings",
+            )
         for name in cars:
             voltages_seen = {round(m.voltage, 3) for _, m in collected[name]["battery"]}
             assert voltages_seen == {voltages[name]}, (name, voltages_seen)
@@ -442,7 +443,6 @@ def test_two_bridges_serve_two_cars_each_in_its_own_namespace(tmp_path):
                 assert reference.throttle == pytest.approx(torque)
                 assert reference.angle == pytest.approx(steer)
         assert launcher.poll() == []
-        print(f"\ntwo bridges at 250 Hz each: CPU % of one core {cpu}")
     finally:
         for car in cars.values():
             car.stop()
