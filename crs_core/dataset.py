@@ -73,7 +73,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import yaml
@@ -391,6 +391,10 @@ def plain(value: Any, nonfinite_as_none: bool = False) -> Any:
     return value
 
 
+@overload
+def _load_npy(folder: Path, name: str, required: Literal[True]) -> np.ndarray: ...
+@overload
+def _load_npy(folder: Path, name: str, required: bool = False) -> np.ndarray | None: ...
 def _load_npy(folder: Path, name: str, required: bool = False) -> np.ndarray | None:
     """A numeric array from ``folder/name`` as float; None if absent and not required."""
     path = folder / name

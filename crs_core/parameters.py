@@ -199,7 +199,7 @@ class ParameterSet(Mapping[str, Parameter]):
                         f"{where}parameter {p.name!r}: unknown field(s) {sorted(map(str, extra))} "
                         f"(known: {', '.join(_ENTRY_FIELDS)}, unit, group, description)"
                     )
-                fields = {}
+                fields: dict[str, Any] = {}  # float values of the numeric fields only
                 for key in _ENTRY_FIELDS:
                     if key in entry:
                         fields[key] = _as_float(entry[key], f"{p.name}.{key}", source)

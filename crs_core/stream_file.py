@@ -49,7 +49,9 @@ def write_stream(
     if truth_t is not None and truth_x is not None:
         arrays["truth:t"] = truth_t
         arrays["truth:x"] = truth_x
-    np.savez_compressed(path, **arrays)
+    # numpy's stub lets any keyword be allow_pickle (a bool); these keys are "meas:...",
+    # "inputs:..." and "truth:..." only
+    np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
 
 
 def read_stream(path: Path, stations: int) -> StreamContents:
@@ -87,7 +89,7 @@ def read_stream(path: Path, stations: int) -> StreamContents:
         stamps, values = arrays.get(f"{group}:t"), arrays.get(f"{group}:{width}")
         if (stamps is None) != (values is None):
             raise ValueError(f"stream.npz: {group}:t and {group}:{width} must come together")
-        if stamps is None:
+        if stamps is None or values is None:  # (both, by the check above)
             continue
         columns = 2 if group == "inputs" else -1
         stamps, values = _stream_arrays(f"{group}:t", stamps, f"{group}:{width}", values, columns)

@@ -77,8 +77,9 @@ def latencies(times: StampTimes) -> dict[str, Any]:
 
 def command_latencies(
     times: StampTimes, log: Mapping[str, ArrayLike]
-) -> dict[str, dict[str, float]]:
-    """The command-packet latencies (ms; see :data:`LATENCY_DEFINITIONS`) from the bag's
+) -> dict[str, dict[str, float] | int]:
+    """The command-packet latencies (ms; see :data:`LATENCY_DEFINITIONS`), and the number of
+    commands they were measured on (``commands_matched``), from the bag's
     ``(stamp, receive time)`` pairs and the car emulator's log (``command_host_t``: the bridge's
     send stamp of each reference it sent, ``command_read_t``: the emulator's read time of it)."""
     sensors = np.sort(np.array([s for s, _ in times.get("sensor", [])]))

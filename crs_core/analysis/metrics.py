@@ -78,6 +78,7 @@ def interpolate_pose(t: ArrayLike, stamps: ArrayLike, states: ArrayLike) -> np.n
     numpy.ndarray
         (m, 3) ``x, y, yaw`` (m, m, rad); the yaw continuous (not wrapped).
     """
+    t, stamps = np.asarray(t, dtype=float), np.asarray(stamps, dtype=float)
     states = np.asarray(states, dtype=float)
     yaw = np.unwrap(states[:, 2])
     columns = (states[:, 0], states[:, 1], yaw)

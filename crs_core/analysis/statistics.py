@@ -9,7 +9,8 @@ interpolation).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -17,7 +18,12 @@ from numpy.typing import ArrayLike
 __all__ = ["summary"]
 
 
-_FUNCTIONS = {"mean": np.mean, "median": np.median, "min": np.min, "max": np.max}
+_FUNCTIONS: dict[str, Callable[[np.ndarray], Any]] = {
+    "mean": np.mean,
+    "median": np.median,
+    "min": np.min,
+    "max": np.max,
+}
 
 
 def _statistic(values: np.ndarray, key: str) -> float:

@@ -99,7 +99,10 @@ def point_reports(
                 continue
             mean = point.mean_angles(s, plane)
             means[(s, plane)] = mean
-            residuals[(s, plane)] = wrap_angle(mean - outputs[f"lighthouse/{s}/{plane}"])
+            # (4,) in, (4,) out: the array branch of wrap_angle
+            residuals[(s, plane)] = np.asarray(
+                wrap_angle(mean - outputs[f"lighthouse/{s}/{plane}"])
+            )
             spread[(s, plane)] = (
                 float(np.sqrt(np.sum(wrap_angle(rows - mean) ** 2) / (rows.size - N_PHOTODIODES)))
                 if rows.shape[0] > 1
@@ -109,7 +112,7 @@ def point_reports(
         known = np.array(point.position)
         error = float(np.linalg.norm(fix.pose[:2] - known)) if fix is not None else math.nan
         yaw_error = (
-            float(abs(wrap_angle(fix.pose[2] - point.yaw)))
+            abs(float(wrap_angle(fix.pose[2] - point.yaw)))
             if fix is not None and point.yaw is not None
             else math.nan
         )
@@ -278,5 +281,5 @@ def moving_fixes(calibration, limit: int = 2000) -> MovingFixes:
         reference = calibration.reference_pose(np.array([stamp]))[0]
         stamps.append(stamp)
         errors.append(float(np.linalg.norm(fix.pose[:2] - reference[:2])))
-        yaw_errors.append(float(abs(wrap_angle(fix.pose[2] - reference[2]))))
+        yaw_errors.append(abs(float(wrap_angle(fix.pose[2] - reference[2]))))
     return MovingFixes(np.array(stamps), np.array(errors), np.array(yaw_errors))

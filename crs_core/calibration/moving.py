@@ -68,8 +68,8 @@ class Recording:
 def read_recording(dataset: Dataset) -> Recording:
     """Sweeps and pose reference of ``dataset``; ``ValueError`` naming what is missing."""
     measurements = dataset.measurements or []
-    sweeps = [(m, parse_lighthouse(m.sensor)) for m in measurements]
-    sweeps = [(m, key) for m, key in sweeps if key is not None]
+    parsed = [(m, parse_lighthouse(m.sensor)) for m in measurements]
+    sweeps = [(m, key) for m, key in parsed if key is not None]
     if sweeps:
         stamps = np.array([m.stamp for m, _ in sweeps])
         station = np.array([key[0] for _, key in sweeps])
@@ -303,7 +303,8 @@ def _start_stations(data: Recording, spline, offset, tilts, diodes) -> list[Base
         pick = np.unique(
             np.linspace(0, pairs_1.size - 1, min(START_PAIRS, pairs_1.size)).astype(int)
         )
-        world, directions = [], []
+        world: list[np.ndarray] = []
+        directions: list[np.ndarray] = []
         for i1, i2 in zip(pairs_1[pick], pairs_2[pick], strict=True):
             q = spline(np.array([0.5 * (data.stamps[i1] + data.stamps[i2]) + offset]))[0]
             c, si = math.cos(q[2]), math.sin(q[2])

@@ -30,7 +30,7 @@ def write_geometry(
     path: Path, stations: Sequence[BaseStation], photodiodes: Sequence[tuple[float, float]]
 ) -> Path:
     """``geometry.yaml``: ``{geometry: <dataset.yaml geometry block>}``; returns the path."""
-    block = Geometry(tuple(stations), tuple(map(tuple, photodiodes))).to_dict()
+    block = Geometry(tuple(stations), tuple((x, y) for x, y in photodiodes)).to_dict()
     text = (
         "# Lighthouse geometry from crs calibrate-lighthouse; the 'geometry' block of "
         "dataset.yaml\n"

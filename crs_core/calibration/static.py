@@ -131,7 +131,9 @@ def calibrate_static(
     need = 3 if yaw_known.all() else 4
     start = []
     for s in range(n):
-        world, directions, seen = [], [], 0
+        world: list[np.ndarray] = []
+        directions: list[np.ndarray] = []
+        seen = 0
         for i, point in enumerate(points.points):
             a1, a2 = point.mean_angles(s, 1), point.mean_angles(s, 2)
             if a1 is None or a2 is None:

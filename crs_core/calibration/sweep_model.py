@@ -113,7 +113,10 @@ def station_from_chart(theta: np.ndarray, rotation0: np.ndarray) -> BaseStation:
     """The :class:`BaseStation` of chart parameters ``theta`` (8) around ``rotation0``."""
     rotation = np.asarray(rotation0) @ rotation_from_angles(*map(float, theta[0:3]))
     return BaseStation.from_rotation(
-        rotation, tuple(map(float, theta[3:6])), float(theta[6]), float(theta[7])
+        rotation,
+        (float(theta[3]), float(theta[4]), float(theta[5])),
+        float(theta[6]),
+        float(theta[7]),
     )
 
 

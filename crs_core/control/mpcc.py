@@ -324,11 +324,12 @@ class Mpcc:
         After a link outage the plan had followed a dead-reckoned estimate; the one iteration
         from it at the car's true state gave full braking and full lock left and right in
         turn."""
-        planned = self._Z[min(stages, self.problem.N)]
+        Z, _ = self._kept_plan()
+        planned = Z[min(stages, self.problem.N)]
         position, yaw, speed = OFF_PLAN
         return bool(
             math.hypot(z0[0] - planned[0], z0[1] - planned[1]) > position
-            or abs(wrap_angle(z0[2] - planned[2])) > yaw
+            or abs(float(wrap_angle(z0[2] - planned[2]))) > yaw
             or abs(z0[3] - planned[3]) > speed
         )
 
@@ -408,10 +409,17 @@ class Mpcc:
         (states,) = self._rollout(z0, V.T, self._parameter_columns)
         return np.vstack((z0, states.T))
 
+    def _kept_plan(self) -> tuple[np.ndarray, np.ndarray]:
+        """The plan ``(Z, V)``, for the steps that run only while there is one."""
+        if self._Z is None or self._V is None:
+            raise RuntimeError("Mpcc: no plan to continue from")
+        return self._Z, self._V
+
     def _shifted(self) -> tuple[np.ndarray, np.ndarray]:
         """The plan one stage on: its last input held for one more stage."""
-        V = np.vstack((self._V[1:], self._V[-1:]))
-        Z = np.vstack((self._Z[1:], self._Z[-1:]))
+        Z_kept, V_kept = self._kept_plan()
+        V = np.vstack((V_kept[1:], V_kept[-1:]))
+        Z = np.vstack((Z_kept[1:], Z_kept[-1:]))
         Z[-1] = np.asarray(self.problem.dynamics(Z[-2], V[-1], self.p)).ravel()
         return Z, V
 
@@ -504,7 +512,8 @@ class Mpcc:
         self._failures += 1
         failures = self._failures
         if failures > self.settings.max_failures or self._Z is None:
-            command = self.stop(z0, f"{reason}; {failures} failed solves in a row")
+            reason = f"{reason}; {failures} failed solves in a row"
+            command = self.stop(z0, reason)
             mode, slack = "stop", 0.0
         else:  # the shifted previous plan: the guess is that plan shifted by one stage
             self._never_into_reverse(V, float(z0[3]))
@@ -520,7 +529,7 @@ class Mpcc:
             math.nan,
             slack,
             failures,
-            self.status.reason if mode == "stop" else reason,
+            reason,  # after a stop, the reason it was given
         )
         return command
 

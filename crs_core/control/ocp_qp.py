@@ -49,8 +49,8 @@ class SparseAssembly:
     def add_matrix(self, matrix: ca.MX, row_of, col_of) -> None:
         """Place every structural nonzero ``(r, c)`` of ``matrix`` at
         ``(row_of(r, c), col_of(r, c))`` (vectorised functions of numpy index arrays)."""
-        r, c = matrix.sparsity().get_triplet()
-        r, c = np.asarray(r, dtype=int), np.asarray(c, dtype=int)
+        triplet_rows, triplet_cols = matrix.sparsity().get_triplet()
+        r, c = np.asarray(triplet_rows, dtype=int), np.asarray(triplet_cols, dtype=int)
         self.add(matrix.nz[:], row_of(r, c), col_of(r, c))
 
     def build(self) -> ca.MX:

@@ -307,8 +307,10 @@ class Supervisor:
             self._update_cap(now, dt, float(x[3]), events)
             s = self.settings
             limit = self.speed_cap if self.speed_cap < s.max_speed else None
-            u = self._backing_out(now, x, events)
-            if u is None:
+            backing_out = self._backing_out(now, x, events)
+            if backing_out is not None:
+                u = backing_out
+            else:
                 u, solve_time = self._command(now, x, limit, dt, events)
             problem = self._problem(u)
             if problem:
@@ -342,7 +344,7 @@ class Supervisor:
         stamp, x, _ = self._latest
         delay = self.command_delay.delay if self.command_delay is not None else 0.0
         target = now + delay
-        if self._numeric is None or target <= stamp:
+        if self._numeric is None or self._p is None or target <= stamp:
             return x
         t = max(stamp, target - self.settings.stale_timeout)
         sent = self._sent
@@ -371,6 +373,8 @@ class Supervisor:
     def _update_cap(self, now: float, dt: float, speed: float, events: list) -> None:
         """Ramp the speed cap for a fresh estimate of status ``self._latest[2]``; the car's
         (predicted) speed ``speed`` (m/s) is where a fall starts when it is below the cap."""
+        if self._latest is None:
+            raise ValueError("no estimate observed yet")
         s = self.settings
         status = self._latest[2]
         if status == "degraded":
@@ -440,16 +444,17 @@ class Supervisor:
         """The controller's command and its call's wall time (None if it raised); the MPCC
         carries its plan on by the ``elapsed`` s since the last tick."""
         started = time.perf_counter()
+        controller = self.controller
         try:
-            if self._mpcc is not None:
-                u = self._mpcc(x, limit, elapsed)
-                status = self._mpcc.status
+            if isinstance(controller, Mpcc):  # (then self._mpcc)
+                u = controller(x, limit, elapsed)
+                status = controller.status
                 if status is not None and status.mode != "solved":
                     events.append(
                         SupervisorEvent("controller", f"MPCC {status.mode}: {status.reason}")
                     )
             else:
-                u = self.controller(now, x, limit)
+                u = controller(now, x, limit)
         except (ValueError, RuntimeError) as error:
             events.append(SupervisorEvent("failed", f"controller failed: {error}"))
             return self._stop(keep_plan=False, reason=f"controller failed: {error}"), None

@@ -334,7 +334,7 @@ def _diagnostics_table(summary: dict[str, Any], result: DiscrepancyResult) -> li
     fits = [("current", summary["diagnostics_before"])]
     if not same:
         fits.append(("final", summary["diagnostics_after"]))
-    rows = {}
+    rows: dict[str, list[tuple[str, dict[str, Any]]]] = {}  # channel -> (model, diagnosis)
     for label, diagnoses in fits:
         for d in diagnoses:
             rows.setdefault(d["channel"], []).append((label, d))

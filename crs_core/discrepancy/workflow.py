@@ -24,14 +24,15 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, TypeVar
 
 from crs_core.dataset import Dataset
 from crs_core.discrepancy.hypotheses import (
     DELAY_EFFECT,
+    HeldOutScores,
     Hypothesis,
     TestSettings,
     clear_of_null,
@@ -270,11 +271,11 @@ def find_discrepancy(
                 held_out, chosen.model, settings.test.test_horizon_s, chosen.delay_s
             )
             say(f"on top of {'+'.join(chosen.effects)}: {len(others)} more to test")
-            tasks = [
+            joint_tasks = [
                 (model, chosen, other, base_data, fit_settings, base_scores, held_out, len(others))
                 for other in sorted(others, key=lambda h: not _slow_to_fit(h.effects[0]))
             ]
-            joint = _run_hypotheses(_fit_joint_and_judge, tasks, settings.workers, say)
+            joint = _run_hypotheses(_fit_joint_and_judge, joint_tasks, settings.workers, say)
             hypotheses += joint
             joint_findings = [h for h in joint if h.significant]
             if not joint_findings:
@@ -344,14 +345,27 @@ def _plane1_lag(
     return with_plane1_lag(data, lag), fit, SweepLag(lag, finite_std, "estimated")
 
 
-def _fit_and_judge(task: tuple) -> Hypothesis:
+#: A first-round task: one effect fitted on top of the current model, judged against it
+#: (fit data, model, current fit, effects, settings, current scores, held-out data, tests).
+_HypothesisTask = tuple[
+    Dataset, CarModel, FieResult, tuple[str, ...], DiscrepancySettings, HeldOutScores, Dataset, int
+]
+#: A joint task: ``other``'s effect on top of the chosen hypothesis, judged against it
+#: (model, chosen, other, delayed fit data, settings, chosen's scores, held-out data, tests).
+_JointTask = tuple[
+    CarModel, Hypothesis, Hypothesis, Dataset, DiscrepancySettings, HeldOutScores, Dataset, int
+]
+_Task = TypeVar("_Task", _HypothesisTask, _JointTask)
+
+
+def _fit_and_judge(task: _HypothesisTask) -> Hypothesis:
     """Fit one hypothesis and judge it (a top-level function: it runs in worker processes)."""
     data, model, current, effects, settings, scores, held_out, tests = task
     hypothesis = fit_hypothesis(data, model, current, effects, settings.identification)
     return judge(hypothesis, scores, held_out, settings.test, tests)
 
 
-def _fit_joint_and_judge(task: tuple) -> Hypothesis:
+def _fit_joint_and_judge(task: _JointTask) -> Hypothesis:
     """Fit one effect on top of the base hypothesis and judge it against the base."""
     model, base, other, data, settings, scores, held_out, tests = task
     hypothesis = _joint_hypothesis(model, base, other, data, settings)
@@ -370,8 +384,8 @@ def _asked_for(hypothesis: Hypothesis, min_z: float) -> bool:
 
 
 def _run_hypotheses(
-    work: Callable[[tuple], Hypothesis],
-    tasks: list[tuple],
+    work: Callable[[_Task], Hypothesis],
+    tasks: Sequence[_Task],
     workers: int,
     say: Callable[[str], None],
 ) -> list[Hypothesis]:

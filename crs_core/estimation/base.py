@@ -30,10 +30,11 @@ import heapq
 import math
 import time
 from collections import Counter
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from crs_core.estimation.health import HealthMonitor, HealthSettings
 from crs_core.estimation.initialization import InitializationSettings, PoseInitializer
@@ -79,7 +80,7 @@ def parse_time_offsets(text: str) -> dict[str, float]:
     return offsets
 
 
-def checked_initial_state(x0: np.ndarray) -> np.ndarray:
+def checked_initial_state(x0: ArrayLike) -> np.ndarray:
     """``x0`` as 6 finite floats, else ``ValueError`` naming it."""
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (6,) or not np.all(np.isfinite(x0)):
@@ -215,7 +216,7 @@ class Estimator:
     ) -> None:
         self.sensors = parse_sensor_set(sensors) if isinstance(sensors, str) else frozenset(sensors)
         self.diagnostics = Diagnostics()
-        self._queue: list[tuple[float, int, str, int, object]] = []
+        self._queue: list[tuple[float, int, str, int, Measurement | InputSample]] = []
         self._sequence = 0
         self._processed_until = -math.inf
         self._supervised = model is not None
@@ -275,7 +276,7 @@ class Estimator:
         offsets = self.settings.time_offsets
         return float(offsets.get(sensor, offsets.get(group, 0.0)))
 
-    def _push(self, stamp: float, kind: int, key: str, item: object) -> bool:
+    def _push(self, stamp: float, kind: int, key: str, item: Measurement | InputSample) -> bool:
         if stamp < self.late_before():
             self.diagnostics.late += 1
             return False
@@ -283,7 +284,7 @@ class Estimator:
         self._sequence += 1
         return True
 
-    def _events_until(self, t: float):
+    def _events_until(self, t: float) -> Iterator[Measurement | InputSample]:
         """Pop queued events with stamp <= t in (stamp, inputs first, sensor name) order.
 
         Ties are resolved by content (sensor name, then arrival), so the order of delivery of
@@ -370,7 +371,7 @@ class Estimator:
     def _initialize(self, t: float) -> bool:
         """Feed the initializer the data up to ``t``; on a fix, restart from it."""
         assert self._initializer is not None
-        later: list[tuple[int, object]] = []
+        later: list[tuple[int, Measurement | InputSample]] = []
         fix = None
         for item in self._events_until(t):
             if fix is not None:

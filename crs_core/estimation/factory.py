@@ -57,14 +57,24 @@ def make_estimator(
     model = model or CarModel()
     if model.estimated_inputs:
         raise ValueError("model: give the commanded model; inputs='estimated' builds the other")
-    estimator_type = ExtendedKalmanFilter if kind == "ekf" else MovingHorizonEstimator
 
     if inputs == "commanded":
-        return estimator_type(model, sensors, settings)
-    estimated = estimator_type(input_free_model(model), sensors, settings)
+        return _new_estimator(model, sensors, settings)
+    estimated = _new_estimator(input_free_model(model), sensors, settings)
     if inputs == "estimated":
         return estimated
-    return InputModeEstimator(estimated, estimator_type(model, sensors, settings))
+    return InputModeEstimator(estimated, _new_estimator(model, sensors, settings))
+
+
+def _new_estimator(
+    model: CarModel, sensors: str | frozenset[str], settings: EstimatorSettings
+) -> Estimator:
+    """The EKF or MHE that ``settings`` are for (:func:`make_estimator` checked them)."""
+    if isinstance(settings, EkfSettings):
+        return ExtendedKalmanFilter(model, sensors, settings)
+    if isinstance(settings, MheSettings):
+        return MovingHorizonEstimator(model, sensors, settings)
+    raise TypeError(f"settings: EkfSettings or MheSettings, got {settings!r}")
 
 
 def input_free_model(model: CarModel) -> CarModel:

@@ -140,8 +140,11 @@ class HealthMonitor:
                     f"{s.window_s:g} s"
                 )
         last = self._last_lighthouse_accepted
-        if self.lighthouse_in_use and last is None:
-            reasons.append("no Lighthouse sample accepted yet (the start state is unconfirmed)")
-        elif self.lighthouse_in_use and t - last > s.dead_reckoning_after_s:
-            reasons.append(f"no Lighthouse sample accepted for {t - last:.2f} s (dead reckoning)")
+        if self.lighthouse_in_use:
+            if last is None:
+                reasons.append("no Lighthouse sample accepted yet (the start state is unconfirmed)")
+            elif t - last > s.dead_reckoning_after_s:
+                reasons.append(
+                    f"no Lighthouse sample accepted for {t - last:.2f} s (dead reckoning)"
+                )
         return ("degraded", "; ".join(reasons)) if reasons else ("ok", "")

@@ -47,7 +47,7 @@ class InputModeEstimator(Estimator):
         return self.active.settings
 
     @property
-    def diagnostics(self) -> Diagnostics:  # type: ignore[override]
+    def diagnostics(self) -> Diagnostics:
         return self.active.diagnostics
 
     @diagnostics.setter

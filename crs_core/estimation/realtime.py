@@ -359,7 +359,8 @@ class RealtimeEstimator:
         blind = self.initial is None or (
             self.restarts > 0 and bool(self.estimator.sensors & {"lh", "pose"})
         )
-        self.estimator.reset(t, None if blind else self.initial)
+        start_state = None if blind else self.initial
+        self.estimator.reset(t, start_state)
         self.started = True
         self._grid_origin = t
         self._last_query = t
@@ -373,7 +374,7 @@ class RealtimeEstimator:
                 warnings.append(warning)
         self._buffer.clear()
         self._buffered_measurement = False
-        initial = None if blind else self.initial.copy()
+        initial = None if start_state is None else start_state.copy()
         return UpdateResult(
             t, queried=True, started=True, initial=initial, warnings=tuple(warnings)
         )

@@ -127,8 +127,8 @@ def input_segments(dataset: Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray
     m = max(len(p) for p in segments)
     seg_u, seg_dt = np.zeros((k_count, m, 2)), np.zeros((k_count, m))
     for k, pieces in enumerate(segments):
-        for j, (value, length) in enumerate(pieces):
-            seg_u[k, j], seg_dt[k, j] = value, length
+        for piece, (value, length) in enumerate(pieces):
+            seg_u[k, piece], seg_dt[k, piece] = value, length
     return seg_u, seg_dt, np.array([len(p) for p in segments])
 
 

@@ -42,10 +42,9 @@ def identification_model(
     """The model with the dataset's Lighthouse geometry, effects and a parameter file
     (``"rough"``: :data:`~crs_core.model.chronos.ROUGH_PRIOR`); a ``ValueError`` names
     ``field`` (the command-line option, for example)."""
+    parsed = [e for e in effects if not isinstance(e, str)]
     spec: dict[str, Any] = (
-        effect_spec(effects)  # type: ignore[arg-type]
-        if effects and not isinstance(effects[0], str)
-        else {name: None for name in effects}
+        effect_spec(parsed) if parsed else {name: None for name in effects if isinstance(name, str)}
     )
     rough = params is not None and str(params) == ROUGH
     try:

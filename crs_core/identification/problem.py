@@ -29,6 +29,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -335,7 +336,7 @@ class FieProblem:
         """IPOPT on ``min 0.5 r'r`` with the chosen Hessian."""
         z, r = self.z_sym, self.residual
         f = 0.5 * ca.dot(r, r)
-        options = {
+        options: dict[str, Any] = {  # CasADi option values: bool, number, text, Function
             "print_time": False,
             "ipopt.print_level": 0,
             "ipopt.sb": "yes",

@@ -183,7 +183,9 @@ def _parameter_figure(result: FieResult, path: Path) -> None:
         rows - 0.15,
         xerr=result.uncertainty.std / scale,
         fmt="none",
-        ecolor=colours,
+        # one colour per bar: matplotlib hands ecolor to a LineCollection, which takes a list
+        # (its stubs declare a single colour)
+        ecolor=colours,  # type: ignore[arg-type]
     )
     ax.scatter(
         result.theta / scale, rows - 0.15, c=colours, label="identified ± σ (red: not identifiable)"

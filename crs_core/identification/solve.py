@@ -247,10 +247,11 @@ def identify(
     problem: FieProblem | None = None
     best: tuple[float, np.ndarray, dict[str, Any]] | None = None
     starts: list[dict[str, Any]] = []
-    solver = callback = None
+    solver: ca.Function | None = None
+    callback: _IterationProgress | None = None
     build_s = 0.0
     for start in range(settings.starts):
-        theta0 = None
+        theta0: np.ndarray | None = None
         if start > 0 and problem is not None:
             lo, hi = problem.bounds()
             draw = rng.standard_normal(problem.n_theta)
@@ -280,6 +281,7 @@ def identify(
                 for j, name in enumerate(problem.fit):
                     if name in warm_start.values:
                         theta0[j] = warm_start.values[name]
+        assert solver is not None and theta0 is not None  # (set by the first start)
         lo, hi = problem.bounds()
         z0 = np.clip(problem.pack(theta0, states0), lo, hi)
         t_solve = time.perf_counter()
@@ -287,7 +289,7 @@ def identify(
         stats = solver.stats()
         z = np.asarray(solution["x"]).ravel()
         cost = 2.0 * float(solution["f"])
-        summary = {
+        summary: dict[str, Any] = {
             "start": start,
             "cost": cost,
             "iterations": int(stats.get("iter_count", 0)),

@@ -86,6 +86,7 @@ class OpenLoopPredictor:
                 f"horizon: {horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
             )
         self.dataset, self.model, self.horizon_s = dataset, model, horizon_s
+        self._u: np.ndarray = dataset.u
         self.states = initial_trajectory(dataset, model) if states is None else states
         self.end = np.searchsorted(t, t + horizon_s + 1e-9, side="right") - 1  # last in horizon
         self.starts = np.flatnonzero(t + horizon_s <= t[-1] + 1e-9)[::every]
@@ -114,7 +115,7 @@ class OpenLoopPredictor:
 
     def predict(self, p: np.ndarray | None = None, outputs: bool = True) -> OpenLoopPrediction:
         """Predict with the model's parameter vector ``p`` (default: the model's own)."""
-        t, u, starts, n = self.dataset.t, self.dataset.u, self.starts, len(self.starts)
+        t, u, starts, n = self.dataset.t, self._u, self.starts, len(self.starts)
         p = self.model.parameters.vector() if p is None else np.asarray(p, dtype=float)
         padded = self._padded
         capacity = len(padded)

@@ -85,7 +85,8 @@ class BaseStation:
     def from_rotation(
         cls, rotation: np.ndarray, position: tuple[float, float, float], dt1: float, dt2: float
     ) -> BaseStation:
-        return cls(angles_from_rotation(rotation), tuple(map(float, position)), dt1, dt2)
+        x, y, z = map(float, position)
+        return cls(angles_from_rotation(rotation), (x, y, z), dt1, dt2)
 
     @property
     def rotation(self) -> np.ndarray:
