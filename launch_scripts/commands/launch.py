@@ -31,17 +31,9 @@ def launch(args: argparse.Namespace) -> None:
                 f"{option}: only for crs launch car --emulate (the simulator has no radio link)"
             )
 
-    # the nodes check these too, but a mistake is cheaper to hear before four processes start
-    if args.output == "velocity" and args.controller != "mpcc":
-        raise ValueError(
-            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
-            "commands torque)"
-        )
     if args.track is not None:
         read_track(args.track)
-    if args.params is not None:
-        build_model([], 1, args.params)
-    prepare_output(Path(args.out), "launch", args.overwrite)
+    _check_and_prepare(args)
     report = run_stack(
         args.cars,
         args.estimator,
@@ -58,6 +50,19 @@ def launch(args: argparse.Namespace) -> None:
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
+
+
+def _check_and_prepare(args: argparse.Namespace) -> None:
+    """What both scenarios check before anything starts (the nodes check these too, but a
+    mistake is cheaper to hear before the processes start), then the output folder."""
+    if args.output == "velocity" and args.controller != "mpcc":
+        raise ValueError(
+            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
+            "commands torque)"
+        )
+    if args.params is not None:
+        build_model([], 1, args.params)
+    prepare_output(Path(args.out), "launch", args.overwrite)
 
 
 def verdict(report: dict, require_laps: int) -> int:
@@ -114,14 +119,7 @@ def launch_car(args: argparse.Namespace) -> None:
         args.cars = len(car_ips)
     if args.track is not None:
         raise ValueError("--track: crs launch car races DEMO_TRACK (where the emulator starts)")
-    if args.output == "velocity" and args.controller != "mpcc":
-        raise ValueError(
-            f"--output: velocity needs --controller mpcc (the {args.controller} controller "
-            "commands torque)"
-        )
-    if args.params is not None:
-        build_model([], 1, args.params)
-    prepare_output(Path(args.out), "launch", args.overwrite)
+    _check_and_prepare(args)
     report = run_car_stack(
         args.cars,
         args.estimator,
