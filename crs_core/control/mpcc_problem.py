@@ -87,11 +87,7 @@ class MpccSettings:
         slide, where the linearised tires mislead the real-time iteration.
     track_margin : float
         Car-size margin kept from each track edge, m: the car's centre stays within
-        ``width / 2 - track_margin`` of the centreline. The default, 0.07 m, is half the
-        diagonal of the Chronos car's 0.12 m x 0.07 m footprint, so the whole car stays on the
-        track at any heading (with 0.06 m, half its width plus a centimetre, a car turning back
-        from the edge at a large angle to the track, as after a motor cut-off, put a corner
-        1-2 cm outside).
+        ``width / 2 - track_margin`` of the centreline.
     steer_max : float
         Steering limit, rad.
     torque_min, torque_max : float
@@ -142,7 +138,7 @@ class MpccSettings:
     slack_quadratic: float = 5000.0
     terminal_scale: float = 2.0
     q_sideslip: float = 10.0
-    track_margin: float = 0.07
+    track_margin: float = 0.06
     steer_max: float = 0.34
     torque_min: float = -1.0
     torque_max: float = 1.0

@@ -356,13 +356,8 @@ def test_far_from_its_plan_the_controller_iterates_as_from_cold(track) -> None:
     """Racing at 1.5 m/s, then an estimate 0.2 m and 0.3 rad away from where the plan put the
     car (after a link outage, the plan had followed a dead-reckoned estimate): the command is
     the one a controller starting cold there gives, not one iteration from the stale plan: the
-    same steering, and braking (3 iterations against a cold start's 10: the torque differs).
-    With the 6 cm track margin this was measured with: the jump puts the car 0.18 m from the
-    centreline, 1 cm into the boundary's slack there and 2 cm with the 7 cm default, where a
-    warm and a cold start steer 0.04 rad apart and the warm one brakes less (-0.4 against
-    -0.85)."""
-    settings = MpccSettings(track_margin=0.06)
-    controller = Mpcc(track, settings=settings)
+    same steering, and braking (3 iterations against a cold start's 10: the torque differs)."""
+    controller = Mpcc(track)
     model, p, dt = controller.model, controller.p, controller.settings.dt
     x = _start(track, 1.5)
     for _ in range(10):
@@ -371,7 +366,7 @@ def test_far_from_its_plan_the_controller_iterates_as_from_cold(track) -> None:
     jumped = x + np.array([0.2 * -math.sin(x[2]), 0.2 * math.cos(x[2]), 0.3, 0, 0, 0])
     warm = controller(jumped, None, dt)
     assert controller.status.qp_iterations > 0
-    cold = Mpcc(track, settings=settings)(jumped)
+    cold = Mpcc(track)(jumped)
     assert warm[0] == pytest.approx(cold[0], abs=0.02)
     assert warm[1] < -0.5 and cold[1] < -0.5
 
@@ -428,11 +423,3 @@ def test_a_solve_time_budget_ends_the_iterations_of_a_call(track) -> None:
     np.testing.assert_allclose(hurried.plan[1], once.plan[1])
     assert hurried.status.qp_iterations == once.status.qp_iterations
     assert unhurried.status.qp_iterations > 3 * once.status.qp_iterations
-
-
-def test_the_track_margin_keeps_the_whole_footprint_on_the_track_at_any_heading() -> None:
-    """The centre's margin from each edge covers the farthest corner of the car's footprint
-    (the footprint the benchmarks' time off the track is measured with)."""
-    from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
-
-    assert MpccSettings().track_margin >= math.hypot(CAR_LENGTH / 2, CAR_WIDTH / 2)
