@@ -34,6 +34,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 
+from crs_core.errors import FieldError
+
 #: Gyro range ±250 °/s plus 20 %, rad/s.
 GYRO_LIMIT = 1.2 * math.radians(250.0)
 #: Accelerometer range ±3 g plus 20 %, m/s^2.
@@ -58,19 +60,6 @@ INT32_MIN, INT32_MAX = -(1 << 31), (1 << 31) - 1
 #: 2000-01-01T00:00:00Z and 2100-01-01T00:00:00Z in µs since the Unix epoch.
 TIMESTAMP_MIN_US = 946_684_800_000_000
 TIMESTAMP_MAX_US = 4_102_444_800_000_000
-
-
-class FieldError(ValueError):
-    """A value that is malformed; ``field`` is its dotted path in the packet."""
-
-    def __init__(self, field: str, reason: str) -> None:
-        super().__init__(f"{field}: {reason}")
-        self.field = field
-        self.reason = reason
-
-    def within(self, prefix: str) -> FieldError:
-        """The same error with ``prefix.`` in front of the field path."""
-        return FieldError(f"{prefix}.{self.field}", self.reason)
 
 
 def check_float(field: str, value: object, low: float, high: float) -> float:

@@ -78,6 +78,7 @@ from typing import Any, Literal, overload
 import numpy as np
 import yaml
 
+from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model.chronos import (
     base_station_from_parameters,
@@ -143,12 +144,11 @@ class Geometry:
             for i, entry in enumerate(data["base_stations"]):
                 name = f"geometry.base_stations[{i}]"
                 if not isinstance(entry, Mapping):
-                    raise _FieldError(f"{name}: expected a mapping, got {entry!r}")
+                    raise FieldError(name, f"expected a mapping, got {entry!r}")
                 missing = [k for k in ("rotation", "position", "dt1", "dt2") if k not in entry]
                 if missing:
-                    raise _FieldError(
-                        f"geometry: malformed ({name[9:]} lacks {', '.join(missing)})"
-                    )
+                    lacks = f"malformed ({name[9:]} lacks {', '.join(missing)})"
+                    raise FieldError("geometry", lacks)
                 rotation = _finite_array(f"{name}.rotation", entry["rotation"], (3, 3))
                 position = _finite_array(f"{name}.position", entry["position"], (3,))
                 dt = [_finite_array(f"{name}.{k}", entry[k], ()) for k in ("dt1", "dt2")]
@@ -157,34 +157,30 @@ class Geometry:
                         rotation, tuple(position), float(dt[0]), float(dt[1])
                     )
                 except ValueError as error:
-                    raise _FieldError(f"{name}.rotation: {error}") from None
+                    raise FieldError(f"{name}.rotation", str(error)) from None
                 stations.append(station)
             diodes = _finite_array("geometry.photodiodes", data["photodiodes"], (4, 2))
-        except _FieldError as error:
-            raise ValueError(str(error)) from None
+        except FieldError:
+            raise
         except KeyError as error:
-            raise ValueError(f"geometry: malformed (missing {error})") from None
+            raise FieldError("geometry", f"malformed (missing {error})") from None
         except (TypeError, ValueError) as error:
-            raise ValueError(f"geometry: malformed ({error})") from None
+            raise FieldError("geometry", f"malformed ({error})") from None
         if not stations:
             raise ValueError("geometry.base_stations: needs at least one base station")
         return cls(tuple(stations), tuple((float(x), float(y)) for x, y in diodes))
-
-
-class _FieldError(ValueError):
-    """A malformed field whose message already names it."""
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise _FieldError(f"{name}: expected numbers, got {value!r}") from None
+        raise FieldError(name, f"expected numbers, got {value!r}") from None
     if array.shape != shape:
         what = "a number" if not shape else f"shape {shape}"
-        raise _FieldError(f"{name}: expected {what}, got {value!r}")
+        raise FieldError(name, f"expected {what}, got {value!r}")
     if not np.all(np.isfinite(array)):
-        raise _FieldError(f"{name}: contains non-finite values")
+        raise FieldError(name, "contains non-finite values")
     return array
 
 

@@ -85,4 +85,9 @@ def add_estimator(parser: argparse.ArgumentParser) -> None:
 
 def add_seed(parser: argparse.ArgumentParser, help_text: str = "seed of all noise") -> None:
     """``--seed`` (an integer, default 0)."""
-    parser.add_argument("--seed", type=int, default=0, help=f"{help_text} (default 0)")
+    parser.add_argument(
+        "--seed",
+        type=bounded_number("seed", "", 0, 2**31 - 1, int, include_low=True),
+        default=0,
+        help=f"{help_text}, 0..2^31-1 (default 0)",
+    )

@@ -53,6 +53,7 @@ from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
+from crs_core.errors import FieldError
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
@@ -76,6 +77,10 @@ def _controller_kind(value: str) -> str | None:
     return None if value in CONTROLLERS else f"must be one of {', '.join(CONTROLLERS)}"
 
 
+#: The parameter each supervisor and command-delay setting comes from, where the names differ.
+_PARAMETER_OF = {"ramp_rate": "speed_ramp", "rise_rate": "speed_rise", "initial": "command_delay"}
+
+
 class ControllerNode(Node):
     """MPCC (or path following) on the latest estimate, through a :class:`Supervisor`."""
 
@@ -87,8 +92,9 @@ class ControllerNode(Node):
         )
         if self.output == "velocity" and kind != "mpcc":
             raise ParameterError(
-                f"output: velocity needs controller:=mpcc (the {kind} controller commands "
-                "torque), got 'velocity'"
+                "output",
+                f"velocity needs controller:=mpcc (the {kind} controller commands torque), "
+                "got 'velocity'",
             )
         default_rate = 30.0 if kind == "mpcc" else 50.0
         rate_hz = declare(self, "rate_hz", default_rate, "control rate, Hz", positive)
@@ -153,8 +159,8 @@ class ControllerNode(Node):
                 velocity_max=conversions.VELOCITY_LIMIT,
             )
             delay = CommandDelay(CommandDelaySettings(initial=initial_delay))
-        except ValueError as error:
-            raise ParameterError(str(error)) from None
+        except FieldError as error:  # a settings field: name it as the parameter it came from
+            raise error.renamed(_PARAMETER_OF.get(error.field, error.field)) from None
         recovery = None
         if recover and self.output == "torque":
             recovery = StuckRecovery(track, limits.steer_max)

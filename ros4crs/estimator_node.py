@@ -123,7 +123,7 @@ class EstimatorNode(Node):
         )
         blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
         if blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
-            raise ParameterError("blind_start: needs lh (Lighthouse) or pose among the sensors")
+            raise ParameterError("blind_start", "needs lh (Lighthouse) or pose among the sensors")
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
         model = declare_model(self, n_base_stations=stations)
         track = declare_track(self)

@@ -17,6 +17,7 @@ from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
+from crs_core.errors import FieldError
 from ros4crs.discovery import set_discovery_environment
 
 if TYPE_CHECKING:
@@ -40,8 +41,8 @@ LOG_QOS = QoSProfile(
 )
 
 
-class ParameterError(ValueError):
-    """A node parameter with a bad value; the message starts with the parameter's name."""
+class ParameterError(FieldError):
+    """A node parameter with a bad value; ``field`` is the parameter's name."""
 
 
 def declare(
@@ -63,7 +64,7 @@ def declare(
     value = _of_type(name, node.declare_parameter(name, default, descriptor).value, default)
     problem = check(value) if check is not None else None
     if problem:
-        raise ParameterError(f"{name}: {problem.removeprefix(f'{name}: ')}, got {value!r}")
+        raise ParameterError(name, f"{problem.removeprefix(f'{name}: ')}, got {value!r}")
     return value
 
 
@@ -87,7 +88,7 @@ def _of_type(name: str, value: Any, default: Any) -> Any:
     if not ok:
         kind = {bool: "true or false", int: "an integer", float: "a number", str: "a string"}
         wanted = kind.get(type(default), "a list of numbers")
-        raise ParameterError(f"{name}: expected {wanted}, got {value!r}")
+        raise ParameterError(name, f"expected {wanted}, got {value!r}")
     return value
 
 
@@ -154,7 +155,7 @@ def declare_track(node: Node) -> Track:
         return read_track(path) if path else load_demo_track()
     except (ValueError, KeyError, OSError) as error:
         message = error.args[0] if isinstance(error, KeyError) else error
-        raise ParameterError(f"track_file: {message}") from None
+        raise ParameterError("track_file", str(message)) from None
 
 
 def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> CarModel:
@@ -170,7 +171,7 @@ def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> Ca
         parameters = model.parameters.updated_from_yaml(path)
     except (ValueError, KeyError, OSError) as error:
         message = error.args[0] if isinstance(error, KeyError) else error
-        raise ParameterError(f"params_file: {message}") from None
+        raise ParameterError("params_file", str(message)) from None
     return CarModel(effects, n_base_stations=n_base_stations, parameters=parameters)
 
 

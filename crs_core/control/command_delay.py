@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crs_core.errors import FieldError
+
 __all__ = ["CommandDelay", "CommandDelaySettings"]
 
 
@@ -71,18 +73,18 @@ class CommandDelaySettings:
         for name in ("initial", "max_delay", "tolerance"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be a finite number >= 0, got {value!r}")
+                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
         if not self.initial <= self.max_delay:
-            raise ValueError(
-                f"initial: must not exceed max_delay ({self.max_delay:g} s), got {self.initial!r}"
+            raise FieldError(
+                "initial", f"must not exceed max_delay ({self.max_delay:g} s), got {self.initial!r}"
             )
         for name in ("samples", "min_matches"):
             value = getattr(self, name)
             if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"{name}: must be an integer >= 1, got {value!r}")
+                raise FieldError(name, f"must be an integer >= 1, got {value!r}")
         if self.min_matches > self.samples:
-            raise ValueError(
-                f"min_matches: must not exceed samples ({self.samples}), got {self.min_matches}"
+            raise FieldError(
+                "min_matches", f"must not exceed samples ({self.samples}), got {self.min_matches}"
             )
 
 

@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike
 from crs_core.control.command_delay import CommandDelay
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.recovery import StuckRecovery
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 
 __all__ = [
@@ -135,24 +136,25 @@ class SupervisorSettings:
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+                raise FieldError(name, f"must be a finite number > 0, got {value!r}")
         for name in ("ok_hold", "velocity_max"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be a finite number >= 0, got {value!r}")
+                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
         if not self.degraded_speed <= self.max_speed:
-            raise ValueError(
-                f"degraded_speed: must not exceed max_speed ({self.max_speed:g} m/s), "
-                f"got {self.degraded_speed!r}"
+            raise FieldError(
+                "degraded_speed",
+                f"must not exceed max_speed ({self.max_speed:g} m/s), got {self.degraded_speed!r}",
             )
         if not (
             math.isfinite(self.torque_min)
             and math.isfinite(self.torque_max)
             and self.torque_min <= 0.0 <= self.torque_max
         ):
-            raise ValueError(
-                f"torque_min, torque_max: must be finite with torque_min <= 0 <= torque_max, got "
-                f"{self.torque_min!r}, {self.torque_max!r}"
+            raise FieldError(
+                "torque_min, torque_max",
+                "must be finite with torque_min <= 0 <= torque_max, got "
+                f"{self.torque_min!r}, {self.torque_max!r}",
             )
 
 

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
+from crs_core.errors import FieldError
 from crs_core.estimation.health import HealthMonitor, HealthSettings
 from crs_core.estimation.initialization import InitializationSettings, PoseInitializer
 from crs_core.estimation.noise import EstimatorNoise
@@ -57,7 +58,7 @@ def parse_sensor_set(text: str) -> frozenset[str]:
     groups = frozenset(part.strip() for part in text.split("+") if part.strip())
     unknown = groups - set(SENSOR_GROUPS)
     if unknown or not groups:
-        raise ValueError(f"sensors: {text!r} must combine {', '.join(SENSOR_GROUPS)} with '+'")
+        raise FieldError("sensors", f"{text!r} must combine {', '.join(SENSOR_GROUPS)} with '+'")
     return groups
 
 
@@ -84,7 +85,7 @@ def checked_initial_state(x0: ArrayLike) -> np.ndarray:
     """``x0`` as 6 finite floats, else ``ValueError`` naming it."""
     x0 = np.asarray(x0, dtype=float)
     if x0.shape != (6,) or not np.all(np.isfinite(x0)):
-        raise ValueError(f"x0: needs 6 finite values, got {x0!r}")
+        raise FieldError("x0", f"needs 6 finite values, got {x0!r}")
     return x0
 
 

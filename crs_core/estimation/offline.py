@@ -36,6 +36,7 @@ import numpy as np
 from crs_core.analysis.metrics import STATE_NAMES, state_rmse
 from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.estimation.base import (
     SENSOR_GROUPS,
     Estimator,
@@ -105,7 +106,7 @@ def available_sensors(dataset: Dataset) -> str:
     present = {sensor_group(m.sensor) for m in measurements}
     groups = [g for g in AUTO_SENSOR_GROUPS if g in present]
     if not groups:
-        raise ValueError("sensors: the dataset has no Lighthouse, IMU, gyro or wheel data")
+        raise FieldError("sensors", "the dataset has no Lighthouse, IMU, gyro or wheel data")
     return "+".join(groups)
 
 
@@ -233,7 +234,7 @@ def estimate_dataset(
     if not len(dataset.t):
         raise ValueError("dataset: has no samples (t.npy is empty)")
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
-        raise ValueError(f"rate_hz: must be finite and > 0, got {rate_hz}")
+        raise FieldError("rate_hz", f"must be finite and > 0, got {rate_hz}")
     sensor_text = available_sensors(dataset) if sensors == "auto" else sensors
     groups = parse_sensor_set(sensor_text)
     start_x, start_cov = (None, None) if x0 is None else initial_state(x0)
@@ -241,7 +242,7 @@ def estimate_dataset(
     present = {sensor_group(m.sensor) for m in measurements}
     if not groups & present:
         have = "+".join(g for g in SENSOR_GROUPS if g in present) or "no measurements"
-        raise ValueError(f"sensors: the dataset has no data for {sensor_text} (it has {have})")
+        raise FieldError("sensors", f"the dataset has no data for {sensor_text} (it has {have})")
     if inputs == "commanded" and not recorded_inputs:
         raise ValueError(
             "inputs: 'commanded' needs recorded inputs (u.npy or inputs in stream.npz) and this "
@@ -254,7 +255,9 @@ def estimate_dataset(
         settings = MheSettings(rate_hz=rate_hz or MheSettings().rate_hz)
     elif kind == "mhe" and rate_hz is not None and isinstance(settings, MheSettings):
         if rate_hz != settings.rate_hz:
-            raise ValueError(f"rate_hz: {rate_hz} contradicts settings.rate_hz {settings.rate_hz}")
+            raise FieldError(
+                "rate_hz", f"{rate_hz} contradicts settings.rate_hz {settings.rate_hz}"
+            )
     estimator = make_estimator(
         kind, groups, model or dataset_model(dataset), settings, inputs=inputs
     )

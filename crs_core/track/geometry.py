@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import KDTree
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError
 
 __all__ = ["Projection", "Track"]
 
@@ -36,10 +37,10 @@ _GLOBAL_CANDIDATES = 8
 def _check_arc_length(name: str, s: NDArray[np.float64]) -> None:
     """Arc lengths start at 0 and increase strictly; ``ValueError`` naming ``name`` if not."""
     if s[0] != 0.0:
-        raise ValueError(f"{name}: must start at 0, got {s[0]!r}")
+        raise FieldError(name, f"must start at 0, got {s[0]!r}")
     if np.any(np.diff(s) <= 0.0):
         bad = int(np.flatnonzero(np.diff(s) <= 0.0)[0]) + 1
-        raise ValueError(f"{name}: must be strictly increasing (index {bad})")
+        raise FieldError(name, f"must be strictly increasing (index {bad})")
 
 
 @dataclass(frozen=True)
@@ -67,21 +68,21 @@ def _as_float_array(name: str, values: ArrayLike) -> NDArray[np.float64]:
     try:
         array = np.array(values, dtype=float)
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: must be a sequence of numbers ({exc})") from None
+        raise FieldError(name, f"must be a sequence of numbers ({exc})") from None
     if array.ndim != 1:
-        raise ValueError(f"{name}: must be one-dimensional, got shape {array.shape}")
+        raise FieldError(name, f"must be one-dimensional, got shape {array.shape}")
     if not np.all(np.isfinite(array)):
         bad = int(np.flatnonzero(~np.isfinite(array))[0])
-        raise ValueError(f"{name}: non-finite value {float(array[bad])!r} at index {bad}")
+        raise FieldError(name, f"non-finite value {float(array[bad])!r} at index {bad}")
     return array
 
 
 def _as_finite_float(name: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float | np.floating | np.integer):
-        raise ValueError(f"{name}: must be a number, got {value!r}")
+        raise FieldError(name, f"must be a number, got {value!r}")
     result = float(value)
     if not math.isfinite(result):
-        raise ValueError(f"{name}: must be finite, got {result!r}")
+        raise FieldError(name, f"must be finite, got {result!r}")
     return result
 
 
@@ -141,18 +142,18 @@ class Track:
         n = arrays["x"].size
         for name, array in arrays.items():
             if array.size != n:
-                raise ValueError(f"{name}: has {array.size} samples, x has {n}")
+                raise FieldError(name, f"has {array.size} samples, x has {n}")
         if n < _MIN_POINTS:
-            raise ValueError(f"x: need at least {_MIN_POINTS} centerline samples, got {n}")
+            raise FieldError("x", f"need at least {_MIN_POINTS} centerline samples, got {n}")
         length = _as_finite_float("length", self.length)
         width = _as_finite_float("width", self.width)
         start = [_as_finite_float(k, getattr(self, k)) for k in ("start_x", "start_y", "start_yaw")]
         s = arrays["arc_length"]
         _check_arc_length("arc_length", s)
         if not length > s[-1]:
-            raise ValueError(f"length: {length!r} must exceed the last arc length {s[-1]!r}")
+            raise FieldError("length", f"{length!r} must exceed the last arc length {s[-1]!r}")
         if not width > 0.0:
-            raise ValueError(f"width: must be positive, got {width!r}")
+            raise FieldError("width", f"must be positive, got {width!r}")
         # The loop must close: the closing segment from the last sample back to the first is
         # about one sample spacing long, both in space and in arc length, and the polyline
         # length matches ``length``.
@@ -160,21 +161,23 @@ class Track:
         gap = math.hypot(x[0] - x[-1], y[0] - y[-1])
         spacing = float(np.max(np.diff(s)))
         if gap > 1.5 * spacing + 1e-9:
-            raise ValueError(
-                f"x, y: centerline is not closed (last-to-first gap {gap:.4g} m, "
-                f"sample spacing {spacing:.4g} m)"
+            raise FieldError(
+                "x, y",
+                f"centerline is not closed (last-to-first gap {gap:.4g} m, "
+                f"sample spacing {spacing:.4g} m)",
             )
         closing = length - float(s[-1])
         if closing > 1.5 * spacing + 1e-9:
-            raise ValueError(
-                f"length: {length:.6g} m leaves {closing:.4g} m of arc length after the last "
-                f"sample (sample spacing {spacing:.4g} m): the centerline does not close"
+            raise FieldError(
+                "length",
+                f"{length:.6g} m leaves {closing:.4g} m of arc length after the last "
+                f"sample (sample spacing {spacing:.4g} m): the centerline does not close",
             )
         polyline = float(np.sum(np.hypot(np.diff(x), np.diff(y)))) + gap
         if abs(polyline - length) > 0.01 * length:
-            raise ValueError(
-                f"length: {length:.6g} m disagrees with the centerline polyline length "
-                f"{polyline:.6g} m"
+            raise FieldError(
+                "length",
+                f"{length:.6g} m disagrees with the centerline polyline length {polyline:.6g} m",
             )
 
         setter = object.__setattr__
@@ -263,7 +266,7 @@ class Track:
         """
         s_arr = np.asarray(s, dtype=float)
         if not np.all(np.isfinite(s_arr)):
-            raise ValueError("s: arc length must be finite")
+            raise FieldError("s", "arc length must be finite")
         sw = np.asarray(self.wrap_s(s_arr), dtype=float)
         x = np.interp(sw, self._s_closed, self._x_closed)
         y = np.interp(sw, self._s_closed, self._y_closed)
@@ -303,7 +306,7 @@ class Track:
         py = _as_finite_float("py", py)
         window = _as_finite_float("window", window)
         if not window > 0.0:
-            raise ValueError(f"window: must be positive, got {window!r}")
+            raise FieldError("window", f"must be positive, got {window!r}")
         n = self.num_points
         if s_hint is None or 2.0 * window >= self.length:
             segments = self._global_candidates(px, py)
@@ -337,7 +340,7 @@ class Track:
         """
         s_arr = np.asarray(s_sequence, dtype=float)
         if not np.all(np.isfinite(s_arr)):
-            raise ValueError("s_sequence: arc lengths must be finite")
+            raise FieldError("s_sequence", "arc lengths must be finite")
         return np.unwrap(s_arr, period=self.length)
 
     # ------------------------------------------------------------------ helpers

@@ -18,6 +18,8 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from crs_core.errors import FieldError
+
 # the validators Track itself uses, so a file and a direct construction fail alike
 from crs_core.track.geometry import (
     _MIN_POINTS,
@@ -80,48 +82,49 @@ def read_track(path: str | Path) -> Track:
         try:
             document = yaml.safe_load(stream)
         except yaml.YAMLError as exc:
-            raise ValueError(f"{path}: not valid YAML ({exc})") from None
+            raise FieldError(str(path), f"not valid YAML ({exc})") from None
     if not isinstance(document, dict) or not isinstance(document.get("track"), dict):
-        raise ValueError(f"{path}: track: missing top-level mapping 'track'")
+        raise FieldError(f"{path}: track", "missing top-level mapping 'track'")
     data = document["track"]
     missing = [k for k in (*_ARRAY_KEYS, *_SCALAR_KEYS) if k not in data]
     if missing:
-        raise ValueError(f"{path}: track.{missing[0]}: required key missing")
+        raise FieldError(f"{path}: track.{missing[0]}", "required key missing")
     arrays: dict[str, NDArray[np.float64]] = {}
     for key in _ARRAY_KEYS:
         value = data[key]
         if not isinstance(value, list) or not all(
             isinstance(v, int | float) and not isinstance(v, bool) for v in value
         ):
-            raise ValueError(f"{path}: track.{key}: must be a list of numbers")
+            raise FieldError(f"{path}: track.{key}", "must be a list of numbers")
         try:
             arrays[key] = _as_float_array(f"track.{key}", value)
-        except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from None
+        except FieldError as exc:
+            raise exc.renamed(f"{path}: {exc.field}") from None
     n = arrays["xCoords"].size
     for key in _ARRAY_KEYS:
         if arrays[key].size != n:
-            raise ValueError(f"{path}: track.{key}: has {arrays[key].size} values, xCoords has {n}")
+            size = arrays[key].size
+            raise FieldError(f"{path}: track.{key}", f"has {size} values, xCoords has {n}")
     scalars: dict[str, float] = {}
     for key in _SCALAR_KEYS:
         try:
             scalars[key] = _as_finite_float(f"track.{key}", data[key])
-        except ValueError as exc:
-            raise ValueError(f"{path}: {exc}") from None
+        except FieldError as exc:
+            raise exc.renamed(f"{path}: {exc.field}") from None
     length = scalars["trackLength"]
     if not length > 0.0:
-        raise ValueError(f"{path}: track.trackLength: must be positive, got {length!r}")
+        raise FieldError(f"{path}: track.trackLength", f"must be positive, got {length!r}")
     s = arrays["arcLength"]
     try:
         _check_arc_length("track.arcLength", s)
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+    except FieldError as exc:
+        raise exc.renamed(f"{path}: {exc.field}") from None
     # One lap; a tolerance of a micrometre drops an end point repeated at s == trackLength.
     keep = s < length - 1e-6
     if np.count_nonzero(keep) < _MIN_POINTS:
-        raise ValueError(
-            f"{path}: track.xCoords: need at least {_MIN_POINTS} samples in one lap, got "
-            f"{np.count_nonzero(keep)}"
+        raise FieldError(
+            f"{path}: track.xCoords",
+            f"need at least {_MIN_POINTS} samples in one lap, got {np.count_nonzero(keep)}",
         )
     try:
         return Track(
@@ -136,11 +139,10 @@ def read_track(path: str | Path) -> Track:
             start_y=scalars["y_init"],
             start_yaw=scalars["yaw_init"],
         )
+    except FieldError as exc:  # named by the YAML key rather than the dataclass field
+        raise exc.renamed(f"{path}: track.{_FIELD_TO_KEY.get(exc.field, exc.field)}") from None
     except ValueError as exc:
-        # Name the YAML key rather than the dataclass field.
-        field_name, _, detail = str(exc).partition(": ")
-        key = _FIELD_TO_KEY.get(field_name, field_name)
-        raise ValueError(f"{path}: track.{key}: {detail}") from None
+        raise FieldError(f"{path}: track", str(exc)) from None
 
 
 def load_demo_track() -> Track:

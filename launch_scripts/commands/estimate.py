@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from crs_core.errors import FieldError
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from launch_scripts.arguments import add_out
 from launch_scripts.output_folder import prepare_output
@@ -59,8 +60,8 @@ def estimate(args: argparse.Namespace) -> None:
     if args.sensors != "auto":
         try:
             parse_sensor_set(args.sensors)
-        except ValueError as error:
-            raise ValueError(f"--sensors: {str(error).partition(': ')[2]}") from None
+        except FieldError as error:
+            raise error.renamed("--sensors") from None
     dataset = Dataset.load(args.dataset)
     try:
         model = dataset_model(dataset, args.params)
@@ -85,10 +86,9 @@ def estimate(args: argparse.Namespace) -> None:
                 rate_hz=rate,
                 progress=lambda fraction: bar.update(round(1000 * fraction) - bar.n),
             )
-        except ValueError as error:  # name the option, not the argument of the function
-            field, _, message = str(error).partition(": ")
+        except FieldError as error:  # name the option, not the argument of the function
             options = {"x0": "--x0", "rate_hz": "--rate", "sensors": "--sensors"}
-            raise ValueError(f"{options.get(field, field)}: {message}") from None
+            raise error.renamed(options.get(error.field, error.field)) from None
     comparison = reference_comparison(result, dataset)
     result.save_npz(out / "estimates.npz")
     report = {
