@@ -25,20 +25,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from crs_core.errors import FieldError
+
 _FIXED_SIZES = {"imu": 3, "gyro": 1, "wheel_encoders": 4, "pose": 3}
 _LIGHTHOUSE = re.compile(r"lighthouse/(0|[1-9][0-9]*)/([12])")
 
 
 def sensor_size(sensor: str) -> int:
-    """Number of values of ``sensor``; ``ValueError`` for an unknown name."""
+    """Number of values of ``sensor``; :class:`~crs_core.errors.FieldError` (field ``sensor``)
+    for an unknown name."""
     if not isinstance(sensor, str):
-        raise ValueError(f"sensor: expected a name (str), got {sensor!r}")
+        raise FieldError("sensor", f"expected a name (str), got {sensor!r}")
     if sensor in _FIXED_SIZES:
         return _FIXED_SIZES[sensor]
     if _LIGHTHOUSE.fullmatch(sensor):
         return 4
-    raise ValueError(
-        f"sensor: unknown name {sensor!r} (imu, gyro, wheel_encoders, pose, lighthouse/<bs>/<1|2>)"
+    raise FieldError(
+        "sensor",
+        f"unknown name {sensor!r} (imu, gyro, wheel_encoders, pose, lighthouse/<bs>/<1|2>)",
     )
 
 

@@ -39,6 +39,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimate
 from crs_core.measurements import (
     InputSample,
@@ -213,23 +214,23 @@ def batch_msg(measurements: Sequence[Measurement], frame_id: str = "base_link") 
 def batch_from_msg(msg: Any) -> BatchReadings:
     """``chronos_msgs/SensorBatch`` -> :class:`BatchReadings`.
 
-    A batch whose arrays do not fit together (as many stamps as sensors, the values the sensors
-    need) raises ``ValueError`` naming the field; a reading with an unknown sensor, a negative
-    stamp or a NaN is dropped alone, the others are kept.
+    A batch whose arrays do not fit together (as many stamps as sensors, known sensors, the
+    values the sensors need) raises :class:`~crs_core.errors.FieldError` naming the field; a
+    reading with a negative stamp or a NaN is dropped alone, the others are kept.
     """
     sensors, stamps = list(msg.sensors), np.asarray(msg.stamps_ns, dtype=np.int64)
     values = np.asarray(msg.values, dtype=float)
     if stamps.size != len(sensors):
-        raise ValueError(f"stamps_ns: {stamps.size} stamps for {len(sensors)} sensors")
+        raise FieldError("stamps_ns", f"{stamps.size} stamps for {len(sensors)} sensors")
     sizes = []
     for i, sensor in enumerate(sensors):
         try:
             sizes.append(sensor_size(sensor))
-        except ValueError as error:
-            raise ValueError(f"sensors[{i}]: {error}") from None
+        except FieldError as error:
+            raise error.renamed(f"sensors[{i}]") from None
     if sum(sizes) != values.size:
-        raise ValueError(
-            f"values: the {len(sensors)} readings need {sum(sizes)} values, got {values.size}"
+        raise FieldError(
+            "values", f"the {len(sensors)} readings need {sum(sizes)} values, got {values.size}"
         )
     whole = stamps // 1_000_000_000
     seconds = whole.astype(float) + 1e-9 * (stamps - whole * 1_000_000_000).astype(float)

@@ -227,7 +227,7 @@ class EstimatorNode(Node):
                 msg_type,
                 topic,
                 conversions.SENSOR_PARSERS[family],
-                lambda measurement: self._on_measurement(measurement, topic),
+                lambda measurement: self._on_measurement(measurement, topic, self._arrival()),
                 family,
             )
         )
@@ -235,9 +235,10 @@ class EstimatorNode(Node):
     def _on_batch(self, readings: conversions.BatchReadings) -> None:
         """The readings of a ``sensors/batch`` message, each into the stream of its own topic
         (what the estimator's query log names and a replay feeds, whichever form it came in)."""
+        now = self._arrival()  # the readings of a batch arrive together
         for measurement in readings.measurements:
             family = conversions.topic_family(measurement.sensor)
-            self._on_measurement(measurement, conversions.TOPICS[family])
+            self._on_measurement(measurement, conversions.TOPICS[family], now)
         if readings.rejected:
             self.rejected_readings += len(readings.rejected)
             self._warn["batch"](
@@ -246,12 +247,14 @@ class EstimatorNode(Node):
                 f"({self.rejected_readings} so far)"
             )
 
-    def _on_measurement(self, measurement: Measurement, source: str) -> None:
+    def _arrival(self) -> float | None:
+        """The clock now, when the estimator tracks arrival delays (else not needed: ``None``)."""
+        return self._now() if self.realtime.tracks_delays else None
+
+    def _on_measurement(self, measurement: Measurement, source: str, now: float | None) -> None:
         received = self.received
         received[measurement.sensor] = received.get(measurement.sensor, 0) + 1
-        realtime = self.realtime
-        now = self._now() if realtime.tracks_delays else None
-        warning = realtime.deliver(measurement, now, source)
+        warning = self.realtime.deliver(measurement, now, source)
         if warning is not None:
             self._warn[warning.kind](warning.message)
 
@@ -268,8 +271,7 @@ class EstimatorNode(Node):
                     )
                 )
             return
-        now = self._now() if self.realtime.tracks_delays else None
-        warning = self.realtime.deliver(command.input_sample(), now, self.input_topic)
+        warning = self.realtime.deliver(command.input_sample(), self._arrival(), self.input_topic)
         if warning is not None:
             self._warn[warning.kind](warning.message)
 

@@ -22,6 +22,7 @@ from typing import Any
 
 from rclpy.node import Node
 
+from crs_core.errors import FieldError
 from crs_core.measurements import Measurement
 from ros4crs import conversions
 from ros4crs.node_support import STREAM_QOS, declare, non_negative, one_of
@@ -47,9 +48,9 @@ class SensorOutput:
 
     def __init__(self, node: Node, frame_id: str, messages: str, batch_period: float) -> None:
         if messages not in SENSOR_MESSAGES:
-            raise ValueError(f"sensor_messages: must be batch or each, got {messages!r}")
+            raise FieldError("sensor_messages", f"must be batch or each, got {messages!r}")
         if not math.isfinite(batch_period) or batch_period < 0:
-            raise ValueError(f"batch_period: must be finite and >= 0, got {batch_period}")
+            raise FieldError("batch_period", f"must be finite and >= 0, got {batch_period}")
         self.frame_id, self.batch_period = frame_id, batch_period
         self._pending: list[Measurement] = []
         self._due = -math.inf

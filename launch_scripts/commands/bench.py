@@ -120,7 +120,9 @@ def discrepancy(args: argparse.Namespace) -> Outcome:
 def control(args: argparse.Namespace) -> Outcome:
     from benchmarks.control import control_benchmark, format_table
 
-    progress = lambda line: print(f"control bench: {line}", file=sys.stderr)  # noqa: E731
+    def progress(line: str) -> None:
+        print(f"control bench: {line}", file=sys.stderr)
+
     result = {"command": _command_line(), **control_benchmark(progress=progress)}
     return result, format_table(result)
 
