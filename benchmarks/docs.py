@@ -21,6 +21,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.contingency import format_table as contingency_table
 from benchmarks.link import format_table as link_table
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,8 +41,16 @@ def _link(result: dict[str, Any]) -> str:
     return f"`{result.get('command', 'crs bench link')}`: {settings}.\n\n{table}\n"
 
 
+def _contingency(result: dict[str, Any]) -> str:
+    command = result.get("command", "crs bench contingency")
+    return f"`{command}`: {contingency_table(result)}\n"
+
+
 #: What each saved benchmark's block shows, by the JSON file's stem.
-RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {"link": _link}
+RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
+    "link": _link,
+    "contingency": _contingency,
+}
 
 
 def render(source: str) -> str:

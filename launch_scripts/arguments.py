@@ -83,11 +83,13 @@ def add_estimator(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_seed(parser: argparse.ArgumentParser, help_text: str = "seed of all noise") -> None:
-    """``--seed`` (an integer, default 0)."""
+def add_seed(
+    parser: argparse.ArgumentParser, help_text: str = "seed of all noise", default: int = 0
+) -> None:
+    """``--seed`` (an integer, default ``default``)."""
     parser.add_argument(
         "--seed",
         type=bounded_number("seed", "", 0, 2**31 - 1, int, include_low=True),
-        default=0,
-        help=f"{help_text}, 0..2^31-1 (default 0)",
+        default=default,
+        help=f"{help_text}, 0..2^31-1 (default {default})",
     )

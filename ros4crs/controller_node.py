@@ -13,7 +13,9 @@ to ``degraded_speed``, and back up at ``speed_rise`` once the status has stayed 
 was degraded (``ok_hold`` at most). With ``recover`` (default, torque commands) a car that has
 stood for half a second while driven is reversed towards facing along the track
 (:mod:`crs_core.control.recovery`: the MPCC never reverses, and a car stopped at the track's edge
-facing out has no forward way back). The MPCC's iterations in one call end within
+facing out has no forward way back). After an outage of the link (``hold_safe`` ``after_outage``,
+default) the MPCC plans commands safe to hold through the next one for ``caution_memory`` s
+(:mod:`crs_core.control.contingency`). The MPCC's iterations in one call end within
 ``solve_budget`` s (default 0.08 s: the bridge repeats a command for 0.1 s, so the car never goes
 without one while the controller thinks; ten cold-start iterations took 292 ms under load, and
 the car cut its motors). With ``predict`` (default) the estimate, tens of ms old when it
@@ -32,7 +34,8 @@ zero velocity reference.
 
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
-``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``recover``,
+``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``hold_safe``
+(``after_outage`` | ``always`` | ``never``), ``caution_memory`` (s), ``recover``,
 ``solve_budget`` (s), ``predict``, ``command_delay`` (s), ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
@@ -52,7 +55,7 @@ from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
-from crs_core.control.supervisor import Supervisor, SupervisorSettings
+from crs_core.control.supervisor import HOLD_SAFE_MODES, Supervisor, SupervisorSettings
 from crs_core.errors import FieldError
 from ros4crs import conversions
 from ros4crs.node_support import (
@@ -114,6 +117,20 @@ class ControllerNode(Node):
         ok_hold = declare(
             self, "ok_hold", 1.0, "longest wait of ok before the cap rises, s", non_negative
         )
+        hold_safe = declare(
+            self,
+            "hold_safe",
+            "after_outage",
+            "MPCC: plan commands safe to hold through an outage: after_outage, always or never",
+            one_of(*HOLD_SAFE_MODES),
+        )
+        caution_memory = declare(
+            self,
+            "caution_memory",
+            60.0,
+            "MPCC: how long plans stay safe to hold after the link's last outage, s",
+            non_negative,
+        )
         recover = declare(self, "recover", True, "back a stuck car out (torque commands only)")
         solve_budget = declare(
             self,
@@ -157,6 +174,8 @@ class ControllerNode(Node):
                 torque_min=limits.torque_min,
                 torque_max=limits.torque_max,
                 velocity_max=conversions.VELOCITY_LIMIT,
+                hold_safe=hold_safe,
+                caution_memory=caution_memory,
             )
             delay = CommandDelay(CommandDelaySettings(initial=initial_delay))
         except FieldError as error:  # a settings field: name it as the parameter it came from
@@ -176,6 +195,8 @@ class ControllerNode(Node):
             # its own call site: rclpy refuses a second severity from one (the info above)
             "stuck": lambda message: self.get_logger().warning(message),
             "unstuck": self.get_logger().info,
+            "cautious": lambda message: self.get_logger().warning(message),
+            "relaxed": lambda message: self.get_logger().info(message),
             "failed": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
             "rejected": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
         }
@@ -210,7 +231,7 @@ class ControllerNode(Node):
 
     def _on_applied(self, applied: conversions.CarCommand) -> None:
         if applied.mode == "torque":
-            self.supervisor.command_delay.applied(applied.stamp, float(applied.u[1]))
+            self.supervisor.applied(applied.stamp, float(applied.u[1]))
 
     def _control(self) -> None:
         self._applied.take_pending()

@@ -8,6 +8,11 @@ Fallback: a failed or non-finite solve serves the shifted previous plan's next i
 ``max_failures`` of them in a row, or on an estimate that is stale or unusable, the car is
 stopped (straight wheels, braking torque until it stands). A command is never NaN.
 
+Hold-safe commands (``hold_safe=True``, what the supervisor asks for once the link has shown an
+outage): the command is checked by the :class:`~crs_core.control.contingency.HoldSafetyFilter`
+and replaced by the nearest one the car can hold through an outage and still be on the track
+and able to brake for what comes; the plan's first input is set to it.
+
 A model with the ``input_delay`` effect is compensated: the state is carried over the delay
 under the commands still in flight (issued at the control rate) before the plan starts.
 
@@ -28,6 +33,7 @@ from numpy.typing import ArrayLike
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import compile_functions
+from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter
 from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, MpccProblem, MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
@@ -111,6 +117,9 @@ class Mpcc:
         Model parameter values; default the model's.
     output : {"torque", "velocity"}
         Command ``[delta, T]`` or ``[delta, v_x]``.
+    contingency : ContingencySettings, optional
+        What an outage is assumed to do, for hold-safe commands (default
+        :class:`~crs_core.control.contingency.ContingencySettings`).
     """
 
     def __init__(
@@ -120,6 +129,7 @@ class Mpcc:
         settings: MpccSettings | None = None,
         parameters: ParameterSet | None = None,
         output: str = "torque",
+        contingency: ContingencySettings | None = None,
     ) -> None:
         if output not in OUTPUTS:
             raise ValueError(f"output: one of {OUTPUTS}, got {output!r}")
@@ -128,6 +138,9 @@ class Mpcc:
         self.settings.validate()
         self.output = output
         self.path = ReferencePath(track)
+        self._track = track
+        self.contingency = contingency or ContingencySettings()
+        self._safety: HoldSafetyFilter | None = None  # built at the first hold-safe call
         self.problem = MpccProblem(self.model, self.settings)
         self.p = (parameters or self.model.parameters).vector()
         s = self.settings
@@ -152,6 +165,7 @@ class Mpcc:
         )
         self._v_lower = np.array([-s.steer_max, s.torque_min, 0.0, 0.0])
         self._v_upper = np.array([s.steer_max, s.torque_max, s.progress_speed_max, FREE])
+        self._values = values
         self._half_width = self.path.half_width - s.track_margin
         self._weights = s.weights()
         #: the model's input delay (s), compensated by predicting over it
@@ -168,6 +182,7 @@ class Mpcc:
         self._Z: np.ndarray | None = None
         self._V: np.ndarray | None = None
         self._failures = 0
+        self._hold_safe = False  # this call's commands must be safe to hold
         self._held = 0  # stops in a row with the plan kept
         self._command = np.zeros(2)
         self._in_flight.clear()
@@ -182,6 +197,16 @@ class Mpcc:
         if self._Z is None or self._V is None:
             return None
         return self._Z.copy(), self._V.copy()
+
+    @property
+    def last_command(self) -> np.ndarray:
+        """The last command ``[delta, T]`` returned (zeros after a reset)."""
+        return self._command.copy()
+
+    @property
+    def hold_safe_replaced(self) -> int:
+        """Commands the hold-safety filter replaced so far (0 before the first hold-safe call)."""
+        return 0 if self._safety is None else self._safety.replaced
 
     def stop(
         self, x: ArrayLike | None = None, reason: str = "stop requested", keep_plan: bool = False
@@ -205,7 +230,11 @@ class Mpcc:
         return self._out(command, None)
 
     def __call__(
-        self, x: ArrayLike, speed_limit: float | None = None, elapsed: float | None = None
+        self,
+        x: ArrayLike,
+        speed_limit: float | None = None,
+        elapsed: float | None = None,
+        hold_safe: bool = False,
     ) -> np.ndarray:
         """The command for state ``x`` (the car's state now).
 
@@ -221,6 +250,9 @@ class Mpcc:
             Time since the previous call, s: the plan is carried on by that many stages
             (rounded, 1 to N/2; default one stage). A loaded machine's late call otherwise
             starts from a plan one stage on while three or four have passed.
+        hold_safe : bool, optional
+            Return a command that is safe to hold through an outage
+            (:mod:`~crs_core.control.contingency`).
 
         Returns
         -------
@@ -228,6 +260,7 @@ class Mpcc:
             ``[delta, T]`` (or ``[delta, v_x]``), finite and within the limits.
         """
         started = time.perf_counter()
+        self._hold_safe = bool(hold_safe) and self.output == "torque"
         state = np.asarray(x, dtype=float).ravel()
         if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
             return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
@@ -485,6 +518,7 @@ class Mpcc:
         V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
         V[:, 1] = np.clip(V[:, 1], s.torque_min, s.torque_max)
         self._never_into_reverse(V, float(z0[3]))
+        self._safe_to_hold(V, z0)
         self._Z, self._V, self._failures = Z, V, 0
         self._command = V[0, :2].copy()
         self._progress_speed = float(V[0, 2])
@@ -508,6 +542,24 @@ class Mpcc:
         late control period drove a car that had just stopped backwards at 1.8 m/s."""
         V[0, 1] = max(V[0, 1], -self.settings.brake_gain * max(vx, 0.0))
 
+    def _safe_to_hold(self, V: np.ndarray, z0: np.ndarray) -> None:
+        """On a hold-safe call, replace the first stage's command by the hold-safety filter's
+        (built at the first such call)."""
+        if not self._hold_safe:
+            return
+        if self._safety is None:
+            s = self.settings
+            self._safety = HoldSafetyFilter(
+                self._track,
+                self.model,
+                self._values,
+                s.steer_max,
+                (s.torque_min, s.torque_max),
+                s.progress_speed_max,
+                self.contingency,
+            )
+        V[0, :2] = self._safety(z0[: self._nxc], V[0, :2])
+
     def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
         failures = self._failures
@@ -517,6 +569,7 @@ class Mpcc:
             mode, slack = "stop", 0.0
         else:  # the shifted previous plan: the guess is that plan shifted by one stage
             self._never_into_reverse(V, float(z0[3]))
+            self._safe_to_hold(V, z0)
             self._Z, self._V = Z, V
             self._command = V[0, :2].copy()
             command = self._out(self._command, Z)

@@ -21,6 +21,13 @@ once per tick. It holds the newest state estimate ``(stamp, x, status)`` and dec
   a second, keeps the car slow, while the few degraded ticks of a link outage (dead reckoning
   until the first Lighthouse sample after it) cost no more than themselves. Waiting a fixed
   1 s there kept a car that came out of a 300 ms outage at 0.5 m/s for another 1.3 s.
+* **Hold-safe after an outage**: once the link has shown an outage (a degraded estimate after
+  ``ok_before_outage`` s of driving on an ok one: the host stopped receiving the car; or the
+  car reporting zero drive power while it was sent a driving torque: it cut its motors, the
+  commands stopped reaching it), the MPCC is asked for hold-safe plans
+  (:mod:`~crs_core.control.contingency`) for ``caution_memory`` s after the last one: a
+  command held through the next outage must not carry the car into a corner too fast. A
+  clean link costs nothing; ``hold_safe`` ``"always"`` or ``"never"`` overrides.
 * **A stuck car is backed out** (with a :class:`~crs_core.control.recovery.StuckRecovery`):
   standing for half a second while driven, it reverses towards facing along the track, then the
   controller starts over from cold.
@@ -56,6 +63,7 @@ from crs_core.model import CarModel
 
 __all__ = [
     "EVENT_KINDS",
+    "HOLD_SAFE_MODES",
     "STATUSES",
     "Supervisor",
     "SupervisorEvent",
@@ -76,7 +84,11 @@ EVENT_KINDS = (
     "rejected",
     "stuck",
     "unstuck",
+    "cautious",
+    "relaxed",
 )
+#: When the MPCC is asked for hold-safe plans (:attr:`SupervisorSettings.hold_safe`).
+HOLD_SAFE_MODES = ("after_outage", "always", "never")
 #: The stop command: straight wheels and zero torque (velocity mode: a zero reference).
 STOP = np.array([0.0, 0.0])
 STOP.flags.writeable = False
@@ -112,6 +124,13 @@ class SupervisorSettings:
         Range of the normalised torque command (negative brakes); must contain 0.
     velocity_max : float
         Velocity mode: largest velocity reference, m/s (references are within ``[0, this]``).
+    hold_safe : {"after_outage", "always", "never"}
+        When the MPCC plans hold-safe (see the module docstring).
+    caution_memory : float
+        How long after the link's last outage the plans stay hold-safe, s.
+    ok_before_outage : float
+        A degraded estimate counts as an outage after this long driving on ok ones, s (the
+        estimator's first estimates are degraded until the Lighthouse is accepted).
     """
 
     stale_timeout: float = 0.2
@@ -124,6 +143,9 @@ class SupervisorSettings:
     torque_min: float = -1.0
     torque_max: float = 1.0
     velocity_max: float = 5.0
+    hold_safe: str = "after_outage"
+    caution_memory: float = 60.0
+    ok_before_outage: float = 1.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -137,7 +159,11 @@ class SupervisorSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise FieldError(name, f"must be a finite number > 0, got {value!r}")
-        for name in ("ok_hold", "velocity_max"):
+        if self.hold_safe not in HOLD_SAFE_MODES:
+            raise FieldError(
+                "hold_safe", f"must be one of {', '.join(HOLD_SAFE_MODES)}, got {self.hold_safe!r}"
+            )
+        for name in ("ok_hold", "velocity_max", "caution_memory", "ok_before_outage"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
@@ -169,7 +195,9 @@ class SupervisorEvent:
         cap starts ramping down), ``"recovered"`` (the cap starts ramping back up),
         ``"controller"`` (the MPCC did not solve: fallback or stop), ``"failed"`` (the controller
         raised), ``"rejected"`` (a bad command was replaced by the stop command), ``"stuck"``
-        (the car stands: backing it out) or ``"unstuck"`` (the controller drives again).
+        (the car stands: backing it out), ``"unstuck"`` (the controller drives again),
+        ``"cautious"`` (an outage: hold-safe plans from now on) or ``"relaxed"`` (no outage for
+        ``caution_memory`` s: racing plans again).
     message : str
         One line saying what and why.
     """
@@ -263,6 +291,12 @@ class Supervisor:
         self.rejected_commands = 0
         #: why the last rejected command was rejected ('' none yet)
         self.last_rejection = ""
+        #: until when (s) the MPCC plans hold-safe after the last outage (-inf: not cautious)
+        self.cautious_until = -math.inf
+        #: outages seen (degraded estimates while driving, motor cut-offs the car reported)
+        self.outages = 0
+        self._ok_driving_since: float | None = None
+        self._pending_events: list[SupervisorEvent] = []
 
     def observe(self, stamp: float, x: ArrayLike, status: str) -> None:
         """Take a state estimate: base state ``x`` (6,) at ``stamp`` (s) with its ``status``.
@@ -285,9 +319,10 @@ class Supervisor:
         """Decide the command to send at ``now`` (s) and record it as sent."""
         dt = 0.0 if self._last_tick is None else max(now - self._last_tick, 0.0)
         self._last_tick = now
-        events: list[SupervisorEvent] = []
+        events, self._pending_events = self._pending_events, []
         solve_time = None
         why = self._stale_reason(now)
+        self._watch_link(now, why, events)
         if why:
             if not self._stale:
                 self.stops += 1
@@ -313,7 +348,7 @@ class Supervisor:
             if backing_out is not None:
                 u = backing_out
             else:
-                u, solve_time = self._command(now, x, limit, dt, events)
+                u, solve_time = self._command(x, limit, dt, self.hold_safe(now), events)
             problem = self._problem(u)
             if problem:
                 self.rejected_commands += 1
@@ -332,6 +367,22 @@ class Supervisor:
         if self.command_delay is not None and self.output == "torque":
             self.command_delay.sent(now, float(u[1]))
         return SupervisorStep(u, not self._stale, self.speed_cap, tuple(events), solve_time)
+
+    def applied(self, stamp: float, torque: float) -> None:
+        """Take the car's report that it now applies drive power ``torque`` (from ``stamp``, s,
+        the car's clock): measured into the command delay (if any), and a zero power while the
+        car was being sent a driving torque is a motor cut-off, an outage of the link."""
+        if self.command_delay is not None:
+            self.command_delay.applied(stamp, torque)
+        if torque != 0.0 or self._last_tick is None or not self._sent:
+            return
+        if self._driving_ok_for(self._last_tick) and self._sent[-1][1][1] != 0.0:
+            self._outage(self._last_tick, "the car cut its motors", self._pending_events)
+
+    def hold_safe(self, now: float) -> bool:
+        """Whether the MPCC plans hold-safe at ``now`` (s): the setting, or after an outage."""
+        mode = self.settings.hold_safe
+        return mode == "always" or (mode == "after_outage" and now < self.cautious_until)
 
     def predicted(self, now: float) -> np.ndarray:
         """The newest estimate carried forward to when a command issued at ``now`` acts (``now``
@@ -371,6 +422,45 @@ class Supervisor:
         if now - stamp > self.settings.stale_timeout:
             return f"{now - stamp:.2f} s old, over {self.settings.stale_timeout:g} s"
         return ""
+
+    def _driving_ok_for(self, now: float) -> bool:
+        """Whether the car has been driven on ok estimates for ``ok_before_outage`` s."""
+        since = self._ok_driving_since
+        return since is not None and now - since >= self.settings.ok_before_outage
+
+    def _watch_link(self, now: float, stale_reason: str, events: list) -> None:
+        """Notice an outage in the estimates (a stale or degraded one after driving on ok
+        ones) and the end of caution; at each tick, before the decision."""
+        status = None if self._latest is None else self._latest[2]
+        if stale_reason or status != "ok":
+            if self._driving_ok_for(now):
+                self._outage(now, f"the state estimate is {stale_reason or status}", events)
+            self._ok_driving_since = None
+        elif self._ok_driving_since is None:
+            self._ok_driving_since = now
+        if math.isfinite(self.cautious_until) and now >= self.cautious_until:
+            self.cautious_until = -math.inf
+            events.append(
+                SupervisorEvent(
+                    "relaxed",
+                    f"no link outage for {self.settings.caution_memory:g} s: racing plans again",
+                )
+            )
+
+    def _outage(self, now: float, why: str, events: list) -> None:
+        """An outage of the link at ``now`` (s): hold-safe plans for ``caution_memory`` s."""
+        self.outages += 1
+        if self._mpcc is None or self.settings.hold_safe != "after_outage":
+            return  # only the MPCC plans hold-safe
+        if now >= self.cautious_until:
+            events.append(
+                SupervisorEvent(
+                    "cautious",
+                    f"link outage ({why}): planning commands safe to hold through the next one "
+                    f"for {self.settings.caution_memory:g} s",
+                )
+            )
+        self.cautious_until = now + self.settings.caution_memory
 
     def _update_cap(self, now: float, dt: float, speed: float, events: list) -> None:
         """Ramp the speed cap for a fresh estimate of status ``self._latest[2]``; the car's
@@ -441,15 +531,21 @@ class Supervisor:
             reset()
 
     def _command(
-        self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list
+        self,
+        x: np.ndarray,
+        limit: float | None,
+        elapsed: float,
+        hold_safe: bool,
+        events: list,
     ) -> tuple[np.ndarray, float | None]:
         """The controller's command and its call's wall time (None if it raised); the MPCC
-        carries its plan on by the ``elapsed`` s since the last tick."""
+        carries its plan on by the ``elapsed`` s since the last tick, hold-safe if asked."""
         started = time.perf_counter()
         controller = self.controller
+        now = self._last_tick if self._last_tick is not None else 0.0
         try:
             if isinstance(controller, Mpcc):  # (then self._mpcc)
-                u = controller(x, limit, elapsed)
+                u = controller(x, limit, elapsed, hold_safe)
                 status = controller.status
                 if status is not None and status.mode != "solved":
                     events.append(

@@ -127,6 +127,18 @@ def control(args: argparse.Namespace) -> Outcome:
     return result, format_table(result)
 
 
+def contingency(args: argparse.Namespace) -> Outcome:
+    from benchmarks.contingency import contingency_benchmark, format_table
+
+    def progress(line: str) -> None:
+        print(f"contingency bench: {line}", file=sys.stderr)
+
+    result = _with_machine(
+        contingency_benchmark(args.seeds, args.duration, args.outage, args.seed, progress)
+    )
+    return result, format_table(result)
+
+
 def calibration(args: argparse.Namespace) -> Outcome:
     import time
 
@@ -221,6 +233,23 @@ def _sysid_options(parser: argparse.ArgumentParser) -> None:
     _seeds(parser, "seeds of the simulated coverage study")
 
 
+def _contingency_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--seeds",
+        type=bounded_number("seeds", "", 1, 200, int, include_low=True),
+        default=8,
+        help="outage draws, each raced with racing and with hold-safe commands (default 8)",
+    )
+    add_duration(parser, 60.0, "simulated time of each race")
+    parser.add_argument(
+        "--outage",
+        type=bounded_number("outage", "s", 0.0, 2.0, float),
+        default=0.3,
+        help="length of each outage, s (default 0.3, the outages preset's)",
+    )
+    add_seed(parser, "first seed of the outage draws (the filter was tuned on 0..7)", 100)
+
+
 def _calibration_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seeds",
@@ -299,6 +328,13 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "runs each) and --clean-seeds clean runs (every third with mismatched sensor noise): "
         "the confusion table, false-alarm rate, parameter accuracy, gap before / after, and "
         "the time of one run on 60 s of data; ~1 h with --seeds 1",
+    ),
+    "contingency": (
+        contingency,
+        _contingency_options,
+        "the MPCC through link outages (the car holds the last command 200 ms, then coasts), "
+        "its commands racing and hold-safe, offline on the model: time off the track, flying "
+        "lap, commands replaced, over --seeds outage draws; ~4 min",
     ),
     "calibration": (
         calibration,

@@ -9,7 +9,9 @@ import numpy as np
 import pytest
 
 from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
+from crs_core.control.mpcc import Mpcc
 from crs_core.control.supervisor import STOP, Supervisor, SupervisorSettings
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 
 RATE_HZ = 30.0
@@ -269,3 +271,81 @@ def test_with_a_command_delay_the_estimate_is_carried_to_when_the_command_acts()
     x = numeric.step(x, commands[3], p, now - ticks[3])
     np.testing.assert_allclose(carried, x, rtol=0, atol=1e-12)
     assert delay.applied(ticks[3] + 0.04, float(commands[3][1])) == pytest.approx(0.04)
+
+
+class _Mpcc(Mpcc):
+    """An MPCC that records whether each call asked for hold-safe commands (and is not
+    built: the supervisor only needs its type and call)."""
+
+    def __init__(self) -> None:  # nothing of the MPCC itself is built
+        self.asked: list[bool] = []
+        self.status = None
+
+    def __call__(self, x, speed_limit=None, elapsed=None, hold_safe=False):
+        self.asked.append(hold_safe)
+        return np.array([0.0, 0.3])
+
+    def reset(self) -> None:
+        pass
+
+
+def _drive(supervisor, times, status_at, applied_at=()):
+    """Tick ``supervisor`` at ``times`` with estimates of ``status_at(now)``; the car reports
+    zero drive power at the ``applied_at`` times; the events' kinds."""
+    kinds = []
+    for now in times:
+        supervisor.observe(now - 0.02, state(1.5), status_at(now))
+        if any(abs(now - t) < DT / 2 for t in applied_at):
+            supervisor.applied(now - 0.01, 0.0)
+        kinds += [event.kind for event in supervisor(now).events]
+    return kinds
+
+
+def test_an_outage_while_racing_makes_the_commands_hold_safe_for_a_while():
+    """Degraded estimates at the start (before 1 s of ok driving) are not an outage; 0.1 s
+    degraded after 2 s of racing is: the MPCC is asked for hold-safe commands from that tick,
+    for caution_memory s after it, then racing ones again."""
+    controller = _Mpcc()
+    supervisor = Supervisor(controller, SupervisorSettings(caution_memory=2.0))
+    times = np.arange(0.0, 6.0, DT)
+    kinds = _drive(
+        supervisor,
+        times,
+        lambda now: "degraded" if now < 0.3 or 2.3 <= now < 2.4 - 1e-9 else "ok",
+    )
+    asked = np.array(controller.asked)
+    assert kinds.count("cautious") == 1 and kinds.count("relaxed") == 1
+    assert supervisor.outages == 1
+    outage = int(np.argmax(times >= 2.3))
+    assert not asked[:outage].any()
+    assert asked[outage : outage + int(1.9 / DT)].all()
+    assert not asked[-int(1.5 / DT) :].any()
+
+
+def test_a_motor_cut_off_the_car_reports_is_an_outage():
+    """The car reports zero drive power while it is sent a driving torque: it cut its motors
+    (no reference got through for 200 ms), and the next commands are hold-safe."""
+    controller = _Mpcc()
+    supervisor = Supervisor(controller, SupervisorSettings(caution_memory=5.0))
+    times = np.arange(0.0, 3.0, DT)
+    kinds = _drive(supervisor, times, lambda now: "ok", applied_at=(2.0,))
+    assert kinds.count("cautious") == 1
+    assert controller.asked[int(np.argmax(times >= 2.0)) + 1]
+    assert not controller.asked[int(np.argmax(times >= 1.9))]
+
+
+@pytest.mark.parametrize(("mode", "expected"), [("never", False), ("always", True)])
+def test_hold_safe_never_or_always_overrides_the_outages(mode: str, expected: bool):
+    controller = _Mpcc()
+    supervisor = Supervisor(controller, SupervisorSettings(hold_safe=mode))
+    kinds = _drive(
+        supervisor, np.arange(0.0, 3.0, DT), lambda now: "degraded" if 2.0 <= now < 2.1 else "ok"
+    )
+    assert set(controller.asked) == {expected}
+    assert "cautious" not in kinds
+
+
+def test_an_unknown_hold_safe_mode_names_the_field():
+    with pytest.raises(FieldError) as caught:
+        SupervisorSettings(hold_safe="sometimes")
+    assert caught.value.field == "hold_safe"

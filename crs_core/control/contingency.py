@@ -1,0 +1,299 @@
+"""Commands safe to hold through a link outage: the MPCC's hold-safety filter.
+
+A Chronos car holds its last reference until none has come for ``hold_time`` (the firmware's
+200 ms cut-off), then cuts the motors and coasts with the steering where it was; the host's
+next command acts only once the link is back. Nothing the host sends meanwhile arrives, so
+what a car does in an outage is decided by the command sent *before* it. Racing commands are
+not safe to hold: 300 ms of full throttle towards a hairpin took a car 0.7 m further at
+2.3 m/s, and it could not brake to the hairpin's speed within the track once the link was
+back; 200 ms of the steering of a corner's exit, held with full throttle, turned another car
+0.7 rad past the track's direction and off it.
+
+:class:`HoldSafetyFilter` checks a command against that outage: it rolls the car's model out
+from the current state under the command for ``hold_time`` s and then coasting (zero torque,
+the same steering) for ``coast_time`` s more, and the command is safe when
+
+* the car's centre stays within ``bound`` of the centreline at every sample of that rollout,
+  and still is ``lookahead`` s further along its heading at the end (it can still turn away);
+* at the end it points within ``max_heading_end`` of the track's direction (a car that comes
+  back across the direction of a hairpin cannot turn in within it);
+* at the end the car is no faster than full braking allows for every corner ahead: the
+  braking envelope ``B(s)``, the highest speed from which braking at ``braking`` m/s^2 reaches
+  each corner's speed ``sqrt(lateral / |kappa|)`` (``kappa`` the curvature of the track's
+  minimum-curvature line, :func:`~crs_core.track.racing_line.minimum_curvature_line`; the
+  centreline's hairpins and chicanes are far tighter than what a racing car drives).
+
+The filter leaves a car slower than ``min_speed`` alone: braking is always safe to hold, so
+filtered, a slow car at the edge braked to a stand facing out. An unsafe command is replaced
+by the nearest safe one of a grid of steering angles and torques (one rollout for all of them,
+a mapped CasADi call of about 2 ms); when none is safe it is kept. A safe command passes
+unchanged, and the supervisor only asks for the filter once the link has shown an outage
+(:class:`~crs_core.control.supervisor.Supervisor`).
+
+Conventions: state ``[x_p, y_p, psi, v_x, v_y, omega]`` (m, rad, m/s, rad/s; world pose, body
+velocities), command ``[delta, T]`` (rad, normalised torque), arc length along the centreline
+(m), speeds m/s, accelerations m/s^2.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError
+from crs_core.model import CarModel
+from crs_core.parameters import ParameterSet
+from crs_core.track import Track, minimum_curvature_line
+
+__all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope"]
+
+#: Arc-length step of the braking envelope and of the centreline lookup, m.
+GRID_STEP = 0.01
+#: Steering angles tried, as fractions of full lock (with the command's own).
+STEER_FRACTIONS = np.linspace(-1.0, 1.0, 13)
+#: RK4 substeps of a rollout sample.
+SUBSTEPS = 2
+
+
+@dataclass(frozen=True)
+class ContingencySettings:
+    """What an outage is assumed to do to a car, and what is safe after it.
+
+    Attributes
+    ----------
+    hold_time : float
+        How long the car holds the last command before it cuts the motors, s (the firmware's
+        ``CONFIG_DISCONNECT_THRESHOLD_MS``).
+    coast_time : float
+        Coasting after the cut-off until the host's first command after the outage acts, s
+        (the rest of the outage plus the command's delay).
+    sample_time : float
+        Step of the rollout, s: the track is checked at each.
+    lookahead : float
+        At the rollout's end the car must stay within the bound this long further along its
+        heading at its speed, s (room to turn away).
+    edge_clearance : float
+        The car's centre stays this far inside the border, m (its half width and a margin;
+        the MPCC's own bound is its ``track_margin``).
+    max_heading_end : float
+        At the rollout's end the car must point within this of the track's direction, rad
+        (one coming back 0.45 rad across the direction of a hairpin could not turn in within it).
+    min_speed : float
+        Slower than this (m/s) the filter leaves the command as it is.
+    lateral : float
+        Lateral acceleration the car keeps through a corner, m/s^2 (the Chronos car's front
+        tyres saturate at about 4.9 m/s^2).
+    braking : float
+        Deceleration of full braking, m/s^2 (the Chronos car's ``Cm1 / m`` is 4.0).
+    """
+
+    hold_time: float = 0.2
+    coast_time: float = 0.15
+    sample_time: float = 0.025
+    lookahead: float = 0.1
+    edge_clearance: float = 0.06
+    max_heading_end: float = 0.45
+    min_speed: float = 0.5
+    lateral: float = 4.0
+    braking: float = 4.0
+
+    def __post_init__(self) -> None:
+        for name in (
+            "hold_time",
+            "coast_time",
+            "lookahead",
+            "edge_clearance",
+            "max_heading_end",
+            "min_speed",
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
+        for name in ("sample_time", "lateral", "braking"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise FieldError(name, f"must be a finite number > 0, got {value!r}")
+
+
+class HoldSafetyFilter:
+    """Replaces a command that is not safe to hold through an outage (module docstring).
+
+    Parameters
+    ----------
+    track : Track
+        The track raced, in the direction of increasing arc length.
+    model : CarModel
+        The car's model (its rollout).
+    parameters : ParameterSet
+        Its parameter values.
+    steer_max : float
+        Full lock, rad.
+    torque_limits : tuple of float
+        ``(torque_min, torque_max)``, normalised.
+    top_speed : float
+        Highest speed the car is driven at, m/s (the envelope never exceeds it).
+    settings : ContingencySettings, optional
+    """
+
+    def __init__(
+        self,
+        track: Track,
+        model: CarModel,
+        parameters: ParameterSet,
+        steer_max: float,
+        torque_limits: tuple[float, float],
+        top_speed: float,
+        settings: ContingencySettings | None = None,
+    ) -> None:
+        self.settings = s = settings or ContingencySettings()
+        self.bound = track.width / 2 - s.edge_clearance
+        if not self.bound > 0:
+            raise FieldError(
+                "edge_clearance", f"must be below half the track's width, got {s.edge_clearance!r}"
+            )
+        self.steer_max = float(steer_max)
+        self.torque_limits = (float(torque_limits[0]), float(torque_limits[1]))
+        self.length = float(track.length)
+        # the centreline, densely: the nearest sample gives arc length and signed offset
+        n = max(math.ceil(self.length / GRID_STEP), 4)
+        self._s = np.arange(n) * (self.length / n)
+        x, y, heading, _ = track.interpolate(self._s)
+        self._centre = np.column_stack((x, y))
+        self._heading = np.asarray(heading, dtype=float)
+        self._tree = cKDTree(self._centre)
+        self.envelope = braking_envelope(track, s.lateral, s.braking, top_speed, s.edge_clearance)
+        self._nx = model.nx
+        self._p = parameters.vector()
+        holds = max(round(s.hold_time / s.sample_time), 0)
+        coasts = max(round(s.coast_time / s.sample_time), 1)
+        self._candidates = 1 + len(STEER_FRACTIONS) * 5  # see _candidate_commands
+        self._rollout = _rollout_function(model, holds, coasts, s.sample_time).map(self._candidates)
+        #: commands replaced so far
+        self.replaced = 0
+
+    def __call__(self, x: ArrayLike, u: ArrayLike) -> np.ndarray:
+        """Command ``u`` (2,) if it is safe to hold from state ``x`` (6 or more), else the
+        nearest safe one (steering and torque each relative to their range); ``u`` itself
+        when none is (a car at the edge already is the MPCC's to bring back)."""
+        state = np.asarray(x, dtype=float).ravel()[: self._nx]
+        command = np.asarray(u, dtype=float).ravel()[:2]
+        if math.hypot(state[3], state[4]) < self.settings.min_speed:
+            return command.copy()  # braking is always safe: filtered, a slow car stood at the edge
+        candidates = self._candidate_commands(command)
+        excess = self.excess(state, candidates)
+        if excess[0] <= 0.0:
+            return command.copy()
+        safe = np.flatnonzero(excess <= 0.0)
+        if safe.size == 0:  # nothing is safe (the car is at the edge already): the MPCC knows
+            return command.copy()
+        self.replaced += 1
+        low, high = self.torque_limits
+        change = ((candidates[safe, 0] - command[0]) / (2 * self.steer_max)) ** 2 + (
+            (candidates[safe, 1] - command[1]) / (high - low)
+        ) ** 2
+        return candidates[safe[int(np.argmin(change))]].copy()
+
+    def excess(self, x: NDArray[np.float64], commands: NDArray[np.float64]) -> np.ndarray:
+        """Per command (rows of ``commands``, at most the filter's candidate count): how far
+        its held rollout from state ``x`` leaves the bound (m) or exceeds the braking
+        envelope at its end (m/s, scaled to m by the sample time); <= 0 is safe."""
+        count = commands.shape[0]
+        U = np.zeros((2, self._candidates))
+        U[:, :count] = commands.T
+        X0 = np.tile(x[:, None], (1, self._candidates))
+        samples = np.asarray(self._rollout(X0, U, self._p), dtype=float)
+        steps = samples.shape[1] // self._candidates
+        states = samples.reshape(self._nx, self._candidates, steps)[:, :count, :]
+        px, py, psi = states[0], states[1], states[2]
+        s, lateral, heading = self._project(px, py)
+        outside = np.max(np.abs(lateral), axis=1) - self.bound
+        # at the end: room to turn away, and slow enough to brake for what comes
+        speed = np.hypot(states[3, :, -1], states[4, :, -1])
+        ahead = speed * self.settings.lookahead * np.sin(wrap_angle(psi[:, -1] - heading[:, -1]))
+        outside = np.maximum(outside, np.abs(lateral[:, -1] + ahead) - self.bound)
+        # and pointing along the track: a car that comes back across the track's direction
+        # at a hairpin cannot turn in within it (scaled to m by the car's half length)
+        turned = np.abs(wrap_angle(psi[:, -1] - heading[:, -1])) - self.settings.max_heading_end
+        outside = np.maximum(outside, turned * 0.06)
+        too_fast = speed - self.envelope(s[:, -1])
+        return np.maximum(outside, too_fast * self.settings.sample_time)
+
+    def _candidate_commands(self, command: NDArray[np.float64]) -> np.ndarray:
+        """The command itself, then every steering fraction with five torques: the
+        command's, half a unit less, no throttle, half and full braking (within the limits)."""
+        low, high = self.torque_limits
+        torque = float(command[1])
+        torques = np.clip([torque, torque - 0.5, min(torque, 0.0), -0.5, -1.0], low, high)
+        steer = STEER_FRACTIONS * self.steer_max
+        grid = np.array([[d, t] for t in torques for d in steer])
+        return np.vstack((command[None, :], grid))
+
+    def _project(
+        self, px: NDArray[np.float64], py: NDArray[np.float64]
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Arc length, signed offset (left positive) and track heading of the nearest
+        centreline sample, for points ``px``, ``py`` of any shape."""
+        _, index = self._tree.query(np.column_stack((px.ravel(), py.ravel())))
+        heading = self._heading[index]
+        dx, dy = px.ravel() - self._centre[index, 0], py.ravel() - self._centre[index, 1]
+        lateral = -np.sin(heading) * dx + np.cos(heading) * dy
+        shape = px.shape
+        return (
+            self._s[index].reshape(shape),
+            lateral.reshape(shape),
+            heading.reshape(shape),
+        )
+
+
+class BrakingEnvelope:
+    """The highest speed at each arc length from which braking reaches every corner ahead
+    slowly enough (see :func:`braking_envelope`); called with arc lengths (m, any lap)."""
+
+    def __init__(self, speed: NDArray[np.float64], length: float) -> None:
+        self.speed = speed
+        self.length = length
+        self._step = length / speed.size
+
+    def __call__(self, s: ArrayLike) -> NDArray[np.float64]:
+        index = np.floor(
+            np.mod(np.atleast_1d(np.asarray(s, dtype=float)), self.length) / self._step
+        )
+        return self.speed[index.astype(int) % self.speed.size]
+
+
+def braking_envelope(
+    track: Track, lateral: float, braking: float, top_speed: float, edge_clearance: float
+) -> BrakingEnvelope:
+    """The braking envelope of ``track``: corner speeds ``sqrt(lateral / |kappa|)`` (m/s^2 over
+    the minimum-curvature line's curvature within ``edge_clearance`` m of the border), at
+    most ``top_speed`` m/s, and a backward pass at ``braking`` m/s^2 round the lap twice."""
+    length = float(track.length)
+    n = max(math.ceil(length / GRID_STEP), 4)
+    step = length / n
+    line = minimum_curvature_line(track, max(track.width / 2 - edge_clearance, 0.0))
+    curvature = np.interp(np.arange(n) * step, line.s, np.abs(line.curvature), period=length)
+    speed = np.minimum(np.sqrt(lateral / np.maximum(curvature, 1e-9)), top_speed)
+    rise = 2.0 * braking * step
+    for k in range(2 * n - 1, -1, -1):
+        i, ahead = k % n, (k + 1) % n
+        speed[i] = min(speed[i], math.sqrt(speed[ahead] ** 2 + rise))
+    return BrakingEnvelope(speed, length)
+
+
+def _rollout_function(model: CarModel, holds: int, coasts: int, step: float) -> ca.Function:
+    """``rollout(x0, u, p)``: the states after each of ``holds`` steps of ``step`` s under ``u``
+    and ``coasts`` more with the steering of ``u`` and zero torque, (nx, holds + coasts)."""
+    advance = model.step_function(SUBSTEPS, "contingency_step")
+    x0, u, p = ca.SX.sym("x0", model.nx), ca.SX.sym("u", 2), model.p_sym
+    coasting = ca.vertcat(u[0], 0.0)
+    x, samples = x0, []
+    for k in range(holds + coasts):
+        x = advance(x, u if k < holds else coasting, p, step)
+        samples.append(x)
+    return ca.Function("contingency_rollout", [x0, u, p], [ca.horzcat(*samples)])

@@ -1,0 +1,117 @@
+"""The MPCC racing through link outages, without middleware: what a held command does.
+
+:func:`run_outage_loop` races the model car around a track with the MPCC at its control rate,
+and takes the link down for the given windows. While the link is up the controller sees the
+true state and the car gets each command at once; while it is down nothing gets through: the
+car holds the last command it got and, once none has come for ``cut_off`` s, cuts its motors
+and coasts with the steering where it was (the Chronos firmware); the host dead-reckons its
+state with its own commands and keeps computing. The estimator, the transport and the sensors
+are left out on purpose: this isolates what the command held through an outage does, which
+no host-side measure can change once the link is down.
+
+Used by ``crs bench contingency`` and the tests of the hold-safety filter
+(:mod:`crs_core.control.contingency`).
+
+Conventions: state ``[x_p, y_p, psi, v_x, v_y, omega]`` (m, rad, m/s, rad/s), command
+``[delta, T]`` (rad, normalised torque), times in s from the start at rest on the start line.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from crs_core.analysis.laps import LapCounter
+from crs_core.control.mpcc import Mpcc
+from crs_core.errors import FieldError
+from sim.closed_loop import footprint_outside
+
+__all__ = ["OutageRun", "random_outages", "run_outage_loop"]
+
+#: The car's integration step between control ticks, s.
+CAR_STEP = 0.005
+
+
+@dataclass(frozen=True)
+class OutageRun:
+    """What an outage loop did.
+
+    Attributes
+    ----------
+    off_track_s : float
+        Time with a corner of the car's footprint outside the track, s (at the control ticks).
+    episodes : int
+        Separate spells off the track.
+    lap_times : list of float
+        Completed laps' durations, s (the first from rest).
+    replaced : int
+        Commands the hold-safety filter replaced (0 without it).
+    """
+
+    off_track_s: float
+    episodes: int
+    lap_times: list[float]
+    replaced: int
+
+
+def random_outages(
+    duration: float, length: float, rng: np.random.Generator, first: float = 3.0
+) -> np.ndarray:
+    """Outage windows ``(k, 2)`` ``[start, end)`` of ``length`` s within ``duration`` s: the
+    first after ``first`` s plus a uniform 3.5-6.5 s gap, then gaps of 3.5-6.5 s (a mean of
+    5 s, the outages preset's period, at phases that move along the lap)."""
+    starts = first + np.cumsum(rng.uniform(3.5, 6.5, size=max(int(duration / 3.5), 1)))
+    starts = starts[starts < duration]
+    return np.column_stack((starts, starts + length))
+
+
+def run_outage_loop(
+    mpcc: Mpcc,
+    duration: float,
+    outages: ArrayLike,
+    hold_safe: bool,
+    cut_off: float = 0.2,
+) -> OutageRun:
+    """Race ``duration`` s from rest on the start line through the link ``outages`` (windows
+    ``[start, end)``, s) with ``mpcc`` (reset first), its commands hold-safe or not."""
+    if not (math.isfinite(duration) and duration > 0):
+        raise FieldError("duration", f"must be a finite number > 0 s, got {duration!r}")
+    windows = np.asarray(outages, dtype=float).reshape(-1, 2)
+    track = mpcc.path.track
+    model, p = mpcc.model, mpcc.p
+    numeric = model.numeric
+    dt = mpcc.settings.dt
+    substeps = max(round(dt / CAR_STEP), 1)
+    mpcc.reset()
+    x0, y0, heading, _ = (float(v) for v in track.interpolate(0.0))
+    car = np.array([x0, y0, heading, 0.0, 0.0, 0.0])
+    host, held, last_received = car.copy(), np.zeros(2), 0.0
+    laps = LapCounter(track.length)
+    laps.update(0.0, track.project(car[0], car[1]).s)  # on the line: the lap from rest starts
+    replaced_before = mpcc.hold_safe_replaced
+    t, off, episodes, was_off, s_hint = 0.0, 0.0, 0, False, None
+    while t < duration:
+        link_up = not np.any((t >= windows[:, 0]) & (t < windows[:, 1]))
+        # the host sees the car while the link is up, else dead-reckons with its own commands
+        host = car.copy() if link_up else numeric.step(host, mpcc.last_command, p, dt)
+        command = mpcc(host, None, dt, hold_safe)
+        if link_up:
+            held, last_received = command.copy(), t
+        for k in range(substeps):
+            now = t + k * dt / substeps
+            applied = held if now - last_received < cut_off else np.array([held[0], 0.0])
+            car = numeric.step(car, applied, p, dt / substeps)
+        t += dt
+        projection = track.project(car[0], car[1], s_hint)
+        s_hint = projection.s
+        laps.update(t, projection.s)
+        outside = footprint_outside(track, car[0], car[1], car[2], s_hint) > 0
+        off += dt if outside else 0.0
+        episodes += int(outside and not was_off)
+        was_off = outside
+    return OutageRun(
+        round(off, 3), episodes, list(laps.lap_times), mpcc.hold_safe_replaced - replaced_before
+    )

@@ -1,0 +1,112 @@
+"""Tests of crs_core.control.contingency: which commands are safe to hold through an outage,
+and what the filter puts in place of one that is not (the model rolled out independently)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter, braking_envelope
+from crs_core.errors import FieldError
+from crs_core.model import CarModel
+from crs_core.track import load_demo_track
+
+#: Arc length where the demo track's first hairpin begins (centreline radius 0.3 m), m.
+HAIRPIN = 1.1
+
+
+@pytest.fixture(scope="module")
+def track():
+    return load_demo_track()
+
+
+@pytest.fixture(scope="module")
+def safety(track) -> HoldSafetyFilter:
+    model = CarModel()
+    return HoldSafetyFilter(track, model, model.parameters, 0.34, (-1.0, 1.0), 4.0)
+
+
+def _held(x: np.ndarray, u: np.ndarray, settings: ContingencySettings) -> np.ndarray:
+    """The car's state after ``u`` held for ``hold_time`` and coasting ``coast_time``, stepped
+    here with the model's own integrator (not the filter's rollout)."""
+    model = CarModel()
+    p = model.parameters.vector()
+    x = model.numeric.step(x, u, p, settings.hold_time)
+    return model.numeric.step(x, np.array([u[0], 0.0]), p, settings.coast_time)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [("hold_time", -0.1), ("coast_time", math.nan), ("sample_time", 0.0), ("braking", -1.0)],
+)
+def test_bad_settings_name_the_field(field: str, value: float) -> None:
+    with pytest.raises(FieldError) as caught:
+        ContingencySettings(**{field: value})
+    assert caught.value.field == field
+
+
+def test_the_braking_envelope_slows_before_each_hairpin_at_the_braking_rate(track) -> None:
+    """Below the top speed the envelope never falls faster ahead than braking allows
+    (v^2 shrinks by at most 2 a ds), and at the hairpin it is the corner speed of its
+    minimum-curvature line, between the centreline's 1.18 m/s and the top speed."""
+    braking = 4.0
+    envelope = braking_envelope(track, 4.0, braking, 4.0, 0.06)
+    s = np.arange(0.0, track.length, 0.01)
+    v = envelope(s)
+    drop = v[:-1] ** 2 - v[1:] ** 2
+    assert np.all(drop <= 2 * braking * 0.01 * (1 + 1e-6) + 1e-9)
+    at_hairpin = float(envelope(HAIRPIN + 0.2)[0])
+    assert math.sqrt(4.0 * 0.3) < at_hairpin < 2.0
+    assert float(envelope(HAIRPIN - 0.8)[0]) > at_hairpin + 0.5  # faster on the straight
+
+
+def test_full_throttle_towards_a_hairpin_is_replaced(safety, pose_at, track) -> None:
+    """0.7 m before the hairpin at 2.3 m/s, full throttle held 200 ms and coasting would enter
+    it near 2.5 m/s: not safe. The filter's command gives no throttle, and held through the
+    same outage (stepped independently) it arrives no faster than the braking envelope
+    allows, within the track."""
+    x = pose_at(track, HAIRPIN - 0.7, 0.0, 0.0)
+    x[3] = 2.3
+    racing = np.array([0.0, 1.0])
+    assert safety.excess(x, racing[None, :])[0] > 0
+    safe = safety(x, racing)
+    assert safe[1] <= 0.0
+    end = _held(x, safe, safety.settings)
+    s_end = track.project(end[0], end[1]).s
+    assert end[3] <= float(safety.envelope(s_end)[0]) + 1e-6
+    assert abs(track.project(end[0], end[1]).lateral_error) <= safety.bound
+
+
+def test_a_command_safe_to_hold_passes_unchanged(safety, pose_at, track) -> None:
+    """Early on the long straight at 1.5 m/s, half throttle held through an outage stays on
+    the track and slow enough: the command is returned as it is."""
+    x = pose_at(track, 10.5, 0.0, 0.0)
+    x[3] = 1.5
+    command = np.array([0.02, 0.5])
+    replaced = safety.replaced
+    assert np.array_equal(safety(x, command), command)
+    assert safety.replaced == replaced
+
+
+def test_a_slow_car_is_left_to_the_controller(safety, pose_at, track) -> None:
+    """At 0.3 m/s at the edge facing out no forward command is safe, and braking always is:
+    filtered, such a car stood there for good. Below min_speed the command passes."""
+    x = pose_at(track, 3.0, -0.15, -0.6)
+    x[3] = 0.3
+    command = np.array([0.34, 0.4])
+    assert np.array_equal(safety(x, command), command)
+
+
+def test_the_steering_held_out_of_a_bend_is_checked(safety, pose_at, track) -> None:
+    """Through the hairpin at 1.4 m/s, full left lock held and coasting turns the car across
+    the track: unsafe, and what replaces it keeps the car on the track when held (stepped
+    independently)."""
+    x = pose_at(track, HAIRPIN + 0.6, 0.0, 0.0)
+    x[3] = 1.4
+    command = np.array([0.34, 1.0])
+    assert safety.excess(x, command[None, :])[0] > 0
+    safe = safety(x, command)
+    end = _held(x, safe, safety.settings)
+    assert abs(track.project(end[0], end[1]).lateral_error) <= safety.bound + 1e-3
