@@ -158,6 +158,8 @@ class Geometry:
                     station = BaseStation.from_rotation(
                         rotation, tuple(position), float(dt[0]), float(dt[1])
                     )
+                except FieldError as error:  # the rotation's own check names the rotation
+                    raise error.renamed(f"{name}.rotation") from None
                 except ValueError as error:
                     raise FieldError(f"{name}.rotation", str(error)) from None
                 stations.append(station)

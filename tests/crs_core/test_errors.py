@@ -109,3 +109,17 @@ def test_within_names_the_interval(share: float, kwargs: dict, message: str) -> 
     with pytest.raises(FieldError) as caught:
         require_within(_Settings(share=share), "share", 0, 1, **kwargs)
     assert (caught.value.field, str(caught.value)) == ("share", message)
+
+
+def test_a_reflected_base_station_rotation_is_named_once() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]],
+        "position": [0, 0, 2],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert str(caught.value) == (
+        "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
+    )
