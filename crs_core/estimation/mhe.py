@@ -55,7 +55,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import compile_functions
-from crs_core.errors import FieldError, require_within
+from crs_core.errors import FieldError, require_positive, require_within
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.mhe_problem import (
     Band,
@@ -148,8 +148,7 @@ class MheSettings(EstimatorSettings):
         if self.horizon < 1:
             raise FieldError("horizon", "must be >= 1")
         require_within(self, "discount", 0, 1, low_open=True)
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise FieldError("rate_hz", "must be finite and > 0")
+        require_positive(self, "rate_hz")
         if self.iterations < 1:
             raise FieldError("iterations", "must be >= 1")
         if len(self.process_bound) != 6 or not all(b > 0 for b in self.process_bound):
