@@ -212,7 +212,7 @@ class CarStateConverter:
 
     def __init__(self, imu_sensor: Literal["imu", "gyro"] = "imu") -> None:
         if imu_sensor not in ("imu", "gyro"):
-            raise ValueError(f"imu_sensor: 'imu' or 'gyro', got {imu_sensor!r}")
+            raise FieldError("imu_sensor", f"'imu' or 'gyro', got {imu_sensor!r}")
         self.imu_sensor = imu_sensor
         self._stations: dict[int, _Station] = {}
         self.deck_clock = DeckClock()
@@ -424,10 +424,10 @@ def raw_sweep_angles(plane: int, angles: Iterable[float]) -> tuple[float, float,
     """Model-convention sweep angles of ``plane`` (1 or 2) -> the firmware's raw angles (the
     host's plane offset subtracted)."""
     if plane not in PLANE_OFFSETS:
-        raise ValueError(f"plane: 1 or 2, got {plane!r}")
+        raise FieldError("plane", f"1 or 2, got {plane!r}")
     raw = tuple(float(a) - PLANE_OFFSETS[plane] for a in angles)
     if len(raw) != 4:
-        raise ValueError(f"angles: needs 4, got {len(raw)}")
+        raise FieldError("angles", f"needs 4, got {len(raw)}")
     return raw  # type: ignore[return-value]
 
 
@@ -482,7 +482,7 @@ def raw_sweep(
     """
     parsed = parse_lighthouse(measurement.sensor)
     if parsed is None:
-        raise ValueError(f"sensor: not a lighthouse sensor: {measurement.sensor!r}")
+        raise FieldError("sensor", f"not a lighthouse sensor: {measurement.sensor!r}")
     station, plane = parsed
     first, sync = clock.timestamps(station, plane, measurement.stamp if t is None else t)
     return LighthouseSweep(raw_sweep_angles(plane, measurement.values), station << 1, first, sync)

@@ -64,6 +64,7 @@ from chronos_bridge.packets import (
     Steering,
 )
 from crs_core.control.low_level import rear_axle_speed
+from crs_core.errors import require_non_negative
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
 from sim.onboard import OnboardSettings
@@ -105,15 +106,13 @@ class BatteryModel:
     steer_current: float = 0.5
 
     def __post_init__(self) -> None:
-        for name, value in vars(self).items():
-            if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be a finite number >= 0, got {value!r}")
+        require_non_negative(self, *vars(self))
         if not self.empty_voltage < self.full_voltage:
-            raise ValueError("empty_voltage: must be < full_voltage")
+            raise FieldError("empty_voltage", "must be < full_voltage")
         if self.capacity_ah <= 0:
-            raise ValueError(f"capacity_ah: must be > 0, got {self.capacity_ah!r}")
+            raise FieldError("capacity_ah", f"must be > 0, got {self.capacity_ah!r}")
         if self.initial_charge > 1:
-            raise ValueError(f"initial_charge: must be <= 1, got {self.initial_charge!r}")
+            raise FieldError("initial_charge", f"must be <= 1, got {self.initial_charge!r}")
 
 
 class _Battery:
@@ -185,12 +184,14 @@ class CarEmulator:
         for name in ("imu", "wheel_encoders"):
             rate = sensors.spec(name).rate_hz
             if abs(rate * TICK_S - 1.0) > 1e-9:
-                raise ValueError(f"sensors.{name}.rate_hz: must be 250 (one per step), got {rate}")
+                raise FieldError(
+                    f"sensors.{name}.rate_hz", f"must be 250 (one per step), got {rate}"
+                )
         self.onboard_settings = onboard or OnboardSettings()
         if abs(self.onboard_settings.rate_hz * TICK_S - 1.0) > 1e-9:
-            raise ValueError(f"onboard.rate_hz: must be 250, got {self.onboard_settings.rate_hz}")
+            raise FieldError("onboard.rate_hz", f"must be 250, got {self.onboard_settings.rate_hz}")
         if not math.isfinite(unix_offset):
-            raise ValueError(f"unix_offset: must be finite, got {unix_offset!r}")
+            raise FieldError("unix_offset", f"must be finite, got {unix_offset!r}")
         self.simulator = Simulator(self.model, sensors, seed, onboard=self.onboard_settings)
         self.session: SimulationSession = self.simulator.session(
             np.asarray(x0, dtype=float), keep_history=False
@@ -312,9 +313,9 @@ class CarEmulator:
 
     def _clock(self, now: float) -> None:
         if not math.isfinite(now):
-            raise ValueError(f"now: must be finite, got {now!r}")
+            raise FieldError("now", f"must be finite, got {now!r}")
         if self._now is not None and now < self._now:
-            raise ValueError(f"now: the clock went back ({now} < {self._now})")
+            raise FieldError("now", f"the clock went back ({now} < {self._now})")
         self._now = now
 
     # ----------------------------------------------------------------------------- output

@@ -56,6 +56,7 @@ from chronos_bridge.impairment import (
     make_link,
     parse_link,
 )
+from crs_core.errors import FieldError
 
 PROG = "crs car-emulator"
 DESCRIPTION = (
@@ -123,10 +124,10 @@ def _port(name: str, text: str, allow_zero: bool) -> int:
     try:
         value = int(text)
     except ValueError:
-        raise ValueError(f"{name}: {text!r} is not an integer") from None
+        raise FieldError(name, f"{text!r} is not an integer") from None
     low = 0 if allow_zero else 1
     if not low <= value <= 65535:
-        raise ValueError(f"{name}: {value} outside {low}..65535")
+        raise FieldError(name, f"{value} outside {low}..65535")
     return value
 
 
@@ -134,7 +135,7 @@ def _address(name: str, text: str) -> ipaddress.IPv4Address:
     try:
         return ipaddress.IPv4Address(text)
     except ValueError:
-        raise ValueError(f"{name}: {text!r} is not an IPv4 address") from None
+        raise FieldError(name, f"{text!r} is not an IPv4 address") from None
 
 
 def options(args: argparse.Namespace) -> dict:
@@ -142,9 +143,11 @@ def options(args: argparse.Namespace) -> dict:
     host = _address("--host", args.host)
     bind = _address("--bind", args.bind)
     if host.is_unspecified or host.is_multicast or host == ipaddress.IPv4Address("255.255.255.255"):
-        raise ValueError(f"--host: {host} is not one host's address")
+        raise FieldError("--host", f"{host} is not one host's address")
     if bind.is_loopback and not host.is_loopback:
-        raise ValueError(f"--bind: {bind} cannot reach --host {host}; bind 0.0.0.0 or an interface")
+        raise FieldError(
+            "--bind", f"{bind} cannot reach --host {host}; bind 0.0.0.0 or an interface"
+        )
     seed = _seed("--seed", args.seed)
     link_seed = seed if args.link_seed is None else _seed("--link-seed", args.link_seed)
     duration = None
@@ -154,7 +157,7 @@ def options(args: argparse.Namespace) -> dict:
         except ValueError:
             duration = math.nan
         if not (math.isfinite(duration) and duration > 0):
-            raise ValueError(f"--duration: {args.duration!r} is not a number of seconds > 0")
+            raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
     return {
         "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),
         "bind": (str(bind), _port("--port", args.port, allow_zero=True)),
@@ -171,9 +174,9 @@ def _seed(name: str, text: str) -> int:
     try:
         seed = int(text)
     except ValueError:
-        raise ValueError(f"{name}: {text!r} is not an integer") from None
+        raise FieldError(name, f"{text!r} is not an integer") from None
     if seed < 0:
-        raise ValueError(f"{name}: {seed} must be >= 0")
+        raise FieldError(name, f"{seed} must be >= 0")
     return seed
 
 
@@ -184,9 +187,9 @@ def _truth_path(text: str | None):
 
     path = Path(text)
     if path.suffix != ".npz":
-        raise ValueError(f"--truth-out: {text!r} must end in .npz")
+        raise FieldError("--truth-out", f"{text!r} must end in .npz")
     if not path.parent.is_dir():
-        raise ValueError(f"--truth-out: folder {str(path.parent)!r} does not exist")
+        raise FieldError("--truth-out", f"folder {str(path.parent)!r} does not exist")
     return path
 
 
@@ -270,7 +273,7 @@ def run(args: argparse.Namespace) -> int:
         sock.bind(bind)
     except OSError as error:
         sock.close()
-        raise ValueError(f"--port: cannot bind {bind[0]}:{bind[1]} ({error.strerror})") from None
+        raise FieldError("--port", f"cannot bind {bind[0]}:{bind[1]} ({error.strerror})") from None
     sock.setblocking(False)
     stop = _Stop()
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}

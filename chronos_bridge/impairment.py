@@ -47,6 +47,8 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+from crs_core.errors import FieldError
+
 #: The preset names of :data:`PRESETS`, in order of severity (a benchmark iterates over them).
 PRESET_NAMES = ("clean", "typical", "bad", "outages")
 #: Largest delay, jitter, outage or period accepted, s.
@@ -105,28 +107,30 @@ class ImpairmentSettings:
     outage_rate_hz: float = 0.0
 
     def validate(self) -> ImpairmentSettings:
-        """``self`` if consistent, else ``ValueError`` naming the field."""
+        """``self`` if consistent, else :class:`~crs_core.errors.FieldError` naming the field."""
         for name in ("loss", "burst_enter", "burst_exit", "burst_loss", "dup"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:  # also rejects NaN
-                raise ValueError(f"{name}: {value!r} is not a probability in [0, 1]")
+                raise FieldError(name, f"{value!r} is not a probability in [0, 1]")
         for name in ("delay_s", "jitter_s", "outage_s", "outage_period_s", "outage_phase_s"):
             value = getattr(self, name)
             if not 0.0 <= value <= MAX_TIME_S:
-                raise ValueError(f"{name}: {value!r} must be within [0, {MAX_TIME_S:g}] s")
+                raise FieldError(name, f"{value!r} must be within [0, {MAX_TIME_S:g}] s")
         if not 0.0 <= self.outage_rate_hz <= 1e3:
-            raise ValueError(f"outage_rate_hz: {self.outage_rate_hz!r} must be within [0, 1000]")
+            raise FieldError("outage_rate_hz", f"{self.outage_rate_hz!r} must be within [0, 1000]")
         if self.burst_enter > 0 and self.burst_exit == 0:
-            raise ValueError("burst_exit: must be > 0 when burst_enter > 0 (else bursts never end)")
+            raise FieldError(
+                "burst_exit", "must be > 0 when burst_enter > 0 (else bursts never end)"
+            )
         periodic, random = self.outage_period_s > 0, self.outage_rate_hz > 0
         if self.outage_s > 0 and periodic == random:
-            raise ValueError("outage_s: needs either outage_period_s or outage_rate_hz (one)")
+            raise FieldError("outage_s", "needs either outage_period_s or outage_rate_hz (one)")
         if self.outage_s == 0 and (periodic or random):
-            raise ValueError("outage_s: must be > 0 with outage_period_s or outage_rate_hz")
+            raise FieldError("outage_s", "must be > 0 with outage_period_s or outage_rate_hz")
         if periodic and self.outage_period_s <= self.outage_s:
-            raise ValueError(
-                f"outage_period_s: {self.outage_period_s:g} s must exceed outage_s "
-                f"{self.outage_s:g} s"
+            raise FieldError(
+                "outage_period_s",
+                f"{self.outage_period_s:g} s must exceed outage_s {self.outage_s:g} s",
             )
         return self
 
@@ -216,7 +220,7 @@ def _value(key: str, kind: str, text: str) -> float | bool:
             return True
         if lower in ("0", "false", "no", "off"):
             return False
-        raise ValueError(f"{key}: {text!r} is not 0/1/true/false")
+        raise FieldError(key, f"{text!r} is not 0/1/true/false")
     scale, number = 1.0, lower
     if kind == "p" and lower.endswith("%"):
         scale, number = 0.01, lower[:-1]
@@ -226,7 +230,7 @@ def _value(key: str, kind: str, text: str) -> float | bool:
                 scale, number = factor, lower[: -len(unit)]
                 break
         else:
-            raise ValueError(f"{key}: {text!r} needs a unit (ms or s)")
+            raise FieldError(key, f"{text!r} needs a unit (ms or s)")
     elif kind == "hz":
         for unit in ("/s", "hz"):
             number = number.removesuffix(unit)
@@ -235,7 +239,7 @@ def _value(key: str, kind: str, text: str) -> float | bool:
     except ValueError:
         value = math.nan
     if not math.isfinite(value):
-        raise ValueError(f"{key}: {text!r} is not a number")
+        raise FieldError(key, f"{text!r} is not a number")
     return value
 
 
@@ -258,18 +262,18 @@ def parse_spec(text: str) -> ImpairmentSettings:
         if not sep:
             raise ValueError(f"{part!r} is not KEY=VALUE (a preset comes first)")
         if key not in SPEC_KEYS:
-            raise ValueError(f"{key}: not a key (keys: {', '.join(SPEC_KEYS)})")
+            raise FieldError(key, f"not a key (keys: {', '.join(SPEC_KEYS)})")
         if SPEC_KEYS[key][0] in changes:
-            raise ValueError(f"{key}: given twice")
+            raise FieldError(key, "given twice")
         field_name, kind = SPEC_KEYS[key]
         changes[field_name] = _value(key, kind, value)
     settings = replace(settings, **changes)
     try:
         return settings.validate()
-    except ValueError as error:  # name the spec's keys, not the fields
+    except FieldError as error:  # name the spec's keys, not the fields
         keys = {f: k for k, (f, _) in SPEC_KEYS.items()}
-        message = re.sub(r"\b\w+\b", lambda m: keys.get(m.group(), m.group()), str(error))
-        raise ValueError(message) from None
+        reason = re.sub(r"\b\w+\b", lambda m: keys.get(m.group(), m.group()), error.reason)
+        raise FieldError(keys.get(error.field, error.field), reason) from None
 
 
 def parse_link(both: str | None, up: str | None = None, down: str | None = None) -> LinkSettings:
@@ -282,7 +286,7 @@ def parse_link(both: str | None, up: str | None = None, down: str | None = None)
             try:
                 settings[option] = parse_spec(text)
             except ValueError as error:
-                raise ValueError(f"{option}: {error}") from None
+                raise FieldError(option, str(error)) from None
     default = settings.get("--link", CLEAN)
     return LinkSettings(settings.get("--link-up", default), settings.get("--link-down", default))
 

@@ -84,6 +84,7 @@ from chronos_bridge.codec import (
     now_us,
 )
 from chronos_bridge.packets import CarState, Packet, Ping
+from crs_core.errors import FieldError
 
 #: The buckets of :attr:`CarLink.counts`, in report order.
 BUCKETS = (
@@ -128,7 +129,7 @@ def _ipv4(name: str, value: str) -> str:
     try:
         return str(ipaddress.IPv4Address(value))
     except ValueError:
-        raise ValueError(f"{name}: not an IPv4 address, got {value!r}") from None
+        raise FieldError(name, f"not an IPv4 address, got {value!r}") from None
 
 
 class DatagramFilter:
@@ -147,7 +148,7 @@ class DatagramFilter:
 
     def __init__(self, memory_s: float = DUPLICATE_MEMORY_S) -> None:
         if not memory_s > 0.0:
-            raise ValueError(f"memory_s: must be > 0, got {memory_s!r}")
+            raise FieldError("memory_s", f"must be > 0, got {memory_s!r}")
         self.memory_us = round(memory_s * 1e6)
         self.memory_s = float(memory_s)
         self.duplicates = 0
@@ -235,16 +236,18 @@ class CarLink:
         repeat_for: float = 0.1,
     ) -> None:
         if not 0 <= int(port) <= 65535:
-            raise ValueError(f"port: must be in 0..65535, got {port!r}")
+            raise FieldError("port", f"must be in 0..65535, got {port!r}")
         if not 0 <= int(car_port) <= 65535:
-            raise ValueError(f"car_port: must be in 0..65535, got {car_port!r}")
+            raise FieldError("car_port", f"must be in 0..65535, got {car_port!r}")
         if car_port and not car_ip:
-            raise ValueError(f"car_port: needs car_ip (the port alone cannot pair), got {car_port}")
+            raise FieldError(
+                "car_port", f"needs car_ip (the port alone cannot pair), got {car_port}"
+            )
         if max_per_poll < 1:
-            raise ValueError(f"max_per_poll: must be >= 1, got {max_per_poll}")
+            raise FieldError("max_per_poll", f"must be >= 1, got {max_per_poll}")
         for name, value in (("repeat_period", repeat_period), ("repeat_for", repeat_for)):
             if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be a finite number >= 0 s, got {value!r}")
+                raise FieldError(name, f"must be a finite number >= 0 s, got {value!r}")
         bind = _ipv4("bind", bind)
         self.car_ip = _ipv4("car_ip", car_ip) if car_ip else ""
         self.car_port = int(car_port)
@@ -410,7 +413,7 @@ class CarLink:
             elif mode == "velocity":
                 data = encode_velocity_command(steer, second, stamp)
             else:
-                raise ValueError(f"mode: must be torque or velocity, got {mode!r}")
+                raise FieldError("mode", f"must be torque or velocity, got {mode!r}")
         except (ValueError, TypeError, IndexError) as error:
             self.sent["invalid_commands"] += 1
             self._throttled("command", f"command not sent: {error}")
@@ -480,8 +483,8 @@ def _check_finite(converted: Converted) -> None:
     conversion would be a bug, and must not reach a subscriber."""
     for measurement in converted.measurements:
         if not (math.isfinite(measurement.stamp) and np.all(np.isfinite(measurement.values))):
-            raise ValueError(f"{measurement.sensor}: non-finite value after conversion")
+            raise FieldError(measurement.sensor, "non-finite value after conversion")
     t = converted.telemetry
     for value in (t.stamp, t.battery_voltage, t.battery_current, t.longitudinal_velocity):
         if value is not None and not math.isfinite(value):
-            raise ValueError("telemetry: non-finite value after conversion")
+            raise FieldError("telemetry", "non-finite value after conversion")

@@ -1,8 +1,10 @@
 """Datasets on disk: the layout of the real Chronos recordings, plus what simulation adds.
 
 In memory, inputs are in model order ``[steer, torque]``; the swap happens here, by name. Every
-file is validated when it is read: a malformed one raises ``ValueError`` (a missing required
-one ``FileNotFoundError``) with a one-line message naming the file and the field.
+file is validated when it is read: a malformed one raises :class:`~crs_core.errors.FieldError`
+(a ``ValueError``; a missing required one ``FileNotFoundError``) whose field names the file or
+the key (``x.npy``, ``stream.npz``, ``geometry.base_stations[0].position``), with a one-line
+message ``"<field>: <reason>"``.
 
 Dataset folder format (``chronos-dataset/1``): write your own recordings into it
 ------------------------------------------------------------------------------------
@@ -156,6 +158,8 @@ class Geometry:
                     station = BaseStation.from_rotation(
                         rotation, tuple(position), float(dt[0]), float(dt[1])
                     )
+                except FieldError as error:  # the rotation's own check names the rotation
+                    raise error.renamed(f"{name}.rotation") from None
                 except ValueError as error:
                     raise FieldError(f"{name}.rotation", str(error)) from None
                 stations.append(station)
@@ -167,7 +171,7 @@ class Geometry:
         except (TypeError, ValueError) as error:
             raise FieldError("geometry", f"malformed ({error})") from None
         if not stations:
-            raise ValueError("geometry.base_stations: needs at least one base station")
+            raise FieldError("geometry.base_stations", "needs at least one base station")
         return cls(tuple(stations), tuple((float(x), float(y)) for x, y in diodes))
 
 
@@ -214,7 +218,7 @@ class Dataset:
 
     def __post_init__(self) -> None:
         if not isinstance(self.t, np.ndarray) or self.t.ndim != 1:
-            raise ValueError("t: expected a 1-D array of stamps")
+            raise FieldError("t", "expected a 1-D array of stamps")
         n = len(self.t)
         _check_array("t", self.t, (n,))
         if self.u is not None:
@@ -223,7 +227,7 @@ class Dataset:
         if self.x is not None:
             _check_array("x", self.x, (n, self.x.shape[1] if self.x.ndim == 2 else -1))
         if n > 1 and np.any(np.diff(self.t) <= 0):
-            raise ValueError("t: stamps must be strictly increasing")
+            raise FieldError("t", "stamps must be strictly increasing")
 
     # --- disk ---------------------------------------------------------------------------
     @classmethod
@@ -239,18 +243,18 @@ class Dataset:
         u_recorded = None if u_recorded is not None and np.isnan(u_recorded).all() else u_recorded
         x_recorded = _load_npy(folder, "x.npy")
         if t.ndim != 1:
-            raise ValueError(f"t.npy: expected shape (N,), got {t.shape}")
+            raise FieldError("t.npy", f"expected shape (N,), got {t.shape}")
         if u_recorded is not None and (u_recorded.ndim != 2 or u_recorded.shape[0] != 2):
-            raise ValueError(f"u.npy: expected shape (2, N), got {u_recorded.shape}")
+            raise FieldError("u.npy", f"expected shape (2, N), got {u_recorded.shape}")
         if y.ndim != 2 or y.shape[0] != len(Y_CHANNELS):
-            raise ValueError(f"y.npy: expected shape ({len(Y_CHANNELS)}, N), got {y.shape}")
+            raise FieldError("y.npy", f"expected shape ({len(Y_CHANNELS)}, N), got {y.shape}")
         if x_recorded is not None and (x_recorded.ndim != 2 or x_recorded.shape[0] != 6):
-            raise ValueError(f"x.npy: expected shape (6, N), got {x_recorded.shape}")
+            raise FieldError("x.npy", f"expected shape (6, N), got {x_recorded.shape}")
         for name, array in (("y.npy", y), ("u.npy", u_recorded), ("x.npy", x_recorded)):
             if array is not None and array.shape[1] != t.size:
-                raise ValueError(
-                    f"{name}: has {array.shape[1]} samples but t.npy has {t.size} (one column "
-                    "per stamp)"
+                raise FieldError(
+                    name,
+                    f"has {array.shape[1]} samples but t.npy has {t.size} (one column per stamp)",
                 )
         x = x_recorded.T.copy() if x_recorded is not None else None
         u = u_recorded[::-1].T.copy() if u_recorded is not None else None
@@ -261,14 +265,14 @@ class Dataset:
                 meta = yaml.safe_load((folder / "dataset.yaml").read_text()) or {}
             except yaml.YAMLError as error:
                 problem = str(error).splitlines()[0]
-                raise ValueError(f"dataset.yaml: not valid YAML ({problem})") from None
+                raise FieldError("dataset.yaml", f"not valid YAML ({problem})") from None
             if not isinstance(meta, dict):
-                raise ValueError("dataset.yaml: expected a mapping")
+                raise FieldError("dataset.yaml", "expected a mapping")
             if meta.get("format", FORMAT) != FORMAT:
-                raise ValueError(f"dataset.yaml: format {meta['format']!r}, expected {FORMAT!r}")
+                raise FieldError("dataset.yaml", f"format {meta['format']!r}, expected {FORMAT!r}")
             if "geometry" in meta:
                 if not isinstance(meta["geometry"], Mapping):
-                    raise ValueError("dataset.yaml: geometry must be a mapping")
+                    raise FieldError("dataset.yaml", "geometry must be a mapping")
                 geometry = Geometry.from_dict(meta.pop("geometry"))
         dataset = cls(t=t, u=u, y=y.T.copy(), x=x, geometry=geometry, meta=meta)
         if (folder / "stream.npz").exists():
@@ -317,7 +321,7 @@ class Dataset:
         n = len(self.t)
         start, stop, _ = slice(start, stop).indices(n)
         if stop - start < 2:
-            raise ValueError(f"samples: {start}:{stop} keeps fewer than 2 of {n} samples")
+            raise FieldError("samples", f"{start}:{stop} keeps fewer than 2 of {n} samples")
         first, last = self.t[start], self.t[stop - 1]
         measurements = inputs = truth_t = truth_x = None
         if self.measurements is not None:
@@ -363,12 +367,12 @@ class Dataset:
 
 def _check_array(name: str, array: np.ndarray, shape: tuple[int, ...], allow_nan=False) -> None:
     if not isinstance(array, np.ndarray) or array.ndim != len(shape):
-        raise ValueError(f"{name}: expected an array of shape {shape}")
+        raise FieldError(name, f"expected an array of shape {shape}")
     if any(want not in (-1, got) for want, got in zip(shape, array.shape, strict=True)):
-        raise ValueError(f"{name}: expected shape {shape}, got {array.shape}")
+        raise FieldError(name, f"expected shape {shape}, got {array.shape}")
     finite = np.isfinite(array) | (np.isnan(array) if allow_nan else False)
     if not np.all(finite):
-        raise ValueError(f"{name}: contains non-finite values")
+        raise FieldError(name, "contains non-finite values")
 
 
 def plain(value: Any, nonfinite_as_none: bool = False) -> Any:
@@ -402,7 +406,7 @@ def _load_npy(folder: Path, name: str, required: bool = False) -> np.ndarray | N
         array = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as error:
         problem = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise ValueError(f"{name}: not a readable .npy array ({problem})") from None
+        raise FieldError(name, f"not a readable .npy array ({problem})") from None
     if not isinstance(array, np.ndarray) or array.dtype.kind not in "fiu":
-        raise ValueError(f"{name}: expected a numeric array")
+        raise FieldError(name, "expected a numeric array")
     return array.astype(float, copy=False)

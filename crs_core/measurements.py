@@ -96,25 +96,25 @@ class InputSample:
 
 
 def _finite_stamp(stamp: object) -> float:
-    """A finite float from a Python or numpy real number (not bool); else ValueError."""
+    """A finite float from a Python or numpy real number (not bool); else ``FieldError``."""
     if isinstance(stamp, bool | np.bool_) or not isinstance(stamp, int | float | np.number):
-        raise ValueError(f"stamp: must be a finite real number, got {stamp!r}")
+        raise FieldError("stamp", f"must be a finite real number, got {stamp!r}")
     value = float(stamp)
     if not math.isfinite(value):
-        raise ValueError(f"stamp: must be finite, got {stamp!r}")
+        raise FieldError("stamp", f"must be finite, got {stamp!r}")
     return value
 
 
 def _finite_vector(field: str, values: object, size: int, what: str) -> np.ndarray:
-    """A read-only float copy of shape ``(size,)`` with finite entries; else ValueError."""
+    """A read-only float copy of shape ``(size,)`` with finite entries; else ``FieldError``."""
     try:
         array = np.array(values, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{field}: {what} is not numeric: {values!r}") from None
+        raise FieldError(field, f"{what} is not numeric: {values!r}") from None
     if array.shape != (size,):
-        raise ValueError(f"{field}: {what} needs shape ({size},), got {array.shape}")
+        raise FieldError(field, f"{what} needs shape ({size},), got {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{field}: {what} has NaN or inf: {array}")
+        raise FieldError(field, f"{what} has NaN or inf: {array}")
     array.flags.writeable = False
     return array
 

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from crs_core.errors import FieldError
+
 
 @dataclass(frozen=True)
 class Parameter:
@@ -167,18 +169,18 @@ class ParameterSet(Mapping[str, Parameter]):
         """
         path = Path(path)
         if path.is_dir():
-            raise ValueError(f"{path}: is a folder, not a parameter YAML file")
+            raise FieldError(str(path), "is a folder, not a parameter YAML file")
         try:
             document = yaml.safe_load(path.read_text())
         except yaml.YAMLError as error:
             mark = getattr(error, "problem_mark", None)
             where = f" at line {mark.line + 1}" if mark is not None else ""
             problem = getattr(error, "problem", None) or str(error).splitlines()[0]
-            raise ValueError(f"{path}: not valid YAML{where} ({problem})") from None
+            raise FieldError(str(path), f"not valid YAML{where} ({problem})") from None
         except OSError as error:
-            raise ValueError(f"{path}: cannot read it ({error.strerror or error})") from None
+            raise FieldError(str(path), f"cannot read it ({error.strerror or error})") from None
         if not isinstance(document, dict) or not isinstance(document.get("parameters"), dict):
-            raise ValueError(f"{path}: expected a mapping with key 'parameters'")
+            raise FieldError(str(path), "expected a mapping with key 'parameters'")
         return self.updated_from_mapping(document["parameters"], source=str(path))
 
     def updated_from_mapping(self, entries: Mapping[str, Any], source: str = "") -> ParameterSet:

@@ -1,8 +1,9 @@
 """The ``stream.npz`` file of a dataset: the full-rate measurement stream, inputs and truth.
 
 The format is documented in :mod:`crs_core.dataset`. Reading validates every array and names
-it (``stream.npz: meas:imu:v expected shape (n, 3), got ...``); a row of values with NaN is a
-missing sample and is skipped.
+it: a :class:`~crs_core.errors.FieldError` with the field ``stream.npz`` and a reason that starts
+with the array (``stream.npz: meas:imu:v expected shape (n, 3), got ...``); a row of values with
+NaN is a missing sample and is skipped.
 """
 
 from __future__ import annotations
@@ -14,7 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
+from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, parse_lighthouse, sensor_size
+
+#: The field of every error in reading the stream (its reason names the array).
+STREAM = "stream.npz"
 
 
 @dataclass
@@ -60,16 +65,16 @@ def read_stream(path: Path, stations: int) -> StreamContents:
         archive = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
         problem = str(error).splitlines()[0] if str(error) else type(error).__name__
-        raise ValueError(f"stream.npz: not a readable .npz archive ({problem})") from None
+        raise FieldError(STREAM, f"not a readable .npz archive ({problem})") from None
     if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise ValueError("stream.npz: not an .npz archive")
+        raise FieldError(STREAM, "not an .npz archive")
     with archive as data:
         arrays = {}
         for key in data.files:
             try:
                 arrays[key] = np.asarray(data[key])
             except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
-                raise ValueError(f"stream.npz: {key} cannot be read ({error})") from None
+                raise FieldError(STREAM, f"{key} cannot be read ({error})") from None
     measurements = []
     for key in arrays:
         kind, *rest = key.split(":")
@@ -77,24 +82,23 @@ def read_stream(path: Path, stations: int) -> StreamContents:
             if rest[1] == "t":
                 measurements += _stream_sensor(arrays, rest[0], stations)
             elif f"meas:{rest[0]}:t" not in arrays:
-                raise ValueError(f"stream.npz: {key} has no stamps meas:{rest[0]}:t")
+                raise FieldError(STREAM, f"{key} has no stamps meas:{rest[0]}:t")
         elif key not in ("inputs:t", "inputs:u", "truth:t", "truth:x"):
-            raise ValueError(
-                f"stream.npz: unknown array {key!r} (expected meas:<sensor>:t|v, inputs:t|u, "
-                "truth:t|x)"
+            raise FieldError(
+                STREAM, f"unknown array {key!r} (expected meas:<sensor>:t|v, inputs:t|u, truth:t|x)"
             )
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
     contents = StreamContents(measurements)
     for group, width in (("inputs", "u"), ("truth", "x")):
         stamps, values = arrays.get(f"{group}:t"), arrays.get(f"{group}:{width}")
         if (stamps is None) != (values is None):
-            raise ValueError(f"stream.npz: {group}:t and {group}:{width} must come together")
+            raise FieldError(STREAM, f"{group}:t and {group}:{width} must come together")
         if stamps is None or values is None:  # (both, by the check above)
             continue
         columns = 2 if group == "inputs" else -1
         stamps, values = _stream_arrays(f"{group}:t", stamps, f"{group}:{width}", values, columns)
         if not np.all(np.isfinite(values)):
-            raise ValueError(f"stream.npz: {group}:{width} contains non-finite values")
+            raise FieldError(STREAM, f"{group}:{width} contains non-finite values")
         if group == "inputs":
             order = np.argsort(stamps, kind="stable")
             contents.inputs = [InputSample(float(stamps[i]), values[i]) for i in order]
@@ -108,14 +112,14 @@ def _stream_arrays(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Stamps (n,) and values (n, columns) of one stream entry, validated by name."""
     if stamps.dtype.kind not in "fiu" or stamps.ndim != 1:
-        raise ValueError(f"stream.npz: {t_name} must be a 1-D numeric array of stamps")
+        raise FieldError(STREAM, f"{t_name} must be a 1-D numeric array of stamps")
     if not np.all(np.isfinite(stamps)):
-        raise ValueError(f"stream.npz: {t_name} contains non-finite stamps")
+        raise FieldError(STREAM, f"{t_name} contains non-finite stamps")
     want = f"({stamps.size}, {columns if columns > 0 else 'k'})"
     if values.dtype.kind not in "fiu" or values.ndim != 2 or values.shape[0] != stamps.size:
-        raise ValueError(f"stream.npz: {v_name} expected shape {want}, got {values.shape}")
+        raise FieldError(STREAM, f"{v_name} expected shape {want}, got {values.shape}")
     if columns > 0 and values.shape[1] != columns:
-        raise ValueError(f"stream.npz: {v_name} expected shape {want}, got {values.shape}")
+        raise FieldError(STREAM, f"{v_name} expected shape {want}, got {values.shape}")
     return stamps.astype(float), values.astype(float)
 
 
@@ -124,24 +128,26 @@ def _stream_sensor(arrays: Mapping[str, np.ndarray], key: str, stations: int) ->
     sensor = key.replace("__", "/")
     try:
         size = sensor_size(sensor)
-    except ValueError:
-        raise ValueError(
-            f"stream.npz: meas:{key}:t names an unknown sensor {sensor!r} (imu, gyro, "
-            "wheel_encoders, pose, lighthouse__<station>__<plane>)"
+    except FieldError:
+        raise FieldError(
+            STREAM,
+            f"meas:{key}:t names an unknown sensor {sensor!r} (imu, gyro, "
+            "wheel_encoders, pose, lighthouse__<station>__<plane>)",
         ) from None
     lighthouse = parse_lighthouse(sensor)
     if lighthouse is not None and lighthouse[0] >= stations:
-        raise ValueError(
-            f"stream.npz: meas:{key} is base station {lighthouse[0]}, but the geometry has "
-            f"{stations} (dataset.yaml geometry.base_stations)"
+        raise FieldError(
+            STREAM,
+            f"meas:{key} is base station {lighthouse[0]}, but the geometry has "
+            f"{stations} (dataset.yaml geometry.base_stations)",
         )
     if f"meas:{key}:v" not in arrays:
-        raise ValueError(f"stream.npz: meas:{key}:t has no values meas:{key}:v")
+        raise FieldError(STREAM, f"meas:{key}:t has no values meas:{key}:v")
     stamps, values = _stream_arrays(
         f"meas:{key}:t", arrays[f"meas:{key}:t"], f"meas:{key}:v", arrays[f"meas:{key}:v"], size
     )
     if np.any(np.isinf(values)):
-        raise ValueError(f"stream.npz: meas:{key}:v contains inf")
+        raise FieldError(STREAM, f"meas:{key}:v contains inf")
     present = np.all(np.isfinite(values), axis=1)
     return [
         Measurement(float(stamp), sensor, row)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimate, Estimator
 from crs_core.measurements import InputSample, Measurement, from_start, in_stamp_order
 from ros4crs import conversions
@@ -162,9 +163,10 @@ def replay_estimator(
     """
     queries = list(queries)
     if not queries or not queries[0].start:
-        raise ValueError(
-            "queries: the first is not the estimator's start (was the bag recorded from the "
-            "start of the estimator node, with estimate/query?)"
+        raise FieldError(
+            "queries",
+            "the first is not the estimator's start (was the bag recorded from the "
+            "start of the estimator node, with estimate/query?)",
         )
     streams: dict[str, list[Measurement | InputSample]] = {}
     for item in in_stamp_order(contents.measurements, contents.inputs):

@@ -1,8 +1,9 @@
 """Conversions between ROS 2 messages and crs_core types, validated at the boundary.
 
-Every ``*_from_msg`` function raises ``ValueError`` with a message naming the field when the
-message is malformed (NaN, infinite, wrong-size arrays, bad enums); nodes catch it, log a
-warning and drop the message. The functions only read attributes, so they accept both rclpy
+Every ``*_from_msg`` function raises :class:`~crs_core.errors.FieldError` (a ``ValueError``)
+naming the field (``.field``, and the message ``"<field>: <reason>"``) when the message is
+malformed (NaN, infinite, wrong-size arrays, bad enums); nodes catch it, log a warning and drop
+the message. The functions only read attributes, so they accept both rclpy
 messages and the rosbags dataclasses of the same types (bag replay uses the same code).
 
 Topic conventions (relative to a car's namespace, e.g. ``/car1``):
@@ -76,7 +77,7 @@ def body_frame(namespace: str) -> str:
 def seconds_from_stamp(stamp: Any) -> float:
     """``builtin_interfaces/Time`` -> float seconds (``nanosec`` must be below 1e9)."""
     if not 0 <= stamp.nanosec < 1_000_000_000:
-        raise ValueError(f"header.stamp.nanosec: must be in [0, 1e9), got {stamp.nanosec}")
+        raise FieldError("header.stamp.nanosec", f"must be in [0, 1e9), got {stamp.nanosec}")
     return float(stamp.sec) + 1e-9 * float(stamp.nanosec)
 
 
@@ -88,7 +89,7 @@ def fill_stamp(stamp: Any, seconds: float) -> None:
 def stamp_ns(seconds: float) -> int:
     """Float seconds (>= 0) -> integer nanoseconds, as :func:`fill_stamp` writes them."""
     if not math.isfinite(seconds) or seconds < 0:
-        raise ValueError(f"header.stamp: must be finite and >= 0, got {seconds}")
+        raise FieldError("header.stamp", f"must be finite and >= 0, got {seconds}")
     sec = math.floor(seconds)
     return int(sec) * 1_000_000_000 + round((seconds - sec) * 1e9)
 
@@ -96,9 +97,9 @@ def stamp_ns(seconds: float) -> int:
 def _finite(name: str, values: Any, size: int | None = None) -> np.ndarray:
     array = np.asarray(values, dtype=float).ravel()
     if size is not None and array.size != size:
-        raise ValueError(f"{name}: expected {size} values, got {array.size}")
+        raise FieldError(name, f"expected {size} values, got {array.size}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name}: contains NaN or inf ({array})")
+        raise FieldError(name, f"contains NaN or inf ({array})")
     return array
 
 
@@ -159,7 +160,7 @@ def wheel_speeds_from_msg(msg: Any) -> Measurement:
 def lighthouse_from_msg(msg: Any) -> Measurement:
     """``chronos_msgs/LighthouseSweep`` -> ``lighthouse/<station>/<plane>``."""
     if msg.plane not in (1, 2):
-        raise ValueError(f"plane: must be 1 or 2, got {msg.plane}")
+        raise FieldError("plane", f"must be 1 or 2, got {msg.plane}")
     angles = _finite("angles", msg.angles, 4)
     sensor = lighthouse_sensor(int(msg.base_station), int(msg.plane))
     return Measurement(seconds_from_stamp(msg.header.stamp), sensor, angles)
@@ -179,7 +180,7 @@ def pose_from_msg(msg: Any) -> Measurement:
     )
     norm = float(np.linalg.norm(q))
     if not 0.5 < norm < 1.5:
-        raise ValueError(f"pose.orientation: not a unit quaternion (norm {norm:.3g})")
+        raise FieldError("pose.orientation", f"not a unit quaternion (norm {norm:.3g})")
     x, y, z, w = q / norm
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     position = _finite("pose.position", [msg.pose.position.x, msg.pose.position.y], 2)
@@ -200,7 +201,7 @@ def batch_msg(measurements: Sequence[Measurement], frame_id: str = "base_link") 
     from chronos_msgs.msg import SensorBatch
 
     if not measurements:
-        raise ValueError("measurements: a batch needs at least one reading")
+        raise FieldError("measurements", "a batch needs at least one reading")
     msg = SensorBatch()
     msg.header.frame_id = frame_id
     stamps = [stamp_ns(m.stamp) for m in measurements]
@@ -240,7 +241,7 @@ def batch_from_msg(msg: Any) -> BatchReadings:
         start += size
         try:
             if stamps[i] < 0:
-                raise ValueError(f"stamps_ns: must be >= 0, got {stamps[i]}")
+                raise FieldError("stamps_ns", f"must be >= 0, got {stamps[i]}")
             measurements.append(Measurement(float(seconds[i]), sensor, reading))
         except ValueError as error:
             rejected.append(f"readings[{i}] ({sensor}): {error}")
@@ -269,9 +270,9 @@ class CarCommand(NamedTuple):
     mode: str = "torque"
 
     def input_sample(self) -> InputSample:
-        """The model input ``[steer, torque]`` (torque mode only; else ``ValueError``)."""
+        """The model input ``[steer, torque]`` (torque mode only; else ``FieldError``: ``mode``)."""
         if self.mode != "torque":
-            raise ValueError(f"mode: a {self.mode!r} command carries no torque")
+            raise FieldError("mode", f"a {self.mode!r} command carries no torque")
         return InputSample(self.stamp, self.u)
 
 
@@ -282,7 +283,7 @@ def car_input_msg(u: np.ndarray, seconds: float, mode: str = "torque") -> Any:
     from chronos_msgs.msg import CarInput
 
     if mode not in INPUT_MODES:
-        raise ValueError(f"mode: must be one of {', '.join(INPUT_MODES)}, got {mode!r}")
+        raise FieldError("mode", f"must be one of {', '.join(INPUT_MODES)}, got {mode!r}")
     msg = CarInput()
     msg.mode = INPUT_MODES[mode]
     msg.steer = float(u[0])
@@ -303,23 +304,24 @@ def input_from_msg(msg: Any) -> CarCommand:
     """
     modes = {code: name for name, code in INPUT_MODES.items()}
     if msg.mode not in modes:
-        raise ValueError(
-            f"mode: must be {INPUT_MODES['torque']} (MODE_TORQUE) or "
-            f"{INPUT_MODES['velocity']} (MODE_VELOCITY), got {msg.mode}"
+        raise FieldError(
+            "mode",
+            f"must be {INPUT_MODES['torque']} (MODE_TORQUE) or "
+            f"{INPUT_MODES['velocity']} (MODE_VELOCITY), got {msg.mode}",
         )
     mode = modes[msg.mode]
     steer = _finite("steer", [msg.steer], 1)[0]
     if mode == "torque":
         torque = _finite("torque", [msg.torque], 1)[0]
         if abs(torque) > 1.0:
-            raise ValueError(f"torque: must be within [-1, 1], got {torque}")
+            raise FieldError("torque", f"must be within [-1, 1], got {torque}")
         second = torque
     else:
         velocity = _finite("velocity", [msg.velocity], 1)[0]
         if abs(velocity) > VELOCITY_LIMIT:
-            raise ValueError(
-                f"velocity: must be within [-{VELOCITY_LIMIT:g}, {VELOCITY_LIMIT:g}] m/s, "
-                f"got {velocity}"
+            raise FieldError(
+                "velocity",
+                f"must be within [-{VELOCITY_LIMIT:g}, {VELOCITY_LIMIT:g}] m/s, got {velocity}",
             )
         second = velocity
     return CarCommand(seconds_from_stamp(msg.header.stamp), np.array([steer, second]), mode)
@@ -354,7 +356,7 @@ def status_from_msg(msg: Any) -> tuple[float, np.ndarray, str]:
     """``chronos_msgs/CarState`` -> (stamp, state (6,), status ``ok`` | ``degraded`` | ``lost``)."""
     names = {code: name for name, code in STATUS_CODES.items()}
     if msg.status not in names:
-        raise ValueError(f"status: must be 0 (ok), 1 (degraded) or 2 (lost), got {msg.status}")
+        raise FieldError("status", f"must be 0 (ok), 1 (degraded) or 2 (lost), got {msg.status}")
     stamp, x = state_from_msg(msg)
     return stamp, x, names[msg.status]
 
@@ -418,8 +420,8 @@ def query_msg(stamp: float, start: bool, newest: dict[str, float]) -> Any:
 def query_from_msg(msg: Any) -> tuple[float, bool, dict[str, float]]:
     """``chronos_msgs/EstimatorQuery`` -> (stamp, start, newest stamp per stream)."""
     if len(msg.streams) != len(msg.newest):
-        raise ValueError(
-            f"newest: {len(msg.newest)} stamps for {len(msg.streams)} streams, expected equal"
+        raise FieldError(
+            "newest", f"{len(msg.newest)} stamps for {len(msg.streams)} streams, expected equal"
         )
     newest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.newest, strict=True)}
     return seconds_from_stamp(msg.header.stamp), bool(msg.start), newest

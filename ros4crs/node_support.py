@@ -345,7 +345,7 @@ def make_executor() -> Executor:
     a test here and never returned."""
     kind = os.environ.get("CRS_EXECUTOR", "events")
     if kind not in EXECUTORS:
-        raise ValueError(f"CRS_EXECUTOR: one of {', '.join(EXECUTORS)}, got {kind!r}")
+        raise FieldError("CRS_EXECUTOR", f"one of {', '.join(EXECUTORS)}, got {kind!r}")
     if kind == "events":
         from rclpy.experimental import EventsExecutor
 

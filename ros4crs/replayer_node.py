@@ -39,6 +39,7 @@ from rosbags.rosbag2 import Reader, ReaderError
 from ros4crs.bag_repair import BagCheck, open_bag
 from ros4crs.node_support import (
     STREAM_QOS,
+    ParameterError,
     declare,
     in_range,
     message_class,
@@ -84,7 +85,9 @@ class ReplayerNode(Node):
         self._next = next(self._messages, None)
         if self._next is None:
             self._bag_context.close()
-            raise ValueError(f"bag: no messages on {self.prefixes or 'any topic'} in {self.bag}")
+            raise ParameterError(
+                "bag", f"no messages on {self.prefixes or 'any topic'} in {self.bag}"
+            )
         self._clock_publisher = None
         if clock:
             from rosgraph_msgs.msg import Clock
@@ -99,14 +102,14 @@ class ReplayerNode(Node):
         """The open reader (kept open while replaying: messages are read as they are due, not
         loaded at once) and the wanted connections that hold messages."""
         if not self.bag:
-            raise ValueError("bag: no bag directory given")
+            raise ParameterError("bag", "no bag directory given")
         try:
             reader = self._bag_context.enter_context(open_bag(self.bag, on_damage=self._log_damage))
         except (ValueError, OSError, ReaderError) as error:
             self._bag_context.close()
             reason = " ".join(str(error).split()) or type(error).__name__
             where = "" if str(Path(self.bag)) in reason else f"cannot read {self.bag}: "
-            raise ValueError(f"bag: {where}{reason}") from None
+            raise ParameterError("bag", f"{where}{reason}") from None
         # a topic that was only subscribed to while recording has no message: no publisher for
         # it (its subscribers would be waited for, and a replay into a node that does not
         # subscribe to it would never start)

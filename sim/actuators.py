@@ -31,17 +31,14 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from crs_core.control.low_level import PotentiometerMap
+from crs_core.errors import FieldError, finite_number
 
 
 def _positive(name: str, value: float, allow_zero: bool = False) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a finite number, got {value!r}") from None
-    ok = math.isfinite(number) and (number >= 0 if allow_zero else number > 0)
-    if not ok:
-        raise ValueError(
-            f"{name}: must be finite and {'>= 0' if allow_zero else '> 0'}, got {value!r}"
+    number = finite_number(name, value)
+    if not (number >= 0 if allow_zero else number > 0):
+        raise FieldError(
+            name, f"must be finite and {'>= 0' if allow_zero else '> 0'}, got {value!r}"
         )
     return number
 
@@ -78,7 +75,7 @@ class SteeringActuatorSettings:
             value = _positive(f.name, getattr(self, f.name), allow_zero=f.name == "deadband")
             object.__setattr__(self, f.name, value)
         if self.deadband >= 1:
-            raise ValueError(f"deadband: must be < 1, got {self.deadband!r}")
+            raise FieldError("deadband", f"must be < 1, got {self.deadband!r}")
 
 
 class SteeringActuator:
@@ -99,7 +96,7 @@ class SteeringActuator:
     def advance(self, dt: float, command: float) -> float:
         """Advance ``dt`` s under motor command ``command`` (clipped to -1..1); the new angle."""
         if not (dt >= 0 and math.isfinite(dt)):
-            raise ValueError(f"dt: must be finite and >= 0, got {dt!r}")
+            raise FieldError("dt", f"must be finite and >= 0, got {dt!r}")
         if dt == 0:
             return self.angle
         s = self.settings
@@ -139,13 +136,13 @@ class PotentiometerSettings:
 
     def __post_init__(self) -> None:
         if not isinstance(self.calibration, PotentiometerMap):
-            raise ValueError(f"calibration: must be a PotentiometerMap, got {self.calibration!r}")
+            raise FieldError("calibration", f"must be a PotentiometerMap, got {self.calibration!r}")
         object.__setattr__(self, "noise_std", _positive("noise_std", self.noise_std, True))
         object.__setattr__(self, "adc_reference", _positive("adc_reference", self.adc_reference))
         if isinstance(self.adc_bits, bool) or not isinstance(self.adc_bits, int | np.integer):
-            raise ValueError(f"adc_bits: must be an integer, got {self.adc_bits!r}")
+            raise FieldError("adc_bits", f"must be an integer, got {self.adc_bits!r}")
         if not 0 <= self.adc_bits <= 24:
-            raise ValueError(f"adc_bits: must be within 0..24, got {self.adc_bits!r}")
+            raise FieldError("adc_bits", f"must be within 0..24, got {self.adc_bits!r}")
 
     def ideal(self) -> PotentiometerSettings:
         """The same potentiometer without noise or quantisation."""
@@ -156,7 +153,7 @@ class PotentiometerSettings:
         voltage = float(self.calibration.voltage(angle))
         if self.noise_std > 0:
             if rng is None:
-                raise ValueError("rng: a noisy potentiometer needs a random generator")
+                raise FieldError("rng", "a noisy potentiometer needs a random generator")
             voltage += self.noise_std * rng.standard_normal()
         if self.adc_bits:
             lsb = self.adc_reference / (2**self.adc_bits - 1)

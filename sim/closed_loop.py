@@ -25,6 +25,7 @@ from tqdm import tqdm
 
 from crs_core.analysis.laps import LapCounter
 from crs_core.analysis.metrics import state_rmse
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator
 from crs_core.measurements import InputSample
 from crs_core.track import Track
@@ -173,8 +174,11 @@ def run_closed_loop(
         (the simulator needs ``onboard`` settings; the estimator, if any, then runs without
         commands, as it cannot know the torque the loop applies).
     """
-    if not rate_hz > 0 or not max_duration > 0 or laps < 1:
-        raise ValueError("rate_hz, max_duration: must be positive; laps: at least 1")
+    for name, value in (("rate_hz", rate_hz), ("max_duration", max_duration)):
+        if not value > 0:
+            raise FieldError(name, f"must be positive, got {value!r}")
+    if laps < 1:
+        raise FieldError("laps", f"must be at least 1, got {laps!r}")
     x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
     session = simulator.session(x0, keep_history=False)
     if estimator is not None:

@@ -18,7 +18,6 @@ model's command effects (offset, lags, ...) act on this applied input, after the
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -29,6 +28,7 @@ from crs_core.control.low_level import (
     VelocityController,
     VelocitySettings,
 )
+from crs_core.errors import FieldError, require_positive
 from crs_core.measurements import InputSample
 from sim.actuators import (
     PotentiometerSettings,
@@ -73,17 +73,14 @@ class OnboardSettings:
         }
         for name, kind in kinds.items():
             if not isinstance(getattr(self, name), kind):
-                raise ValueError(f"{name}: must be a {kind.__name__}, got {getattr(self, name)!r}")
+                raise FieldError(name, f"must be a {kind.__name__}, got {getattr(self, name)!r}")
+        require_positive(self, "rate_hz")
         rate = self.rate_hz
-        if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
-            raise ValueError(f"rate_hz: must be a number > 0, got {rate!r}")
-        if not math.isfinite(rate):
-            raise ValueError(f"rate_hz: must be finite, got {rate!r}")
         for name in ("steering", "velocity"):
             pid_rate = getattr(self, name).pid.rate_hz
             if pid_rate != rate:
-                raise ValueError(
-                    f"{name}.pid.rate_hz: must equal the loop's rate_hz ({rate}), got {pid_rate}"
+                raise FieldError(
+                    f"{name}.pid.rate_hz", f"must equal the loop's rate_hz ({rate}), got {pid_rate}"
                 )
 
     def ideal(self) -> OnboardSettings:
@@ -144,7 +141,7 @@ class OnboardLoop:
         Switching to velocity mode starts the velocity PID afresh.
         """
         if mode not in MODES:
-            raise ValueError(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
+            raise FieldError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
         if mode == "velocity" and self.mode != "velocity":
             self.velocity.reset()
         self.reference, self.mode = np.array(u, dtype=float), mode

@@ -8,6 +8,7 @@ import numpy as np
 
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.track import Track, load_demo_track
 
@@ -85,7 +86,7 @@ def simulate_dataset(
     from sim.simulator import Simulator
 
     if driver not in DRIVERS:
-        raise ValueError(f"driver: one of {DRIVERS}, got {driver!r}")
+        raise FieldError("driver", f"one of {DRIVERS}, got {driver!r}")
     model = model or CarModel()
     track = load_demo_track()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")

@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 
+from crs_core.errors import FieldError, require_non_negative, require_positive, require_within
+
 
 @dataclass(frozen=True)
 class SensorSpec:
@@ -43,16 +45,13 @@ class SensorSpec:
     jitter_std_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.rate_hz > 0:
-            raise ValueError(f"rate_hz: must be > 0, got {self.rate_hz}")
+        require_positive(self, "rate_hz")
         if any(s < 0 for s in self.noise_std):
-            raise ValueError("noise_std: must be >= 0")
+            raise FieldError("noise_std", "must be >= 0")
         if self.bias and len(self.bias) != len(self.noise_std):
-            raise ValueError("bias: needs one value per channel")
-        if not 0 <= self.dropout_probability < 1:
-            raise ValueError("dropout_probability: must be in [0, 1)")
-        if self.latency_s < 0 or self.jitter_std_s < 0:
-            raise ValueError("latency_s and jitter_std_s: must be >= 0")
+            raise FieldError("bias", "needs one value per channel")
+        require_within(self, "dropout_probability", 0, 1, high_open=True)
+        require_non_negative(self, "latency_s", "jitter_std_s")
 
     def ideal(self) -> SensorSpec:
         """Same rate, no noise, bias, latency, drop-outs or jitter."""
@@ -82,7 +81,7 @@ class Blackout:
 
     def __post_init__(self) -> None:
         if self.duration <= 0 or self.start < 0:
-            raise ValueError("blackout: needs start >= 0 and duration > 0")
+            raise FieldError("blackout", "needs start >= 0 and duration > 0")
 
     def covers(self, sensor: str, t: float) -> bool:
         return sensor.startswith(self.sensor) and self.start <= t < self.start + self.duration
@@ -94,7 +93,7 @@ BLACKOUT_SENSORS = ("lighthouse", "imu", "wheel_encoders", "gyro", "pose")
 
 def parse_blackout(text: str) -> Blackout:
     """``SENSOR:START:DURATION`` (s), e.g. ``lighthouse:10:1.127``; ``ValueError`` naming the
-    text and the part that is wrong."""
+    text and the part that is wrong (the text is not a field: the caller names the option)."""
     parts = text.strip().split(":")
     if len(parts) != 3:
         raise ValueError(f"{text!r}: expected SENSOR:START:DURATION (e.g. lighthouse:10:1.127)")
@@ -118,8 +117,8 @@ def parse_blackout(text: str) -> Blackout:
         values.append(number)
     try:
         return Blackout(sensor, *values)
-    except ValueError as error:
-        raise ValueError(f"{text!r}: {str(error).partition(': ')[2]}") from None
+    except FieldError as error:
+        raise ValueError(f"{text!r}: {error.reason}") from None
 
 
 @dataclass(frozen=True)

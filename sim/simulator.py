@@ -23,6 +23,7 @@ from collections.abc import Callable
 import numpy as np
 from tqdm import tqdm
 
+from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
 from sim.onboard import MODES, OnboardLoop, OnboardSettings
@@ -75,9 +76,9 @@ class Simulator:
         onboard: OnboardSettings | None = None,
     ):
         if onboard is not None and not isinstance(onboard, OnboardSettings):
-            raise ValueError(f"onboard: must be an OnboardSettings or None, got {onboard!r}")
+            raise FieldError("onboard", f"must be an OnboardSettings or None, got {onboard!r}")
         if onboard is not None and model.estimated_inputs:
-            raise ValueError("onboard: the input-free model takes no commands")
+            raise FieldError("onboard", "the input-free model takes no commands")
         self.model = model
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)
@@ -108,7 +109,7 @@ class Simulator:
         model's ``input_delay``; the controller is called with the true base state.
         """
         if not duration > 0:
-            raise ValueError(f"duration: must be > 0, got {duration}")
+            raise FieldError("duration", f"must be > 0, got {duration}")
         session = self.session(x0)
         with tqdm(total=duration, unit="sim s", disable=not progress, leave=False) as bar:
             for t in np.arange(0.0, duration, 1.0 / control_rate_hz):
@@ -226,11 +227,12 @@ class SimulationSession:
         onboard loop): ``u = [steer (rad), v_x (m/s)]``, a reference for the velocity PID.
         """
         if mode not in MODES:
-            raise ValueError(f"mode: must be one of {', '.join(MODES)}, got {mode!r}")
+            raise FieldError("mode", f"must be one of {', '.join(MODES)}, got {mode!r}")
         if mode != "torque" and self.onboard is None:
-            raise ValueError(
-                f"mode: {mode!r} references need the onboard loop "
-                "(Simulator(..., onboard=OnboardSettings()))"
+            raise FieldError(
+                "mode",
+                f"{mode!r} references need the onboard loop "
+                "(Simulator(..., onboard=OnboardSettings()))",
             )
         sample = InputSample(self._now, np.asarray(u, dtype=float))
         if self.keep_history:
@@ -270,7 +272,7 @@ class SimulationSession:
     def advance(self, t: float) -> list[Measurement]:
         """Run every event before ``t`` and integrate to ``t``; returns the new measurements."""
         if t < self._now:
-            raise ValueError(f"t: cannot go back in time ({t} < {self._now})")
+            raise FieldError("t", f"cannot go back in time ({t} < {self._now})")
         new: list[Measurement] = []
         while self._heap and self._heap[0][0] < t:
             event_time, kind, _, payload = heapq.heappop(self._heap)

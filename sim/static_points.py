@@ -18,6 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from crs_core.calibration.points import CalibrationPoint, CalibrationPoints
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_PHOTODIODES, BaseStation
 from crs_core.model.sensors import N_PHOTODIODES
@@ -38,7 +39,7 @@ def grid_layout(
     centres, extra cells dropped evenly), so they are well spread for every ``n``.
     """
     if n < 1:
-        raise ValueError(f"n: needs at least one point, got {n}")
+        raise FieldError("n", f"needs at least one point, got {n}")
     x0, x1, y0, y1 = area
     aspect = (x1 - x0) / (y1 - y0)
     columns = max(1, round(math.sqrt(n * aspect)))
@@ -82,9 +83,9 @@ def simulate_static_points(
     positions = np.asarray(positions, dtype=float).reshape(-1, 2)
     yaws = np.asarray(yaws, dtype=float).reshape(-1)
     if yaws.size != positions.shape[0]:
-        raise ValueError("yaws: needs one yaw per position")
+        raise FieldError("yaws", "needs one yaw per position")
     if sweeps < 1:
-        raise ValueError(f"sweeps: needs at least 1 sweep per point, got {sweeps}")
+        raise FieldError("sweeps", f"needs at least 1 sweep per point, got {sweeps}")
     model = CarModel(base_stations=list(stations))
     diode_values = {
         f"lh_d{k}_{axis}": float(photodiodes[k][a])

@@ -13,6 +13,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from crs_core.control.low_level import SteeringController
+from crs_core.errors import FieldError
 from sim.actuators import SteeringActuator
 from sim.onboard import OnboardSettings
 
@@ -49,7 +50,7 @@ def step_metrics(
     t, y = np.asarray(t, dtype=float), np.asarray(y, dtype=float)
     fraction = (y - start) / (target - start)
     if not np.any(fraction >= 0.9):
-        raise ValueError("y: never reaches 90 % of the step")
+        raise FieldError("y", "never reaches 90 % of the step")
     t10, t90 = t[np.argmax(fraction >= 0.1)], t[np.argmax(fraction >= 0.9)]
     outside = np.nonzero(np.abs(fraction - 1) > 0.02)[0]
     settle = t[min(outside[-1] + 1, t.size - 1)] if outside.size else t[0]

@@ -14,6 +14,7 @@ import numpy as np
 
 from crs_core.analysis.statistics import summary
 from crs_core.dataset import Y_CHANNELS, Dataset
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
 
@@ -21,9 +22,9 @@ from crs_core.parameters import ParameterSet
 def predicted_samples(dataset: Dataset, model: CarModel, params: ParameterSet | None = None):
     """Model prediction of ``y`` (N, 13) from the dataset's states and commanded inputs."""
     if dataset.x is None:
-        raise ValueError("dataset: has no state trajectory x.npy to replay")
+        raise FieldError("dataset", "has no state trajectory x.npy to replay")
     if dataset.u is None:  # the front wheel speeds depend on the steering angle
-        raise ValueError("dataset: has no inputs u.npy; the sensor-model replay needs them")
+        raise FieldError("dataset", "has no inputs u.npy; the sensor-model replay needs them")
     params = params or model.parameters.updated(
         {n: v.value for n, v in dataset.geometry.parameters().items() if n in model.parameters}
     )

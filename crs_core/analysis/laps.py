@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+from crs_core.errors import FieldError
 from crs_core.track.geometry import _as_finite_float
 
 __all__ = ["LapCounter"]
@@ -34,7 +35,7 @@ class LapCounter:
     def __init__(self, length: float, line_tolerance: float = 1e-3) -> None:
         self.length = _as_finite_float("length", length)
         if not self.length > 0.0:
-            raise ValueError(f"length: must be positive, got {self.length!r}")
+            raise FieldError("length", f"must be positive, got {self.length!r}")
         self.line_tolerance = _as_finite_float("line_tolerance", line_tolerance)
         self.reset()
 
@@ -95,7 +96,9 @@ class LapCounter:
                 self._crossings.append(stamp)
             return self._progress
         if stamp < self._stamp:
-            raise ValueError(f"stamp: {stamp!r} is earlier than the previous stamp {self._stamp!r}")
+            raise FieldError(
+                "stamp", f"{stamp!r} is earlier than the previous stamp {self._stamp!r}"
+            )
         step = (s - self._s + 0.5 * self.length) % self.length - 0.5 * self.length
         previous = self._progress
         progress = previous + step

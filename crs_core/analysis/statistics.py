@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from crs_core.errors import FieldError
+
 __all__ = ["summary"]
 
 
@@ -29,7 +31,7 @@ _FUNCTIONS: dict[str, Callable[[np.ndarray], Any]] = {
 def _statistic(values: np.ndarray, key: str) -> float:
     percentile = key.startswith("p") and key[1:].replace(".", "", 1).isdigit()
     if key not in _FUNCTIONS and not percentile:
-        raise ValueError(f"keys: unknown statistic {key!r} (mean, median, min, max, pNN or n)")
+        raise FieldError("keys", f"unknown statistic {key!r} (mean, median, min, max, pNN or n)")
     if values.size == 0:
         return math.nan
     if percentile:

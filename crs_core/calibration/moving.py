@@ -32,6 +32,7 @@ from scipy.interpolate import make_smoothing_spline
 from crs_core.calibration.solver import FitResult, LighthouseFit, Observations
 from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.measurements import parse_lighthouse
 from crs_core.model.lighthouse import BaseStation
 
@@ -78,9 +79,10 @@ def read_recording(dataset: Dataset) -> Recording:
     else:
         rows = np.all(np.isfinite(dataset.y[:, :8]), axis=1)
         if not rows.any():
-            raise ValueError(
-                "lighthouse: the dataset has no Lighthouse sweeps (stream.npz "
-                "meas:lighthouse__<s>__<l> or finite y.npy rows 0-7)"
+            raise FieldError(
+                "lighthouse",
+                "the dataset has no Lighthouse sweeps (stream.npz "
+                "meas:lighthouse__<s>__<l> or finite y.npy rows 0-7)",
             )
         t = dataset.t[rows]
         stamps = np.concatenate([t, t])
@@ -89,9 +91,10 @@ def read_recording(dataset: Dataset) -> Recording:
         angles = np.vstack([dataset.y[rows, 0:4], dataset.y[rows, 4:8]])
     reference = sorted((m for m in measurements if m.sensor == "pose"), key=lambda m: m.stamp)
     if len(reference) < 10:
-        raise ValueError(
-            "pose: the dataset has no motion-capture pose reference (stream.npz meas:pose:t and "
-            f"meas:pose:v with at least 10 samples; found {len(reference)})"
+        raise FieldError(
+            "pose",
+            "the dataset has no motion-capture pose reference (stream.npz meas:pose:t and "
+            f"meas:pose:v with at least 10 samples; found {len(reference)})",
         )
     pose_t = np.array([m.stamp for m in reference])
     keep = np.concatenate([[True], np.diff(pose_t) > 0])
@@ -154,9 +157,9 @@ def calibrate_moving(
     ``offset`` is the start (or, without ``fit_offset``, the fixed) clock offset, s.
     """
     if not (math.isfinite(max_offset) and max_offset >= 0):
-        raise ValueError(f"max_offset: must be finite and >= 0, got {max_offset!r}")
+        raise FieldError("max_offset", f"must be finite and >= 0, got {max_offset!r}")
     if not (math.isfinite(offset) and abs(offset) <= max_offset):
-        raise ValueError(f"offset: must lie within +-max_offset ({max_offset} s), got {offset!r}")
+        raise FieldError("offset", f"must lie within +-max_offset ({max_offset} s), got {offset!r}")
     data = read_recording(dataset)
     spline = ReferenceTrajectory(data.pose_t, data.pose)
     velocity = spline.velocity
@@ -166,9 +169,10 @@ def calibrate_moving(
     gap = data.pose_t[after] - data.pose_t[after - 1]
     keep = inside & (gap <= MAX_REFERENCE_GAP)
     if keep.sum() < 20:
-        raise ValueError(
-            f"pose: only {int(keep.sum())} sweeps fall inside the motion-capture reference "
-            f"(+-{margin} s); the recordings' time ranges barely overlap"
+        raise FieldError(
+            "pose",
+            f"only {int(keep.sum())} sweeps fall inside the motion-capture reference "
+            f"(+-{margin} s); the recordings' time ranges barely overlap",
         )
     obs = Observations(
         data.observations.station[keep],
@@ -186,10 +190,11 @@ def calibrate_moving(
         for s in range(n)
     ]
     if not fit_tilt and n > len(prior.base_stations):
-        raise ValueError(
-            f"geometry.base_stations: the recording has sweeps of {n} station(s) but the "
+        raise FieldError(
+            "geometry.base_stations",
+            f"the recording has sweeps of {n} station(s) but the "
             f"dataset geometry gives tilt offsets for {len(prior.base_stations)}; add them or "
-            "fit them"
+            "fit them",
         )
     model = sweep_model or SweepModel()
     start = _start_stations(data, spline, offset, tilts, np.asarray(prior.photodiodes))
@@ -292,14 +297,14 @@ def _start_stations(data: Recording, spline, offset, tilts, diodes) -> list[Base
         first = np.flatnonzero((obs.station == s) & (obs.plane == 1))
         second = np.flatnonzero((obs.station == s) & (obs.plane == 2))
         if first.size == 0 or second.size == 0:
-            raise ValueError(f"lighthouse: station {s} has no sweeps of both light planes")
+            raise FieldError("lighthouse", f"station {s} has no sweeps of both light planes")
         before = np.searchsorted(data.stamps[first], data.stamps[second], side="right") - 1
         ok = before >= 0
         pairs_2, pairs_1 = second[ok], first[before[ok]]
         close = data.stamps[pairs_2] - data.stamps[pairs_1] <= 0.03
         pairs_1, pairs_2 = pairs_1[close], pairs_2[close]
         if pairs_1.size < 4:
-            raise ValueError(f"lighthouse: station {s} has fewer than 4 pairs of light planes")
+            raise FieldError("lighthouse", f"station {s} has fewer than 4 pairs of light planes")
         pick = np.unique(
             np.linspace(0, pairs_1.size - 1, min(START_PAIRS, pairs_1.size)).astype(int)
         )

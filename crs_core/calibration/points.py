@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError
 from crs_core.model.lighthouse import RECORDED_PHOTODIODES
 from crs_core.model.sensors import N_PHOTODIODES
 
@@ -133,42 +134,45 @@ def load_points(path: str | Path) -> CalibrationPoints:
     path = Path(path)
     if not path.is_file():
         problem = "is a folder" if path.is_dir() else "does not exist"
-        raise ValueError(f"POINTS_FILE: {path} {problem}")
+        raise FieldError("POINTS_FILE", f"{path} {problem}")
     try:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as error:
         problem = str(error).splitlines()[0]
-        raise ValueError(f"POINTS_FILE: {path} is not valid YAML ({problem})") from None
+        raise FieldError("POINTS_FILE", f"{path} is not valid YAML ({problem})") from None
     except (OSError, UnicodeDecodeError) as error:
-        raise ValueError(f"POINTS_FILE: cannot read {path} ({error})") from None
+        raise FieldError("POINTS_FILE", f"cannot read {path} ({error})") from None
     return points_from_dict(data)
 
 
 def points_from_dict(data: Any) -> CalibrationPoints:
-    """Validate the YAML mapping of a points file; ``ValueError`` naming the field."""
+    """Validate the YAML mapping of a points file; :class:`~crs_core.errors.FieldError` naming
+    the field."""
     if not isinstance(data, Mapping):
-        raise ValueError("POINTS_FILE: expected a mapping with stations and points")
+        raise FieldError("POINTS_FILE", "expected a mapping with stations and points")
     unknown = set(data) - {"format", "photodiodes", "stations", "points"}
     if unknown:
-        raise ValueError(f"POINTS_FILE: unknown key(s) {', '.join(sorted(map(str, unknown)))}")
+        raise FieldError("POINTS_FILE", f"unknown key(s) {', '.join(sorted(map(str, unknown)))}")
     if data.get("format", FORMAT) != FORMAT:
-        raise ValueError(f"format: {data['format']!r}, expected {FORMAT!r}")
+        raise FieldError("format", f"{data['format']!r}, expected {FORMAT!r}")
     photodiodes = RECORDED_PHOTODIODES
     if data.get("photodiodes") is not None:
         diodes = _numbers("photodiodes", data["photodiodes"], (N_PHOTODIODES, 2))
         photodiodes = tuple((float(x), float(y)) for x, y in diodes)
     stations = data.get("stations")
     if not isinstance(stations, list) or not stations:
-        raise ValueError("stations: expected a list with one entry per base station")
+        raise FieldError("stations", "expected a list with one entry per base station")
     tilts = []
     for i, entry in enumerate(stations):
         if entry is None:
             entry = {}
         if not isinstance(entry, Mapping):
-            raise ValueError(f"stations[{i}]: expected a mapping (dt1, dt2), got {entry!r}")
+            raise FieldError(f"stations[{i}]", f"expected a mapping (dt1, dt2), got {entry!r}")
         extra = set(entry) - {"dt1", "dt2"}
         if extra:
-            raise ValueError(f"stations[{i}]: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+            raise FieldError(
+                f"stations[{i}]", f"unknown key(s) {', '.join(sorted(map(str, extra)))}"
+            )
         pair = []
         for key in ("dt1", "dt2"):
             value = entry.get(key)
@@ -178,59 +182,59 @@ def points_from_dict(data: Any) -> CalibrationPoints:
         tilts.append((pair[0], pair[1]))
     raw_points = data.get("points")
     if not isinstance(raw_points, list) or not raw_points:
-        raise ValueError("points: expected a non-empty list of points")
+        raise FieldError("points", "expected a non-empty list of points")
     points = [_point(f"points[{i}]", item, len(tilts)) for i, item in enumerate(raw_points)]
     return CalibrationPoints(tuple(points), tuple(tilts), photodiodes)
 
 
 def _point(name: str, item: Any, n_stations: int) -> CalibrationPoint:
     if not isinstance(item, Mapping):
-        raise ValueError(f"{name}: expected a mapping (position, yaw, sweeps), got {item!r}")
+        raise FieldError(name, f"expected a mapping (position, yaw, sweeps), got {item!r}")
     extra = set(item) - {"position", "yaw", "sweeps"}
     if extra:
-        raise ValueError(f"{name}: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+        raise FieldError(name, f"unknown key(s) {', '.join(sorted(map(str, extra)))}")
     if "position" not in item:
-        raise ValueError(f"{name}.position: missing (x, y of the body origin, m)")
+        raise FieldError(f"{name}.position", "missing (x, y of the body origin, m)")
     position = _numbers(f"{name}.position", item["position"], (2,))
     yaw = item.get("yaw")
     if yaw is not None:
         yaw = float(_numbers(f"{name}.yaw", yaw, ()))
     raw = item.get("sweeps")
     if not isinstance(raw, list) or not raw:
-        raise ValueError(f"{name}.sweeps: expected a non-empty list of station entries")
+        raise FieldError(f"{name}.sweeps", "expected a non-empty list of station entries")
     sweeps: dict[tuple[int, int], np.ndarray] = {}
     for j, entry in enumerate(raw):
         where = f"{name}.sweeps[{j}]"
         if not isinstance(entry, Mapping):
-            raise ValueError(f"{where}: expected a mapping (station, plane1, plane2)")
+            raise FieldError(where, "expected a mapping (station, plane1, plane2)")
         extra = set(entry) - {"station", "plane1", "plane2"}
         if extra:
-            raise ValueError(f"{where}: unknown key(s) {', '.join(sorted(map(str, extra)))}")
+            raise FieldError(where, f"unknown key(s) {', '.join(sorted(map(str, extra)))}")
         station = entry.get("station")
         if isinstance(station, bool) or not isinstance(station, int):
-            raise ValueError(f"{where}.station: expected a station index, got {station!r}")
+            raise FieldError(f"{where}.station", f"expected a station index, got {station!r}")
         if not 0 <= station < n_stations:
-            raise ValueError(
-                f"{where}.station: {station} is not one of the {n_stations} station(s) listed "
-                "under stations"
+            raise FieldError(
+                f"{where}.station",
+                f"{station} is not one of the {n_stations} station(s) listed under stations",
             )
         planes = [k for k in ("plane1", "plane2") if entry.get(k) is not None]
         if not planes:
-            raise ValueError(f"{where}: needs plane1 and/or plane2 sweeps")
+            raise FieldError(where, "needs plane1 and/or plane2 sweeps")
         for key in planes:
             rows = _numbers(f"{where}.{key}", entry[key], None)
             if rows.ndim == 1:
                 rows = rows[None, :]
             if rows.ndim != 2 or rows.shape[1] != N_PHOTODIODES or rows.shape[0] == 0:
-                raise ValueError(
-                    f"{where}.{key}: expected rows of 4 angles (rad, photodiodes 0..3), got "
-                    f"shape {rows.shape}"
+                raise FieldError(
+                    f"{where}.{key}",
+                    f"expected rows of 4 angles (rad, photodiodes 0..3), got shape {rows.shape}",
                 )
             if np.any(np.abs(rows) > math.pi):
-                raise ValueError(f"{where}.{key}: angles must lie in [-pi, pi] rad")
+                raise FieldError(f"{where}.{key}", "angles must lie in [-pi, pi] rad")
             plane = int(key[-1])
             if (station, plane) in sweeps:
-                raise ValueError(f"{where}.{key}: station {station} is listed twice")
+                raise FieldError(f"{where}.{key}", f"station {station} is listed twice")
             sweeps[(station, plane)] = rows
     return CalibrationPoint((float(position[0]), float(position[1])), yaw, sweeps)
 
@@ -238,14 +242,14 @@ def _point(name: str, item: Any, n_stations: int) -> CalibrationPoint:
 def _numbers(name: str, value: Any, shape: tuple[int, ...] | None) -> np.ndarray:
     """``value`` as a finite float array of ``shape`` (any shape if None)."""
     if isinstance(value, bool | str):
-        raise ValueError(f"{name}: expected numbers, got {value!r}")
+        raise FieldError(name, f"expected numbers, got {value!r}")
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected numbers, got {value!r}") from None
+        raise FieldError(name, f"expected numbers, got {value!r}") from None
     if shape is not None and array.shape != shape:
         what = "a number" if not shape else f"shape {shape}"
-        raise ValueError(f"{name}: expected {what}, got {value!r}")
+        raise FieldError(name, f"expected {what}, got {value!r}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name}: contains non-finite values")
+        raise FieldError(name, "contains non-finite values")
     return array

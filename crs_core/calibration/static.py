@@ -32,6 +32,7 @@ from crs_core.analysis.angles import wrap_angle
 from crs_core.calibration.points import CalibrationPoints
 from crs_core.calibration.solver import FitResult, LighthouseFit, Observations
 from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings
+from crs_core.errors import FieldError
 from crs_core.model.lighthouse import BaseStation
 
 #: Headings tried for a point of unknown yaw before the refinement.
@@ -73,9 +74,9 @@ def station_tilts(
         pair = []
         for k, value in enumerate(points.tilts[s], start=1):
             if value is None and not fit_tilt:
-                raise ValueError(
-                    f"stations[{s}].dt{k}: missing; give the station's factory tilt offsets or "
-                    "fit them (--fit-tilt)"
+                raise FieldError(
+                    f"stations[{s}].dt{k}",
+                    "missing; give the station's factory tilt offsets or fit them (--fit-tilt)",
                 )
             pair.append(0.0 if value is None else value)
         tilts.append((pair[0], pair[1]))
@@ -118,8 +119,8 @@ def calibrate_static(
     """
     n = points.n_stations if n_stations is None else int(n_stations)
     if not 1 <= n <= points.n_stations:
-        raise ValueError(
-            f"--stations: POINTS_FILE lists {points.n_stations} station(s); got {n_stations}"
+        raise FieldError(
+            "--stations", f"POINTS_FILE lists {points.n_stations} station(s); got {n_stations}"
         )
     model = sweep_model or SweepModel()
     tilts = station_tilts(points, n, fit_tilt)
@@ -150,9 +151,10 @@ def calibrate_static(
                 world.append(positions[i])
                 directions.append(mean / np.linalg.norm(mean))
         if seen < need:
-            raise ValueError(
-                f"points: station {s} has both light planes at {seen} point(s); the fit needs at "
-                f"least {need}" + ("" if need == 3 else " (some yaws are unknown)")
+            raise FieldError(
+                "points",
+                f"station {s} has both light planes at {seen} point(s); the fit needs at "
+                f"least {need}" + ("" if need == 3 else " (some yaws are unknown)"),
             )
         rotation, position = station_from_bearings(np.array(world), np.array(directions))
         start.append(BaseStation.from_rotation(rotation, tuple(position), *tilts[s]))

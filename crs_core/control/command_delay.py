@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, require_non_negative
 
 __all__ = ["CommandDelay", "CommandDelaySettings"]
 
@@ -70,10 +70,7 @@ class CommandDelaySettings:
     tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
-        for name in ("initial", "max_delay", "tolerance"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
+        require_non_negative(self, "initial", "max_delay", "tolerance")
         if not self.initial <= self.max_delay:
             raise FieldError(
                 "initial", f"must not exceed max_delay ({self.max_delay:g} s), got {self.initial!r}"

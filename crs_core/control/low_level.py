@@ -13,7 +13,8 @@ The car takes either ``{delta, T}`` (steering angle, normalised torque) or ``{de
   PID with a model feedforward computes the torque command :math:`T \in [-1, 1]`.
 
 Every setting is a frozen, validated dataclass (the firmware keeps its gains in non-volatile
-storage and lets the user change them); an invalid value raises ``ValueError`` naming the field.
+storage and lets the user change them); an invalid value raises
+:class:`~crs_core.errors.FieldError` naming the field.
 The default gains were tuned on the Chronos model with the steering actuator of
 :mod:`sim.actuators` (step responses: ``tests/crs_core/control/test_low_level.py`` and
 ``tests/sim/test_onboard.py``).
@@ -27,22 +28,18 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.errors import FieldError, finite_number
+
 #: Rate of every onboard controller, Hz (paper Sec. VI-B).
 DEFAULT_RATE_HZ = 250.0
 
 
 def _check(name: str, ok: bool, requirement: str, value: Any) -> None:
     if not ok:
-        raise ValueError(f"{name}: must be {requirement}, got {value!r}")
+        raise FieldError(name, f"must be {requirement}, got {value!r}")
 
 
-def _finite(name: str, value: Any) -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name}: must be a finite number, got {value!r}") from None
-    _check(name, math.isfinite(number) and not isinstance(value, bool), "a finite number", value)
-    return number
+_finite = finite_number
 
 
 @dataclass(frozen=True)
@@ -206,7 +203,7 @@ class PotentiometerMap:
             try:
                 values = tuple(float(v) for v in getattr(self, name))
             except (TypeError, ValueError):
-                raise ValueError(f"{name}: must be a sequence of numbers") from None
+                raise FieldError(name, "must be a sequence of numbers") from None
             _check(name, len(values) >= 2, "at least 2 points", len(values))
             _check(name, all(math.isfinite(v) for v in values), "finite", values)
             object.__setattr__(self, name, values)
@@ -418,7 +415,7 @@ def rear_axle_speed(wheel_speeds: np.ndarray, wheel_radius: float) -> float:
     r""":math:`\hat v_x = r(\Omega_{rl} + \Omega_{rr}) / 2` from ``[fl, fr, rl, rr]`` (rad/s)."""
     w = np.asarray(wheel_speeds, dtype=float)
     if w.shape != (4,) or not np.all(np.isfinite(w)):
-        raise ValueError(f"wheel_speeds: need 4 finite values [fl, fr, rl, rr], got {w!r}")
+        raise FieldError("wheel_speeds", f"need 4 finite values [fl, fr, rl, rr], got {w!r}")
     return float(wheel_radius * 0.5 * (w[2] + w[3]))
 
 

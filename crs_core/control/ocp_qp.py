@@ -20,6 +20,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from crs_core.errors import FieldError
+
 __all__ = ["QP_SOLVERS", "SparseAssembly", "qp_solver"]
 
 #: CasADi QP plugins that :func:`qp_solver` sets up.
@@ -85,7 +87,7 @@ def qp_solver(
     solve does not raise: the caller checks the solution.
     """
     if solver not in QP_SOLVERS:
-        raise ValueError(f"solver: one of {', '.join(QP_SOLVERS)}, got {solver!r}")
+        raise FieldError("solver", f"one of {', '.join(QP_SOLVERS)}, got {solver!r}")
     options: dict = {"error_on_fail": False}
     if solver == "hpipm":
         options.update(

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError, require_finite, require_non_negative, require_positive
 from crs_core.track import Track
 
 __all__ = ["PathFollower", "PathFollowerSettings", "PathFollowerStatus"]
@@ -92,20 +93,13 @@ class PathFollowerSettings:
 
         Raises
         ------
-        ValueError
+        FieldError
             Naming the first field that is not finite or out of range.
         """
-        for name in self.__dataclass_fields__:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{name}: must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"{name}: must be finite, got {value!r}")
-        positive = ("lookahead_min", "a_lat_max", "steer_max", "projection_window")
-        for name in positive:
-            if not getattr(self, name) > 0.0:
-                raise ValueError(f"{name}: must be positive, got {getattr(self, name)!r}")
-        non_negative = (
+        require_finite(self, *self.__dataclass_fields__)
+        require_positive(self, "lookahead_min", "a_lat_max", "steer_max", "projection_window")
+        require_non_negative(
+            self,
             "lookahead_time",
             "v_ref",
             "preview_distance",
@@ -114,14 +108,12 @@ class PathFollowerSettings:
             "ki_speed",
             "integral_limit",
         )
-        for name in non_negative:
-            if getattr(self, name) < 0.0:
-                raise ValueError(f"{name}: must not be negative, got {getattr(self, name)!r}")
         if self.steer_max >= 0.5 * math.pi:
-            raise ValueError(f"steer_max: must be below pi/2 rad, got {self.steer_max!r}")
+            raise FieldError("steer_max", f"must be below pi/2 rad, got {self.steer_max!r}")
         if not self.torque_min < self.torque_max:
-            raise ValueError(
-                f"torque_max: must exceed torque_min ({self.torque_min!r}), got {self.torque_max!r}"
+            raise FieldError(
+                "torque_max",
+                f"must exceed torque_min ({self.torque_min!r}), got {self.torque_max!r}",
             )
 
 
@@ -177,7 +169,7 @@ class PathFollower:
 
     Raises
     ------
-    ValueError
+    FieldError
         If the wheelbase is not positive and finite, or the settings are invalid.
     """
 
@@ -188,7 +180,7 @@ class PathFollower:
             raise TypeError(f"track: expected a Track, got {type(track).__name__}")
         wheelbase = float(wheelbase)
         if not (math.isfinite(wheelbase) and wheelbase > 0.0):
-            raise ValueError(f"wheelbase: must be positive and finite, got {wheelbase!r}")
+            raise FieldError("wheelbase", f"must be positive and finite, got {wheelbase!r}")
         self.track = track
         self.wheelbase = wheelbase
         self.settings = settings if settings is not None else PathFollowerSettings()
@@ -229,7 +221,7 @@ class PathFollower:
 
         Raises
         ------
-        ValueError
+        FieldError
             If ``t`` is not finite or ``x`` is not a finite vector of length 6.
         """
         state = self._validate(t, x)
@@ -300,20 +292,21 @@ class PathFollower:
         try:
             t_value = float(t)
         except (TypeError, ValueError):
-            raise ValueError(f"t: must be a number, got {t!r}") from None
+            raise FieldError("t", f"must be a number, got {t!r}") from None
         if not math.isfinite(t_value):
-            raise ValueError(f"t: must be finite, got {t_value!r}")
+            raise FieldError("t", f"must be finite, got {t_value!r}")
         try:
             state = np.asarray(x, dtype=float)
         except (TypeError, ValueError):
-            raise ValueError("x: state must be a numeric vector of length 6") from None
+            raise FieldError("x", "state must be a numeric vector of length 6") from None
         if state.shape != (_STATE_SIZE,):
-            raise ValueError(
-                f"x: state must have shape (6,) [x_p, y_p, psi, v_x, v_y, omega], "
-                f"got shape {state.shape}"
+            raise FieldError(
+                "x",
+                "state must have shape (6,) [x_p, y_p, psi, v_x, v_y, omega], "
+                f"got shape {state.shape}",
             )
         if not np.all(np.isfinite(state)):
             names = ("x_p", "y_p", "psi", "v_x", "v_y", "omega")
             bad = [names[i] for i in np.flatnonzero(~np.isfinite(state))]
-            raise ValueError(f"x: state has non-finite entries: {', '.join(bad)}")
+            raise FieldError("x", f"state has non-finite entries: {', '.join(bad)}")
         return state

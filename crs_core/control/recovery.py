@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError, require_positive
 from crs_core.track import Track
 
 __all__ = ["RecoverySettings", "StuckRecovery"]
@@ -52,13 +53,10 @@ class RecoverySettings:
     aligned_heading: float = 0.3
 
     def __post_init__(self) -> None:
-        for name in ("stuck_speed", "stuck_after", "reverse_torque", "reverse_time"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name}: must be a finite number > 0, got {value!r}")
+        require_positive(self, "stuck_speed", "stuck_after", "reverse_torque", "reverse_time")
         if not (math.isfinite(self.aligned_heading) and 0 < self.aligned_heading < math.pi):
-            raise ValueError(
-                f"aligned_heading: must be within (0, pi) rad, got {self.aligned_heading!r}"
+            raise FieldError(
+                "aligned_heading", f"must be within (0, pi) rad, got {self.aligned_heading!r}"
             )
 
 
@@ -78,7 +76,7 @@ class StuckRecovery:
         self, track: Track, steer_max: float, settings: RecoverySettings | None = None
     ) -> None:
         if not (math.isfinite(steer_max) and steer_max > 0):
-            raise ValueError(f"steer_max: must be a finite number > 0, got {steer_max!r}")
+            raise FieldError("steer_max", f"must be a finite number > 0, got {steer_max!r}")
         self.track = track
         self.steer_max = float(steer_max)
         self.settings = settings or RecoverySettings()

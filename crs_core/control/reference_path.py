@@ -14,6 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 
+from crs_core.errors import FieldError
 from crs_core.track import Track
 
 __all__ = ["PathPoint", "ReferencePath"]
@@ -92,7 +93,7 @@ class ReferencePath:
         """
         theta = np.asarray(theta, dtype=float)
         if not np.all(np.isfinite(theta)):
-            raise ValueError("theta: arc length must be finite")
+            raise FieldError("theta", "arc length must be finite")
         s = np.mod(theta, self.length)
         dx, dy = self._x(s, 1), self._y(s, 1)
         ddx, ddy = self._x(s, 2), self._y(s, 2)

@@ -46,6 +46,7 @@ from scipy import stats
 
 from crs_core.dataset import Dataset
 from crs_core.discrepancy.residuals import CHANNEL_GROUPS
+from crs_core.errors import FieldError
 from crs_core.identification.problem import FieSettings
 from crs_core.identification.solve import FieResult, WarmStart, identify
 from crs_core.identification.validation import (
@@ -177,7 +178,7 @@ def extended_model(
     spec: dict[str, dict[str, float] | None] = {e.name: None for e in model.effects}
     for name in effects:
         if name not in EFFECTS:
-            raise ValueError(f"effects: unknown effect {name!r}; known: {', '.join(EFFECTS)}")
+            raise FieldError("effects", f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
         spec[name] = {p.name: values.get(p.name, null_value(p)) for p in EFFECTS[name].parameters}
     skeleton = CarModel(spec, n_base_stations=model.n_base_stations)
     values = {n: model.parameters.value(n) for n in model.parameters.names}
@@ -236,7 +237,7 @@ def compare_held_out(
 ) -> HeldOutComparison:
     """The paired one-sided block t-test of ``candidate`` against ``current`` (the module)."""
     if current.t.shape != candidate.t.shape or not np.allclose(current.t, candidate.t):
-        raise ValueError("scores: the two models were scored from different starts")
+        raise FieldError("scores", "the two models were scored from different starts")
     groups = [g for g in current.groups if g in candidate.groups]
     a = current.mse[:, [current.groups.index(g) for g in groups]]
     b = candidate.mse[:, [candidate.groups.index(g) for g in groups]]

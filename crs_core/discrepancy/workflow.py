@@ -51,6 +51,7 @@ from crs_core.discrepancy.sweep_lag import (
     plane1_lag_source,
     with_plane1_lag,
 )
+from crs_core.errors import FieldError
 from crs_core.identification.data import PLANE1_LAG_KEY
 from crs_core.identification.problem import FieSettings, check_fit
 from crs_core.identification.solve import FieResult, identify
@@ -114,21 +115,21 @@ class DiscrepancySettings:
 
     def __post_init__(self) -> None:
         if not 0.1 <= self.held_out_fraction <= 0.7:
-            raise ValueError(
-                f"held_out_fraction: must be within [0.1, 0.7], got {self.held_out_fraction}"
+            raise FieldError(
+                "held_out_fraction", f"must be within [0.1, 0.7], got {self.held_out_fraction}"
             )
         if self.workers < 1:
-            raise ValueError(f"workers: must be >= 1, got {self.workers}")
+            raise FieldError("workers", f"must be >= 1, got {self.workers}")
         if self.max_effects < 1:
-            raise ValueError(f"max_effects: must be >= 1, got {self.max_effects}")
+            raise FieldError("max_effects", f"must be >= 1, got {self.max_effects}")
         if self.hypothesis_max_iter < 1:
-            raise ValueError(f"hypothesis_max_iter: must be >= 1, got {self.hypothesis_max_iter}")
+            raise FieldError("hypothesis_max_iter", f"must be >= 1, got {self.hypothesis_max_iter}")
         if self.hidden_candidates < 0:
-            raise ValueError(f"hidden_candidates: must be >= 0, got {self.hidden_candidates}")
+            raise FieldError("hidden_candidates", f"must be >= 0, got {self.hidden_candidates}")
         for name in self.candidates or ():
             if name not in EFFECTS:
-                raise ValueError(
-                    f"candidates: unknown effect {name!r}; known: {', '.join(EFFECTS)}"
+                raise FieldError(
+                    "candidates", f"unknown effect {name!r}; known: {', '.join(EFFECTS)}"
                 )
 
 

@@ -76,7 +76,7 @@ def parse_time_offsets(text: str) -> dict[str, float]:
         except ValueError:
             seconds = math.nan
         if not sep or not name or not math.isfinite(seconds):
-            raise ValueError(f"time_offsets: {entry!r} is not <sensor or group>:<seconds>")
+            raise FieldError("time_offsets", f"{entry!r} is not <sensor or group>:<seconds>")
         offsets[name] = seconds
     return offsets
 
@@ -122,18 +122,18 @@ class EstimatorSettings:
         if len(self.initial_std) != 6 or not all(
             math.isfinite(v) and v > 0 for v in self.initial_std
         ):
-            raise ValueError("initial_std: needs 6 finite values > 0 (x, y, yaw, vx, vy, omega)")
+            raise FieldError("initial_std", "needs 6 finite values > 0 (x, y, yaw, vx, vy, omega)")
         for key, value in self.time_offsets.items():
             if key not in SENSOR_GROUPS:
                 try:
                     sensor_size(key)
                 except ValueError:
-                    raise ValueError(
-                        f"time_offsets: {key!r} is neither a sensor nor a group "
-                        f"({', '.join(SENSOR_GROUPS)})"
+                    raise FieldError(
+                        "time_offsets",
+                        f"{key!r} is neither a sensor nor a group ({', '.join(SENSOR_GROUPS)})",
                     ) from None
             if not (isinstance(value, int | float) and math.isfinite(value)):
-                raise ValueError(f"time_offsets[{key!r}]: must be a finite number of seconds")
+                raise FieldError(f"time_offsets[{key!r}]", "must be a finite number of seconds")
 
 
 @dataclass(frozen=True)
@@ -250,9 +250,10 @@ class Estimator:
             self.diagnostics.ignored[measurement.sensor] += 1
             return False
         if not self.accepts(measurement.sensor):
-            raise ValueError(
-                f"sensor: {measurement.sensor!r} is not a sensor of the estimator's model "
-                f"({', '.join(self.model_sensors())})"
+            raise FieldError(
+                "sensor",
+                f"{measurement.sensor!r} is not a sensor of the estimator's model "
+                f"({', '.join(self.model_sensors())})",
             )
         offset = self._time_offset(measurement.sensor, group)
         if offset:
@@ -330,8 +331,8 @@ class Estimator:
 
     def _start_initializer(self, reason: str) -> None:
         if not self.sensors & {"lh", "pose"}:
-            raise ValueError(
-                "x0: an estimator without Lighthouse or pose sensors cannot start blind; give x0"
+            raise FieldError(
+                "x0", "an estimator without Lighthouse or pose sensors cannot start blind; give x0"
             )
         self._initializer = self._initializer_factory()
         self._lost_reason = reason
@@ -448,7 +449,7 @@ def _checked_covariance(covariance: np.ndarray | None) -> np.ndarray | None:
         return None
     cov = np.asarray(covariance, dtype=float)
     if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-        raise ValueError("covariance: needs a finite 6 x 6 matrix")
+        raise FieldError("covariance", "needs a finite 6 x 6 matrix")
     if not np.all(np.diag(cov) > 0):
-        raise ValueError("covariance: its diagonal must be > 0")
+        raise FieldError("covariance", "its diagonal must be > 0")
     return 0.5 * (cov + cov.T)

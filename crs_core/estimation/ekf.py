@@ -24,6 +24,7 @@ import numpy as np
 from scipy.special import chdtri
 
 from crs_core.codegen import SX_OPTIONS, compile_functions
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.noise import EstimatorNoise, initial_std_for
 from crs_core.estimation.rejection import RejectionCap
@@ -54,9 +55,9 @@ class EkfSettings(EstimatorSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if not 0 < self.gate_probability < 1:
-            raise ValueError("gate_probability: must be in (0, 1)")
+            raise FieldError("gate_probability", "must be in (0, 1)")
         if self.max_consecutive_rejections < 1:
-            raise ValueError("max_consecutive_rejections: must be >= 1")
+            raise FieldError("max_consecutive_rejections", "must be >= 1")
 
 
 def _wrap(angle: ca.SX) -> ca.SX:
@@ -266,8 +267,8 @@ class ExtendedKalmanFilter(Estimator):
         k = bisect.bisect_right(self._history, t, key=lambda h: h[0]) - 1
         if k < 0:
             oldest = self._history[0][0] if self._history else self._t
-            raise ValueError(
-                f"t: {t:.3f} s is before the oldest state the EKF keeps ({oldest:.3f} s)"
+            raise FieldError(
+                "t", f"{t:.3f} s is before the oldest state the EKF keeps ({oldest:.3f} s)"
             )
         stamp, x, P, u = self._history[k]
         x, P = self._steps.predict(x, P, u, t - stamp)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.ekf import EkfSettings, ExtendedKalmanFilter
 from crs_core.estimation.inputs import InputModeEstimator
@@ -46,9 +47,9 @@ def make_estimator(
         Call ``reset(t0, x0)``, or ``reset(t0)`` for a blind start from the Lighthouse.
     """
     if kind not in KINDS:
-        raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+        raise FieldError("estimator", f"must be 'ekf' or 'mhe', got {kind!r}")
     if inputs not in INPUT_MODES:
-        raise ValueError(f"inputs: must be one of {', '.join(INPUT_MODES)}, got {inputs!r}")
+        raise FieldError("inputs", f"must be one of {', '.join(INPUT_MODES)}, got {inputs!r}")
     settings_type = EkfSettings if kind == "ekf" else MheSettings
     if settings is None:
         settings = settings_type()
@@ -56,7 +57,7 @@ def make_estimator(
         raise TypeError(f"settings: a {kind} needs {settings_type.__name__}, got {settings!r}")
     model = model or CarModel()
     if model.estimated_inputs:
-        raise ValueError("model: give the commanded model; inputs='estimated' builds the other")
+        raise FieldError("model", "give the commanded model; inputs='estimated' builds the other")
 
     if inputs == "commanded":
         return _new_estimator(model, sensors, settings)

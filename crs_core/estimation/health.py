@@ -25,6 +25,8 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
+from crs_core.errors import FieldError, require_positive, require_within
+
 #: The three status words, best first.
 STATUSES = ("ok", "degraded", "lost")
 
@@ -62,15 +64,18 @@ class HealthSettings:
     max_yaw_rate: float = 40.0
 
     def __post_init__(self) -> None:
-        for name in ("window_s", "dead_reckoning_after_s", "lost_after_s", "max_speed"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"health.{name}: must be > 0")
-        if not self.max_yaw_rate > 0:
-            raise ValueError("health.max_yaw_rate: must be > 0")
-        if not 0 <= self.rejected_fraction <= 1:
-            raise ValueError("health.rejected_fraction: must be in [0, 1]")
+        require_positive(
+            self,
+            "window_s",
+            "dead_reckoning_after_s",
+            "lost_after_s",
+            "max_speed",
+            "max_yaw_rate",
+            prefix="health",
+        )
+        require_within(self, "rejected_fraction", 0, 1, prefix="health")
         if self.lost_min_samples < 1:
-            raise ValueError("health.lost_min_samples: must be >= 1")
+            raise FieldError("health.lost_min_samples", "must be >= 1")
 
 
 class HealthMonitor:

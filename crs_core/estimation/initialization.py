@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError, require_positive
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import Measurement, parse_lighthouse
@@ -56,10 +57,16 @@ class InitializationSettings:
 
     def __post_init__(self) -> None:
         if self.min_fixes < 2:
-            raise ValueError("initialization.min_fixes: must be >= 2 (velocities need two)")
-        for name in ("span_s", "max_pair_gap", "jump_tolerance", "velocity_std", "yaw_rate_std"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"initialization.{name}: must be > 0")
+            raise FieldError("initialization.min_fixes", "must be >= 2 (velocities need two)")
+        require_positive(
+            self,
+            "span_s",
+            "max_pair_gap",
+            "jump_tolerance",
+            "velocity_std",
+            "yaw_rate_std",
+            prefix="initialization",
+        )
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import SX_OPTIONS, compile_functions
+from crs_core.errors import FieldError
 from crs_core.measurements import Measurement, lighthouse_sensor, parse_lighthouse
 from crs_core.model import CarModel
 from crs_core.model.chronos import base_station_from_parameters
@@ -101,11 +102,11 @@ class LighthousePoseSolver:
 
     def __init__(self, model: CarModel, angle_std: float = 2e-3, max_rms_ratio: float = 5.0):
         if not (math.isfinite(angle_std) and angle_std > 0):
-            raise ValueError(f"angle_std: must be finite and > 0, got {angle_std!r}")
+            raise FieldError("angle_std", f"must be finite and > 0, got {angle_std!r}")
         if not (math.isfinite(max_rms_ratio) and max_rms_ratio > 0):
-            raise ValueError(f"max_rms_ratio: must be finite and > 0, got {max_rms_ratio!r}")
+            raise FieldError("max_rms_ratio", f"must be finite and > 0, got {max_rms_ratio!r}")
         if model.n_base_stations < 1:
-            raise ValueError("model: has no Lighthouse base station")
+            raise FieldError("model", "has no Lighthouse base station")
         self.model = model
         self.angle_std = float(angle_std)
         self.max_rms_ratio = float(max_rms_ratio)
@@ -176,13 +177,14 @@ class LighthousePoseSolver:
         for sensor, values in sweeps.items():
             parsed = parse_lighthouse(sensor) if isinstance(sensor, str) else None
             if parsed is None or parsed[0] >= self.model.n_base_stations:
-                raise ValueError(
-                    f"sweeps: {sensor!r} is not a Lighthouse sensor of this model "
-                    f"({self.model.n_base_stations} station(s): lighthouse/<0..n-1>/<1|2>)"
+                raise FieldError(
+                    "sweeps",
+                    f"{sensor!r} is not a Lighthouse sensor of this model "
+                    f"({self.model.n_base_stations} station(s): lighthouse/<0..n-1>/<1|2>)",
                 )
             array = np.asarray(values, dtype=float)
             if array.shape != (N_PHOTODIODES,) or not np.all(np.isfinite(array)):
-                raise ValueError(f"sweeps: {sensor} needs 4 finite angles, got {values!r}")
+                raise FieldError("sweeps", f"{sensor} needs 4 finite angles, got {values!r}")
             angles[parsed] = array
         stations = tuple(sorted(s for s, pl in angles if pl == 1 and (s, 2) in angles))
         if not stations:
@@ -193,7 +195,7 @@ class LighthousePoseSolver:
         else:
             start = np.asarray(guess, dtype=float)
             if start.shape != (3,) or not np.all(np.isfinite(start)):
-                raise ValueError(f"guess: needs (x, y, yaw) as 3 finite numbers, got {guess!r}")
+                raise FieldError("guess", f"needs (x, y, yaw) as 3 finite numbers, got {guess!r}")
         if start is None:
             return None
         return self._refine(start.copy(), measured, float(stamp), stations)
@@ -306,7 +308,7 @@ class SweepPairer:
 
     def __init__(self, max_gap: float = 0.03) -> None:
         if not (math.isfinite(max_gap) and max_gap >= 0):
-            raise ValueError(f"max_gap: must be finite and >= 0, got {max_gap!r}")
+            raise FieldError("max_gap", f"must be finite and >= 0, got {max_gap!r}")
         self.max_gap = float(max_gap)
         self._latest: dict[tuple[int, int], tuple[float, np.ndarray, bool]] = {}
 

@@ -55,6 +55,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import compile_functions
+from crs_core.errors import FieldError, require_positive, require_within
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.mhe_problem import (
     Band,
@@ -145,21 +146,20 @@ class MheSettings(EstimatorSettings):
     def __post_init__(self) -> None:
         super().__post_init__()
         if self.horizon < 1:
-            raise ValueError("horizon: must be >= 1")
-        if not 0 < self.discount <= 1:
-            raise ValueError("discount: must be in (0, 1]")
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError("rate_hz: must be finite and > 0")
+            raise FieldError("horizon", "must be >= 1")
+        require_within(self, "discount", 0, 1, low_open=True)
+        require_positive(self, "rate_hz")
         if self.iterations < 1:
-            raise ValueError("iterations: must be >= 1")
+            raise FieldError("iterations", "must be >= 1")
         if len(self.process_bound) != 6 or not all(b > 0 for b in self.process_bound):
-            raise ValueError("process_bound: needs 6 values > 0 (x, y, yaw, vx, vy, omega)")
-        if len(self.state_lower) != 3 or len(self.state_upper) != 3:
-            raise ValueError("state_lower, state_upper: need 3 values (vx, vy, omega)")
+            raise FieldError("process_bound", "needs 6 values > 0 (x, y, yaw, vx, vy, omega)")
+        for name in ("state_lower", "state_upper"):
+            if len(getattr(self, name)) != 3:
+                raise FieldError(name, "needs 3 values (vx, vy, omega)")
         if self.max_catch_up is not None and self.max_catch_up < 1:
-            raise ValueError("max_catch_up: must be >= 1")
+            raise FieldError("max_catch_up", "must be >= 1")
         if self.catch_up_solves is not None and self.catch_up_solves < 1:
-            raise ValueError("catch_up_solves: must be >= 1")
+            raise FieldError("catch_up_solves", "must be >= 1")
 
 
 class MovingHorizonEstimator(Estimator):
@@ -403,9 +403,10 @@ class MovingHorizonEstimator(Estimator):
         it (EKF steps); a ``t`` inside the window: the node at or before it, predicted."""
         first = len(self._times) - self._active
         if t < self._times[first] - 1e-9:
-            raise ValueError(
-                f"t: {t:.3f} s is before the oldest state the MHE keeps "
-                f"({self._times[first]:.3f} s, the start of its window)"
+            raise FieldError(
+                "t",
+                f"{t:.3f} s is before the oldest state the MHE keeps "
+                f"({self._times[first]:.3f} s, the start of its window)",
             )
         last = len(self._times) - 1
         j = max(first, int(np.searchsorted(self._times[first:], t, side="right")) + first - 1)

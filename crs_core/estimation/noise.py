@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from crs_core.errors import FieldError
 from crs_core.measurements import parse_lighthouse
 from crs_core.model.car_model import ESTIMATED_INPUT_STATES
 from crs_core.model.effects import EFFECTS
@@ -60,14 +61,16 @@ class EstimatorNoise:
 
     def __post_init__(self) -> None:
         if len(self.process_std) != 6:
-            raise ValueError(
-                f"noise.process_std: needs 6 values (x, y, yaw, vx, vy, omega), got "
-                f"{len(self.process_std)}; effect states go in extra_process_std by name"
+            raise FieldError(
+                "noise.process_std",
+                "needs 6 values (x, y, yaw, vx, vy, omega), got "
+                f"{len(self.process_std)}; effect states go in extra_process_std by name",
             )
-        if len(self.imu_std) != 3 or len(self.pose_std) != 3:
-            raise ValueError("noise.imu_std and noise.pose_std: need 3 values each")
+        for name in ("imu_std", "pose_std"):
+            if len(getattr(self, name)) != 3:
+                raise FieldError(f"noise.{name}", "needs 3 values")
         if isinstance(self.wheel_std, tuple | list) and len(self.wheel_std) != 4:
-            raise ValueError("noise.wheel_std: one value or 4 (fl, fr, rl, rr)")
+            raise FieldError("noise.wheel_std", "one value or 4 (fl, fr, rl, rr)")
         values = {
             "process_std": self.process_std,
             "extra_process_std": tuple(self.extra_process_std.values()),
@@ -79,7 +82,7 @@ class EstimatorNoise:
         }
         for name, entries in values.items():
             if not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in entries):
-                raise ValueError(f"noise.{name}: every standard deviation must be finite and > 0")
+                raise FieldError(f"noise.{name}", "every standard deviation must be finite and > 0")
 
     def measurement_std(self, sensor: str) -> np.ndarray:
         """Per-channel standard deviation of a stream sensor."""
@@ -117,8 +120,8 @@ def check_effect_state_names(names: Iterable[str], field: str) -> None:
     known |= {name for name, _ in ESTIMATED_INPUT_STATES}
     unknown = set(names) - known
     if unknown:
-        raise ValueError(
-            f"{field}: {sorted(unknown)} are not effect states (known: {', '.join(sorted(known))})"
+        raise FieldError(
+            field, f"{sorted(unknown)} are not effect states (known: {', '.join(sorted(known))})"
         )
 
 

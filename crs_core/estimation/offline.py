@@ -114,9 +114,10 @@ def initial_state(x0: Any) -> tuple[np.ndarray, np.ndarray | None]:
     """``x0`` (3 or 6 finite values) as a base state and covariance (None: the default)."""
     values = np.asarray(x0, dtype=float).ravel()
     if values.size not in (3, 6) or not np.all(np.isfinite(values)):
-        raise ValueError(
-            "x0: needs 3 (x, y, yaw) or 6 (x, y, yaw, vx, vy, omega) finite values, got "
-            f"{values.size}" + ("" if np.all(np.isfinite(values)) else " with NaN or inf")
+        raise FieldError(
+            "x0",
+            "needs 3 (x, y, yaw) or 6 (x, y, yaw, vx, vy, omega) finite values, got "
+            f"{values.size}" + ("" if np.all(np.isfinite(values)) else " with NaN or inf"),
         )
     if values.size == 6:
         return values, None
@@ -230,9 +231,9 @@ def estimate_dataset(
         ``rate_hz``, with a one-line message naming it.
     """
     if kind not in KINDS:
-        raise ValueError(f"estimator: must be 'ekf' or 'mhe', got {kind!r}")
+        raise FieldError("estimator", f"must be 'ekf' or 'mhe', got {kind!r}")
     if not len(dataset.t):
-        raise ValueError("dataset: has no samples (t.npy is empty)")
+        raise FieldError("dataset", "has no samples (t.npy is empty)")
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise FieldError("rate_hz", f"must be finite and > 0, got {rate_hz}")
     sensor_text = available_sensors(dataset) if sensors == "auto" else sensors
@@ -244,9 +245,10 @@ def estimate_dataset(
         have = "+".join(g for g in SENSOR_GROUPS if g in present) or "no measurements"
         raise FieldError("sensors", f"the dataset has no data for {sensor_text} (it has {have})")
     if inputs == "commanded" and not recorded_inputs:
-        raise ValueError(
-            "inputs: 'commanded' needs recorded inputs (u.npy or inputs in stream.npz) and this "
-            "dataset has none; use 'auto' or 'estimated'"
+        raise FieldError(
+            "inputs",
+            "'commanded' needs recorded inputs (u.npy or inputs in stream.npz) and this "
+            "dataset has none; use 'auto' or 'estimated'",
         )
     delivered_inputs = [] if inputs == "estimated" else recorded_inputs
     if recorded_inputs and not delivered_inputs:

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from crs_core.errors import require_non_negative, require_positive
 from crs_core.estimation.base import Estimate, Estimator, checked_initial_state
 from crs_core.measurements import InputSample, Measurement, from_start
 
@@ -109,12 +110,8 @@ class RealtimeSettings:
     max_lag: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.rate_hz) and self.rate_hz > 0):
-            raise ValueError(f"rate_hz: must be a finite number > 0, got {self.rate_hz!r}")
-        for name in ("lag", "max_lag"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name}: must be a finite number >= 0, got {value!r}")
+        require_positive(self, "rate_hz")
+        require_non_negative(self, "lag", "max_lag")
 
 
 @dataclass(frozen=True)

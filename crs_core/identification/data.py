@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import lighthouse_sensor
 
@@ -51,15 +52,15 @@ class FieData:
         """Validate ``dataset`` for identification; ``ValueError`` naming the field."""
         n = len(dataset.t)
         if n < MIN_SAMPLES:
-            raise ValueError(
-                f"dataset: {n} samples are too few for identification (>= {MIN_SAMPLES})"
+            raise FieldError(
+                "dataset", f"{n} samples are too few for identification (>= {MIN_SAMPLES})"
             )
         if dataset.u is None:
-            raise ValueError("dataset: has no inputs (u.npy); identification needs the commands")
+            raise FieldError("dataset", "has no inputs (u.npy); identification needs the commands")
         measured = np.isfinite(dataset.y)
         empty = [sensor for sensor, columns in Y_LAYOUT if not measured[:, columns].any()]
         if len(empty) == len(Y_LAYOUT):
-            raise ValueError("dataset: y.npy is NaN everywhere (no measurement at all)")
+            raise FieldError("dataset", "y.npy is NaN everywhere (no measurement at all)")
         sigma = np.concatenate([noise.measurement_std(sensor) for sensor, _ in Y_LAYOUT])
         weight = np.where(measured, 1.0 / sigma, 0.0)
         segment_u, segment_dt, segment_count = input_segments(dataset)
@@ -150,7 +151,7 @@ def plane1_lag(dataset: Dataset) -> np.ndarray:
             except (TypeError, ValueError):
                 value = math.nan
             if not math.isfinite(value) or value < 0.0:
-                raise ValueError(f"{PLANE1_LAG_KEY}: expected a finite lag >= 0 s, got {stated!r}")
+                raise FieldError(PLANE1_LAG_KEY, f"expected a finite lag >= 0 s, got {stated!r}")
             lag[1:] = value
         return lag
     first = lighthouse_sensor(0, 1)

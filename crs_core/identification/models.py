@@ -12,6 +12,7 @@ from typing import Any
 import yaml
 
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.estimation.offline import dataset_model
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.chronos import ROUGH_PRIOR
@@ -51,4 +52,4 @@ def identification_model(
         return dataset_model(dataset, None if rough else params, spec, ROUGH_PRIOR if rough else {})
     except (ValueError, KeyError) as error:
         message = error.args[0] if error.args else str(error)
-        raise ValueError(f"{field}: {message}") from None
+        raise FieldError(field, str(message)) from None

@@ -27,6 +27,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.identification.problem import check_fit, prior_std
 from crs_core.identification.validation import (
     DEFAULT_HORIZON_S,
@@ -77,7 +78,7 @@ def fit_prediction_error(
     position error on ``dataset``; ``progress(evaluation, rmse_m)`` after each evaluation."""
     check_fit(model, fit)
     if every < 1:
-        raise ValueError(f"every: must be >= 1, got {every}")
+        raise FieldError("every", f"must be >= 1, got {every}")
     started = time.perf_counter()
     predictor = OpenLoopPredictor(dataset, model, horizon_s, every=every)
     parameters = model.parameters

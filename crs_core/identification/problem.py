@@ -34,6 +34,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from crs_core.errors import FieldError, require_positive
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT, FieData
 from crs_core.identification.jacobian import DefectBlock, MeasurementBlock, residual_jacobian
@@ -112,15 +113,15 @@ class FieSettings:
 
     def __post_init__(self) -> None:
         if self.hessian not in ("gauss-newton", "exact"):
-            raise ValueError(f"hessian: must be 'exact' or 'gauss-newton', got {self.hessian!r}")
+            raise FieldError("hessian", f"must be 'exact' or 'gauss-newton', got {self.hessian!r}")
         if not self.fit:
-            raise ValueError("fit: name at least one parameter")
+            raise FieldError("fit", "name at least one parameter")
         if len(set(self.fit)) != len(self.fit):
-            raise ValueError(f"fit: a parameter is named twice in {', '.join(self.fit)}")
-        if not (math.isfinite(self.process_scale) and self.process_scale > 0):
-            raise ValueError("process_scale: must be finite and > 0")
-        if self.max_iter < 1 or self.starts < 1:
-            raise ValueError("max_iter and starts: must be >= 1")
+            raise FieldError("fit", f"a parameter is named twice in {', '.join(self.fit)}")
+        require_positive(self, "process_scale")
+        for name in ("max_iter", "starts"):
+            if getattr(self, name) < 1:
+                raise FieldError(name, f"must be >= 1, got {getattr(self, name)!r}")
 
 
 def prior_std(model: CarModel, name: str) -> float:
@@ -137,17 +138,18 @@ def check_fit(model: CarModel, fit: Sequence[str]) -> None:
     """``ValueError`` for a fitted name the model lacks or whose bounds exclude the prior."""
     for name in fit:
         if name not in model.parameters:
-            raise ValueError(
-                f"fit: unknown parameter {name!r} (the model has {', '.join(model.parameters)})"
+            raise FieldError(
+                "fit", f"unknown parameter {name!r} (the model has {', '.join(model.parameters)})"
             )
         if name == "input_delay":
-            raise ValueError(
-                "fit: 'input_delay' is a transport delay without a state-space form in the "
-                "model; the FIE cannot fit it (fit steering_lag / motor_lag instead)"
+            raise FieldError(
+                "fit",
+                "'input_delay' is a transport delay without a state-space form in the "
+                "model; the FIE cannot fit it (fit steering_lag / motor_lag instead)",
             )
         p = model.parameters[name]
         if not p.lower < p.upper:
-            raise ValueError(f"fit: parameter {name!r} has empty bounds [{p.lower}, {p.upper}]")
+            raise FieldError("fit", f"parameter {name!r} has empty bounds [{p.lower}, {p.upper}]")
 
 
 def substeps_for(dt: float) -> int:

@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.estimation.offline import estimate_dataset
 from crs_core.identification.data import FieData, input_segments
 from crs_core.identification.problem import FieProblem, FieSettings, check_fit
@@ -140,7 +141,7 @@ def initial_trajectory(
     x = estimates.x.T.copy()
     found = np.flatnonzero(estimates.status != "lost")
     if not found.size:
-        raise ValueError("dataset: the estimator never found the car (no Lighthouse fix)")
+        raise FieldError("dataset", "the estimator never found the car (no Lighthouse fix)")
     first = found[0]
     x[:first] = x[first]
     lost = estimates.status == "lost"
@@ -202,8 +203,8 @@ def _warm_states(
     """``states``' base six columns, effect states run through the commands with parameter
     vector ``p``."""
     if states.shape[0] != len(dataset.t) or states.shape[1] < 6:
-        raise ValueError(
-            f"warm_start.states: expected ({len(dataset.t)}, >= 6), got {states.shape}"
+        raise FieldError(
+            "warm_start.states", f"expected ({len(dataset.t)}, >= 6), got {states.shape}"
         )
     return _with_effect_states(dataset, model, states[:, :6], p)
 

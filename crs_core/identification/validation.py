@@ -27,6 +27,7 @@ import numpy as np
 
 from crs_core.codegen import compile_functions
 from crs_core.dataset import Y_CHANNELS, Dataset
+from crs_core.errors import FieldError
 from crs_core.identification.data import Y_LAYOUT, input_segments
 from crs_core.identification.solve import initial_trajectory
 from crs_core.model import CarModel
@@ -77,13 +78,13 @@ class OpenLoopPredictor:
         every: int = 1,
     ) -> None:
         if not horizon_s > 0:
-            raise ValueError(f"horizon: must be > 0 s, got {horizon_s}")
+            raise FieldError("horizon", f"must be > 0 s, got {horizon_s}")
         if dataset.u is None:
-            raise ValueError("dataset: has no inputs (u.npy); open-loop prediction needs them")
+            raise FieldError("dataset", "has no inputs (u.npy); open-loop prediction needs them")
         t = dataset.t
         if t[-1] - t[0] < horizon_s:
-            raise ValueError(
-                f"horizon: {horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
+            raise FieldError(
+                "horizon", f"{horizon_s} s is longer than the dataset ({t[-1] - t[0]:.2f} s)"
             )
         self.dataset, self.model, self.horizon_s = dataset, model, horizon_s
         self._u: np.ndarray = dataset.u
@@ -179,7 +180,7 @@ def horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarra
 def position_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
     """Predicted minus reference position, ``(S, steps, 2)`` m (NaN beyond the horizon)."""
     if dataset.x is None:
-        raise ValueError("dataset: has no reference states (x.npy) for the position RMSE")
+        raise FieldError("dataset", "has no reference states (x.npy) for the position RMSE")
     return prediction.positions - dataset.x[horizon_index(dataset, prediction), :2]
 
 

@@ -16,6 +16,7 @@ import casadi as ca
 import numpy as np
 
 from crs_core.codegen import SX_OPTIONS, NumericFunction, compile_functions
+from crs_core.errors import FieldError
 from crs_core.integrators import rk4
 from crs_core.model import sensors
 from crs_core.model.bicycle import INPUT_NAMES, STATE_NAMES, STATE_UNITS, state_derivative
@@ -143,9 +144,10 @@ class CarModel:
         if self.estimated_inputs:
             clash = [n for n in names if n in COMMAND_EFFECTS]
             if clash:
-                raise ValueError(
-                    f"estimated_inputs: cannot be combined with {', '.join(clash)} (effects on "
-                    "the command need commands)"
+                raise FieldError(
+                    "estimated_inputs",
+                    f"cannot be combined with {', '.join(clash)} (effects on "
+                    "the command need commands)",
                 )
         self.n_base_stations = n_base_stations
         defaults = (

@@ -26,6 +26,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from crs_core.errors import FieldError
+
 
 def rotation_from_angles(phi1: Any, phi2: Any, phi3: Any) -> Any:
     r"""World-from-station rotation :math:`R_z(\varphi_3) R_y(\varphi_2) R_x(\varphi_1)`.
@@ -55,7 +57,7 @@ def angles_from_rotation(rotation: np.ndarray) -> tuple[float, float, float]:
     u, _, vt = np.linalg.svd(np.asarray(rotation, dtype=float))
     r = u @ vt
     if np.linalg.det(r) < 0:
-        raise ValueError("rotation: matrix is a reflection (det < 0)")
+        raise FieldError("rotation", "matrix is a reflection (det < 0)")
     phi2 = -math.asin(max(-1.0, min(1.0, r[2, 0])))
     phi1 = math.atan2(r[2, 1], r[2, 2])
     phi3 = math.atan2(r[1, 0], r[0, 0])

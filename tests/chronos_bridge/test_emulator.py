@@ -31,6 +31,7 @@ from chronos_bridge.emulator import (
 )
 from chronos_bridge.packets import CarState, ControlInput, Ping
 from chronos_bridge.proto import chronos_pb2 as pb
+from crs_core.errors import FieldError
 from sim.sensors import SensorSuite
 
 STAMP_US = 1_760_000_000_000_000  # the host's stamp on its commands (ignored by the car)
@@ -266,8 +267,12 @@ def test_voltage_and_older_control_input_references() -> None:
     assert emulator.receive(encode_control_input(older, STAMP_US), 0.0)
     assert emulator.reference[1] == pytest.approx(0.2)
     assert emulator.commands == 4 and emulator.rejected_total == 0
-    with pytest.raises(ValueError, match="capacity_ah"):
+    with pytest.raises(FieldError, match="capacity_ah") as error:
         BatteryModel(capacity_ah=0.0)
+    assert error.value.field == "capacity_ah"
+    with pytest.raises(FieldError) as error:
+        BatteryModel(idle_current=-1.0)
+    assert str(error.value) == "idle_current: must be a finite number >= 0, got -1.0"
 
 
 # --------------------------------------------------------------------------- the process

@@ -30,6 +30,7 @@ from chronos_bridge.impairment import (
     parse_spec,
 )
 from chronos_bridge.packets import CarState
+from crs_core.errors import FieldError
 
 REPO = Path(__file__).resolve().parents[2]
 N = 50_000
@@ -261,19 +262,26 @@ def test_spec_parser() -> None:
     ],
 )
 def test_spec_errors_name_the_key(spec: str, message: str) -> None:
-    with pytest.raises(ValueError, match="^" + re.escape(message)):
+    with pytest.raises(ValueError, match="^" + re.escape(message)) as error:
         parse_spec(spec)
-    with pytest.raises(ValueError, match="^" + re.escape(f"--link-down: {message}")):
+    if not message.startswith("'"):  # a key (not a preset) is wrong: the error's field
+        assert isinstance(error.value, FieldError)
+        assert error.value.field == message.split(":")[0]
+    with pytest.raises(FieldError, match="^" + re.escape(f"--link-down: {message}")) as error:
         parse_link("clean", down=spec)
+    assert error.value.field == "--link-down"
 
 
 def test_validate_names_the_field() -> None:
-    with pytest.raises(ValueError, match=r"^jitter_s: nan must be within"):
+    with pytest.raises(FieldError, match=r"^jitter_s: nan must be within") as error:
         ImpairmentSettings(jitter_s=math.nan).validate()
-    with pytest.raises(ValueError, match=r"^outage_rate_hz: "):
+    assert error.value.field == "jitter_s"
+    with pytest.raises(FieldError, match=r"^outage_rate_hz: ") as error:
         ImpairmentSettings(outage_s=0.1, outage_rate_hz=-1.0).validate()
-    with pytest.raises(ValueError, match=r"^outage_s: must be > 0 with"):
+    assert error.value.field == "outage_rate_hz"
+    with pytest.raises(FieldError, match=r"^outage_s: must be > 0 with") as error:
         ImpairmentSettings(outage_period_s=5.0).validate()
+    assert error.value.field == "outage_s"
 
 
 SUMMARY = re.compile(

@@ -19,6 +19,7 @@ from chronos_bridge.codec import (
 )
 from chronos_bridge.link import BUCKETS, CarLink, field_key
 from chronos_bridge.packets import Packet, Ping, Reference
+from crs_core.errors import FieldError
 
 NOW = 1_800_000_000.0
 
@@ -185,12 +186,14 @@ def test_a_flood_is_read_in_bounded_polls(car):
 
 
 def test_bad_settings_name_the_parameter():
-    with pytest.raises(ValueError, match="car_ip: not an IPv4 address"):
-        CarLink(port=0, car_ip="car.local")
-    with pytest.raises(ValueError, match="car_port: needs car_ip"):
-        CarLink(port=0, car_port=20211)
-    with pytest.raises(ValueError, match="port: must be in"):
-        CarLink(port=70000)
+    for settings, message in (
+        ({"port": 0, "car_ip": "car.local"}, "car_ip: not an IPv4 address"),
+        ({"port": 0, "car_port": 20211}, "car_port: needs car_ip"),
+        ({"port": 70000}, "port: must be in"),
+    ):
+        with pytest.raises(FieldError, match=f"^{message}") as error:
+            CarLink(**settings)
+        assert error.value.field == message.split(":")[0]
     with CarLink(port=0) as taken:
         with pytest.raises(OSError, match="port: cannot bind"):
             CarLink(port=taken.address[1])
@@ -255,5 +258,6 @@ def test_repeats_can_be_switched_off_and_bad_periods_name_the_field():
         link.send_command([0.0, 0.1], "torque", NOW)
         assert not link.repeat(time.monotonic() + 0.05)
     for field, value in (("repeat_period", -0.01), ("repeat_for", math.nan)):
-        with pytest.raises(ValueError, match=field):
+        with pytest.raises(FieldError, match=field) as error:
             CarLink(port=0, **{field: value})
+        assert error.value.field == field

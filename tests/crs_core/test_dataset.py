@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from crs_core.dataset import FORMAT, Y_CHANNELS, Dataset, Geometry
+from crs_core.errors import FieldError
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES
@@ -478,16 +479,18 @@ def test_malformed_stream_is_rejected_naming_the_array(tmp_path: Path, change: d
         else:
             arrays[key] = value
     np.savez(tmp_path / "bad" / "stream.npz", **arrays)
-    with pytest.raises(ValueError, match=rf"^stream\.npz: .*{message}") as excinfo:
+    with pytest.raises(FieldError, match=rf"^stream\.npz: .*{message}") as excinfo:
         Dataset.load(tmp_path / "bad")
     assert "\n" not in str(excinfo.value)
+    assert excinfo.value.field == "stream.npz"
 
 
 def test_unreadable_stream_is_a_one_line_error(corruptible: Path):
     """A stream.npz that is not an archive is rejected naming stream.npz."""
     (corruptible / "stream.npz").write_bytes(b"not a zip file")
-    with pytest.raises(ValueError, match=r"^stream\.npz: not a readable \.npz archive"):
+    with pytest.raises(FieldError, match=r"^stream\.npz: not a readable \.npz archive") as error:
         Dataset.load(corruptible)
+    assert error.value.field == "stream.npz"
 
 
 def test_geometry_fields_are_validated_by_name(corruptible: Path):
@@ -502,8 +505,9 @@ def test_geometry_fields_are_validated_by_name(corruptible: Path):
 def test_x_without_six_rows_is_rejected(corruptible: Path):
     """An x.npy of poses only (3 rows) is rejected naming x.npy and the expected shape."""
     np.save(corruptible / "x.npy", np.load(corruptible / "x.npy")[:3])
-    with pytest.raises(ValueError, match=r"^x\.npy: expected shape \(6, N\), got \(3, "):
+    with pytest.raises(FieldError, match=r"^x\.npy: expected shape \(6, N\), got \(3, ") as error:
         Dataset.load(corruptible)
+    assert error.value.field == "x.npy"
 
 
 def test_t_one_sample_short_names_the_files_and_counts(corruptible: Path):

@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
+
+import numpy as np
 import pytest
 
 from chronos_bridge.packets import FieldError as BridgeFieldError
 from crs_core.dataset import Geometry
-from crs_core.errors import FieldError
+from crs_core.errors import (
+    FieldError,
+    finite_number,
+    require_finite,
+    require_non_negative,
+    require_positive,
+    require_within,
+)
 from crs_core.track import read_track
 
 
@@ -45,3 +56,70 @@ def test_a_track_file_names_the_yaml_key(tmp_path) -> None:
         read_track(path)
     assert caught.value.field == f"{path}: track.yCoords"
     assert caught.value.reason == "required key missing"
+
+
+@dataclass
+class _Settings:
+    rate_hz: float = 50.0
+    lag: float = 0.0
+    share: float = 0.5
+
+
+@pytest.mark.parametrize(
+    ("check", "value", "message"),
+    [
+        (require_finite, math.nan, "rate_hz: must be a finite number, got nan"),
+        (require_finite, "50", "rate_hz: must be a finite number, got '50'"),
+        (require_finite, True, "rate_hz: must be a finite number, got True"),
+        (require_positive, 0.0, "rate_hz: must be a finite number > 0, got 0.0"),
+        (require_positive, math.inf, "rate_hz: must be a finite number > 0, got inf"),
+        (require_non_negative, -1, "rate_hz: must be a finite number >= 0, got -1"),
+        (require_non_negative, None, "rate_hz: must be a finite number >= 0, got None"),
+    ],
+)
+def test_the_shared_checks_name_the_first_bad_field(check, value, message) -> None:
+    settings = _Settings(rate_hz=value)
+    with pytest.raises(FieldError) as caught:
+        check(settings, "share", "rate_hz", "lag")  # rate_hz is the first bad one
+    assert (caught.value.field, str(caught.value)) == ("rate_hz", message)
+    with pytest.raises(FieldError) as caught:
+        check(settings, "rate_hz", prefix="estimator")
+    assert caught.value.field == "estimator.rate_hz"
+
+
+def test_the_shared_checks_pass_good_values() -> None:
+    settings = _Settings(rate_hz=np.float32(50.0), lag=np.int64(0))
+    require_finite(settings, "rate_hz", "lag", "share")
+    require_positive(settings, "rate_hz", "share")
+    require_non_negative(settings, "rate_hz", "lag", "share")
+    require_within(settings, "share", 0, 1)
+    assert finite_number("share", np.float64(0.5)) == 0.5
+
+
+@pytest.mark.parametrize(
+    ("share", "kwargs", "message"),
+    [
+        (1.5, {}, "share: must be within [0, 1], got 1.5"),
+        (0.0, {"low_open": True}, "share: must be within (0, 1], got 0.0"),
+        (1.0, {"high_open": True, "unit": "s"}, "share: must be within [0, 1) s, got 1.0"),
+        (math.nan, {}, "share: must be within [0, 1], got nan"),
+    ],
+)
+def test_within_names_the_interval(share: float, kwargs: dict, message: str) -> None:
+    with pytest.raises(FieldError) as caught:
+        require_within(_Settings(share=share), "share", 0, 1, **kwargs)
+    assert (caught.value.field, str(caught.value)) == ("share", message)
+
+
+def test_a_reflected_base_station_rotation_is_named_once() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]],
+        "position": [0, 0, 2],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert str(caught.value) == (
+        "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
+    )

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from crs_core.errors import FieldError
 from crs_core.measurements import (
     InputSample,
     Measurement,
@@ -55,9 +56,10 @@ def test_integer_stamp_is_stored_as_float():
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_non_finite_values_are_rejected_naming_values(bad: float):
-    """NaN or inf in any channel raises ValueError whose message starts with the field name."""
-    with pytest.raises(ValueError, match=r"^values: imu"):
+    """NaN or inf in any channel raises FieldError on ``values`` (the message starts with it)."""
+    with pytest.raises(FieldError, match=r"^values: imu") as error:
         Measurement(0.0, "imu", [0.0, bad, 0.0])
+    assert error.value.field == "values"
 
 
 @pytest.mark.parametrize(
@@ -72,10 +74,11 @@ def test_non_finite_values_are_rejected_naming_values(bad: float):
     ],
 )
 def test_wrong_number_or_shape_of_values_is_rejected(sensor: str, values):
-    """Values of the wrong size or dimension raise ValueError naming `values` and the shape."""
+    """Values of the wrong size or dimension raise FieldError naming `values` and the shape."""
     size = sensor_size(sensor)
-    with pytest.raises(ValueError, match=rf"^values: .*needs shape \({size},\)"):
+    with pytest.raises(FieldError, match=rf"^values: .*needs shape \({size},\)") as error:
         Measurement(0.0, sensor, values)
+    assert error.value.field == "values"
 
 
 @pytest.mark.parametrize(
@@ -95,16 +98,18 @@ def test_wrong_number_or_shape_of_values_is_rejected(sensor: str, values):
     ],
 )
 def test_unknown_sensor_names_are_rejected_naming_sensor(sensor: str):
-    """Names outside the documented set raise ValueError whose message names `sensor`."""
-    with pytest.raises(ValueError, match=r"^sensor: unknown name"):
+    """Names outside the documented set raise FieldError on `sensor`."""
+    with pytest.raises(FieldError, match=r"^sensor: unknown name") as error:
         Measurement(0.0, sensor, [0.0] * 4)
+    assert error.value.field == "sensor"
 
 
 @pytest.mark.parametrize("stamp", [math.nan, math.inf, -math.inf, "1.0", None])
 def test_non_finite_or_non_numeric_stamps_are_rejected_naming_stamp(stamp):
-    """NaN, inf, a string or None as stamp raise ValueError whose message names `stamp`."""
-    with pytest.raises(ValueError, match=r"^stamp: must be (a )?finite"):
+    """NaN, inf, a string or None as stamp raise FieldError on `stamp`."""
+    with pytest.raises(FieldError, match=r"^stamp: must be (a )?finite") as error:
         Measurement(stamp, "gyro", [0.0])
+    assert error.value.field == "stamp"
 
 
 def test_measurement_is_immutable():
@@ -155,10 +160,11 @@ def test_input_sample_converts_u_to_float_array():
     ],
 )
 def test_input_sample_rejects_bad_shape_and_non_finite(stamp: float, u):
-    """Wrong shape, NaN/inf in u, or a non-finite stamp raise ValueError naming the field."""
+    """Wrong shape, NaN/inf in u, or a non-finite stamp raise FieldError naming the field."""
     field = "stamp" if not math.isfinite(stamp) else "u"
-    with pytest.raises(ValueError, match=rf"^{field}: "):
+    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
         InputSample(stamp, u)
+    assert error.value.field == field
 
 
 @pytest.mark.parametrize("stamp", [None, "0.5"])

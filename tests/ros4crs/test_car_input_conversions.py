@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from crs_core.errors import FieldError
 from crs_core.measurements import InputSample
 from ros4crs import conversions
 
@@ -46,7 +47,7 @@ def test_only_a_torque_command_is_a_model_input():
     velocity = conversions.input_from_msg(
         conversions.car_input_msg(np.array([0.1, 1.0]), 2.0, "velocity")
     )
-    with pytest.raises(ValueError, match="mode: a 'velocity' command carries no torque"):
+    with pytest.raises(FieldError, match="mode: a 'velocity' command carries no torque"):
         velocity.input_sample()
 
 
@@ -84,14 +85,18 @@ def _message(mode: int = 0, steer: float = 0.0, torque: float = 0.0, velocity: f
     ],
 )
 def test_malformed_inputs_are_refused_naming_the_field(fields: dict, message: str):
-    with pytest.raises(ValueError) as error:
+    with pytest.raises(FieldError) as error:
         conversions.input_from_msg(_message(**fields))
     assert str(error.value).startswith(message), error.value
+    assert error.value.field == message.split(":")[0]
 
 
 def test_an_unknown_mode_is_refused_when_writing():
-    with pytest.raises(ValueError, match="mode: must be one of torque, velocity, got 'speed'"):
+    with pytest.raises(
+        FieldError, match="mode: must be one of torque, velocity, got 'speed'"
+    ) as error:
         conversions.car_input_msg(np.zeros(2), 1.0, "speed")
+    assert error.value.field == "mode"
 
 
 def test_rosbags_messages_convert_the_same(tmp_path):

@@ -149,3 +149,13 @@ def test_the_controller_node_logs_every_kind_of_supervisor_event() -> None:
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_a_bad_executor_is_a_field_error_naming_the_variable(monkeypatch) -> None:
+    from crs_core.errors import FieldError
+    from ros4crs.node_support import make_executor
+
+    monkeypatch.setenv("CRS_EXECUTOR", "multi")
+    with pytest.raises(FieldError) as error:
+        make_executor()
+    assert error.value.field == "CRS_EXECUTOR"

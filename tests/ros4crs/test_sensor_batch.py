@@ -10,6 +10,7 @@ import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 
 from chronos_msgs.msg import SensorBatch
+from crs_core.errors import FieldError
 from crs_core.measurements import Measurement
 from ros4crs import conversions
 from ros4crs.interfaces import typestore
@@ -73,8 +74,9 @@ def test_stamps_keep_nanoseconds_far_from_the_epoch() -> None:
 
 
 def test_an_empty_batch_is_refused_when_built() -> None:
-    with pytest.raises(ValueError, match="measurements"):
+    with pytest.raises(FieldError, match=r"^measurements: ") as error:
         conversions.batch_msg([])
+    assert error.value.field == "measurements"
 
 
 def _batch(**fields: object) -> SensorBatch:
@@ -91,15 +93,17 @@ def _batch(**fields: object) -> SensorBatch:
         ({"values": [0.0] * 5}, "values"),
         (
             {"sensors": ["imu", "wheel_encoders", "sonar", "gyro", "lighthouse/1/2", "pose"]},
-            "sensors",
+            "sensors[2]",
         ),
     ],
 )
 def test_a_batch_that_does_not_fit_together_is_refused_naming_the_field(
     fields: dict[str, object], field: str
 ) -> None:
-    with pytest.raises(ValueError, match=f"^{field}"):
+    with pytest.raises(FieldError) as error:
         conversions.batch_from_msg(_batch(**fields))
+    assert error.value.field == field
+    assert str(error.value).startswith(f"{field}: ")
 
 
 def test_a_bad_reading_is_dropped_alone() -> None:

@@ -6,6 +6,7 @@ import re
 
 import pytest
 
+from crs_core.errors import FieldError
 from sim.sensors import Blackout, parse_blackout
 
 
@@ -27,3 +28,12 @@ def test_parse_blackout():
     for bad, message in cases.items():
         with pytest.raises(ValueError, match=re.escape(message)):
             parse_blackout(bad)
+
+
+def test_a_bad_blackout_is_a_field_error():
+    with pytest.raises(FieldError) as error:
+        Blackout("imu", -1.0, 1.0)
+    assert (error.value.field, error.value.reason) == (
+        "blackout",
+        "needs start >= 0 and duration > 0",
+    )

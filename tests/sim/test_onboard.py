@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from crs_core.control.low_level import PIDSettings, PotentiometerMap, SteeringSettings
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from sim import SensorSpec, SensorSuite, Simulator
 from sim.actuators import PotentiometerSettings, SteeringActuator, SteeringActuatorSettings
@@ -199,25 +200,37 @@ def test_velocity_mode_dataset_holds_the_loop_torque_and_streaming_keeps_no_hist
 
 def test_bad_modes_and_settings_are_refused_naming_the_field(model: CarModel):
     plain = Simulator(model, IDEAL).session(np.zeros(6))
-    with pytest.raises(ValueError, match=r"^mode: 'velocity' references need the onboard loop"):
+    with pytest.raises(
+        FieldError, match=r"^mode: 'velocity' references need the onboard loop"
+    ) as error:
         plain.command([0.0, 1.0], mode="velocity")
+    assert error.value.field == "mode"
     onboard = Simulator(model, IDEAL, onboard=OnboardSettings()).session(np.zeros(6))
-    with pytest.raises(ValueError, match=r"^mode: must be one of"):
+    with pytest.raises(FieldError, match=r"^mode: must be one of") as error:
         onboard.command([0.0, 1.0], mode="speed")
-    with pytest.raises(ValueError, match=r"^onboard: "):
+    assert error.value.field == "mode"
+    with pytest.raises(FieldError, match=r"^onboard: ") as error:
         Simulator(model, IDEAL, onboard={"rate_hz": 250})
+    assert error.value.field == "onboard"
     slow = SteeringSettings(pid=PIDSettings(kp=1.0, rate_hz=100.0))
-    with pytest.raises(ValueError, match=r"^steering\.pid\.rate_hz: "):
+    with pytest.raises(FieldError, match=r"^steering\.pid\.rate_hz: ") as error:
         OnboardSettings(steering=slow)
-    with pytest.raises(ValueError, match=r"^rate_hz: "):
+    assert error.value.field == "steering.pid.rate_hz"
+    with pytest.raises(FieldError, match=r"^rate_hz: ") as error:
         OnboardSettings(rate_hz=-1.0)
-    with pytest.raises(ValueError, match=r"^actuator: "):
+    assert error.value.field == "rate_hz"
+    with pytest.raises(FieldError, match=r"^actuator: ") as error:
         OnboardSettings(actuator=None)
-    with pytest.raises(ValueError, match=r"^time_constant: "):
+    assert error.value.field == "actuator"
+    with pytest.raises(FieldError, match=r"^time_constant: ") as error:
         SteeringActuatorSettings(time_constant=0.0)
-    with pytest.raises(ValueError, match=r"^deadband: "):
+    assert error.value.field == "time_constant"
+    with pytest.raises(FieldError, match=r"^deadband: ") as error:
         SteeringActuatorSettings(deadband=1.0)
-    with pytest.raises(ValueError, match=r"^noise_std: "):
+    assert error.value.field == "deadband"
+    with pytest.raises(FieldError, match=r"^noise_std: ") as error:
         PotentiometerSettings(noise_std=-0.001)
-    with pytest.raises(ValueError, match=r"^adc_bits: "):
+    assert error.value.field == "noise_std"
+    with pytest.raises(FieldError, match=r"^adc_bits: ") as error:
         replace(PotentiometerSettings(), adc_bits=2.5)
+    assert error.value.field == "adc_bits"

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from crs_core.analysis.laps import LapCounter
+from crs_core.errors import FieldError
 
 
 def test_lap_counter_start_off_the_line() -> None:
@@ -35,8 +36,9 @@ def test_lap_counter_start_on_the_line_and_reversing() -> None:
     counter.update(12.0, 1.5)  # and forwards again: not a new lap
     assert counter.laps_completed == 1
     assert counter.progress == pytest.approx(11.5)
-    with pytest.raises(ValueError, match="stamp"):
+    with pytest.raises(FieldError, match="stamp") as error:
         counter.update(11.0, 2.0)
+    assert error.value.field == "stamp"
     counter.reset()
     assert counter.laps_completed == 0
     assert counter.progress == 0.0
@@ -44,5 +46,6 @@ def test_lap_counter_start_on_the_line_and_reversing() -> None:
 
 @pytest.mark.parametrize("length", [0.0, -1.0, float("nan"), float("inf")])
 def test_a_lap_length_that_is_not_positive_and_finite_is_refused(length: float) -> None:
-    with pytest.raises(ValueError, match="length"):
+    with pytest.raises(FieldError, match="length") as error:
         LapCounter(length)
+    assert error.value.field == "length"

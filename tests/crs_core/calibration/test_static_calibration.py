@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -10,11 +11,12 @@ import yaml
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.calibration.evaluation import n_sweep, point_reports, spread_order
-from crs_core.calibration.points import load_points
+from crs_core.calibration.points import load_points, points_from_dict
 from crs_core.calibration.report import write_geometry
 from crs_core.calibration.static import calibrate_static
 from crs_core.calibration.sweep_model import SweepModel, bearings, station_from_bearings
 from crs_core.dataset import Geometry
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.model.chronos import default_base_stations
 from crs_core.model.lighthouse import RECORDED_PHOTODIODES, BaseStation
@@ -178,3 +180,23 @@ def test_more_points_give_a_better_calibration(sweep_model):
     assert mean[24] < mean[4]
     assert truth[24] < truth[6] < truth[4]
     assert mean[6] < 5e-3
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"stations": []}, "stations"),
+        ({"stations": [{"dt1": "x"}]}, "stations[0].dt1"),
+        ({"points": [{"position": [0.0]}]}, "points[0].position"),
+        ({"points": [{"position": [0.0, 0.0], "sweeps": []}]}, "points[0].sweeps"),
+        (
+            {"points": [{"position": [0, 0], "sweeps": [{"station": 3, "plane1": [[0] * 4]}]}]},
+            "points[0].sweeps[0].station",
+        ),
+    ],
+)
+def test_a_bad_points_file_names_the_field(change: dict, field: str):
+    data = {"stations": [{}], "points": [{"position": [0.0, 0.0]}], **change}
+    with pytest.raises(FieldError, match=rf"^{re.escape(field)}: ") as error:
+        points_from_dict(data)
+    assert error.value.field == field

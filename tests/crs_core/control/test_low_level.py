@@ -16,6 +16,7 @@ from crs_core.control.low_level import (
     VelocitySettings,
     rear_axle_speed,
 )
+from crs_core.errors import FieldError
 from crs_core.model.chronos import dynamics_parameters
 
 DT = 1 / 250
@@ -99,7 +100,7 @@ def test_default_potentiometer_map_is_centred_and_monotone():
 
 def test_rear_axle_speed_is_r_times_mean_rear_wheel_speed():
     assert rear_axle_speed(np.array([9.0, 9.0, 50.0, 70.0]), 0.02) == pytest.approx(1.2)
-    with pytest.raises(ValueError, match="wheel_speeds"):
+    with pytest.raises(FieldError, match=r"^wheel_speeds: "):
         rear_axle_speed(np.array([1.0, 2.0, np.nan, 3.0]), 0.02)
 
 
@@ -160,5 +161,6 @@ def test_steering_controller_reads_the_map_and_clips_the_reference():
     ],
 )
 def test_invalid_settings_raise_value_error_naming_the_field(make, field: str):
-    with pytest.raises(ValueError, match=rf"^{field}: "):
+    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
         make()
+    assert error.value.field == field

@@ -12,6 +12,7 @@ import pytest
 import crs_core.control.path_following as path_following
 from crs_core.analysis.laps import LapCounter
 from crs_core.control import PathFollower, PathFollowerSettings
+from crs_core.errors import FieldError
 from crs_core.track import Track, load_demo_track
 
 WHEELBASE = 0.093  # m, Chronos lf + lr
@@ -160,8 +161,9 @@ def test_integral_is_clamped(track: Track) -> None:
 )
 def test_invalid_state_raises(track: Track, bad) -> None:
     controller = PathFollower(track, WHEELBASE)
-    with pytest.raises(ValueError, match="x: state"):
+    with pytest.raises(FieldError, match="x: state") as error:
         controller(0.0, bad)
+    assert error.value.field == "x"
 
 
 def test_nan_state_message_names_the_entry(track: Track) -> None:
@@ -172,15 +174,30 @@ def test_nan_state_message_names_the_entry(track: Track) -> None:
         controller(float("nan"), np.zeros(6))
 
 
-def test_invalid_settings_and_wheelbase_raise(track: Track) -> None:
-    with pytest.raises(ValueError, match="v_ref"):
-        PathFollowerSettings(v_ref=-1.0)
-    with pytest.raises(ValueError, match="steer_max"):
-        PathFollowerSettings(steer_max=0.0)
-    with pytest.raises(ValueError, match="torque_max"):
-        PathFollowerSettings(torque_min=0.5, torque_max=0.5)
-    with pytest.raises(ValueError, match="wheelbase"):
+@pytest.mark.parametrize(
+    ("settings", "field"),
+    [
+        ({"v_ref": -1.0}, "v_ref"),
+        ({"steer_max": 0.0}, "steer_max"),
+        ({"steer_max": 2.0}, "steer_max"),
+        ({"torque_min": 0.5, "torque_max": 0.5}, "torque_max"),
+        ({"kp_speed": math.nan}, "kp_speed"),
+        ({"lookahead_min": True}, "lookahead_min"),
+    ],
+)
+def test_invalid_settings_raise_naming_the_field(settings: dict, field: str) -> None:
+    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
+        PathFollowerSettings(**settings)
+    assert error.value.field == field
+
+
+def test_invalid_wheelbase_and_time_raise_naming_the_field(track: Track) -> None:
+    with pytest.raises(FieldError, match="wheelbase") as error:
         PathFollower(track, 0.0)
+    assert error.value.field == "wheelbase"
+    with pytest.raises(FieldError) as error:
+        PathFollower(track, WHEELBASE)(float("nan"), np.zeros(6))
+    assert error.value.field == "t"
 
 
 def test_controller_is_model_free() -> None:
@@ -199,5 +216,6 @@ def test_controller_is_model_free() -> None:
         "numpy",
         "numpy.typing",
         "crs_core.analysis.angles",
+        "crs_core.errors",
         "crs_core.track",
     }

@@ -11,6 +11,7 @@ import pytest
 from crs_core.analysis.angles import wrap_angle
 from crs_core.control.recovery import RecoverySettings, StuckRecovery
 from crs_core.control.supervisor import Supervisor
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 
@@ -104,8 +105,9 @@ def test_stale_estimates_reset_the_standing_time(track, pose_at):
     "field, value", [("stuck_speed", 0.0), ("reverse_time", math.nan), ("aligned_heading", 4.0)]
 )
 def test_bad_settings_name_the_field(field, value):
-    with pytest.raises(ValueError, match=field):
+    with pytest.raises(FieldError, match=field) as error:
         RecoverySettings(**{field: value})
+    assert error.value.field == field
 
 
 def test_velocity_commands_cannot_back_out(track):

@@ -7,12 +7,16 @@ import numpy as np
 import pytest
 
 from crs_core.analysis.angles import wrap_angle
+from crs_core.errors import FieldError
 from crs_core.estimation import (
     EkfSettings,
     EstimatorNoise,
     MheSettings,
     make_estimator,
 )
+from crs_core.estimation.health import HealthSettings
+from crs_core.estimation.initialization import InitializationSettings
+from crs_core.estimation.realtime import RealtimeSettings
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
@@ -299,6 +303,51 @@ def test_time_offset_corrects_a_sensor_latency(kind):
     assert rms[0.025] < 0.6 * rms[0.0], rms
 
 
+@pytest.mark.parametrize(
+    ("make", "field", "reason"),
+    [
+        (lambda: EstimatorNoise(process_std=(0.02,) * 7), "noise.process_std", "needs 6 values"),
+        (lambda: EstimatorNoise(pose_std=(0.1, 0.1)), "noise.pose_std", "needs 3 values"),
+        (lambda: EstimatorNoise(gyro_std=0.0), "noise.gyro_std", "every standard deviation"),
+        (lambda: EkfSettings(initial_std=(1.0,) * 5), "initial_std", "needs 6 finite values"),
+        (lambda: EkfSettings(gate_probability=1.0), "gate_probability", "must be in (0, 1)"),
+        (lambda: EkfSettings(time_offsets={"lidar": 0.01}), "time_offsets", "'lidar' is neither"),
+        (
+            lambda: EkfSettings(time_offsets={"imu": math.nan}),
+            "time_offsets['imu']",
+            "must be a finite number of seconds",
+        ),
+        (lambda: MheSettings(horizon=0), "horizon", "must be >= 1"),
+        (lambda: MheSettings(discount=0.0), "discount", "must be within (0, 1], got 0.0"),
+        (lambda: MheSettings(state_upper=(1.0, 1.0)), "state_upper", "needs 3 values"),
+        (lambda: MheSettings(process_bound=(0.1,) * 8), "process_bound", "needs 6 values"),
+        (
+            lambda: HealthSettings(lost_after_s=0.0),
+            "health.lost_after_s",
+            "must be a finite number > 0, got 0.0",
+        ),
+        (
+            lambda: HealthSettings(rejected_fraction=1.5),
+            "health.rejected_fraction",
+            "must be within [0, 1], got 1.5",
+        ),
+        (
+            lambda: InitializationSettings(span_s=math.nan),
+            "initialization.span_s",
+            "must be a finite number > 0, got nan",
+        ),
+        (lambda: InitializationSettings(min_fixes=1), "initialization.min_fixes", "must be >= 2"),
+        (lambda: RealtimeSettings(rate_hz=0.0), "rate_hz", "must be a finite number > 0"),
+        (lambda: RealtimeSettings(max_lag=-0.1), "max_lag", "must be a finite number >= 0"),
+    ],
+)
+def test_a_bad_setting_is_a_field_error_naming_it(make, field: str, reason: str):
+    with pytest.raises(FieldError) as error:
+        make()
+    assert error.value.field == field
+    assert error.value.reason.startswith(reason), error.value
+
+
 def test_settings_are_validated_by_name():
     with pytest.raises(ValueError, match="process_std: needs 6 values"):
         EstimatorNoise(process_std=(0.02,) * 7)
@@ -328,8 +377,9 @@ def test_time_offsets_parse_from_text():
         "lighthouse/0/1": 0.01,
     }
     assert parse_time_offsets("") == {}
-    with pytest.raises(ValueError, match=r"time_offsets: 'imu=0\.1' is not"):
+    with pytest.raises(FieldError, match=r"time_offsets: 'imu=0\.1' is not") as error:
         parse_time_offsets("imu=0.1")
+    assert error.value.field == "time_offsets"
 
 
 def test_no_lighthouse_and_no_x0_is_refused():
@@ -358,8 +408,9 @@ def test_queries_in_the_past_are_answered_from_history_or_refused(drive, kind):
         t = queries[-1] - back
         estimate = estimator.estimate(t)
         assert _position_error(drive, [t], estimate.x[None, :])[0] < 0.005
-    with pytest.raises(ValueError, match=r"t: .* is before the oldest state"):
+    with pytest.raises(FieldError, match=r"t: .* is before the oldest state") as error:
         estimator.estimate(queries[-1] - 5.0)
+    assert error.value.field == "t"
 
 
 REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "chronos_real"

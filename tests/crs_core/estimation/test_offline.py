@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from crs_core.dataset import Dataset
+from crs_core.errors import FieldError
 from crs_core.estimation.offline import (
     POSE_X0_STD,
     STATUS_CODES,
@@ -146,13 +147,14 @@ def test_given_start_state_is_never_lost(drive: Dataset, size: int):
 def test_bad_arguments_are_one_line_errors(drive: Dataset, kwargs: dict, message: str):
     """Invalid x0, rate, sensors or kind: ValueError naming the argument, before any work."""
     arguments = {"kind": "mhe", "sensors": "lh", **kwargs}
-    with pytest.raises(ValueError, match=message) as excinfo:
+    with pytest.raises(FieldError, match=message) as excinfo:
         estimate_dataset(drive, arguments.pop("kind"), arguments.pop("sensors"), **arguments)
     assert "\n" not in str(excinfo.value)
+    assert excinfo.value.field == message[1:].split(":")[0]
 
 
 def test_empty_dataset_is_refused(drive: Dataset, tmp_path: Path):
     """A dataset without samples is a ValueError naming t.npy."""
     empty = Dataset(t=np.zeros(0), u=None, y=np.zeros((0, drive.y.shape[1])))
-    with pytest.raises(ValueError, match=r"^dataset: has no samples \(t\.npy is empty\)"):
+    with pytest.raises(FieldError, match=r"^dataset: has no samples \(t\.npy is empty\)"):
         estimate_dataset(empty, "ekf", "lh")

@@ -7,6 +7,7 @@ import pytest
 import scipy.sparse as sp
 
 from crs_core.dataset import Y_CHANNELS, Dataset
+from crs_core.errors import FieldError
 from crs_core.identification import FieData, FieProblem, FieSettings, identify
 from crs_core.identification.data import Y_LAYOUT
 from crs_core.identification.models import ROUGH, identification_model
@@ -180,8 +181,26 @@ def test_effect_parameters_are_identified_like_any_other():
 
 def test_input_delay_cannot_be_fitted():
     model = CarModel(["input_delay"])
-    with pytest.raises(ValueError, match="fit: 'input_delay'"):
+    with pytest.raises(FieldError, match="fit: 'input_delay'") as error:
         check_fit(model, ("input_delay",))
+    assert error.value.field == "fit"
+
+
+@pytest.mark.parametrize(
+    ("settings", "field"),
+    [
+        ({"fit": ()}, "fit"),
+        ({"fit": ("m", "m")}, "fit"),
+        ({"hessian": "bfgs"}, "hessian"),
+        ({"process_scale": 0.0}, "process_scale"),
+        ({"max_iter": 0}, "max_iter"),
+        ({"starts": 0}, "starts"),
+    ],
+)
+def test_bad_fie_settings_name_the_field(settings: dict, field: str):
+    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
+        FieSettings(**{"fit": ("m",), **settings})
+    assert error.value.field == field
 
 
 def test_lag_states_run_through_the_commands():
