@@ -41,15 +41,22 @@ def launch(args: argparse.Namespace) -> None:
         args.out,
         args.domain,
         args.seed,
-        blind_start=args.blind_start,
-        record=args.record,
         track_file=args.track,
-        params_file=args.params,
-        controller=args.controller,
-        output=args.output,
+        **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
+
+
+def _stack_options(args: argparse.Namespace) -> dict[str, object]:
+    """The keywords ``run_stack`` and ``run_car_stack`` both take, from their options."""
+    return {
+        "blind_start": args.blind_start,
+        "record": args.record,
+        "params_file": args.params,
+        "controller": args.controller,
+        "output": args.output,
+    }
 
 
 def _check_and_prepare(args: argparse.Namespace) -> None:
@@ -129,12 +136,8 @@ def launch_car(args: argparse.Namespace) -> None:
         car_ips,
         args.domain,
         args.seed,
-        record=args.record,
-        controller=args.controller,
-        output=args.output,
-        blind_start=args.blind_start,
-        params_file=args.params,
         link=link,
+        **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
