@@ -12,6 +12,7 @@ from typing import Any
 
 from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import (
+    add_cars,
     add_duration,
     add_estimator,
     add_out,
@@ -167,9 +168,7 @@ def _seeds(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _stack_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
-    )
+    add_cars(parser)
     add_estimator(parser)
     add_duration(parser, 40.0, "wall-clock time per repeat")
     parser.add_argument(

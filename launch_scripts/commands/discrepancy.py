@@ -12,13 +12,13 @@ from pathlib import Path
 from crs_core.identification.data import FieData
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS
-from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
-from launch_scripts.commands.sysid import (
-    EFFECT_OPTION,
-    identification_model,
-    load_dataset,
-    parse_fit,
+from launch_scripts.arguments import (
+    OVERWRITE_HELP,
+    add_effect,
+    add_process_scale,
+    bounded_number,
 )
+from launch_scripts.commands.sysid import identification_model, load_dataset, parse_fit
 from launch_scripts.output_folder import prepare_output
 
 
@@ -98,9 +98,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--params",
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
     )
-    sub.add_argument(
-        "--effect", help="an effect the current model already has (repeatable)", **EFFECT_OPTION
-    )
+    add_effect(sub, "an effect the current model already has (repeatable)")
     sub.add_argument(
         "--fit",
         help="parameters identified in every fit (default: the 15 dynamics parameters "
@@ -117,12 +115,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="designed probability of a finding per round on data that need no effect "
         "(default 0.01)",
     )
-    sub.add_argument(
-        "--process-scale",
-        type=bounded_number("process-scale", "", 0.0),
-        default=1.0,
-        help="factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits "
-        "simulated data, whose truth has no process noise)",
+    add_process_scale(
+        sub,
+        "factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits simulated "
+        "data, whose truth has no process noise)",
     )
     sub.add_argument(
         "--workers",

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from chronos_bridge.impairment import SPEC_HELP
-from launch_scripts.arguments import add_duration, add_estimator, add_out, bounded_number
+from launch_scripts.arguments import add_cars, add_duration, add_estimator, add_out, bounded_number
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS
@@ -190,9 +190,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         help="car --emulate: seed of the links' draws; car i uses LINK_SEED + i (default: from "
         "each emulator's own seed)",
     )
-    sub.add_argument(
-        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
-    )
+    add_cars(sub)
     add_estimator(sub)
     sub.add_argument(
         "--controller",
