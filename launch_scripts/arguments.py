@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,6 +15,11 @@ from crs_core.model.effects import parse_effect
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
+
+
+def command_line() -> str:
+    """This run's command, ``crs ARGS`` (shell-quoted), as the reports and JSON files record it."""
+    return "crs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
 def argument_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:

@@ -12,15 +12,13 @@ Every mode writes ``geometry.yaml`` (the ``geometry`` block of ``dataset.yaml``)
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
+from launch_scripts.arguments import OVERWRITE_HELP, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
 COMMAND = "calibrate-lighthouse"
@@ -161,10 +159,6 @@ def add_commands(subparsers) -> None:
     recording.set_defaults(handler=run_simulate_moving)
 
 
-def _command_line() -> str:
-    return "crs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-
-
 def _write_calibration(
     out: Path,
     stations: Sequence[Any],
@@ -179,7 +173,7 @@ def _write_calibration(
 
     write_geometry(out / "geometry.yaml", stations, photodiodes)
     write_json(out / "report.json", summary)
-    (out / "report.md").write_text(markdown(summary, _command_line()))
+    (out / "report.md").write_text(markdown(summary, command_line()))
     print(headline)
     print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
     return out
