@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from crs_core.identification.data import FieData
-from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.identification.problem import FieSettings
 from crs_core.model import EFFECTS
 from launch_scripts.arguments import (
     OVERWRITE_HELP,
@@ -18,7 +18,12 @@ from launch_scripts.arguments import (
     add_process_scale,
     bounded_number,
 )
-from launch_scripts.commands.sysid import identification_model, load_dataset, parse_fit
+from launch_scripts.commands.sysid import (
+    add_fit,
+    identification_model,
+    load_dataset,
+    parse_fit,
+)
 from launch_scripts.output_folder import prepare_output
 
 
@@ -99,11 +104,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
     )
     add_effect(sub, "an effect the current model already has (repeatable)")
-    sub.add_argument(
-        "--fit",
-        help="parameters identified in every fit (default: the 15 dynamics parameters "
-        f"{','.join(DYNAMICS_FIT)} plus every --effect parameter)",
-    )
+    add_fit(sub, "parameters identified in every fit")
     sub.add_argument(
         "--candidates",
         help=f"comma-separated effects to test (default: all: {','.join(EFFECTS)})",

@@ -40,6 +40,15 @@ def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
     return names
 
 
+def add_fit(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--fit a,b,c`` (:func:`parse_fit`): ``what`` they are, and the default."""
+    parser.add_argument(
+        "--fit",
+        help=f"{what} (default: the 15 dynamics parameters {','.join(DYNAMICS_FIT)} plus every "
+        "--effect parameter)",
+    )
+
+
 def load_dataset(path: Path, option: str = "DATASET") -> Dataset:
     """``Dataset.load``; a missing folder is a ``ValueError`` naming ``option``."""
     try:
@@ -126,11 +135,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="prior parameter YAML ('parameters:' mapping), or 'rough' for the rough prior of "
         "the real recordings' README (default: the Chronos identified values)",
     )
-    sub.add_argument(
-        "--fit",
-        help="comma-separated parameter names to identify (default: the 15 dynamics "
-        f"parameters {','.join(DYNAMICS_FIT)} plus every --effect parameter)",
-    )
+    add_fit(sub, "comma-separated parameter names to identify")
     add_effect(sub, "add a model effect (repeatable)")
     sub.add_argument(
         "--starts",
