@@ -4,13 +4,22 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from crs_core.model.effects import parse_effect
+
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
+
+
+def command_line() -> str:
+    """This run's command, ``crs ARGS`` (shell-quoted), as the reports and JSON files record it."""
+    return "crs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
 
 
 def argument_type(parse: Callable[[str], Any]) -> Callable[[str], Any]:
@@ -92,4 +101,34 @@ def add_seed(
         type=bounded_number("seed", "", 0, 2**31 - 1, int, include_low=True),
         default=default,
         help=f"{help_text}, 0..2^31-1 (default {default})",
+    )
+
+
+def add_cars(parser: argparse.ArgumentParser) -> None:
+    """``--cars`` of a launched stack: 1..8 (default 1)."""
+    parser.add_argument(
+        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
+    )
+
+
+def add_effect(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--effect NAME[.PARAM][=VALUE]`` (repeatable): a model effect, every command building a
+    model takes it."""
+    parser.add_argument(
+        "--effect",
+        type=argument_type(parse_effect),
+        action="append",
+        metavar="NAME[.PARAM][=VALUE]",
+        help=help_text,
+    )
+
+
+def add_process_scale(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--process-scale``: a factor > 0 on the process noise std of an identification's FIE
+    (default 1.0)."""
+    parser.add_argument(
+        "--process-scale",
+        type=bounded_number("process-scale", "", 0.0),
+        default=1.0,
+        help=help_text,
     )

@@ -56,14 +56,14 @@ from chronos_bridge.impairment import parse_link
 from crs_core.analysis.latency import LATENCY_DEFINITIONS, command_latencies, input_chain_latency
 from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
-from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
-    OUTPUTS,
-    RECORD_SETS,
     analyse,
-    process_figures,
+    car_control_nodes,
+    checked_record_set,
+    launch_and_report,
+    recorder_node,
     run_folder,
-    run_watched,
 )
 from launch_scripts.warm_cache import warm_compile_cache
 
@@ -148,17 +148,8 @@ def car_nodes(
         raise ValueError("--link: only for emulated cars (a real car's link is the real one)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
-    if cars < 1:
-        raise ValueError("cars: must be >= 1")
-    if estimator not in ("ekf", "mhe"):
-        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
-    if output not in OUTPUTS:
-        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
-    if record not in RECORD_SETS:
-        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
-    per_car, global_topics = RECORD_SETS[record]
+    per_car, global_topics = checked_record_set(cars, estimator, output, record)
     files = {"params_file": str(Path(params_file).resolve())} if params_file else {}
-    commands = {"output": output} if output == "velocity" else {}
     nodes, emulators, topics = [], [], list(global_topics)
     for i in range(1, cars + 1):
         ns, host_port = f"/car{i}", ports[0] + i - 1
@@ -182,35 +173,19 @@ def car_nodes(
             bridge = {"port": host_port, "bind": "0.0.0.0", "car_ip": car_ips[i - 1]}
         nodes += [
             NodeSpec("bridge", "ros4crs.bridge_node", ns, bridge),
-            NodeSpec(
-                "estimator",
-                "ros4crs.estimator_node",
+            *car_control_nodes(
                 ns,
-                {
-                    "estimator": estimator,
-                    "blind_start": blind_start,
-                    # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
-                    "input_topic": "input/applied",
-                    **files,
-                },
-            ),
-            NodeSpec(
-                "controller",
-                "ros4crs.controller_node",
-                ns,
-                {"controller": controller, **commands, **files},
+                estimator,
+                blind_start,
+                controller,
+                output,
+                files,
+                # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
+                input_topic="input/applied",
             ),
         ]
         topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
-    nodes.append(
-        NodeSpec(
-            "recorder",
-            "ros4crs.recorder_node",
-            "",
-            {"output": str(bag), "topics": ",".join(topics)},
-        )
-    )
-    return nodes + emulators
+    return [*nodes, recorder_node(bag, topics), *emulators]
 
 
 def run_car_stack(
@@ -250,30 +225,26 @@ def run_car_stack(
         link=link,
     )
     warm_compile_cache(estimator, controller, output, params_file)
-    launcher = Launcher(nodes, domain, out / "logs")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
-    print(
-        f"[launch] {len(nodes)} processes, {cars} {what}, {estimator}, {controller} "
-        f"({output} commands) for {duration:g} s",
-        flush=True,
+    report = launch_and_report(
+        nodes,
+        domain,
+        out,
+        duration,
+        f"{len(nodes)} processes, {cars} {what}",
+        lambda: analyse_car_run(bag, cars, out, emulate),
+        {
+            "mode": "emulated" if emulate else "real",
+            "car_ips": car_ips or [],
+            "estimator": estimator,
+            "controller": controller,
+            "output": output,
+            "duration_s": duration,
+            "recorded": record,
+            "seed": seed,
+            "link": asdict(link),
+        },
     )
-
-    deaths = run_watched(launcher, duration)
-    report = analyse_car_run(bag, cars, out, emulate)
-    report.update(
-        mode="emulated" if emulate else "real",
-        car_ips=car_ips or [],
-        estimator=estimator,
-        controller=controller,
-        output=output,
-        duration_s=duration,
-        recorded=record,
-        seed=seed,
-        link=asdict(link),
-        node_deaths=[{"node": d.node, "returncode": d.returncode} for d in deaths],
-    )
-    report.update(process_figures(launcher))
-    (out / "report.json").write_text(json.dumps(report, indent=2))
     if emulate:
         from launch_scripts.stack_plot import StateTrack, plot
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -69,20 +70,12 @@ def stack_nodes(
     ``onboard``: the simulators run the car's onboard loop also for torque commands (its
     steering servo then moves the wheels, as on the emulator and a real car).
     """
-    if cars < 1:
-        raise ValueError("cars: must be >= 1")
-    if estimator not in ("ekf", "mhe"):
-        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
-    if output not in OUTPUTS:
-        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    per_car, global_topics = checked_record_set(cars, estimator, output, record)
     if output == "velocity" and controller != "mpcc":
         raise ValueError(
             f"output: velocity needs the mpcc controller (the {controller} controller commands "
             "torque)"
         )
-    if record not in RECORD_SETS:
-        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
-    per_car, global_topics = RECORD_SETS[record]
     nodes, topics = [], list(global_topics)
     files = {
         name: str(Path(path).resolve())
@@ -91,7 +84,6 @@ def stack_nodes(
     }
     # the default torque stack passes no extra parameters (the nodes' defaults)
     onboard_loop = {"onboard": True} if onboard or output == "velocity" else {}
-    commands = {"output": output} if output == "velocity" else {}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
@@ -108,29 +100,61 @@ def stack_nodes(
                     **files,
                 },
             ),
-            NodeSpec(
-                "estimator",
-                "ros4crs.estimator_node",
-                ns,
-                {"estimator": estimator, "blind_start": blind_start, **files},
-            ),
-            NodeSpec(
-                "controller",
-                "ros4crs.controller_node",
-                ns,
-                {"controller": controller, **commands, **files},
-            ),
+            *car_control_nodes(ns, estimator, blind_start, controller, output, files),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
-    nodes.append(
+    return [*nodes, recorder_node(bag, topics)]
+
+
+def checked_record_set(
+    cars: int, estimator: str, output: str, record: str
+) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """The checks every stack (simulated or over UDP) makes of its arguments; the per-car and
+    global topics of ``record`` (:data:`RECORD_SETS`)."""
+    if cars < 1:
+        raise ValueError("cars: must be >= 1")
+    if estimator not in ("ekf", "mhe"):
+        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
+    if output not in OUTPUTS:
+        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
+    if record not in RECORD_SETS:
+        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
+    return RECORD_SETS[record]
+
+
+def car_control_nodes(
+    ns: str,
+    estimator: str,
+    blind_start: bool,
+    controller: str,
+    output: str,
+    files: dict[str, str],
+    **estimator_parameters: Any,
+) -> list[NodeSpec]:
+    """A car's estimator (with ``estimator_parameters``) and controller, in every stack; the
+    default torque stack passes the controller no ``output`` (the node's default)."""
+    commands = {"output": output} if output == "velocity" else {}
+    return [
         NodeSpec(
-            "recorder",
-            "ros4crs.recorder_node",
-            "",
-            {"output": str(bag), "topics": ",".join(topics)},
-        )
+            "estimator",
+            "ros4crs.estimator_node",
+            ns,
+            {"estimator": estimator, "blind_start": blind_start, **estimator_parameters, **files},
+        ),
+        NodeSpec(
+            "controller",
+            "ros4crs.controller_node",
+            ns,
+            {"controller": controller, **commands, **files},
+        ),
+    ]
+
+
+def recorder_node(bag: Path, topics: list[str]) -> NodeSpec:
+    """The one recorder of a stack: ``topics`` into the MCAP bag ``bag``."""
+    return NodeSpec(
+        "recorder", "ros4crs.recorder_node", "", {"output": str(bag), "topics": ",".join(topics)}
     )
-    return nodes
 
 
 def run_stack(
@@ -165,23 +189,50 @@ def run_stack(
     )
     track = read_track(track_file) if track_file else load_demo_track()
     warm_compile_cache(estimator, controller, output, params_file)
+    report = launch_and_report(
+        nodes,
+        domain,
+        out,
+        duration,
+        f"{len(nodes)} nodes, {cars} car(s)",
+        lambda: analyse(bag, cars, track),
+        {
+            "estimator": estimator,
+            "controller": controller,
+            "output": output,
+            "duration_s": duration,
+            "recorded": record,
+        },
+    )
+    plot(bag, cars, out, estimator, track)
+    return report
+
+
+def launch_and_report(
+    nodes: list[NodeSpec],
+    domain: int,
+    out: Path,
+    duration: float,
+    what: str,
+    analyse_run: Callable[[], dict[str, Any]],
+    settings: dict[str, Any],
+) -> dict[str, Any]:
+    """Launch ``nodes`` (ROS domain ``domain``, logs in OUT/logs) for ``duration`` s, announced
+    as ``what`` and the ``settings`` estimator, controller and output; then OUT/report.json:
+    ``analyse_run()``, the ``settings``, the nodes that died and CPU and memory per process
+    (the launched runs of ``crs launch sim`` and ``crs launch car``). Returns the report."""
     launcher = Launcher(nodes, domain, out / "logs")
     print(
-        f"[launch] {len(nodes)} nodes, {cars} car(s), {estimator}, {controller} "
-        f"({output} commands) for {duration:g} s",
+        f"[launch] {what}, {settings['estimator']}, {settings['controller']} "
+        f"({settings['output']} commands) for {duration:g} s",
         flush=True,
     )
     deaths = run_watched(launcher, duration)
-    report = analyse(bag, cars, track)
-    report["estimator"] = estimator
-    report["controller"] = controller
-    report["output"] = output
-    report["duration_s"] = duration
-    report["recorded"] = record
+    report = analyse_run()
+    report.update(settings)
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     report.update(process_figures(launcher))
     (out / "report.json").write_text(json.dumps(report, indent=2))
-    plot(bag, cars, out, estimator, track)
     return report
 
 

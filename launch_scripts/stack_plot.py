@@ -122,24 +122,22 @@ def plot(
     inset = ax.inset_axes((-1.21, -0.45, 0.62, 0.62), transform=ax.transData)
     zoom = None
     for i, (estimates, truth, _, _) in runs.items():
+        # the truth wide and pale under the estimate; labelled once, in the main axes
+        lines = (
+            (truth, "truth", 2 * i - 2, 2.2, 0.45),
+            (estimates, "estimate", 2 * i - 1, 0.8, 1.0),
+        )
         for axis in (ax, inset):
-            axis.plot(
-                truth.x[:, 0],
-                truth.x[:, 1],
-                "-",
-                color=f"C{2 * i - 2}",
-                lw=2.2,
-                alpha=0.45,
-                label=f"car{i} truth" if axis is ax else None,
-            )
-            axis.plot(
-                estimates.x[:, 0],
-                estimates.x[:, 1],
-                "-",
-                color=f"C{2 * i - 1}",
-                lw=0.8,
-                label=f"car{i} estimate" if axis is ax else None,
-            )
+            for states, what, colour, width, alpha in lines:
+                axis.plot(
+                    states.x[:, 0],
+                    states.x[:, 1],
+                    "-",
+                    color=f"C{colour}",
+                    lw=width,
+                    alpha=alpha,
+                    label=f"car{i} {what}" if axis is ax else None,
+                )
         middle = estimates.x[len(estimates.x) // 2]
         zoom = zoom or (middle[0], middle[1])
     if zoom is not None:

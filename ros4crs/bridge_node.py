@@ -89,9 +89,9 @@ from chronos_bridge.link import CarLink
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
-    CheckedSubscription,
     declare,
     in_range,
+    input_subscription,
     non_negative,
     one_of,
     positive,
@@ -192,14 +192,7 @@ class BridgeNode(Node):
             CarInput, conversions.TOPICS["applied_input"], STREAM_QOS
         )
         self._last_applied: tuple[float, float, float] | None = None  # stamp, steer, torque
-        self._inputs = CheckedSubscription(
-            self,
-            CarInput,
-            conversions.TOPICS["input"],
-            conversions.input_from_msg,
-            self._on_input,
-            "input",
-        )
+        self._inputs = input_subscription(self, self._on_input)
         self.create_timer(1.0 / poll_hz, self._poll)
         self.create_timer(diagnostics_period, self._publish_diagnostics)
         self.create_timer(log_period, lambda: self.get_logger().info(self.link.summary()))

@@ -76,6 +76,7 @@ from ros4crs.node_support import (
     declare_track,
     finite_vector,
     in_range,
+    input_subscription,
     non_negative,
     one_of,
     parsed_with,
@@ -160,7 +161,6 @@ class EstimatorNode(Node):
         from nav_msgs.msg import Odometry
 
         from chronos_msgs.msg import (
-            CarInput,
             CarState,
             EstimatorDiagnostics,
             EstimatorQuery,
@@ -198,14 +198,7 @@ class EstimatorNode(Node):
             )
         )
         self._checked_subscriptions.append(
-            CheckedSubscription(
-                self,
-                CarInput,
-                self.input_topic,
-                conversions.input_from_msg,
-                self._on_input,
-                "input",
-            )
+            input_subscription(self, self._on_input, self.input_topic)
         )
         self._state = self.create_publisher(CarState, conversions.TOPICS["state"], LOG_QOS)
         self._odometry = self.create_publisher(Odometry, conversions.TOPICS["odometry"], 10)

@@ -256,6 +256,19 @@ class CheckedSubscription:
                 taken += 1
 
 
+def input_subscription(
+    node: Node, handle: Callable[[Any], None], topic: str | None = None
+) -> CheckedSubscription:
+    """The car's commanded inputs as the simulator, the bridge and the estimator take them:
+    ``chronos_msgs/CarInput`` on ``topic`` (default ``input``), checked by
+    ``conversions.input_from_msg``."""
+    from chronos_msgs.msg import CarInput
+    from ros4crs import conversions
+
+    topic = conversions.TOPICS["input"] if topic is None else topic
+    return CheckedSubscription(node, CarInput, topic, conversions.input_from_msg, handle, "input")
+
+
 def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int:
     """Initialise rclpy, spin the node until Ctrl-C / SIGTERM / shutdown, clean up.
 

@@ -38,12 +38,12 @@ from rclpy.node import Node
 from crs_core.model.effects import effect_spec, parse_effect
 from ros4crs import conversions
 from ros4crs.node_support import (
-    CheckedSubscription,
     declare,
     declare_model,
     declare_track,
     finite_vector,
     in_range,
+    input_subscription,
     non_negative,
     parsed_with,
     positive,
@@ -131,17 +131,10 @@ class SimulatorNode(Node):
         self._wall_start = time.monotonic()
         self.body_frame = conversions.body_frame(self.get_namespace())
         self._sensors = declare_sensor_output(self, self.body_frame)
-        from chronos_msgs.msg import CarInput, CarState
+        from chronos_msgs.msg import CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
-        self._inputs = CheckedSubscription(
-            self,
-            CarInput,
-            conversions.TOPICS["input"],
-            conversions.input_from_msg,
-            self._on_input,
-            "input",
-        )
+        self._inputs = input_subscription(self, self._on_input)
         self._clock_publisher = None
         if self.rate_factor != 1.0:
             from rosgraph_msgs.msg import Clock

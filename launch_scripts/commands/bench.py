@@ -12,21 +12,19 @@ from typing import Any
 
 from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import (
+    add_cars,
     add_duration,
     add_estimator,
     add_out,
     add_seed,
     argument_type,
     bounded_number,
+    command_line,
 )
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
 #: What a benchmark gives: the JSON-ready result and the text to print.
 Outcome = tuple[dict[str, Any], str]
-
-
-def _command_line() -> str:
-    return "crs " + " ".join(sys.argv[1:])
 
 
 def _runs(args: argparse.Namespace, name: str) -> Path:
@@ -39,7 +37,7 @@ def _runs(args: argparse.Namespace, name: str) -> Path:
 def _with_machine(result: dict[str, Any]) -> dict[str, Any]:
     from benchmarks.machine import machine
 
-    return {"machine": machine(), "command": _command_line(), **result}
+    return {"machine": machine(), "command": command_line(), **result}
 
 
 def model(args: argparse.Namespace) -> Outcome:
@@ -95,7 +93,7 @@ def link(args: argparse.Namespace) -> Outcome:
 def sysid(args: argparse.Namespace) -> Outcome:
     from benchmarks.sysid import sysid_benchmark
 
-    result = {"command": _command_line(), **sysid_benchmark(None, args.seeds)}
+    result = {"command": command_line(), **sysid_benchmark(None, args.seeds)}
     return result, json.dumps(result, indent=2)
 
 
@@ -103,7 +101,7 @@ def discrepancy(args: argparse.Namespace) -> Outcome:
     from benchmarks.discrepancy import discrepancy_benchmark, markdown
 
     result = {
-        "command": _command_line(),
+        "command": command_line(),
         **discrepancy_benchmark(
             args.out,
             seeds=args.seeds,
@@ -123,7 +121,7 @@ def control(args: argparse.Namespace) -> Outcome:
     def progress(line: str) -> None:
         print(f"control bench: {line}", file=sys.stderr)
 
-    result = {"command": _command_line(), **control_benchmark(progress=progress)}
+    result = {"command": command_line(), **control_benchmark(progress=progress)}
     return result, format_table(result)
 
 
@@ -179,9 +177,7 @@ def _seeds(parser: argparse.ArgumentParser, what: str) -> None:
 
 
 def _stack_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
-    )
+    add_cars(parser)
     add_estimator(parser)
     add_duration(parser, 40.0, "wall-clock time per repeat")
     parser.add_argument(

@@ -12,16 +12,35 @@ Every mode writes ``geometry.yaml`` (the ``geometry`` block of ``dataset.yaml``)
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
+from launch_scripts.arguments import OVERWRITE_HELP, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
 COMMAND = "calibrate-lighthouse"
+
+
+def _add_fit_tilt(parser: argparse.ArgumentParser) -> None:
+    """``--fit-tilt`` (static and moving)."""
+    parser.add_argument(
+        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
+    )
+
+
+def _add_offset(parser: argparse.ArgumentParser, default: float, help_text: str) -> None:
+    """``--offset``: the motion-capture clock minus the car's, s, in [-1, 1]."""
+    offset = bounded_number("offset", "s", -1.0, 1.0, include_low=True)
+    parser.add_argument("--offset", type=offset, default=default, help=help_text)
+
+
+def _add_simulated_stations(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--stations``: base stations of a simulation, 1..8 (default 1)."""
+    stations = bounded_number("stations", "", 1, 8, int, include_low=True)
+    parser.add_argument("--stations", type=stations, default=1, help=help_text)
 
 
 def add_commands(subparsers) -> None:
@@ -52,9 +71,7 @@ def add_commands(subparsers) -> None:
         type=bounded_number("stations", "", 1, 16, int, include_low=True),
         help="calibrate stations 0..N-1 (default: every station in the file)",
     )
-    static.add_argument(
-        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
-    )
+    _add_fit_tilt(static)
     static.add_argument(
         "--no-sweep", action="store_true", help="skip the mean/max-vs-number-of-points study"
     )
@@ -75,12 +92,7 @@ def add_commands(subparsers) -> None:
         action="store_true",
         help="fit the clock offset (motion capture minus car), s",
     )
-    moving.add_argument(
-        "--offset",
-        type=bounded_number("offset", "s", -1.0, 1.0, include_low=True),
-        default=0.0,
-        help="clock offset, s: fixed, or the start with --fit-offset (default 0)",
-    )
+    _add_offset(moving, 0.0, "clock offset, s: fixed, or the start with --fit-offset (default 0)")
     moving.add_argument(
         "--max-offset",
         type=bounded_number("max-offset", "s", 0.0, 1.0, include_low=True),
@@ -92,9 +104,7 @@ def add_commands(subparsers) -> None:
         action="store_true",
         help="also fit the photodiode positions (body frame)",
     )
-    moving.add_argument(
-        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
-    )
+    _add_fit_tilt(moving)
     moving.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     moving.set_defaults(handler=run_moving)
     points = modes.add_parser(
@@ -111,12 +121,7 @@ def add_commands(subparsers) -> None:
         default=24,
         help="number of points (default 24)",
     )
-    points.add_argument(
-        "--stations",
-        type=bounded_number("stations", "", 1, 8, int, include_low=True),
-        default=1,
-        help="base stations, 1..8 (default 1: the recorded one)",
-    )
+    _add_simulated_stations(points, "base stations, 1..8 (default 1: the recorded one)")
     points.add_argument(
         "--sweeps",
         type=bounded_number("sweeps", "", 1, 10000, int, include_low=True),
@@ -147,25 +152,31 @@ def add_commands(subparsers) -> None:
         default=20.0,
         help="simulated time, s (default 20)",
     )
-    recording.add_argument(
-        "--offset",
-        type=bounded_number("offset", "s", -1.0, 1.0, include_low=True),
-        default=0.02,
-        help="motion-capture clock minus car clock, s (default 0.02)",
-    )
-    recording.add_argument(
-        "--stations",
-        type=bounded_number("stations", "", 1, 8, int, include_low=True),
-        default=1,
-        help="base stations, 1..8 (default 1)",
-    )
+    _add_offset(recording, 0.02, "motion-capture clock minus car clock, s (default 0.02)")
+    _add_simulated_stations(recording, "base stations, 1..8 (default 1)")
     recording.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
     recording.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     recording.set_defaults(handler=run_simulate_moving)
 
 
-def _command_line() -> str:
-    return "crs " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+def _write_calibration(
+    out: Path,
+    stations: Sequence[Any],
+    photodiodes: Any,
+    summary: dict[str, Any],
+    markdown: Callable[[dict[str, Any], str], str],
+    headline: str,
+) -> Path:
+    """A calibration's OUT/geometry.yaml, report.json and report.md (``markdown`` of the
+    summary); print ``headline`` and where they are; return ``out``."""
+    from crs_core.calibration.report import write_geometry, write_json
+
+    write_geometry(out / "geometry.yaml", stations, photodiodes)
+    write_json(out / "report.json", summary)
+    (out / "report.md").write_text(markdown(summary, command_line()))
+    print(headline)
+    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
+    return out
 
 
 def run_static(args: argparse.Namespace) -> Path:
@@ -173,12 +184,7 @@ def run_static(args: argparse.Namespace) -> Path:
     from crs_core.calibration.evaluation import n_sweep, point_reports, spread_order
     from crs_core.calibration.plots import static_figures
     from crs_core.calibration.points import load_points
-    from crs_core.calibration.report import (
-        static_markdown,
-        static_summary,
-        write_geometry,
-        write_json,
-    )
+    from crs_core.calibration.report import static_markdown, static_summary
     from crs_core.calibration.static import calibrate_static
 
     points = load_points(args.points_file)
@@ -193,19 +199,17 @@ def run_static(args: argparse.Namespace) -> Path:
         rows, order = [], spread_order(np.array([p.position for p in points.points]))
     else:
         rows, order = n_sweep(points, None, args.stations, args.fit_tilt)
-    write_geometry(out / "geometry.yaml", calibration.stations, points.photodiodes)
     summary = static_summary(points, calibration, reports, rows, order, args.fit_tilt)
-    write_json(out / "report.json", summary)
-    (out / "report.md").write_text(static_markdown(summary, _command_line()))
     static_figures(out, summary, [r.fix for r in reports])
     error = summary["position_error_m"]
-    print(
+    headline = (
         f"calibrated {len(calibration.stations)} station(s) from {len(points.points)} points: "
         f"angle rms {1e3 * summary['angle_residual_rms_rad']:.3f} mrad, reprojected position "
         f"error mean {1e3 * error['mean']:.2f} mm, max {1e3 * error['max']:.2f} mm"
     )
-    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
-    return out
+    return _write_calibration(
+        out, calibration.stations, points.photodiodes, summary, static_markdown, headline
+    )
 
 
 def run_moving(args: argparse.Namespace) -> Path:
@@ -213,12 +217,7 @@ def run_moving(args: argparse.Namespace) -> Path:
     from crs_core.calibration.evaluation import moving_fixes
     from crs_core.calibration.moving import calibrate_moving
     from crs_core.calibration.plots import moving_figures
-    from crs_core.calibration.report import (
-        moving_markdown,
-        moving_summary,
-        write_geometry,
-        write_json,
-    )
+    from crs_core.calibration.report import moving_markdown, moving_summary
     from crs_core.dataset import Dataset
 
     if abs(args.offset) > args.max_offset:
@@ -236,21 +235,19 @@ def run_moving(args: argparse.Namespace) -> Path:
     )
     out = prepare_output(Path(args.out), COMMAND, args.overwrite)
     fixes = moving_fixes(calibration)
-    write_geometry(out / "geometry.yaml", calibration.stations, calibration.fit.photodiodes)
     summary = moving_summary(
         calibration, fixes, args.fit_offset, args.fit_photodiodes, args.fit_tilt
     )
-    write_json(out / "report.json", summary)
-    (out / "report.md").write_text(moving_markdown(summary, _command_line()))
     moving_figures(out, calibration, fixes)
-    print(
+    headline = (
         f"calibrated {len(calibration.stations)} station(s) from {summary['sweeps']} sweeps: "
         f"clock offset {1e3 * calibration.offset:.2f} ± {1e3 * calibration.offset_std:.2f} ms, "
         f"angle rms {1e3 * summary['angle_residual_rms_rad']:.3f} mrad, pose-fix error median "
         f"{1e3 * summary['pose_fix_error_m']['median']:.2f} mm"
     )
-    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
-    return out
+    return _write_calibration(
+        out, calibration.stations, calibration.fit.photodiodes, summary, moving_markdown, headline
+    )
 
 
 def run_simulate_points(args: argparse.Namespace) -> Path:

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 from benchmarks.machine import REAL_DATA
-from launch_scripts.arguments import add_out
+from launch_scripts.arguments import add_out, command_line
 from launch_scripts.output_folder import prepare_output_file
 
 
@@ -28,7 +27,7 @@ def consistency(args: argparse.Namespace) -> None:
     rows = {}
     for folder in folders:
         rows[Path(folder).name] = channel_errors(Dataset.load(folder))
-    text = json.dumps({"command": " ".join(sys.argv), "runs": rows}, indent=2)
+    text = json.dumps({"command": command_line(), "runs": rows}, indent=2)
     if args.out:
         Path(args.out).write_text(text)
     print(f"{'channel':18s}" + "".join(f"{name[-12:]:>26s}" for name in rows))

@@ -10,11 +10,16 @@ import time
 from pathlib import Path
 
 from crs_core.identification.data import FieData
-from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.identification.problem import FieSettings
 from crs_core.model import EFFECTS
-from launch_scripts.arguments import OVERWRITE_HELP, bounded_number
+from launch_scripts.arguments import (
+    OVERWRITE_HELP,
+    add_effect,
+    add_process_scale,
+    bounded_number,
+)
 from launch_scripts.commands.sysid import (
-    EFFECT_OPTION,
+    add_fit,
     identification_model,
     load_dataset,
     parse_fit,
@@ -98,14 +103,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--params",
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
     )
-    sub.add_argument(
-        "--effect", help="an effect the current model already has (repeatable)", **EFFECT_OPTION
-    )
-    sub.add_argument(
-        "--fit",
-        help="parameters identified in every fit (default: the 15 dynamics parameters "
-        f"{','.join(DYNAMICS_FIT)} plus every --effect parameter)",
-    )
+    add_effect(sub, "an effect the current model already has (repeatable)")
+    add_fit(sub, "parameters identified in every fit")
     sub.add_argument(
         "--candidates",
         help=f"comma-separated effects to test (default: all: {','.join(EFFECTS)})",
@@ -117,12 +116,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="designed probability of a finding per round on data that need no effect "
         "(default 0.01)",
     )
-    sub.add_argument(
-        "--process-scale",
-        type=bounded_number("process-scale", "", 0.0),
-        default=1.0,
-        help="factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits "
-        "simulated data, whose truth has no process noise)",
+    add_process_scale(
+        sub,
+        "factor on the FIE's process noise std (default 1.0 for real data; 0.1 suits simulated "
+        "data, whose truth has no process noise)",
     )
     sub.add_argument(
         "--workers",

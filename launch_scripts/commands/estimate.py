@@ -13,7 +13,7 @@ import yaml
 
 from crs_core.errors import FieldError
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
-from launch_scripts.arguments import add_out
+from launch_scripts.arguments import add_out, command_line
 from launch_scripts.output_folder import prepare_output
 
 
@@ -92,7 +92,7 @@ def estimate(args: argparse.Namespace) -> None:
     comparison = reference_comparison(result, dataset)
     result.save_npz(out / "estimates.npz")
     report = {
-        "command": "crs " + " ".join(sys.argv[1:]),
+        "command": command_line(),
         "dataset": str(Path(args.dataset).resolve()),
         "params": str(args.params) if args.params else None,
         **result.diagnostics,

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from chronos_bridge.impairment import SPEC_HELP
-from launch_scripts.arguments import add_duration, add_estimator, add_out, bounded_number
+from launch_scripts.arguments import add_cars, add_duration, add_estimator, add_out, bounded_number
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS
@@ -41,15 +41,22 @@ def launch(args: argparse.Namespace) -> None:
         args.out,
         args.domain,
         args.seed,
-        blind_start=args.blind_start,
-        record=args.record,
         track_file=args.track,
-        params_file=args.params,
-        controller=args.controller,
-        output=args.output,
+        **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
+
+
+def _stack_options(args: argparse.Namespace) -> dict[str, object]:
+    """The keywords ``run_stack`` and ``run_car_stack`` both take, from their options."""
+    return {
+        "blind_start": args.blind_start,
+        "record": args.record,
+        "params_file": args.params,
+        "controller": args.controller,
+        "output": args.output,
+    }
 
 
 def _check_and_prepare(args: argparse.Namespace) -> None:
@@ -129,12 +136,8 @@ def launch_car(args: argparse.Namespace) -> None:
         car_ips,
         args.domain,
         args.seed,
-        record=args.record,
-        controller=args.controller,
-        output=args.output,
-        blind_start=args.blind_start,
-        params_file=args.params,
         link=link,
+        **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
@@ -187,9 +190,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         help="car --emulate: seed of the links' draws; car i uses LINK_SEED + i (default: from "
         "each emulator's own seed)",
     )
-    sub.add_argument(
-        "--cars", type=bounded_number("cars", "", 0, 8, int), default=1, help="1..8 (default 1)"
-    )
+    add_cars(sub)
     add_estimator(sub)
     sub.add_argument(
         "--controller",

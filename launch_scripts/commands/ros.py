@@ -41,22 +41,11 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         default=1,
         help="echo: messages to print (default 1)",
     )
-    sub.add_argument(
-        "--window",
-        type=bounded_number("window", "s", 0.0, 3600.0),
-        default=2.0,
-        help="hz: seconds to listen (default 2)",
-    )
-    sub.add_argument(
-        "--wait",
-        type=bounded_number("wait", "s", 0.0, 3600.0),
-        default=1.0,
-        help="topics: discovery time, s (default 1)",
-    )
-    sub.add_argument(
-        "--timeout",
-        type=bounded_number("timeout", "s", 0.0, 3600.0),
-        default=5.0,
-        help="echo, hz: give up after this many s without a message (default 5)",
-    )
+    for option, default, help_text in (
+        ("--window", 2.0, "hz: seconds to listen (default 2)"),
+        ("--wait", 1.0, "topics: discovery time, s (default 1)"),
+        ("--timeout", 5.0, "echo, hz: give up after this many s without a message (default 5)"),
+    ):
+        seconds = bounded_number(option.removeprefix("--"), "s", 0.0, 3600.0)
+        sub.add_argument(option, type=seconds, default=default, help=help_text)
     sub.set_defaults(handler=ros_tool)

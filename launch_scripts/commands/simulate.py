@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 
 from crs_core.model import EFFECTS, CarModel
-from crs_core.model.effects import effect_spec, parse_effect
+from crs_core.model.effects import effect_spec
 from launch_scripts.arguments import (
     OVERWRITE_HELP,
     add_duration,
+    add_effect,
     add_seed,
     argument_type,
     bounded_number,
@@ -104,13 +105,10 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         sub.add_argument(
             "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
         )
-        sub.add_argument(
-            "--effect",
-            type=argument_type(parse_effect),
-            action="append",
-            metavar="NAME[.PARAM][=VALUE]",
-            help="hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME "
-            "alone uses the default; the effects and parameters are listed below",
+        add_effect(
+            sub,
+            "hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME alone "
+            "uses the default; the effects and parameters are listed below",
         )
         sub.add_argument(
             "--blackout",

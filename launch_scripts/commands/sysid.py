@@ -8,15 +8,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
 from crs_core.dataset import Dataset
 from crs_core.identification.data import FieData
 from crs_core.identification.models import effects_of_yaml, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
-from crs_core.model.effects import parse_effect
-from launch_scripts.arguments import OVERWRITE_HELP, argument_type, bounded_number
+from launch_scripts.arguments import (
+    OVERWRITE_HELP,
+    add_effect,
+    add_process_scale,
+    bounded_number,
+)
 from launch_scripts.output_folder import prepare_output
 
 
@@ -35,6 +38,15 @@ def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise ValueError("--fit: a parameter is named twice")
     return names
+
+
+def add_fit(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--fit a,b,c`` (:func:`parse_fit`): ``what`` they are, and the default."""
+    parser.add_argument(
+        "--fit",
+        help=f"{what} (default: the 15 dynamics parameters {','.join(DYNAMICS_FIT)} plus every "
+        "--effect parameter)",
+    )
 
 
 def load_dataset(path: Path, option: str = "DATASET") -> Dataset:
@@ -105,14 +117,6 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-#: ``add_argument`` keywords of ``--effect`` (every command that builds a model takes it).
-EFFECT_OPTION: dict[str, Any] = {
-    "type": argument_type(parse_effect),
-    "action": "append",
-    "metavar": "NAME[.PARAM][=VALUE]",
-}
-
-
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
     sub = subparsers.add_parser(
@@ -131,12 +135,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="prior parameter YAML ('parameters:' mapping), or 'rough' for the rough prior of "
         "the real recordings' README (default: the Chronos identified values)",
     )
-    sub.add_argument(
-        "--fit",
-        help="comma-separated parameter names to identify (default: the 15 dynamics "
-        f"parameters {','.join(DYNAMICS_FIT)} plus every --effect parameter)",
-    )
-    sub.add_argument("--effect", help="add a model effect (repeatable)", **EFFECT_OPTION)
+    add_fit(sub, "comma-separated parameter names to identify")
+    add_effect(sub, "add a model effect (repeatable)")
     sub.add_argument(
         "--starts",
         type=bounded_number("starts", "", 1, kind=int, include_low=True),
@@ -149,12 +149,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default="gauss-newton",
         help="IPOPT Hessian (default gauss-newton: faster here, see the README)",
     )
-    sub.add_argument(
-        "--process-scale",
-        type=bounded_number("process-scale", "", 0.0),
-        default=1.0,
-        help="factor on the estimator's process noise std for the FIE's Q (default 1.0, best "
-        "on the real runs; 0.1 on simulated data, whose truth has no process noise)",
+    add_process_scale(
+        sub,
+        "factor on the estimator's process noise std for the FIE's Q (default 1.0, best on the "
+        "real runs; 0.1 on simulated data, whose truth has no process noise)",
     )
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_sysid)
@@ -176,9 +174,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default=2.0,
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
-    sub.add_argument(
-        "--effect", help="model effect (repeatable; inferred from --params)", **EFFECT_OPTION
-    )
+    add_effect(sub, "model effect (repeatable; inferred from --params)")
     sub.add_argument("--out", required=True, help="output folder")
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     sub.set_defaults(handler=run_validate)

@@ -209,11 +209,20 @@ def test_u_of_wrong_length_is_rejected(corruptible: Path):
         Dataset.load(corruptible)
 
 
-def test_y_with_wrong_rows_is_rejected(corruptible: Path):
-    """y.npy without its 13 rows is rejected naming y.npy."""
-    np.save(corruptible / "y.npy", np.load(corruptible / "y.npy")[:12])
-    with pytest.raises(ValueError, match=r"^y\.npy: expected shape \(13, N\)"):
+@pytest.mark.parametrize(
+    ("name", "rows", "message"),
+    [
+        ("y", 12, r"^y\.npy: expected shape \(13, N\)"),
+        ("x", 3, r"^x\.npy: expected shape \(6, N\), got \(3, "),
+    ],
+)
+def test_array_with_wrong_rows_is_rejected(corruptible: Path, name: str, rows: int, message: str):
+    """y.npy without its 13 rows, or an x.npy of poses only (3 rows), is rejected naming the
+    file (and for x.npy the expected shape)."""
+    np.save(corruptible / f"{name}.npy", np.load(corruptible / f"{name}.npy")[:rows])
+    with pytest.raises(FieldError, match=message) as error:
         Dataset.load(corruptible)
+    assert error.value.field == f"{name}.npy"
 
 
 @pytest.mark.parametrize("kind", ["repeated", "reversed"])
@@ -500,14 +509,6 @@ def test_geometry_fields_are_validated_by_name(corruptible: Path):
     (corruptible / "dataset.yaml").write_text(yaml.safe_dump(meta))
     with pytest.raises(ValueError, match=r"^geometry\.base_stations\[0\]\.position: expected"):
         Dataset.load(corruptible)
-
-
-def test_x_without_six_rows_is_rejected(corruptible: Path):
-    """An x.npy of poses only (3 rows) is rejected naming x.npy and the expected shape."""
-    np.save(corruptible / "x.npy", np.load(corruptible / "x.npy")[:3])
-    with pytest.raises(FieldError, match=r"^x\.npy: expected shape \(6, N\), got \(3, ") as error:
-        Dataset.load(corruptible)
-    assert error.value.field == "x.npy"
 
 
 def test_t_one_sample_short_names_the_files_and_counts(corruptible: Path):

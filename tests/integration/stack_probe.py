@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,10 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
+from crs_core.analysis.laps import LapCounter
+from crs_core.track import Track
+from launch_scripts.launcher import Launcher, NodeSpec
+from ros4crs import conversions
 from ros4crs.discovery import FASTDDS_PROFILE
 from ros4crs.node_support import STREAM_QOS
 
@@ -106,3 +111,76 @@ class Probe:
         self.node.destroy_node()
         self.context.try_shutdown()
         self._thread.join(timeout=5.0)
+
+
+@contextmanager
+def launched(
+    nodes: list[NodeSpec], domain_id: int, log_dir: Path
+) -> Iterator[tuple[Launcher, Probe]]:
+    """A :class:`Launcher` of ``nodes`` (not started yet: subscribe through the probe first,
+    then ``launcher.start()`` or ``launcher.run(...)``) and a :class:`Probe`, both in
+    ``domain_id``; on the way out the launcher is stopped and the probe closed."""
+    launcher = Launcher(nodes, domain_id, log_dir)
+    probe = Probe(domain_id)
+    try:
+        yield launcher, probe
+    finally:
+        launcher.stop()
+        probe.close()
+
+
+def message_stamp(msg: Any) -> float:
+    """A message's ``header.stamp``, s."""
+    return conversions.seconds_from_stamp(msg.header.stamp)
+
+
+def assert_clean_run(deaths: list, launcher: Launcher) -> None:
+    """No node died during ``launcher.run`` (``deaths``), and every node exited 0 on SIGINT."""
+    assert not deaths, "\n".join(f"{d.node} exited {d.returncode}:\n{d.log_tail}" for d in deaths)
+    codes = {name: process.returncode for name, process in launcher.processes.items()}
+    assert codes == dict.fromkeys(codes, 0), codes
+
+
+#: Estimation error bounds of the stack's estimator in the loop (several times what was
+#: measured: see test_stack and test_velocity_mode).
+RMSE_POSITION_M = 0.02
+RMSE_YAW_RAD = 0.1
+
+
+def assert_tracked_lap(report: dict[str, Any]) -> None:
+    """A car's part of the stack's report (``analyse``): at least one lap, the estimation RMSE
+    under ``RMSE_POSITION_M`` in x and y and ``RMSE_YAW_RAD`` in yaw, no malformed messages."""
+    assert report["laps_completed"] >= 1
+    rmse = report["estimation_rmse"]
+    assert rmse["x"] < RMSE_POSITION_M and rmse["y"] < RMSE_POSITION_M, rmse
+    assert rmse["yaw"] < RMSE_YAW_RAD, rmse
+    assert report["malformed_messages"] == 0
+
+
+class LapWatch:
+    """The laps of a car counted on its collected ground truth (``Probe.collect`` of
+    ``/carN/ground_truth``) as the ``crs launch sim`` report (``analyse``) counts them: from when
+    the car starts moving, on the start/finish line. Called (``Launcher.run(until=...)``): a lap
+    is done and the truth has gone on for a second more, so the recorder has the crossing too."""
+
+    def __init__(self, track: Track, truth: list[tuple[float, Any]]) -> None:
+        self.track = track
+        self.truth = truth
+        self.counter = LapCounter(track.length, line_tolerance=0.05)
+        self._seen = 0
+        self._hint: float | None = None
+        self._moving = False
+
+    def __call__(self) -> bool:
+        while self._seen < len(self.truth):
+            msg = self.truth[self._seen][1]
+            self._seen += 1
+            self._moving = self._moving or msg.vx > 0.05
+            if not self._moving:
+                continue  # still waiting at the line
+            projection = self.track.project(msg.x, msg.y, self._hint)
+            self._hint = projection.s
+            self.counter.update(message_stamp(msg), projection.s)
+        if self.counter.laps_completed < 1:
+            return False
+        return message_stamp(self.truth[-1][1]) > self.counter.crossing_stamps[1] + 1.0

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
-from stack_probe import Probe, log_text, wait_for
+from stack_probe import launched, log_text, wait_for
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
@@ -17,24 +21,33 @@ pytestmark = pytest.mark.integration
 DOMAIN = 107
 
 
+def _start_state() -> np.ndarray:
+    """The car at the DEMO_TRACK start pose at 1 m/s: the estimate the tests publish."""
+    track = load_demo_track()
+    return np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
+
+
+@contextmanager
+def _controller(
+    tmp_path: Path, parameters: dict[str, Any]
+) -> Iterator[tuple[Launcher, Any, list, Any]]:
+    """A started controller node in ``/car1`` with ``parameters``, and a probe collecting its
+    inputs: ``(launcher, probe, inputs, publisher of /car1/estimate/state)``."""
+    from chronos_msgs.msg import CarInput, CarState
+
+    node = NodeSpec("controller", "ros4crs.controller_node", "/car1", parameters)
+    with launched([node], DOMAIN, tmp_path / "logs") as (launcher, probe):
+        inputs = probe.collect(CarInput, "/car1/input")
+        launcher.start()
+        yield launcher, probe, inputs, probe.publisher(CarState, "/car1/estimate/state")
+
+
 def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
     """While estimates arrive (stamped now, the car at the start pose at 1 m/s) the controller
     commands torque; 0.2 s after they stop (its ``stale_timeout``) it commands zero torque and
     straight wheels, and says so in its log; when estimates return it drives again."""
-    from chronos_msgs.msg import CarInput, CarState
-
-    track = load_demo_track()
-    state = np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
-    launcher = Launcher(
-        [NodeSpec("controller", "ros4crs.controller_node", "/car1", {"stale_timeout": 0.2})],
-        DOMAIN,
-        tmp_path / "logs",
-    )
-    probe = Probe(DOMAIN)
-    inputs = probe.collect(CarInput, "/car1/input")
-    try:
-        launcher.start()
-        publisher = probe.publisher(CarState, "/car1/estimate/state")
+    state = _start_state()
+    with _controller(tmp_path, {"stale_timeout": 0.2}) as (launcher, _, inputs, publisher):
 
         def publish_for(seconds: float) -> None:
             end = time.monotonic() + seconds
@@ -57,30 +70,15 @@ def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
         publish_for(0.5)
         assert max(torques_since(resumed + 0.2)) > 0.05
         assert launcher.poll() == []
-    finally:
-        launcher.stop()
-        probe.close()
 
 
 def test_controller_slows_down_on_a_degraded_and_stops_on_a_lost_estimate(tmp_path):
     """Fresh estimates with status ``degraded`` (the car at 1 m/s): the controller aims at its
     ``degraded_speed`` (0.3 m/s) and commands less torque than for ``ok``, saying so once;
     status ``lost``: zero torque and straight wheels, as for a stale estimate."""
-    from chronos_msgs.msg import CarInput, CarState
-
-    track = load_demo_track()
-    state = np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
+    state = _start_state()
     parameters = {"stale_timeout": 0.2, "degraded_speed": 0.3}
-    launcher = Launcher(
-        [NodeSpec("controller", "ros4crs.controller_node", "/car1", parameters)],
-        DOMAIN,
-        tmp_path / "logs",
-    )
-    probe = Probe(DOMAIN)
-    inputs = probe.collect(CarInput, "/car1/input")
-    try:
-        launcher.start()
-        publisher = probe.publisher(CarState, "/car1/estimate/state")
+    with _controller(tmp_path, parameters) as (launcher, probe, inputs, publisher):
 
         def inputs_while(status: str, seconds: float) -> list[tuple[float, float]]:
             start = time.time()
@@ -101,6 +99,3 @@ def test_controller_slows_down_on_a_degraded_and_stops_on_a_lost_estimate(tmp_pa
         log = log_text(tmp_path / "logs", "/car1/controller")
         assert "state estimate degraded: slowing to 0.3 m/s" in log
         assert launcher.poll() == []
-    finally:
-        launcher.stop()
-        probe.close()

@@ -15,17 +15,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
-from stack_probe import Probe, log_text, wait_for
+from stack_probe import Probe, launched, log_text, message_stamp, wait_for
 
 from crs_core.estimation import MheSettings, make_estimator
 from crs_core.model import CarModel
 from launch_scripts.launcher import Launcher, NodeSpec
-from launch_scripts.sim_stack import stack_nodes
-from ros4crs import conversions
+from launch_scripts.sim_stack import recorder_node, stack_nodes
 from ros4crs.bag_replay import BagContents, read_car, replay_estimator
 from ros4crs.interfaces import typestore
 
@@ -80,6 +80,18 @@ def _compare(contents: BagContents, estimates: list[tuple[float, np.ndarray]]) -
     return np.array(differences)
 
 
+def _replayer(bag: Path, **parameters: Any) -> NodeSpec:
+    """The replayer node of the recorded sensors and inputs (``REPLAYED_PREFIXES``) of ``bag``,
+    with ``/clock``, once one subscriber is there; ``parameters`` added."""
+    topics = ",".join(REPLAYED_PREFIXES)
+    return NodeSpec(
+        "replayer",
+        "ros4crs.replayer_node",
+        "",
+        {"bag": str(bag), "topics": topics, "clock": True, "min_subscribers": 1, **parameters},
+    )
+
+
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory, warm_codegen) -> Recording:
     """The stack of ``crs launch sim`` (one car, MHE, default recording) until the car has
@@ -88,22 +100,17 @@ def recording(tmp_path_factory, warm_codegen) -> Recording:
 
     folder = tmp_path_factory.mktemp("recording")
     bag = folder / "bag"
-    launcher = Launcher(stack_nodes(1, "mhe", bag, seed=3), DOMAIN_RECORD, folder / "logs")
-    probe = Probe(DOMAIN_RECORD)
-    truth = probe.collect(CarState, "/car1/ground_truth")
+    nodes = stack_nodes(1, "mhe", bag, seed=3)
+    with launched(nodes, DOMAIN_RECORD, folder / "logs") as (launcher, probe):
+        truth = probe.collect(CarState, "/car1/ground_truth")
 
-    def driven_enough() -> bool:
-        moving = [msg for _, msg in truth if msg.vx > 0.2]
-        if not moving:
-            return False
-        stamp = lambda msg: msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec  # noqa: E731
-        return stamp(truth[-1][1]) - stamp(moving[0]) >= DRIVE_S
+        def driven_enough() -> bool:
+            moving = [msg for _, msg in truth if msg.vx > 0.2]
+            if not moving:
+                return False
+            return message_stamp(truth[-1][1]) - message_stamp(moving[0]) >= DRIVE_S
 
-    try:
         deaths = launcher.run(120.0, until=driven_enough)
-    finally:
-        launcher.stop()
-        probe.close()
     assert not deaths, deaths
     assert driven_enough(), "the car did not drive"
     return Recording(bag, read_car(bag, "/car1"))
@@ -171,33 +178,13 @@ def test_bag_replayed_through_a_fresh_estimator_node_matches_offline(tmp_path, r
                 "/car1",
                 {"estimator": "mhe", "lag": REPLAY_LAG_S, "use_sim_time": True},
             ),
-            NodeSpec(
-                "recorder",
-                "ros4crs.recorder_node",
-                "",
-                {"output": str(replay_bag), "topics": "/car1/estimate/"},
-            ),
+            recorder_node(replay_bag, ["/car1/estimate/"]),
         ],
         DOMAIN_REPLAY,
         tmp_path / "logs",
     )
     replayer = Launcher(
-        [
-            NodeSpec(
-                "replayer",
-                "ros4crs.replayer_node",
-                "",
-                {
-                    "bag": str(recording.bag),
-                    "topics": ",".join(REPLAYED_PREFIXES),
-                    "clock": True,
-                    "min_subscribers": 1,
-                    "start_delay": 1.0,
-                },
-            )
-        ],
-        DOMAIN_REPLAY,
-        tmp_path / "logs",
+        [_replayer(recording.bag, start_delay=1.0)], DOMAIN_REPLAY, tmp_path / "logs"
     )
     probe = Probe(DOMAIN_REPLAY)
     try:
@@ -248,38 +235,22 @@ def test_a_looped_replay_with_clock_keeps_producing_estimates_after_each_jump(
             "/car1",
             {"estimator": "ekf", "lag": 0.2, "use_sim_time": True},
         ),
-        NodeSpec(
-            "replayer",
-            "ros4crs.replayer_node",
-            "",
-            {
-                "bag": str(recording.bag),
-                "topics": ",".join(REPLAYED_PREFIXES),
-                "clock": True,
-                "loop": True,
-                "min_subscribers": 1,
-            },
-        ),
+        _replayer(recording.bag, loop=True),
     ]
-    launcher = Launcher(nodes, DOMAIN_LOOP, tmp_path / "logs")
-    probe = Probe(DOMAIN_LOOP)
-    estimates = probe.collect(CarState, "/car1/estimate/state")
+    with launched(nodes, DOMAIN_LOOP, tmp_path / "logs") as (launcher, probe):
+        estimates = probe.collect(CarState, "/car1/estimate/state")
 
-    def stamps() -> np.ndarray:
-        return np.array([conversions.seconds_from_stamp(m.header.stamp) for _, m in estimates])
+        def stamps() -> np.ndarray:
+            return np.array([message_stamp(m) for _, m in estimates])
 
-    def after_second_jump() -> int:
-        t = stamps()
-        jumps = np.flatnonzero(np.diff(t) < -1.0) if t.size > 1 else []
-        return len(jumps) >= 2 and t.size - jumps[1] > 2 * RATE_HZ
+        def after_second_jump() -> int:
+            t = stamps()
+            jumps = np.flatnonzero(np.diff(t) < -1.0) if t.size > 1 else []
+            return len(jumps) >= 2 and t.size - jumps[1] > 2 * RATE_HZ
 
-    try:
         launcher.start()
         wait_for(after_second_jump, 150.0, lambda: f"two jumps ({stamps().size} estimates)")
         assert launcher.poll() == []
-    finally:
-        launcher.stop()
-        probe.close()
     t = stamps()
     jumps = np.flatnonzero(np.diff(t) < -1.0)
     positions = np.array([[m.x, m.y] for _, m in estimates])

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from stack_probe import Probe, log_text, wait_for
+from stack_probe import launched, log_text, message_stamp, wait_for
 
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
@@ -38,31 +38,19 @@ def stack(tmp_path_factory, warm_codegen):
     from chronos_msgs.msg import CarState, EstimatorDiagnostics
 
     log_dir = tmp_path_factory.mktemp("robustness") / "logs"
-    launcher = Launcher(
-        [
-            NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 5}),
-            NodeSpec(
-                "estimator", "ros4crs.estimator_node", "/car1", {"estimator": "ekf", "lag": LAG_S}
-            ),
-        ],
-        DOMAIN,
-        log_dir,
-    )
-    probe = Probe(DOMAIN)
-    estimates = probe.collect(CarState, "/car1/estimate/state")
-    diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
-    try:
+    nodes = [
+        NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"seed": 5}),
+        NodeSpec(
+            "estimator", "ros4crs.estimator_node", "/car1", {"estimator": "ekf", "lag": LAG_S}
+        ),
+    ]
+    with launched(nodes, DOMAIN, log_dir) as (launcher, probe):
+        estimates = probe.collect(CarState, "/car1/estimate/state")
+        diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
         launcher.start()
         wait_for(lambda: len(estimates) >= 10, 90.0, "the first estimates")
         wait_for(lambda: diagnostics, 30.0, "the first diagnostics")
         yield launcher, probe, estimates, diagnostics
-    finally:
-        launcher.stop()
-        probe.close()
-
-
-def _stamp(msg) -> float:
-    return conversions.seconds_from_stamp(msg.header.stamp)
 
 
 def _last_warning(log_dir, text: str) -> float:
@@ -140,7 +128,7 @@ def test_malformed_and_late_messages_are_logged_dropped_and_counted(stack):
     # (e) out of order: once an estimate past ``now`` is out, data stamped before it are late
     wheels.publish(valid)
     wait_for(
-        lambda: any(_stamp(m) > now + 0.05 for m in _after(estimates, sent)),
+        lambda: any(message_stamp(m) > now + 0.05 for m in _after(estimates, sent)),
         10.0,
         "an estimate past the valid wheel speeds",
     )
@@ -265,22 +253,12 @@ def test_data_that_arrive_late_raise_the_estimators_lag(tmp_path, warm_codegen):
     from crs_core.measurements import Measurement
 
     delay = 0.06
-    launcher = Launcher(
-        [
-            NodeSpec(
-                "estimator",
-                "ros4crs.estimator_node",
-                "/car1",
-                {"estimator": "ekf", "sensors": "imu+we"},
-            )
-        ],
-        DOMAIN_LAG,
-        tmp_path / "logs",
+    estimator = NodeSpec(
+        "estimator", "ros4crs.estimator_node", "/car1", {"estimator": "ekf", "sensors": "imu+we"}
     )
-    probe = Probe(DOMAIN_LAG)
-    estimates = probe.collect(CarState, "/car1/estimate/state")
-    diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
-    try:
+    with launched([estimator], DOMAIN_LAG, tmp_path / "logs") as (launcher, probe):
+        estimates = probe.collect(CarState, "/car1/estimate/state")
+        diagnostics = probe.collect(EstimatorDiagnostics, "/car1/estimate/diagnostics")
         launcher.start()
         imu = probe.publisher(Imu, "/car1/sensors/imu")
         wheels = probe.publisher(WheelSpeeds, "/car1/sensors/wheel_speeds")
@@ -299,13 +277,10 @@ def test_data_that_arrive_late_raise_the_estimators_lag(tmp_path, warm_codegen):
         assert not launcher.poll()
         ended = time.time()
         wait_for(lambda: _after(diagnostics, ended), 3.0, "diagnostics after the last data")
-    finally:
-        launcher.stop()
-        probe.close()
     log = log_text(tmp_path / "logs", "/car1/estimator")
     match = re.search(r"data arrive up to (\d+) ms after their stamps: estimating (\d+) ms", log)
     assert match and int(match.group(1)) >= 1e3 * delay and int(match.group(2)) > 1e3 * delay, log
     assert diagnostics[0][1].late_measurements <= late_at_settled  # late at first, then
     assert diagnostics[-1][1].late_measurements == late_at_settled  # none after 2 s
-    ages = [t - _stamp(m) for t, m in estimates if t > settled]
+    ages = [t - message_stamp(m) for t, m in estimates if t > settled]
     assert np.median(ages) > delay, np.median(ages)

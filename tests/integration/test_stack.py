@@ -11,11 +11,17 @@ import time
 
 import numpy as np
 import pytest
-from stack_probe import Probe, wait_for
+from stack_probe import (
+    LapWatch,
+    assert_clean_run,
+    assert_tracked_lap,
+    launched,
+    message_stamp,
+    wait_for,
+)
 
-from crs_core.analysis.laps import LapCounter
 from crs_core.track import load_demo_track
-from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import analyse, stack_nodes
 
 pytestmark = pytest.mark.integration
@@ -26,17 +32,10 @@ DOMAIN_TWO_CARS = 102
 #: Give up on the lap after this long (it takes ~25-30 s on a 2-core machine: ~8-12 s until
 #: every node is up, then a ~12 s lap at the controller's 1 m/s).
 LAP_TIMEOUT_S = 150.0
-#: Estimation error bounds of the MHE in the loop (about 5-10x what was measured, see below).
-RMSE_POSITION_M = 0.02
-RMSE_YAW_RAD = 0.1
 
 
 def _state(msg) -> np.ndarray:
     return np.array([msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega])
-
-
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen):
@@ -68,39 +67,14 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
 
     track = load_demo_track()
     bag = tmp_path / "bag"
-    launcher = Launcher(stack_nodes(1, "mhe", bag), DOMAIN_LAP, tmp_path / "logs")
-    probe = Probe(DOMAIN_LAP)
-    truth = probe.collect(CarState, "/car1/ground_truth")
-    # counted as in the report (``analyse``): from when the car starts moving, on the line
-    counter = LapCounter(track.length, line_tolerance=0.05)
-    seen = {"n": 0, "hint": None, "moving": False}
-
-    def lap_done() -> bool:
-        while seen["n"] < len(truth):
-            msg = truth[seen["n"]][1]
-            seen["n"] += 1
-            seen["moving"] = seen["moving"] or msg.vx > 0.05
-            if not seen["moving"]:
-                continue  # still waiting at the line
-            projection = track.project(msg.x, msg.y, seen["hint"])
-            seen["hint"] = projection.s
-            counter.update(_stamp(msg), projection.s)
-        if counter.laps_completed < 1:
-            return False
-        # and a second more, so that the recorder has the crossing too
-        return _stamp(truth[-1][1]) > counter.crossing_stamps[1] + 1.0
-
-    try:
+    with launched(stack_nodes(1, "mhe", bag), DOMAIN_LAP, tmp_path / "logs") as (launcher, probe):
+        # counted as in the report (``analyse``): from when the car starts moving, on the line
+        lap_done = LapWatch(track, probe.collect(CarState, "/car1/ground_truth"))
         deaths = launcher.run(LAP_TIMEOUT_S, until=lap_done)
-    finally:
-        launcher.stop()
-        probe.close()
 
-    assert not deaths, "\n".join(f"{d.node} exited {d.returncode}:\n{d.log_tail}" for d in deaths)
-    assert counter.laps_completed >= 1, f"no lap within {LAP_TIMEOUT_S} s"
-    # every node shut down cleanly on SIGINT (the recorder closed its bag)
-    codes = {name: process.returncode for name, process in launcher.processes.items()}
-    assert codes == dict.fromkeys(codes, 0), codes
+    # no node died, every node shut down cleanly on SIGINT (the recorder closed its bag)
+    assert_clean_run(deaths, launcher)
+    assert lap_done.counter.laps_completed >= 1, f"no lap within {LAP_TIMEOUT_S} s"
     # between callbacks: no callback interrupted (the executor logs that as FATAL)
     for log in (tmp_path / "logs").glob("*.log"):
         assert "FATAL" not in log.read_text(errors="replace"), log.read_text(errors="replace")
@@ -108,11 +82,7 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
     report = analyse(bag, 1)["cars"]["car1"]
     cpu = {n: round(100 * s / launcher.wall_at_stop, 1) for n, s in launcher.cpu_at_stop.items()}
     print(f"report: {report}\ncpu %: {cpu}\nwall: {launcher.wall_at_stop:.1f} s")
-    assert report["laps_completed"] >= 1
-    rmse = report["estimation_rmse"]
-    assert rmse["x"] < RMSE_POSITION_M and rmse["y"] < RMSE_POSITION_M, rmse
-    assert rmse["yaw"] < RMSE_YAW_RAD, rmse
-    assert report["malformed_messages"] == 0
+    assert_tracked_lap(report)  # a lap, RMSE under RMSE_POSITION_M and RMSE_YAW_RAD
     assert report["estimator_updates"] > 0
     # the loop runs in real time: estimates come out tens of ms after the sensor data
     assert report["latency_ms"]["sensor_to_estimate"]["median"] < 250.0, report["latency_ms"]
@@ -160,11 +130,11 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
             {"estimator": "ekf", "initial_state": car2_start},
         ),
     ]
-    launcher = Launcher(nodes, DOMAIN_TWO_CARS, tmp_path / "logs")
-    probe = Probe(DOMAIN_TWO_CARS)
-    truth = {car: probe.collect(CarState, f"/{car}/ground_truth") for car in ("car1", "car2")}
-    estimates = {car: probe.collect(CarState, f"/{car}/estimate/state") for car in ("car1", "car2")}
-    try:
+    with launched(nodes, DOMAIN_TWO_CARS, tmp_path / "logs") as (launcher, probe):
+        truth = {car: probe.collect(CarState, f"/{car}/ground_truth") for car in ("car1", "car2")}
+        estimates = {
+            car: probe.collect(CarState, f"/{car}/estimate/state") for car in ("car1", "car2")
+        }
         launcher.start()
         wiring = {
             "/car1/estimate/state": (["/car1/estimator"], []),
@@ -208,9 +178,6 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
         command.publish(conversions.car_input_msg(np.zeros(2), time.time()))
         time.sleep(1.5)
         assert launcher.poll() == []
-    finally:
-        launcher.stop()
-        probe.close()
 
     car1_after = _state(truth["car1"][-1][1])
     car2_after = _state(truth["car2"][-1][1])
@@ -227,12 +194,12 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
 
     worst: dict[str, float] = {}
     for car, other in (("car1", "car2"), ("car2", "car1")):
-        t_truth = np.array([_stamp(m) for _, m in truth[car]])
+        t_truth = np.array([message_stamp(m) for _, m in truth[car]])
         x_truth = np.array([_state(m) for _, m in truth[car]])
         other_xy = _state(truth[other][-1][1])[:2]
         checked = 0
         for _, msg in estimates[car][-50:]:  # the last ~0.8 s of estimates, car 2 coasting
-            t = _stamp(msg)
+            t = message_stamp(msg)
             if not t_truth[0] <= t <= t_truth[-1]:
                 continue
             true_xy = [np.interp(t, t_truth, x_truth[:, k]) for k in (0, 1)]

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from stack_probe import Probe, wait_for
+from stack_probe import Probe, launched, wait_for
 
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import tools
@@ -28,23 +28,13 @@ def test_topics_echo_and_rate_of_a_running_simulator(tmp_path, monkeypatch, warm
     publishing one message per reading: ``sensor_messages: each``)."""
     from sensor_msgs.msg import Imu
 
-    launcher = Launcher(
-        [
-            NodeSpec(
-                "simulator",
-                "ros4crs.simulator_node",
-                "/car1",
-                {"seed": 3, "sensor_messages": "each"},
-            )
-        ],
-        DOMAIN,
-        tmp_path / "logs",
+    simulator = NodeSpec(
+        "simulator", "ros4crs.simulator_node", "/car1", {"seed": 3, "sensor_messages": "each"}
     )
     monkeypatch.setenv("ROS_DOMAIN_ID", str(DOMAIN))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    probe = Probe(DOMAIN)
-    imu = probe.collect(Imu, "/car1/sensors/imu")
-    try:
+    with launched([simulator], DOMAIN, tmp_path / "logs") as (launcher, probe):
+        imu = probe.collect(Imu, "/car1/sensors/imu")
         launcher.start()
         wait_for(lambda: len(imu) > 50, 60.0, "the simulator's IMU stream")
         topics = dict(tools.list_topics(wait=2.0))
@@ -54,9 +44,6 @@ def test_topics_echo_and_rate_of_a_running_simulator(tmp_path, monkeypatch, warm
         assert message.front_left == message.front_left  # a real, finite reading
         rate = tools.rate("/car1/sensors/imu", window=2.0, timeout=10.0)
         assert rate["rate_hz"] == pytest.approx(250.0, rel=0.2)
-    finally:
-        launcher.stop()
-        probe.close()
 
 
 def test_tools_see_the_node_on_every_one_of_repeated_calls(tmp_path, warm_codegen):

@@ -9,11 +9,10 @@ import time
 
 import numpy as np
 import pytest
-from stack_probe import Probe, log_text, wait_for
+from stack_probe import LapWatch, assert_clean_run, assert_tracked_lap, launched, log_text, wait_for
 
-from crs_core.analysis.laps import LapCounter
 from crs_core.track import load_demo_track
-from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import analyse, stack_nodes
 from ros4crs import conversions
 from ros4crs.bag_replay import read_car
@@ -25,13 +24,6 @@ DOMAIN_NO_ONBOARD = 120
 
 #: Give up on the lap after this long (measured: nodes up after ~3-8 s, a ~7 s lap).
 LAP_TIMEOUT_S = 120.0
-#: Estimation error bounds (as in test_stack: several times what was measured).
-RMSE_POSITION_M = 0.02
-RMSE_YAW_RAD = 0.1
-
-
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
 
 def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
@@ -53,37 +45,13 @@ def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
     parameters = {spec.name: spec.parameters for spec in nodes}
     assert parameters["simulator"]["onboard"] is True
     assert parameters["controller"]["output"] == "velocity"
-    launcher = Launcher(nodes, DOMAIN_VELOCITY_STACK, tmp_path / "logs")
-    probe = Probe(DOMAIN_VELOCITY_STACK)
-    truth = probe.collect(CarState, "/car1/ground_truth")
-    inputs = probe.collect(CarInput, "/car1/input")
-    counter = LapCounter(track.length, line_tolerance=0.05)
-    seen = {"n": 0, "hint": None, "moving": False}
-
-    def lap_done() -> bool:
-        while seen["n"] < len(truth):
-            msg = truth[seen["n"]][1]
-            seen["n"] += 1
-            seen["moving"] = seen["moving"] or msg.vx > 0.05
-            if not seen["moving"]:
-                continue  # still waiting at the line
-            projection = track.project(msg.x, msg.y, seen["hint"])
-            seen["hint"] = projection.s
-            counter.update(_stamp(msg), projection.s)
-        if counter.laps_completed < 1:
-            return False
-        return _stamp(truth[-1][1]) > counter.crossing_stamps[1] + 1.0  # the recorder has it
-
-    try:
+    with launched(nodes, DOMAIN_VELOCITY_STACK, tmp_path / "logs") as (launcher, probe):
+        lap_done = LapWatch(track, probe.collect(CarState, "/car1/ground_truth"))
+        inputs = probe.collect(CarInput, "/car1/input")
         deaths = launcher.run(LAP_TIMEOUT_S, until=lap_done)
-    finally:
-        launcher.stop()
-        probe.close()
 
-    assert not deaths, "\n".join(f"{d.node} exited {d.returncode}:\n{d.log_tail}" for d in deaths)
-    assert counter.laps_completed >= 1, f"no lap within {LAP_TIMEOUT_S} s"
-    codes = {name: process.returncode for name, process in launcher.processes.items()}
-    assert codes == dict.fromkeys(codes, 0), codes
+    assert_clean_run(deaths, launcher)
+    assert lap_done.counter.laps_completed >= 1, f"no lap within {LAP_TIMEOUT_S} s"
 
     commands = [msg for _, msg in inputs]
     assert commands and {msg.mode for msg in commands} == {CarInput.MODE_VELOCITY}
@@ -97,11 +65,7 @@ def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
     assert contents.inputs == [] and contents.velocity_references > 100
     report = analyse(bag, 1, track)["cars"]["car1"]
     print(f"report: {report}")
-    assert report["laps_completed"] >= 1
-    rmse = report["estimation_rmse"]
-    assert rmse["x"] < RMSE_POSITION_M and rmse["y"] < RMSE_POSITION_M, rmse
-    assert rmse["yaw"] < RMSE_YAW_RAD, rmse
-    assert report["malformed_messages"] == 0
+    assert_tracked_lap(report)  # a lap, RMSE under RMSE_POSITION_M and RMSE_YAW_RAD
 
 
 def test_simulator_without_onboard_refuses_velocity_commands(tmp_path):
@@ -109,14 +73,9 @@ def test_simulator_without_onboard_refuses_velocity_commands(tmp_path):
     ``mode`` (the car stays put) and the node keeps running: a torque command still drives."""
     from chronos_msgs.msg import CarInput, CarState
 
-    launcher = Launcher(
-        [NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"noise_free": True})],
-        DOMAIN_NO_ONBOARD,
-        tmp_path / "logs",
-    )
-    probe = Probe(DOMAIN_NO_ONBOARD)
-    truth = probe.collect(CarState, "/car1/ground_truth")
-    try:
+    simulator = NodeSpec("simulator", "ros4crs.simulator_node", "/car1", {"noise_free": True})
+    with launched([simulator], DOMAIN_NO_ONBOARD, tmp_path / "logs") as (launcher, probe):
+        truth = probe.collect(CarState, "/car1/ground_truth")
         launcher.start()
         command = probe.publisher(CarInput, "/car1/input")
         wait_for(lambda: len(truth) > 5, 60.0, "ground truth")
@@ -141,6 +100,3 @@ def test_simulator_without_onboard_refuses_velocity_commands(tmp_path):
             "the car to drive on torque commands",
         )
         assert launcher.poll() == []
-    finally:
-        launcher.stop()
-        probe.close()

@@ -26,6 +26,21 @@ def mpcc(track) -> Mpcc:
     return Mpcc(track)
 
 
+def _race(controller: Mpcc, simulator: Simulator, track, **options):
+    """``controller`` races two laps (at most 30 s) of ``track`` on ``simulator`` (its modes
+    counted); ``options`` go to ``run_closed_loop``."""
+    return run_closed_loop(
+        simulator,
+        track,
+        lambda t, x: controller(x),
+        controller.stop,
+        30.0,
+        laps=2,
+        status_of=lambda: controller.status.mode,
+        **options,
+    )
+
+
 def test_footprint_inside_and_outside(track) -> None:
     half = track.width / 2
     # on the start straight (heading 0), centred: the footprint's side is CAR_WIDTH/2 off
@@ -43,16 +58,7 @@ def test_footprint_inside_and_outside(track) -> None:
 
 
 def test_the_mpcc_races_a_lap_on_the_true_state(mpcc: Mpcc, track) -> None:
-    simulator = Simulator(CarModel(), SensorSuite(), seed=5)
-    result = run_closed_loop(
-        simulator,
-        track,
-        lambda t, x: mpcc(x),
-        mpcc.stop,
-        30.0,
-        laps=2,
-        status_of=lambda: mpcc.status.mode,
-    )
+    result = _race(mpcc, Simulator(CarModel(), SensorSuite(), seed=5), track)
     summary = result.summary()
     assert summary["laps"] == 2
     # the flying lap is below the centreline's point-mass limit (6.8 s at 6 m/s^2)
@@ -67,17 +73,7 @@ def test_with_the_mhe_and_a_lighthouse_blackout_every_lap(mpcc: Mpcc, track) -> 
     mpcc.reset()
     simulator = Simulator(CarModel(), SensorSuite(), seed=6)
     estimator = make_estimator("mhe", "lh+imu+we", CarModel())
-    result = run_closed_loop(
-        simulator,
-        track,
-        lambda t, x: mpcc(x),
-        mpcc.stop,
-        30.0,
-        laps=2,
-        estimator=estimator,
-        blackout_s=1.127,
-        status_of=lambda: mpcc.status.mode,
-    )
+    result = _race(mpcc, simulator, track, estimator=estimator, blackout_s=1.127)
     summary = result.summary()
     assert summary["laps"] == 2 and summary["blackouts"] == 2
     assert summary["boundary_violations"] == 0
@@ -93,15 +89,7 @@ def test_a_known_input_delay_is_compensated(track) -> None:
     one that does not know it leaves the track (measured: 9 violations in 60 s)."""
     delayed = CarModel({"input_delay": 0.1})
     controller = Mpcc(track, delayed)
-    result = run_closed_loop(
-        Simulator(delayed, SensorSuite(), seed=2),
-        track,
-        lambda t, x: controller(x),
-        controller.stop,
-        30.0,
-        laps=2,
-        status_of=lambda: controller.status.mode,
-    )
+    result = _race(controller, Simulator(delayed, SensorSuite(), seed=2), track)
     summary = result.summary()
     assert summary["laps"] == 2 and summary["boundary_violations"] == 0
     assert summary["lap_times_s"][1] < 6.8
