@@ -13,6 +13,7 @@ import hashlib
 import shutil
 import struct
 import warnings
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -349,3 +350,149 @@ def test_bad_inputs_raise_a_one_line_value_error_naming_the_file(tmp_path: Path)
     with pytest.raises(ValueError, match=r"sqlite\.db3: sqlite3 bag .*MCAP only"):
         check(sqlite)
     assert not (tmp_path / "out1").exists() and not (tmp_path / "out2").exists()
+
+
+def _message_start(layout: Layout, i: int) -> int:
+    """Offset (B) of the ``i``-th message record (opcode, length, 22 B of fields, payload)."""
+    return layout.ends[i] - len(layout.messages[i][2]) - 9 - 22
+
+
+def _with_crcs(data: bytes, layout: Layout, wrong: int | None = None) -> bytearray:
+    """``data`` with the CRC of every uncompressed chunk filled in (rosbags writes 0 = none).
+
+    The chunk numbered ``wrong`` gets a CRC off by one.
+    """
+    patched = bytearray(data)
+    for number, (start, end, _) in enumerate(layout.chunks):
+        records = layout.data[start + 9 + CHUNK_HEAD : end]
+        crc = zlib.crc32(records) + (number == wrong)
+        struct.pack_into("<I", patched, start + 9 + 24, crc & 0xFFFF_FFFF)
+    return patched
+
+
+CHUNK_HEAD = 8 + 8 + 8 + 4 + 4 + 8  # log times, size, crc, empty compression, records size
+
+
+def _in_chunk(layout: Layout) -> int:
+    """Index of a message record a few records into the second chunk."""
+    return _expected(layout, layout.chunks[1][0]) + 3
+
+
+# name: (damaged file from the layout, salvaged messages, cut text, the cut chunk's end is known)
+DAMAGE = {
+    "empty_file": (lambda L: b"", 0, "an empty file", False),
+    "in_start_magic": (lambda L: L.data[:4], 0, "an incomplete MCAP magic", False),
+    "start_magic_only": (lambda L: L.data[:8], 0, "", False),
+    "in_record_header": (
+        lambda L: L.data[: L.chunks[1][0] + 5],
+        "chunk1",
+        "an incomplete record header",
+        False,
+    ),
+    "in_chunk_header": (
+        lambda L: L.data[: L.chunks[1][0] + 9 + 20],
+        "chunk1",
+        "an incomplete chunk header",
+        False,
+    ),
+    "after_chunk_header": (
+        lambda L: L.data[: L.chunks[1][0] + 9 + CHUNK_HEAD],
+        "chunk1",
+        "the start of a chunk without a complete record",
+        True,
+    ),
+    "in_record_header_in_chunk": (
+        lambda L: L.data[: _message_start(L, _in_chunk(L)) + 4],
+        "in_chunk",
+        "an incomplete record header inside a chunk",
+        True,
+    ),
+    "in_message_fields_in_chunk": (
+        lambda L: L.data[: _message_start(L, _in_chunk(L)) + 9 + 10],
+        "in_chunk",
+        "an incomplete message record inside a chunk",
+        True,
+    ),
+    "in_message_data_in_chunk": (
+        lambda L: L.data[: L.ends[_in_chunk(L)] - 1],
+        "in_chunk",
+        "an incomplete message record inside a chunk",
+        True,
+    ),
+    "zeros_in_chunk": (
+        lambda L: L.data[: _message_start(L, _in_chunk(L))] + bytes(200),
+        "in_chunk",
+        "bytes that are no MCAP record (opcode 0) inside a chunk",
+        True,
+    ),
+    "zeros_after_chunk": (
+        lambda L: L.data[: L.chunks[1][0]] + bytes(5000),
+        "chunk1",
+        "bytes that are no MCAP record (opcode 0)",
+        False,
+    ),
+    "good_crcs": (
+        lambda L: _with_crcs(L.data, L)[: L.ends[250] + 9 + 10],
+        "cut",
+        "an incomplete message record inside a chunk",
+        True,
+    ),
+    "wrong_crc": (
+        lambda L: _with_crcs(L.data, L, wrong=1)[: L.ends[250]],
+        "chunk1",
+        "a chunk that does not decompress (Chunk checksum mismatch.)",
+        False,
+    ),
+    "malformed_channel": (
+        # the first channel's topic length (after its id and schema id) runs past the record
+        lambda L: (
+            L.data[: L.data.index(b"/car/sensors/imu") - 4]
+            + struct.pack("<I", 1 << 20)
+            + L.data[L.data.index(b"/car/sensors/imu") : L.ends[250]]
+        ),
+        0,
+        "a chunk with a malformed channel record inside a chunk",
+        False,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(DAMAGE))
+def test_damage_around_and_inside_chunks_is_described(
+    layout: Layout, tmp_path: Path, case: str
+) -> None:
+    damaged, salvaged, cut, chunk_end_known = DAMAGE[case]
+    data = bytes(damaged(layout))
+    if salvaged == "chunk1":  # everything before the second chunk
+        salvaged = _expected(layout, layout.chunks[1][0])
+    elif salvaged == "in_chunk":
+        salvaged = _in_chunk(layout)
+    elif salvaged == "cut":
+        salvaged = _expected(layout, len(data))
+    bag = tmp_path / "damaged"
+    bag.mkdir()
+    (bag / "rec.mcap").write_bytes(data)
+    report = check(bag)
+    file = report.files[0]
+    assert not report.complete and not file.complete
+    assert (report.messages, file.cut) == (salvaged, cut)
+    assert file.size == len(data)
+    if case.endswith("_in_chunk") or case == "good_crcs":
+        assert file.good_bytes == layout.ends[salvaged - 1]
+    elif case in ("empty_file", "in_start_magic"):
+        assert file.good_bytes == 0
+    elif case == "start_magic_only":
+        assert file.good_bytes == 8
+    else:  # the walk stopped at the second chunk, or at the first for the malformed channel
+        assert file.good_bytes == layout.chunks[0 if case == "malformed_channel" else 1][0]
+    chunk_end_ns = None
+    if chunk_end_known:  # the log time of the last message of the chunk the cut fell in
+        cut_chunk = next(c for c in layout.chunks if c[0] < len(data) <= c[1])
+        chunk_end_ns = layout.messages[_expected(layout, cut_chunk[1]) - 1][1]
+    assert file.cut_chunk_end_ns == chunk_end_ns
+    assert not file.unrecoverable_chunk and not file.data_complete
+    if salvaged:
+        out = tmp_path / "repaired"
+        repair(bag, out)
+        with Reader(out) as reader:
+            assert _read(reader) == layout.messages[:salvaged]
