@@ -443,6 +443,18 @@ DAMAGE = {
         "a chunk that does not decompress (Chunk checksum mismatch.)",
         False,
     ),
+    "corrupt_channel_metadata": (
+        # a key length in the first channel's metadata map runs past the map: the channel is kept
+        # (without the metadata it cannot read) and so are its messages
+        lambda L: (
+            L.data[: L.data.index(b"offered_qos_profiles") - 4]
+            + struct.pack("<I", 500)
+            + L.data[L.data.index(b"offered_qos_profiles") : L.ends[250] + 9 + 10]
+        ),
+        "cut",
+        "an incomplete message record inside a chunk",
+        True,
+    ),
     "malformed_channel": (
         # the first channel's topic length (after its id and schema id) runs past the record
         lambda L: (
@@ -477,7 +489,7 @@ def test_damage_around_and_inside_chunks_is_described(
     assert not report.complete and not file.complete
     assert (report.messages, file.cut) == (salvaged, cut)
     assert file.size == len(data)
-    if case.endswith("_in_chunk") or case == "good_crcs":
+    if case.endswith("_in_chunk") or case in ("good_crcs", "corrupt_channel_metadata"):
         assert file.good_bytes == layout.ends[salvaged - 1]
     elif case in ("empty_file", "in_start_magic"):
         assert file.good_bytes == 0
