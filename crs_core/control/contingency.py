@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, require_non_negative, require_positive
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
 from crs_core.track import Track, minimum_curvature_line
@@ -104,21 +104,16 @@ class ContingencySettings:
     braking: float = 4.0
 
     def __post_init__(self) -> None:
-        for name in (
+        require_non_negative(
+            self,
             "hold_time",
             "coast_time",
             "lookahead",
             "edge_clearance",
             "max_heading_end",
             "min_speed",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
-        for name in ("sample_time", "lateral", "braking"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise FieldError(name, f"must be a finite number > 0, got {value!r}")
+        )
+        require_positive(self, "sample_time", "lateral", "braking")
 
 
 class HoldSafetyFilter:

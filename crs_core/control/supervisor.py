@@ -58,7 +58,7 @@ from numpy.typing import ArrayLike
 from crs_core.control.command_delay import CommandDelay
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.recovery import StuckRecovery
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, require_non_negative, require_positive
 from crs_core.model import CarModel
 
 __all__ = [
@@ -148,25 +148,20 @@ class SupervisorSettings:
     ok_before_outage: float = 1.0
 
     def __post_init__(self) -> None:
-        for name in (
+        require_positive(
+            self,
             "stale_timeout",
             "degraded_speed",
             "max_speed",
             "ramp_rate",
             "rise_rate",
             "steer_max",
-        ):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise FieldError(name, f"must be a finite number > 0, got {value!r}")
+        )
         if self.hold_safe not in HOLD_SAFE_MODES:
             raise FieldError(
                 "hold_safe", f"must be one of {', '.join(HOLD_SAFE_MODES)}, got {self.hold_safe!r}"
             )
-        for name in ("ok_hold", "velocity_max", "caution_memory", "ok_before_outage"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise FieldError(name, f"must be a finite number >= 0, got {value!r}")
+        require_non_negative(self, "ok_hold", "velocity_max", "caution_memory", "ok_before_outage")
         if not self.degraded_speed <= self.max_speed:
             raise FieldError(
                 "degraded_speed",
