@@ -137,11 +137,14 @@ def car_nodes(
     params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
+    hold_safe: str = "always",
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
     when ``emulate``, started last: its car waits for references anyway), and one recorder.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
-    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment."""
+    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
+    ``hold_safe``: the controllers' parameter (``always`` by default: over Wi-Fi the first
+    outage can come at any time, :mod:`crs_core.control.contingency`)."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
     if link.given and not emulate:
@@ -180,6 +183,7 @@ def car_nodes(
                 controller,
                 output,
                 files,
+                hold_safe,
                 # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
                 input_topic="input/applied",
             ),
@@ -204,6 +208,7 @@ def run_car_stack(
     params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
+    hold_safe: str = "always",
 ) -> dict[str, Any]:
     """Run the stack against the cars for ``duration`` s, then write ``out/report.json``
     (``link``: the emulators' link impairment, recorded in it)."""
@@ -223,6 +228,7 @@ def run_car_stack(
         params_file=params_file,
         ports=ports,
         link=link,
+        hold_safe=hold_safe,
     )
     warm_compile_cache(estimator, controller, output, params_file)
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
@@ -239,6 +245,7 @@ def run_car_stack(
             "estimator": estimator,
             "controller": controller,
             "output": output,
+            "hold_safe": hold_safe,
             "duration_s": duration,
             "recorded": record,
             "seed": seed,

@@ -55,6 +55,7 @@ def stack_nodes(
     controller: str = "mpcc",
     output: str = "torque",
     onboard: bool = False,
+    hold_safe: str | None = None,
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
@@ -68,7 +69,8 @@ def stack_nodes(
     ``output: velocity``, to the car's onboard loop, which the simulators then run,
     ``onboard: true``; the estimators ignore such commands and estimate the inputs).
     ``onboard``: the simulators run the car's onboard loop also for torque commands (its
-    steering servo then moves the wheels, as on the emulator and a real car).
+    steering servo then moves the wheels, as on the emulator and a real car). ``hold_safe``:
+    the controllers' parameter (default: the node's, ``after_outage``).
     """
     per_car, global_topics = checked_record_set(cars, estimator, output, record)
     if output == "velocity" and controller != "mpcc":
@@ -100,7 +102,7 @@ def stack_nodes(
                     **files,
                 },
             ),
-            *car_control_nodes(ns, estimator, blind_start, controller, output, files),
+            *car_control_nodes(ns, estimator, blind_start, controller, output, files, hold_safe),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
     return [*nodes, recorder_node(bag, topics)]
@@ -129,11 +131,15 @@ def car_control_nodes(
     controller: str,
     output: str,
     files: dict[str, str],
+    hold_safe: str | None = None,
     **estimator_parameters: Any,
 ) -> list[NodeSpec]:
     """A car's estimator (with ``estimator_parameters``) and controller, in every stack; the
-    default torque stack passes the controller no ``output`` (the node's default)."""
-    commands = {"output": output} if output == "velocity" else {}
+    default torque stack passes the controller no ``output`` (the node's default), and no
+    ``hold_safe`` unless given."""
+    commands: dict[str, Any] = {"output": output} if output == "velocity" else {}
+    if hold_safe is not None:
+        commands["hold_safe"] = hold_safe
     return [
         NodeSpec(
             "estimator",
@@ -171,6 +177,7 @@ def run_stack(
     controller: str = "mpcc",
     output: str = "torque",
     onboard: bool = False,
+    hold_safe: str | None = None,
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out, bag, domain = run_folder(out, domain_id)
@@ -186,6 +193,7 @@ def run_stack(
         controller=controller,
         output=output,
         onboard=onboard,
+        hold_safe=hold_safe,
     )
     track = read_track(track_file) if track_file else load_demo_track()
     warm_compile_cache(estimator, controller, output, params_file)

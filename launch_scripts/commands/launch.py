@@ -43,6 +43,7 @@ def launch(args: argparse.Namespace) -> None:
         args.seed,
         track_file=args.track,
         **_stack_options(args),
+        **_sim_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
@@ -57,6 +58,11 @@ def _stack_options(args: argparse.Namespace) -> dict[str, object]:
         "controller": args.controller,
         "output": args.output,
     }
+
+
+def _sim_options(args: argparse.Namespace) -> dict[str, object]:
+    """``crs launch sim``'s own keywords: ``hold_safe`` when given."""
+    return {} if args.hold_safe is None else {"hold_safe": args.hold_safe}
 
 
 def _check_and_prepare(args: argparse.Namespace) -> None:
@@ -137,6 +143,7 @@ def launch_car(args: argparse.Namespace) -> None:
         args.domain,
         args.seed,
         link=link,
+        hold_safe=args.hold_safe or "always",
         **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
@@ -205,6 +212,13 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         help="what the controllers command: torque (steering and motor torque; default) or "
         "velocity (steering and a velocity reference for the car's onboard 250 Hz velocity PID, "
         "which the simulators then run; --controller mpcc only)",
+    )
+    sub.add_argument(
+        "--hold-safe",
+        choices=["always", "after_outage", "never"],
+        help="MPCC commands safe to hold through a link outage (the car holds the last one "
+        "200 ms, then coasts): always (car's default; about 4 %% slower laps), after_outage "
+        "(sim's default: from the first outage on), never (racing commands)",
     )
     add_duration(sub, 40.0, "wall-clock time")
     add_out(sub, "output folder", required=True)

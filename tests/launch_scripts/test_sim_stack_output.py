@@ -39,3 +39,19 @@ def test_velocity_stack_runs_the_onboard_loop_and_commands_velocities_on_every_c
 def test_bad_output_is_refused(arguments: dict, message: str):
     with pytest.raises(ValueError, match=message):
         stack_nodes(1, "ekf", Path("/tmp/unused-bag"), **arguments)
+
+
+def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_path: Path):
+    """Over Wi-Fi an outage can come at any time: the car stack's controllers plan hold-safe
+    commands from the start; the simulated stack's keep the node's default (after the first
+    outage) unless asked (``crs launch --hold-safe``)."""
+    from launch_scripts.car_stack import car_nodes
+
+    def controllers(nodes) -> list[dict]:
+        return [spec.parameters for spec in nodes if spec.name == "controller"]
+
+    car = controllers(car_nodes(2, "mhe", tmp_path / "bag", tmp_path, True))
+    assert [p["hold_safe"] for p in car] == ["always", "always"]
+    assert "hold_safe" not in controllers(stack_nodes(1, "mhe", tmp_path / "bag"))[0]
+    told = stack_nodes(1, "mhe", tmp_path / "bag", hold_safe="never")
+    assert controllers(told)[0]["hold_safe"] == "never"
