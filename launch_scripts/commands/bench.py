@@ -167,12 +167,13 @@ def run(args: argparse.Namespace) -> None:
         print(f"JSON: {args.out}")
 
 
-def _seeds(parser: argparse.ArgumentParser, what: str) -> None:
+def _seeds(parser: argparse.ArgumentParser, what: str, default: int = 5, high: int = 50) -> None:
+    """``--seeds``: an integer in ``[1, high]``."""
     parser.add_argument(
         "--seeds",
-        type=bounded_number("seeds", "", 0, 50, int),
-        default=5,
-        help=f"{what} (default 5)",
+        type=bounded_number("seeds", "", 0, high, int),
+        default=default,
+        help=f"{what} (default {default})",
     )
 
 
@@ -230,12 +231,7 @@ def _sysid_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _contingency_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--seeds",
-        type=bounded_number("seeds", "", 1, 200, int, include_low=True),
-        default=8,
-        help="outage draws, each raced with racing and with hold-safe commands (default 8)",
-    )
+    _seeds(parser, "outage draws, each raced with racing and with hold-safe commands", 8, 200)
     add_duration(parser, 60.0, "simulated time of each race")
     parser.add_argument(
         "--outage",
@@ -243,16 +239,13 @@ def _contingency_options(parser: argparse.ArgumentParser) -> None:
         default=0.3,
         help="length of each outage, s (default 0.3, the outages preset's)",
     )
-    add_seed(parser, "first seed of the outage draws (the filter was tuned on 0..7)", 100)
+    add_seed(
+        parser, "first seed of the outage draws (the filter's settings were chosen on 0..15)", 100
+    )
 
 
 def _calibration_options(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--seeds",
-        type=bounded_number("seeds", "", 1, 50, int, include_low=True),
-        default=5,
-        help="static seeds per setting (default 5; moving uses min(seeds, 3))",
-    )
+    _seeds(parser, "static seeds per setting; moving uses min(seeds, 3)")
 
 
 def _estimation_options(parser: argparse.ArgumentParser) -> None:
