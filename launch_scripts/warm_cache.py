@@ -49,6 +49,7 @@ def warm_compile_cache(
     from crs_core.control.mpcc import Mpcc
     from crs_core.control.mpcc_problem import MpccSettings
     from crs_core.estimation import EkfSettings, MheSettings, make_estimator
+    from crs_core.estimation.realtime import RealtimeSettings
     from crs_core.model import CarModel
     from crs_core.track import load_demo_track
 
@@ -57,10 +58,12 @@ def warm_compile_cache(
     model = CarModel()
     if params_file is not None:
         model = CarModel(parameters=model.parameters.updated_from_yaml(params_file))
-    settings = MheSettings(rate_hz=60.0) if estimator == "mhe" else EkfSettings()
+    # the nodes' defaults: the estimator's rate is RealtimeSettings', the MPCC's MpccSettings'
+    rate_hz = RealtimeSettings.rate_hz
+    settings = MheSettings(rate_hz=rate_hz) if estimator == "mhe" else EkfSettings()
     make_estimator(estimator, "lh+imu+we", model, settings)
     if controller == "mpcc":
-        Mpcc(load_demo_track(), model, MpccSettings(rate_hz=30.0), output=output)
+        Mpcc(load_demo_track(), model, MpccSettings(), output=output)
     CarEmulator()  # the simulator's truth model with the onboard loop
     elapsed = time.perf_counter() - started
     print(f"{label} compiled model functions ready in {elapsed:.1f} s")

@@ -55,8 +55,7 @@ from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
-from crs_core.control.supervisor import HOLD_SAFE_MODES, Supervisor, SupervisorSettings
-from crs_core.errors import FieldError
+from crs_core.control.supervisor import Supervisor, SupervisorSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_QOS,
@@ -71,6 +70,7 @@ from ros4crs.node_support import (
     run,
     throttled_warning,
 )
+from ros4crs.settings_parameters import SettingsParameters, declare_fields, declare_settings
 
 #: Controllers the node runs.
 CONTROLLERS = ("mpcc", "path")
@@ -80,8 +80,25 @@ def _controller_kind(value: str) -> str | None:
     return None if value in CONTROLLERS else f"must be one of {', '.join(CONTROLLERS)}"
 
 
-#: The parameter each supervisor and command-delay setting comes from, where the names differ.
-_PARAMETER_OF = {"ramp_rate": "speed_ramp", "rise_rate": "speed_rise", "initial": "command_delay"}
+#: The supervisor's settings that are parameters (default, description and bounds: the
+#: dataclass's); the others come from the controller.
+SUPERVISOR_PARAMETERS = SettingsParameters(
+    SupervisorSettings,
+    (
+        "stale_timeout",
+        "degraded_speed",
+        "ramp_rate",
+        "rise_rate",
+        "ok_hold",
+        "hold_safe",
+        "caution_memory",
+    ),
+    rename={"ramp_rate": "speed_ramp", "rise_rate": "speed_rise"},
+)
+#: The command delay until measured (``command_delay``).
+COMMAND_DELAY_PARAMETERS = SettingsParameters(
+    CommandDelaySettings, ("initial",), rename={"initial": "command_delay"}
+)
 
 
 class ControllerNode(Node):
@@ -99,37 +116,18 @@ class ControllerNode(Node):
                 f"velocity needs controller:=mpcc (the {kind} controller commands torque), "
                 "got 'velocity'",
             )
-        default_rate = 30.0 if kind == "mpcc" else 50.0
+        default_rate = MpccSettings.rate_hz if kind == "mpcc" else 50.0
         rate_hz = declare(self, "rate_hz", default_rate, "control rate, Hz", positive)
-        v_ref = declare(self, "v_ref", 1.0, "path follower: reference speed, m/s", positive)
-        stale_timeout = declare(
-            self, "stale_timeout", 0.2, "stop when the estimate is this old, s", positive
-        )
-        degraded_speed = declare(
-            self, "degraded_speed", 0.5, "speed while the estimate is degraded, m/s", positive
-        )
-        speed_ramp = declare(
-            self, "speed_ramp", 1.5, "rate at which the speed cap falls, m/s^2", positive
-        )
-        speed_rise = declare(
-            self, "speed_rise", 3.0, "rate at which the speed cap rises again, m/s^2", positive
-        )
-        ok_hold = declare(
-            self, "ok_hold", 1.0, "longest wait of ok before the cap rises, s", non_negative
-        )
-        hold_safe = declare(
+        v_ref = declare(
             self,
-            "hold_safe",
-            "after_outage",
-            "MPCC: plan commands safe to hold through an outage: after_outage, always or never",
-            one_of(*HOLD_SAFE_MODES),
+            "v_ref",
+            PathFollowerSettings.v_ref,
+            "path follower: reference speed, m/s",
+            positive,
         )
-        caution_memory = declare(
-            self,
-            "caution_memory",
-            60.0,
-            "MPCC: how long plans stay safe to hold after the link's last outage, s",
-            non_negative,
+        # checked when the settings are built below; degraded_speed before it is clamped there
+        supervision = declare_fields(
+            self, SUPERVISOR_PARAMETERS, checks={"degraded_speed": positive}
         )
         recover = declare(self, "recover", True, "back a stuck car out (torque commands only)")
         solve_budget = declare(
@@ -143,43 +141,34 @@ class ControllerNode(Node):
         predict = declare(
             self, "predict", True, "predict the estimate forward to now with the commands sent"
         )
-        initial_delay = declare(
-            self,
-            "command_delay",
-            CommandDelaySettings.initial,
-            "delay from a tick to the car applying its command until measured, s",
-            non_negative,
-        )
+        delay = CommandDelay(declare_settings(self, COMMAND_DELAY_PARAMETERS))
         track = declare_track(self)
+        limits: MpccSettings | PathFollowerSettings
         if kind == "mpcc":
-            tuning = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
-            controller = Mpcc(track, model, tuning, output=self.output)
-            limits = controller.settings
+            limits = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
             max_speed = limits.progress_speed_max
+        else:
+            limits = PathFollowerSettings(v_ref=v_ref)
+            max_speed = v_ref
+        # checked before the controller is built (the MPCC may compile its functions first)
+        settings = SUPERVISOR_PARAMETERS.build(
+            {
+                **supervision,
+                # as the controllers clamp it
+                "degraded_speed": min(supervision["degraded_speed"], max_speed),
+            },
+            max_speed=max_speed,
+            steer_max=limits.steer_max,
+            torque_min=limits.torque_min,
+            torque_max=limits.torque_max,
+            velocity_max=conversions.VELOCITY_LIMIT,
+        )
+        if isinstance(limits, MpccSettings):
+            controller: Mpcc | PathFollower = Mpcc(track, model, limits, output=self.output)
         else:
             parameters = model.parameters
             wheelbase = parameters.value("lf") + parameters.value("lr")
-            controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=v_ref))
-            limits = controller.settings
-            max_speed = v_ref
-        try:
-            settings = SupervisorSettings(
-                stale_timeout=stale_timeout,
-                degraded_speed=min(degraded_speed, max_speed),  # as the controllers clamp it
-                max_speed=max_speed,
-                ramp_rate=speed_ramp,
-                rise_rate=speed_rise,
-                ok_hold=ok_hold,
-                steer_max=limits.steer_max,
-                torque_min=limits.torque_min,
-                torque_max=limits.torque_max,
-                velocity_max=conversions.VELOCITY_LIMIT,
-                hold_safe=hold_safe,
-                caution_memory=caution_memory,
-            )
-            delay = CommandDelay(CommandDelaySettings(initial=initial_delay))
-        except FieldError as error:  # a settings field: name it as the parameter it came from
-            raise error.renamed(_PARAMETER_OF.get(error.field, error.field)) from None
+            controller = PathFollower(track, wheelbase, limits)
         recovery = None
         if recover and self.output == "torque":
             recovery = StuckRecovery(track, limits.steer_max)

@@ -77,13 +77,16 @@ from ros4crs.node_support import (
     finite_vector,
     in_range,
     input_subscription,
-    non_negative,
     one_of,
     parsed_with,
-    positive,
     run,
     throttled_warning,
 )
+from ros4crs.settings_parameters import SettingsParameters, declare_settings
+
+#: The real-time policy's settings, all parameters (default, description and bounds: the
+#: dataclass's; ``max_lag``'s default is the node's, by estimator).
+REALTIME_PARAMETERS = SettingsParameters(RealtimeSettings, ("rate_hz", "lag", "max_lag"))
 
 
 class EstimatorNode(Node):
@@ -95,19 +98,16 @@ class EstimatorNode(Node):
         sensors = declare(
             self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)
         )
-        self.rate_hz = declare(self, "rate_hz", 60.0, "estimate rate, Hz", positive)
-        lag = declare(self, "lag", 0.02, "estimate this many s in the past", non_negative)
         # the EKF drops late data; the MHE takes them into its window at the next update, and
         # a larger lag would only make the controller's loop slower (a max_lag below lag:
         # the lag stays)
-        max_lag = declare(
-            self,
-            "max_lag",
-            0.1 if kind == "ekf" else 0.0,
-            "raise the lag up to this for late data, s",
-            non_negative,
+        timing = declare_settings(
+            self, REALTIME_PARAMETERS, defaults={"max_lag": 0.1 if kind == "ekf" else 0.0}
         )
-        horizon = declare(self, "horizon", 40, "MHE horizon, stages", in_range(2, 1000))
+        self.rate_hz = timing.rate_hz
+        horizon = declare(
+            self, "horizon", MheSettings.horizon, "MHE horizon, stages", in_range(2, 1000)
+        )
         solves = declare(
             self, "catch_up_solves", 2, "MHE: most nodes solved per update", in_range(1, 1000)
         )
@@ -154,7 +154,7 @@ class EstimatorNode(Node):
         self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
         self.realtime = RealtimeEstimator(
             self.estimator,
-            RealtimeSettings(rate_hz=self.rate_hz, lag=lag, max_lag=max_lag),
+            timing,
             None if blind_start else initial,
         )
         self.kind = kind

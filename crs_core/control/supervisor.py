@@ -125,7 +125,9 @@ class SupervisorSettings:
     velocity_max : float
         Velocity mode: largest velocity reference, m/s (references are within ``[0, this]``).
     hold_safe : {"after_outage", "always", "never"}
-        When the MPCC plans hold-safe (see the module docstring).
+        When the MPCC plans commands safe to hold through an outage of the link:
+        ``after_outage`` (for ``caution_memory`` s after the link showed one), ``always`` or
+        ``never`` (see the module docstring).
     caution_memory : float
         How long after the link's last outage the plans stay hold-safe, s.
     ok_before_outage : float

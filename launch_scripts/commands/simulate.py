@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crs_core.control.path_following import PathFollowerSettings
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec
 from launch_scripts.arguments import (
@@ -45,7 +46,7 @@ def build_model(
 
 def simulate(args: argparse.Namespace) -> Path:
     """Run the closed-loop simulation and write the dataset (and report) to ``args.out``."""
-    from crs_core.control.path_following import PathFollower, PathFollowerSettings
+    from crs_core.control.path_following import PathFollower
     from crs_core.track import load_demo_track, read_track
     from sim.report import write_report
     from sim.simulator import Simulator
@@ -128,8 +129,9 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         sub.add_argument(
             "--speed",
             type=bounded_number("speed", "m/s", 0.0, 5.0),
-            default=1.0,
-            help="reference speed of the path follower, m/s (default 1.0, at most 5)",
+            default=PathFollowerSettings.v_ref,
+            help="reference speed of the path follower, m/s "
+            f"(default {PathFollowerSettings.v_ref}, at most 5)",
         )
         sub.add_argument(
             "--params",

@@ -40,6 +40,28 @@ CASES = [
     ("simulator_node", ["-p", "blackouts:=lighthouse:1"], "error: blackouts: 'lighthouse:1'"),
     ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
     ("controller_node", ["-p", "v_ref:=-1.0"], "error: v_ref: must be a finite number > 0"),
+    # parameters of a settings dataclass: its checks, the error naming the parameter
+    ("estimator_node", ["-p", "lag:=-0.01"], "error: lag: must be a finite number >= 0, got -0.01"),
+    (
+        "controller_node",
+        ["-p", "speed_ramp:=0.0"],
+        "error: speed_ramp: must be a finite number > 0, got 0.0",
+    ),
+    (
+        "controller_node",
+        ["-p", "degraded_speed:=inf"],  # refused before it is clamped to the top speed
+        "error: degraded_speed: must be a finite number > 0, got inf",
+    ),
+    (
+        "controller_node",
+        ["-p", "hold_safe:=sometimes"],
+        "error: hold_safe: must be one of after_outage, always, never, got 'sometimes'",
+    ),
+    (
+        "controller_node",
+        ["-p", "command_delay:=0.5"],
+        "error: command_delay: must not exceed max_delay (0.15 s), got 0.5",
+    ),
     ("controller_node", ["-p", "controller:=lqr"], "error: controller: must be one of mpcc, path"),
     ("controller_node", ["-p", "output:=speed"], "error: output: must be one of torque, velocity"),
     (
