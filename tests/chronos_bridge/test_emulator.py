@@ -4,14 +4,12 @@ from __future__ import annotations
 
 import math
 import signal
-import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from emulator_run import emulator_process
 
 from chronos_bridge.car_state import GRAVITY, PLANE_OFFSETS, CarStateConverter
 from chronos_bridge.codec import (
@@ -35,7 +33,6 @@ from crs_core.errors import FieldError
 from sim.sensors import SensorSuite
 
 STAMP_US = 1_760_000_000_000_000  # the host's stamp on its commands (ignored by the car)
-REPO = Path(__file__).resolve().parents[2]
 
 
 def run(emulator: CarEmulator, steps: int, start: int = 0, command=None, every: int = 5):
@@ -278,22 +275,8 @@ def test_voltage_and_older_control_input_references() -> None:
 # --------------------------------------------------------------------------- the process
 
 
-def _free_port_socket() -> socket.socket:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.settimeout(2.0)
-    return sock
-
-
 def test_process_streams_answers_commands_and_stops_on_sigterm() -> None:
-    host = _free_port_socket()
-    command = [sys.executable, "-m", "chronos_bridge.emulator_process", "--host", "127.0.0.1"]
-    command += ["--host-port", str(host.getsockname()[1]), "--port", "0", "--duration", "30"]
-    process = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, text=True)
-    try:
-        line = process.stdout.readline()
-        assert line.startswith("crs car-emulator: listening on 127.0.0.1:")
-        car = ("127.0.0.1", int(line.split(",")[0].rsplit(":", 1)[1]))
+    with emulator_process("30", timeout=2.0) as (process, host, car):
         packets, start = [], time.monotonic()
         while time.monotonic() - start < 1.0:
             data, source = host.recvfrom(1024)
@@ -305,11 +288,6 @@ def test_process_streams_answers_commands_and_stops_on_sigterm() -> None:
         time.sleep(0.05)
         process.send_signal(signal.SIGTERM)
         summary, _ = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        host.close()
     car_states = [p.contents for p in packets if isinstance(p.contents, CarState)]
     assert 200 <= len(car_states) <= 260  # 250 Hz for ~1 s
     assert any(isinstance(p.contents, Ping) for p in packets)  # the ping at boot
@@ -334,19 +312,10 @@ def test_cli_option_errors_are_one_line(capsys: pytest.CaptureFixture[str]) -> N
 
 
 def test_an_outage_cuts_the_motors_and_is_logged_on_the_packets_clock(tmp_path: Path) -> None:
-    host = _free_port_socket()
-    host.settimeout(0.005)
     out = tmp_path / "truth.npz"
-    command = [sys.executable, "-m", "chronos_bridge.emulator_process", "--host", "127.0.0.1"]
-    command += ["--host-port", str(host.getsockname()[1]), "--port", "0", "--duration", "1.3"]
-    command += ["--link", "outage=300ms,outage_every=1s,outage_phase=500ms"]
-    command += ["--truth-out", str(out)]
-    process = subprocess.Popen(
-        command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
+    options = ("--link", "outage=300ms,outage_every=1s,outage_phase=500ms", "--truth-out", str(out))
     stamps = []
-    try:
-        car = ("127.0.0.1", int(process.stdout.readline().split(",")[0].rsplit(":", 1)[1]))
+    with emulator_process("1.3", *options, timeout=0.005) as (process, host, car):
         next_reference = time.monotonic()
         while process.poll() is None:
             if time.monotonic() >= next_reference:  # 100 Hz, also during the outage
@@ -359,11 +328,6 @@ def test_an_outage_cuts_the_motors_and_is_logged_on_the_packets_clock(tmp_path: 
             if isinstance(packet.contents, CarState):
                 stamps.append(packet.stamp_s)
         summary, errors = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        host.close()
     log = np.load(out)
     start, end = log["link_down_outage_start_t"], log["link_down_outage_end_t"]
     assert start.size == 1 and end[0] - start[0] == pytest.approx(0.3)

@@ -3,34 +3,19 @@
 from __future__ import annotations
 
 import signal
-import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from emulator_run import emulator_process
 
 from chronos_bridge.codec import decode_from_car, encode_torque_command
 from chronos_bridge.packets import CarState
 
-REPO = Path(__file__).resolve().parents[2]
-
 
 def test_truth_out_logs_states_commands_and_the_cut_off(tmp_path: Path) -> None:
-    host = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    host.bind(("127.0.0.1", 0))
-    host.settimeout(5.0)
     out = tmp_path / "truth.npz"
-    command = [sys.executable, "-m", "chronos_bridge.emulator_process", "--host", "127.0.0.1"]
-    command += ["--host-port", str(host.getsockname()[1]), "--port", "0", "--duration", "30"]
-    command += ["--truth-out", str(out)]
-    process = subprocess.Popen(
-        command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    try:
-        line = process.stdout.readline()
-        car = ("127.0.0.1", int(line.split(",")[0].rsplit(":", 1)[1]))
+    with emulator_process("30", "--truth-out", str(out), timeout=5.0) as (process, host, car):
         stamps, sent = [], []
         start = time.monotonic()
         while time.monotonic() - start < 1.5:
@@ -43,11 +28,6 @@ def test_truth_out_logs_states_commands_and_the_cut_off(tmp_path: Path) -> None:
                 sent.append(now)
         process.send_signal(signal.SIGTERM)
         _, errors = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        host.close()
     log = np.load(out)
     assert log["x"].shape == (log["t"].size, 6) and log["t"].size >= len(stamps)
     assert set(np.round(stamps, 6)) <= set(np.round(log["t"], 6))  # the packets' stamps

@@ -6,15 +6,12 @@ from __future__ import annotations
 import argparse
 import math
 import re
-import socket
 import struct
-import subprocess
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
+from emulator_run import emulator_process
 from scipy import integrate, stats
 
 from chronos_bridge.codec import decode_from_car, encode_torque_command
@@ -32,7 +29,6 @@ from chronos_bridge.impairment import (
 from chronos_bridge.packets import CarState
 from crs_core.errors import FieldError
 
-REPO = Path(__file__).resolve().parents[2]
 N = 50_000
 DT = 0.004  # 250 Hz, as the car's CarStates
 STAMP_US = 1_760_000_000_000_000  # the host's stamp on its commands
@@ -291,19 +287,9 @@ SUMMARY = re.compile(
 
 
 def test_emulator_through_a_bad_link_loses_and_reorders_and_says_so() -> None:
-    host = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    host.bind(("127.0.0.1", 0))
-    host.settimeout(0.1)
-    command = [sys.executable, "-m", "chronos_bridge.emulator_process", "--host", "127.0.0.1"]
-    command += ["--host-port", str(host.getsockname()[1]), "--port", "0", "--duration", "2"]
-    command += ["--link", "bad", "--link-seed", "5"]
-    process = subprocess.Popen(
-        command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
     stamps, commands_sent, received = [], 0, 0
-    try:
-        line = process.stdout.readline()
-        car = ("127.0.0.1", int(line.split(",")[0].rsplit(":", 1)[1]))
+    link = ("--link", "bad", "--link-seed", "5")
+    with emulator_process("2", *link, timeout=0.1) as (process, host, car):
         while True:
             try:
                 packet = decode_from_car(host.recvfrom(1024)[0])
@@ -318,11 +304,6 @@ def test_emulator_through_a_bad_link_loses_and_reorders_and_says_so() -> None:
                     host.sendto(encode_torque_command(0.0, 0.3, STAMP_US), car)
                     commands_sent += 1
         summary, errors = process.communicate(timeout=10)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        host.close()
     assert process.returncode == 0
     assert "link car -> host burst_enter=0.0217391" in errors  # the settings, on stderr
     counts = [int(v) for v in SUMMARY.search(summary).groups()]
