@@ -283,22 +283,32 @@ class CarEmulator:
 
     def _command(self, contents: object) -> tuple[str, float, float]:
         if isinstance(contents, Reference):
-            steer = self._steer_ref
-            if contents.angle is not None:
-                steer = contents.angle
-            elif contents.voltage is not None:
-                steer = self._voltage_angle("reference.voltage", contents.voltage)
+            steer = self._steer(
+                self._steer_ref, contents.angle, contents.voltage, "reference.voltage"
+            )
             if contents.throttle is not None:
                 return "torque", steer, contents.throttle
             return "velocity", steer, contents.longitudinal_velocity  # type: ignore[return-value]
         if isinstance(contents, ControlInput):
-            steer = contents.steer_ref
-            if contents.steer_angle is not None:
-                steer = contents.steer_angle
-            elif contents.steer_voltage is not None:
-                steer = self._voltage_angle("control_input.steer_voltage", contents.steer_voltage)
+            steer = self._steer(
+                contents.steer_ref,
+                contents.steer_angle,
+                contents.steer_voltage,
+                "control_input.steer_voltage",
+            )
             return "torque", steer, contents.torque_ref
         raise DecodeError("contents", f"{type(contents).__name__} is not a command")
+
+    def _steer(
+        self, otherwise: float, angle: float | None, millivolts: int | None, field: str
+    ) -> float:
+        """The steering reference of a command: its ``angle`` (rad) if it has one, else the angle
+        of its potentiometer voltage (mV, ``field`` names it), else ``otherwise``."""
+        if angle is not None:
+            return angle
+        if millivolts is not None:
+            return self._voltage_angle(field, millivolts)
+        return otherwise
 
     def _voltage_angle(self, field: str, millivolts: int) -> float:
         volts = millivolts * 1e-3
