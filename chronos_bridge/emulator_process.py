@@ -56,7 +56,7 @@ from chronos_bridge.impairment import (
     make_link,
     parse_link,
 )
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, parse_finite
 
 PROG = "crs car-emulator"
 DESCRIPTION = (
@@ -152,11 +152,8 @@ def options(args: argparse.Namespace) -> dict:
     link_seed = seed if args.link_seed is None else _seed("--link-seed", args.link_seed)
     duration = None
     if args.duration is not None:
-        try:
-            duration = float(args.duration)
-        except ValueError:
-            duration = math.nan
-        if not (math.isfinite(duration) and duration > 0):
+        duration = parse_finite(args.duration)
+        if duration is None or not duration > 0:
             raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
     return {
         "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),

@@ -47,7 +47,7 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, parse_finite
 
 #: The preset names of :data:`PRESETS`, in order of severity (a benchmark iterates over them).
 PRESET_NAMES = ("clean", "typical", "bad", "outages")
@@ -234,13 +234,10 @@ def _value(key: str, kind: str, text: str) -> float | bool:
     elif kind == "hz":
         for unit in ("/s", "hz"):
             number = number.removesuffix(unit)
-    try:
-        value = float(number) * scale
-    except ValueError:
-        value = math.nan
-    if not math.isfinite(value):
+    value = parse_finite(number)
+    if value is None:
         raise FieldError(key, f"{text!r} is not a number")
-    return value
+    return value * scale
 
 
 def parse_spec(text: str) -> ImpairmentSettings:

@@ -12,6 +12,7 @@ The checks that settings classes repeat (each of these fields a finite number, >
 an interval) are written once here: :func:`require_finite`, :func:`require_positive`,
 :func:`require_non_negative` and :func:`require_within` check attributes of a settings object by
 name, :func:`finite_number` one value, and each raises a :class:`FieldError` naming the field.
+Parsers of text that word their own errors read a number with :func:`parse_finite`.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from numbers import Real
 __all__ = [
     "FieldError",
     "finite_number",
+    "parse_finite",
     "require_finite",
     "require_non_negative",
     "require_positive",
@@ -65,6 +67,16 @@ def finite_number(field: str, value: object) -> float:
     if number is None:
         raise FieldError(field, f"must be a finite number, got {value!r}")
     return number
+
+
+def parse_finite(text: str) -> float | None:
+    """``text`` as a float if it reads as a finite number (``float(text)``), else ``None`` (not a
+    number, or nan or inf): the caller says what was wrong, in its own words."""
+    try:
+        number = float(text)
+    except ValueError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 def require_finite(obj: object, *names: str, prefix: str = "") -> None:

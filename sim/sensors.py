@@ -11,10 +11,15 @@ Latency defaults to zero: the car stamps its packets with an SNTP-synchronised c
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
-from crs_core.errors import FieldError, require_non_negative, require_positive, require_within
+from crs_core.errors import (
+    FieldError,
+    parse_finite,
+    require_non_negative,
+    require_positive,
+    require_within,
+)
 
 
 @dataclass(frozen=True)
@@ -108,11 +113,8 @@ def parse_blackout(text: str) -> Blackout:
         )
     values = []
     for name, value in (("START", start), ("DURATION", duration)):
-        try:
-            number = float(value)
-        except ValueError:
-            number = math.nan
-        if not math.isfinite(number):
+        number = parse_finite(value)
+        if number is None:
             raise ValueError(f"{text!r}: {name} {value!r} is not a finite number")
         values.append(number)
     try:

@@ -26,12 +26,12 @@ hidden truth, identification fits their parameters, the discrepancy workflow sea
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import casadi as ca
 
+from crs_core.errors import parse_finite
 from crs_core.model.bicycle import ParameterAccess
 from crs_core.parameters import Parameter
 
@@ -329,11 +329,8 @@ def parse_effect(text: str) -> tuple[str, str | None, float | None]:
         raise ValueError(f"effect {effect!r} has no parameter {parameter!r}; it has {names}")
     if not value:
         return effect, None, None
-    try:
-        number = float(value)
-    except ValueError:
-        number = math.nan
-    if not math.isfinite(number):
+    number = parse_finite(value)
+    if number is None:
         raise ValueError(f"effect {effect!r}: {value!r} is not a finite number")
     return effect, parameter or names[0], number
 

@@ -13,6 +13,7 @@ from crs_core.dataset import Geometry
 from crs_core.errors import (
     FieldError,
     finite_number,
+    parse_finite,
     require_finite,
     require_non_negative,
     require_positive,
@@ -109,6 +110,17 @@ def test_within_names_the_interval(share: float, kwargs: dict, message: str) -> 
     with pytest.raises(FieldError) as caught:
         require_within(_Settings(share=share), "share", 0, 1, **kwargs)
     assert (caught.value.field, str(caught.value)) == ("share", message)
+
+
+@pytest.mark.parametrize(
+    ("text", "number"),
+    [
+        *[("1.5", 1.5), (" -2e-3 ", -2e-3), ("0", 0.0)],
+        *[("nan", None), ("-inf", None), ("1e999", None), ("", None), ("3 ms", None), ("x", None)],
+    ],
+)
+def test_parse_finite_reads_finite_numbers_only(text: str, number: float | None) -> None:
+    assert parse_finite(text) == number
 
 
 def test_a_reflected_base_station_rotation_is_named_once() -> None:
