@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from chronos_bridge.impairment import SPEC_HELP
+from crs_core.control.supervisor import HOLD_SAFE_MODES
 from launch_scripts.arguments import add_cars, add_duration, add_estimator, add_out, bounded_number
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
@@ -215,7 +216,7 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     )
     sub.add_argument(
         "--hold-safe",
-        choices=["always", "after_outage", "never"],
+        choices=HOLD_SAFE_MODES,
         help="MPCC commands safe to hold through a link outage (the car holds the last one "
         "200 ms, then coasts): always (car's default; about 4 %% slower laps), after_outage "
         "(sim's default: from the first outage on), never (racing commands)",
