@@ -57,6 +57,8 @@ __all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope"]
 GRID_STEP = 0.01
 #: Steering angles tried, as fractions of full lock (with the command's own).
 STEER_FRACTIONS = np.linspace(-1.0, 1.0, 13)
+#: Half a Chronos car's length, m: scales a heading excess (rad) to one of position.
+HALF_LENGTH = 0.06
 #: RK4 substeps of a rollout sample.
 SUBSTEPS = 2
 
@@ -195,9 +197,11 @@ class HoldSafetyFilter:
         return candidates[safe[int(np.argmin(change))]].copy()
 
     def excess(self, x: NDArray[np.float64], commands: NDArray[np.float64]) -> np.ndarray:
-        """Per command (rows of ``commands``, at most the filter's candidate count): how far
-        its held rollout from state ``x`` leaves the bound (m) or exceeds the braking
-        envelope at its end (m/s, scaled to m by the sample time); <= 0 is safe."""
+        """Per command (rows of ``commands``, at most the filter's candidate count): the worst
+        of how far its held rollout from state ``x`` leaves the bound (m, also ``lookahead``
+        s on along the final heading), points beyond ``max_heading_end`` at its end (rad,
+        scaled to m by a car's half length, 0.06 m) and exceeds the braking envelope there
+        (m/s, scaled to m by the sample time); <= 0 is safe."""
         count = commands.shape[0]
         U = np.zeros((2, self._candidates))
         U[:, :count] = commands.T
@@ -215,7 +219,7 @@ class HoldSafetyFilter:
         # and pointing along the track: a car that comes back across the track's direction
         # at a hairpin cannot turn in within it (scaled to m by the car's half length)
         turned = np.abs(wrap_angle(psi[:, -1] - heading[:, -1])) - self.settings.max_heading_end
-        outside = np.maximum(outside, turned * 0.06)
+        outside = np.maximum(outside, turned * HALF_LENGTH)
         too_fast = speed - self.envelope(s[:, -1])
         return np.maximum(outside, too_fast * self.settings.sample_time)
 
