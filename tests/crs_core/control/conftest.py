@@ -8,7 +8,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from crs_core.track import Track
+from crs_core.track import Track, load_demo_track
+
+
+@pytest.fixture(scope="module")
+def track() -> Track:
+    """The demo track (the real one of the recordings)."""
+    return load_demo_track()
 
 
 @pytest.fixture(scope="module")

@@ -11,15 +11,9 @@ import pytest
 from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter, braking_envelope
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
-from crs_core.track import load_demo_track
 
 #: Arc length where the demo track's first hairpin begins (centreline radius 0.3 m), m.
 HAIRPIN = 1.1
-
-
-@pytest.fixture(scope="module")
-def track():
-    return load_demo_track()
 
 
 @pytest.fixture(scope="module")

@@ -13,12 +13,6 @@ from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import QP_ARGUMENTS, MpccProblem, MpccSettings
 from crs_core.control.ocp_qp import SparseAssembly
 from crs_core.model import CarModel
-from crs_core.track import load_demo_track
-
-
-@pytest.fixture(scope="module")
-def track():
-    return load_demo_track()
 
 
 @pytest.fixture(scope="module")

@@ -13,18 +13,13 @@ import crs_core.control.path_following as path_following
 from crs_core.analysis.laps import LapCounter
 from crs_core.control import PathFollower, PathFollowerSettings
 from crs_core.errors import FieldError
-from crs_core.track import Track, load_demo_track
+from crs_core.track import Track
 
 WHEELBASE = 0.093  # m, Chronos lf + lr
 # Crude longitudinal model of the test car: v_dot = K_DRIVE * (T - C_DRAG * v); its steady-state
 # torque per m/s equals the controller's default feedforward.
 K_DRIVE = 5.0  # 1/s (m/s per unit torque)
 C_DRAG = 0.15  # torque per m/s
-
-
-@pytest.fixture(scope="module")
-def track() -> Track:
-    return load_demo_track()
 
 
 def _bicycle_step(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:

@@ -13,14 +13,8 @@ from crs_core.control.recovery import RecoverySettings, StuckRecovery
 from crs_core.control.supervisor import Supervisor
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
-from crs_core.track import load_demo_track
 
 DT = 1.0 / 30.0
-
-
-@pytest.fixture(scope="module")
-def track():
-    return load_demo_track()
 
 
 def heading_error(track, x: np.ndarray) -> float:
