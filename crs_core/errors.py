@@ -69,12 +69,12 @@ def finite_number(field: str, value: object) -> float:
     return number
 
 
-def parse_finite(text: str) -> float | None:
+def parse_finite(text: object) -> float | None:
     """``text`` as a float if it reads as a finite number (``float(text)``), else ``None`` (not a
     number, or nan or inf): the caller says what was wrong, in its own words."""
     try:
-        number = float(text)
-    except ValueError:
+        number = float(text)  # type: ignore[arg-type]  # anything float() refuses is None
+    except (TypeError, ValueError):
         return None
     return number if math.isfinite(number) else None
 

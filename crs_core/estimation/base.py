@@ -36,7 +36,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation.health import HealthMonitor, HealthSettings
 from crs_core.estimation.initialization import InitializationSettings, PoseInitializer
 from crs_core.estimation.noise import EstimatorNoise
@@ -71,11 +71,8 @@ def parse_time_offsets(text: str) -> dict[str, float]:
     offsets = {}
     for entry in filter(None, (part.strip() for part in text.split(","))):
         name, sep, value = entry.rpartition(":")
-        try:
-            seconds = float(value)
-        except ValueError:
-            seconds = math.nan
-        if not sep or not name or not math.isfinite(seconds):
+        seconds = parse_finite(value)
+        if not sep or not name or seconds is None:
             raise FieldError("time_offsets", f"{entry!r} is not <sensor or group>:<seconds>")
         offsets[name] = seconds
     return offsets

@@ -7,13 +7,12 @@ messages naming the field.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from crs_core.dataset import Dataset
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import lighthouse_sensor
 
@@ -146,11 +145,8 @@ def plane1_lag(dataset: Dataset) -> np.ndarray:
     if not dataset.measurements:
         stated = dataset.meta.get(PLANE1_LAG_KEY)
         if stated is not None:
-            try:
-                value = float(stated)
-            except (TypeError, ValueError):
-                value = math.nan
-            if not math.isfinite(value) or value < 0.0:
+            value = parse_finite(stated)
+            if value is None or value < 0.0:
                 raise FieldError(PLANE1_LAG_KEY, f"expected a finite lag >= 0 s, got {stated!r}")
             lag[1:] = value
         return lag

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
 import numpy as np
 import yaml
 
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from launch_scripts.arguments import add_out, command_line
 from launch_scripts.output_folder import prepare_output
@@ -38,11 +37,8 @@ def parse_rate(text: str | None) -> float | None:
     """``--rate HZ``: a finite number > 0; ValueError naming ``--rate``."""
     if text is None:
         return None
-    try:
-        rate = float(text)
-    except ValueError:
-        rate = math.nan
-    if not (math.isfinite(rate) and rate > 0):
+    rate = parse_finite(text)
+    if rate is None or not rate > 0:
         raise ValueError(f"--rate: must be a finite number of Hz > 0, got {text!r}")
     return rate
 
