@@ -345,7 +345,7 @@ class Supervisor:
             if backing_out is not None:
                 u = backing_out
             else:
-                u, solve_time = self._command(x, limit, dt, self.hold_safe(now), events)
+                u, solve_time = self._command(now, x, limit, dt, events)
             problem = self._problem(u)
             if problem:
                 self.rejected_commands += 1
@@ -528,21 +528,16 @@ class Supervisor:
             reset()
 
     def _command(
-        self,
-        x: np.ndarray,
-        limit: float | None,
-        elapsed: float,
-        hold_safe: bool,
-        events: list,
+        self, now: float, x: np.ndarray, limit: float | None, elapsed: float, events: list
     ) -> tuple[np.ndarray, float | None]:
         """The controller's command and its call's wall time (None if it raised); the MPCC
-        carries its plan on by the ``elapsed`` s since the last tick, hold-safe if asked."""
+        carries its plan on by the ``elapsed`` s since the last tick, hold-safe when
+        :meth:`hold_safe` says so at ``now``."""
         started = time.perf_counter()
         controller = self.controller
-        now = self._last_tick if self._last_tick is not None else 0.0
         try:
             if isinstance(controller, Mpcc):  # (then self._mpcc)
-                u = controller(x, limit, elapsed, hold_safe)
+                u = controller(x, limit, elapsed, self.hold_safe(now))
                 status = controller.status
                 if status is not None and status.mode != "solved":
                     events.append(
