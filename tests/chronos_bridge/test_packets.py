@@ -1,0 +1,19 @@
+"""Packets: the typed packet contents validate on construction."""
+
+from __future__ import annotations
+
+import pytest
+from bridge_builders import STAMP_US
+
+from chronos_bridge.codec import encode_packet
+from chronos_bridge.packets import FieldError, Packet, Reference
+
+
+def test_oneof_exclusivity_in_the_typed_packets() -> None:
+    with pytest.raises(FieldError, match="throttle_reference"):
+        Reference(throttle=0.1, longitudinal_velocity=1.0)
+    with pytest.raises(FieldError, match="throttle_reference"):
+        Reference(angle=0.1)
+    with pytest.raises(FieldError, match="steering_reference"):
+        Reference(throttle=0.1, angle=0.1, voltage=100)
+    assert encode_packet(Packet(Reference(throttle=0.0, voltage=0), STAMP_US))
