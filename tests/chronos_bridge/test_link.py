@@ -1,4 +1,11 @@
-"""CarLink over real loopback sockets: pairing, foreign senders, pings, rejects, commands."""
+"""CarLink over real loopback sockets: pairing, foreign senders, pings, rejects, commands; and
+the host side under Wi-Fi-like arrival (the datagram filter and the converter, as the link runs
+them): reordered, late, duplicated and lost car states.
+
+The emulator's datagrams are converted in order and after an impaired link (seeded: 5 % loss,
+1 % duplicates, each datagram delayed 5 + |N(0, 12 ms)| independently, which reorders them);
+every measurement of the impaired run must be one of the in-order run's, published once.
+"""
 
 from __future__ import annotations
 
@@ -6,20 +13,26 @@ import math
 import socket
 import struct
 import time
+from collections import Counter
 
 import numpy as np
 import pytest
 from bridge_builders import STAMP_US, make_state
 
+from chronos_bridge.car_state import PLANE_OFFSETS, CarStateConverter
 from chronos_bridge.codec import (
+    decode_from_car,
     decode_from_host,
     encode_car_state,
     encode_discovery_ping,
     encode_packet,
+    encode_torque_command,
 )
-from chronos_bridge.link import BUCKETS, CarLink, field_key
-from chronos_bridge.packets import Packet, Ping, Reference
+from chronos_bridge.emulator import TICK_S, CarEmulator
+from chronos_bridge.link import BUCKETS, CarLink, DatagramFilter, field_key
+from chronos_bridge.packets import CarState, Packet, Ping, Reference
 from crs_core.errors import FieldError
+from crs_core.measurements import Measurement, parse_lighthouse
 
 NOW = 1_800_000_000.0
 
@@ -261,3 +274,122 @@ def test_repeats_can_be_switched_off_and_bad_periods_name_the_field():
         with pytest.raises(FieldError, match=field) as error:
             CarLink(port=0, **{field: value})
         assert error.value.field == field
+
+
+# ------------------------------------------------- the host side under Wi-Fi-like arrival
+
+SECONDS = 10.0
+
+
+@pytest.fixture(scope="module")
+def car_states() -> list[tuple[float, bytes]]:
+    """(send time s, datagram) of every car state of a 10 s emulated drive."""
+    emulator = CarEmulator(seed=5)
+    command = encode_torque_command(0.15, 0.25, 1_760_000_000_000_000)
+    out = []
+    for k in range(round(SECONDS / TICK_S)):
+        now = k * TICK_S
+        if k % 5 == 0:
+            emulator.receive(command, now)
+        out += [(now, d) for d in emulator.step(now) if isinstance(_decode(d).contents, CarState)]
+    return out
+
+
+def _decode(datagram: bytes) -> Packet:
+    return decode_from_car(datagram)
+
+
+def impair(
+    datagrams: list[tuple[float, bytes]], seed: int, loss: float = 0.05, duplicates: float = 0.01
+) -> tuple[list[tuple[float, bytes]], set[int], int]:
+    """Arrivals (receipt time s, datagram) in arrival order, the indices delivered, and how many
+    duplicates arrived."""
+    rng = np.random.default_rng(seed)
+    arrivals, delivered, copies = [], set(), 0
+    for index, (sent, datagram) in enumerate(datagrams):
+        if rng.random() < loss:
+            continue
+        delivered.add(index)
+        n = 2 if rng.random() < duplicates else 1
+        copies += n - 1
+        for _ in range(n):
+            arrivals.append((sent + 0.005 + abs(rng.normal(0.0, 0.012)), index, datagram))
+    arrivals.sort(key=lambda a: a[0])
+    return [(t, d) for t, _, d in arrivals], delivered, copies
+
+
+def run(arrivals: list[tuple[float, bytes]]):
+    """What the link does with each datagram: drop duplicates, convert the rest."""
+    datagrams, converter = DatagramFilter(), CarStateConverter()
+    out: list[Measurement] = []
+    for receipt, data in arrivals:
+        packet = _decode(data)
+        if datagrams.accept(packet, data, receipt):
+            out += converter.convert(packet, receipt).measurements
+    return datagrams, converter, out
+
+
+def raw_angle0(m: Measurement) -> float:
+    """The sweep's raw angle_0 on the wire (identifies the sweep whatever its plane)."""
+    parsed = parse_lighthouse(m.sensor)
+    assert parsed is not None
+    return round(float(m.values[0]) - PLANE_OFFSETS[parsed[1]], 9)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_an_impaired_link_publishes_the_in_order_measurements_once(car_states, seed) -> None:
+    _, clean, in_order = run(car_states)
+    arrivals, delivered, copies = impair(car_states, seed)
+    datagrams, converter, impaired = run(arrivals)
+    # the impairment happened: overtaken datagrams, pairs whose plane 2 came first, duplicates
+    assert datagrams.duplicates == copies > 0
+    assert datagrams.reordered > 100 and converter.sweeps_out_of_order > 20
+    # IMU and wheels: each delivered step exactly once, identical to the in-order one
+    reference = {(m.sensor, m.stamp): m for m in in_order if m.sensor in ("imu", "wheel_encoders")}
+    steps = Counter((m.sensor, m.stamp) for m in impaired if not m.sensor.startswith("light"))
+    assert max(steps.values()) == 1
+    for m in impaired:
+        if not m.sensor.startswith("lighthouse"):
+            np.testing.assert_array_equal(m.values, reference[(m.sensor, m.stamp)].values)
+    assert sum(1 for s, _ in steps if s == "imu") == len(delivered)
+    # Lighthouse: each sweep once, with the in-order run's plane (sensor) and values; its stamp
+    # within the deck clock's 4 ms step (the offset is a minimum over the sweeps that came)
+    by_sweep = {raw_angle0(m): m for m in in_order if m.sensor.startswith("lighthouse")}
+    sweeps = [m for m in impaired if m.sensor.startswith("lighthouse")]
+    assert len({raw_angle0(m) for m in sweeps}) == len(sweeps)
+    for m in sweeps:
+        expected = by_sweep[raw_angle0(m)]
+        assert m.sensor == expected.sensor
+        np.testing.assert_array_equal(m.values, expected.values)
+        assert abs(m.stamp - expected.stamp) <= TICK_S
+    # >= 95 % of the sweeps whose datagram was delivered are published
+    carried = {
+        round(s.angles[0], 9)
+        for i in delivered
+        for s in _decode(car_states[i][1]).contents.sweeps  # type: ignore[union-attr]
+    }
+    published_in_order = [a for a in by_sweep if a in carried]
+    assert len(sweeps) >= 0.95 * len(published_in_order)
+    assert clean.sweeps_out_of_order == 0 and clean.sweeps_duplicate == 0
+
+
+# ---------------------------------------------------------------- the datagram filter
+
+
+def test_datagram_filter_by_stamp_and_by_bytes() -> None:
+    datagrams = DatagramFilter(memory_s=1.0)
+    packets = [Packet(make_state(), STAMP_US + k * 4000) for k in range(4)]
+    assert datagrams.accept(packets[1], b"1", 0.0) and datagrams.accept(packets[0], b"0", 0.0)
+    assert datagrams.reordered == 1
+    assert not datagrams.accept(packets[1], b"other bytes, same stamp", 0.0)
+    # a stamp far behind the memory: the car's clock stepped back; accepted, memory afresh
+    assert datagrams.accept(Packet(make_state(), STAMP_US - 5_000_000), b"x", 0.0)
+    assert datagrams.accept(packets[1], b"1", 0.0)  # forgotten with the step back
+    # without a timestamp: the same bytes within the memory (receipt time) are a duplicate
+    bare = Packet(make_state(), None)
+    assert datagrams.accept(bare, b"a", 10.0) and datagrams.accept(bare, b"b", 10.5)
+    assert not datagrams.accept(bare, b"a", 10.9)
+    assert datagrams.accept(bare, b"a", 11.2)  # older than the memory: a new one
+    assert datagrams.duplicates == 2
+    with pytest.raises(ValueError, match="memory_s"):
+        DatagramFilter(memory_s=0.0)
