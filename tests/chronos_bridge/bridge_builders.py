@@ -15,6 +15,8 @@ from chronos_bridge.packets import (
 )
 
 STAMP_US = 1_700_000_000_000_000
+#: The host's stamp on its commands to an emulated car (ignored by the car).
+HOST_STAMP_US = 1_760_000_000_000_000
 
 
 def make_state(**changes: object) -> CarState:
