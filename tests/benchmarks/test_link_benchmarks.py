@@ -1,18 +1,19 @@
-"""``crs bench link``'s metrics, targets and table, its busy loops, and ``crs launch``'s link
-options (no stack is started here)."""
+"""The link benchmark's metrics, targets and table, and its busy loops (no stack is started
+here).
+
+(Named ``..._benchmarks``: ``test_link`` is tests/chronos_bridge/test_link.py.)
+"""
 
 from __future__ import annotations
 
 import json
 import math
 import socket
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
-from benchmarks import link as link_benchmark
 from benchmarks.link import (
     busy_loops,
     driving_references,
@@ -24,9 +25,6 @@ from benchmarks.link import (
     summarise,
 )
 from crs_core.track import Track
-from launch_scripts import car_stack
-from launch_scripts.car_stack import EmulatedLink
-from launch_scripts.cli import main
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
 
 WIDTH = 0.46
@@ -260,78 +258,3 @@ def test_free_ports_skips_ports_in_use():
         other = free_ports(2)
     assert other != (host, emulator) and other[0] - host == other[1] - emulator
     assert (other[0] - host) % 200 == 0
-
-
-# --- the command line ---------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["launch", "sim", "--link", "bad"], "--link: only for crs launch car --emulate"),
-        (["launch", "sim", "--link-seed", "3"], "--link-seed: only for crs launch car --emulate"),
-        (
-            ["launch", "car", "--car-ip", "127.0.0.1", "--link-up", "typical"],
-            "--link-up: only with --emulate",
-        ),
-        (["launch", "car", "--emulate", "--link", "wifi"], "--link: 'wifi' is not a preset"),
-        (
-            ["launch", "car", "--emulate", "--link-down", "delay=3"],
-            "--link-down: delay: '3' needs a unit",
-        ),
-        (["launch", "car", "--emulate", "--link-seed", "-1"], "link-seed must be >= 0"),
-        (["bench", "link", "--presets", "clean,wifi"], "--presets: 'wifi' is not a preset"),
-        (["bench", "link", "--loads", "0,17"], "--loads: 17 must be within [0, 16]"),
-        (["bench", "link", "--cars", "1,1"], "--cars: '1,1' names a value twice"),
-        (["bench", "stack", "--cars", "1,2"], "--cars: '1,2' is not an integer"),
-        (["bench", "model", "--presets", "clean"], "unrecognized arguments: --presets clean"),
-    ],
-)
-def test_link_options_are_refused_with_one_line(
-    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
-):
-    out = tmp_path / "out"
-    assert main([*argv, "--out", str(out) + (".json" if argv[0] == "bench" else "")]) == 2
-    err = capsys.readouterr().err
-    assert message in err, err
-    assert err.count("\n") == 1, err
-    assert not out.exists() and not (tmp_path / "out.json").exists()
-
-
-def test_launch_car_emulate_passes_the_link(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
-):
-    seen: dict[str, Any] = {}
-
-    def fake_run(*args: Any, **kwargs: Any) -> dict[str, Any]:
-        seen.update(kwargs)
-        return {}
-
-    monkeypatch.setattr(car_stack, "run_car_stack", fake_run)
-    monkeypatch.setattr(car_stack, "summary", lambda report, out: "done")
-    argv = ["launch", "car", "--emulate", "--link", "bad", "--link-up", "typical,dup=1%"]
-    assert main([*argv, "--link-seed", "7", "--out", str(tmp_path / "out")]) == 0
-    assert seen["link"] == EmulatedLink("bad", "typical,dup=1%", None, 7)
-    assert main(["launch", "car", "--emulate", "--out", str(tmp_path / "plain")]) == 0
-    assert seen["link"] == EmulatedLink() and not seen["link"].given
-
-
-def test_bench_link_passes_its_matrix(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
-):
-    seen: dict[str, Any] = {}
-
-    def fake_bench(work: Path, **kwargs: Any) -> dict[str, Any]:
-        seen.update(kwargs, work=work)
-        return {"duration_s": 15.0, "estimator": "mhe", "controller": "mpcc", "seed": 3, "runs": []}
-
-    monkeypatch.setattr(link_benchmark, "link_benchmark", fake_bench)
-    out = tmp_path / "link.json"
-    argv = ["bench", "link", "--presets", "clean,bad", "--loads", "0", "--cars", "1"]
-    assert main([*argv, "--duration", "15", "--seed", "3", "--out", str(out)]) == 0
-    assert seen["presets"] == ("clean", "bad") and seen["loads"] == (0,)
-    assert seen["car_counts"] == (1,) and seen["duration"] == 15.0 and seen["seed"] == 3
-    assert seen["work"] == tmp_path / "link_runs"
-    saved = json.loads(out.read_text())
-    assert saved["command"].startswith("crs ") and "machine" in saved
-    assert main(["bench", "link", "--out", str(tmp_path / "all.json")]) == 0
-    assert seen["presets"] == ("clean", "typical", "bad", "outages")
-    assert seen["loads"] == (0, 1, 2) and seen["car_counts"] == (1, 2)

@@ -1,0 +1,99 @@
+"""Tests of ``crs launch``: files checked before any node starts, the link options, and the
+verdict on a run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from launch_scripts import car_stack
+from launch_scripts.car_stack import EmulatedLink
+from launch_scripts.cli import main
+
+
+@pytest.mark.parametrize(
+    ("option", "content", "message"),
+    [
+        ("--track", "track:\n  xCoords: [1, 2]\n", "track.yCoords: required key missing"),
+        ("--params", "parameters:\n  m: heavy\n", "parameter 'm': expected a number"),
+    ],
+)
+def test_launch_checks_track_and_parameter_files_before_starting_nodes(
+    option: str, content: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    """A bad --track or --params of `crs launch`: one line naming the file, nothing started or
+    written (the nodes would refuse it too, but only after starting)."""
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(content)
+    out = tmp_path / "out"
+    assert main(["launch", "sim", option, str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crs launch: error: {bad}: ") and message in err, err
+    assert err.count("\n") == 1
+    assert not out.exists()
+
+
+def test_a_launch_that_races_too_few_laps_or_loses_a_node_fails_with_a_headline(capsys) -> None:
+    from launch_scripts.commands.launch import verdict
+
+    report = {"node_deaths": [], "cars": {"car1": {"laps_completed": 5}}}
+    assert verdict(report, 3) == 0 and verdict(report, 0) == 0
+    report["cars"]["car2"] = {"laps_completed": 0}
+    assert verdict(report, 3) == 1
+    assert "FAILED: car2 raced 0 laps, fewer than the 3 required" in capsys.readouterr().err
+    report = {"node_deaths": [{"node": "/car1/estimator", "returncode": -11}], "cars": {}}
+    assert verdict(report, 0) == 1
+    assert "/car1/estimator died" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["launch", "sim", "--link", "bad"], "--link: only for crs launch car --emulate"),
+        (["launch", "sim", "--link-seed", "3"], "--link-seed: only for crs launch car --emulate"),
+        (
+            ["launch", "car", "--car-ip", "127.0.0.1", "--link-up", "typical"],
+            "--link-up: only with --emulate",
+        ),
+        (["launch", "car", "--emulate", "--link", "wifi"], "--link: 'wifi' is not a preset"),
+        (
+            ["launch", "car", "--emulate", "--link-down", "delay=3"],
+            "--link-down: delay: '3' needs a unit",
+        ),
+        (["launch", "car", "--emulate", "--link-seed", "-1"], "link-seed must be >= 0"),
+        (["bench", "link", "--presets", "clean,wifi"], "--presets: 'wifi' is not a preset"),
+        (["bench", "link", "--loads", "0,17"], "--loads: 17 must be within [0, 16]"),
+        (["bench", "link", "--cars", "1,1"], "--cars: '1,1' names a value twice"),
+        (["bench", "stack", "--cars", "1,2"], "--cars: '1,2' is not an integer"),
+        (["bench", "model", "--presets", "clean"], "unrecognized arguments: --presets clean"),
+    ],
+)
+def test_link_options_are_refused_with_one_line(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    out = tmp_path / "out"
+    assert main([*argv, "--out", str(out) + (".json" if argv[0] == "bench" else "")]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert err.count("\n") == 1, err
+    assert not out.exists() and not (tmp_path / "out.json").exists()
+
+
+def test_launch_car_emulate_passes_the_link(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+):
+    seen: dict[str, Any] = {}
+
+    def fake_run(*args: Any, **kwargs: Any) -> dict[str, Any]:
+        seen.update(kwargs)
+        return {}
+
+    monkeypatch.setattr(car_stack, "run_car_stack", fake_run)
+    monkeypatch.setattr(car_stack, "summary", lambda report, out: "done")
+    argv = ["launch", "car", "--emulate", "--link", "bad", "--link-up", "typical,dup=1%"]
+    assert main([*argv, "--link-seed", "7", "--out", str(tmp_path / "out")]) == 0
+    assert seen["link"] == EmulatedLink("bad", "typical,dup=1%", None, 7)
+    assert main(["launch", "car", "--emulate", "--out", str(tmp_path / "plain")]) == 0
+    assert seen["link"] == EmulatedLink() and not seen["link"].given
