@@ -1,5 +1,6 @@
-"""The message conversions refuse a malformed message with a :class:`FieldError` naming the
-field (``.field``; the message is ``"<field>: <reason>"``)."""
+"""The message conversions: a malformed message is refused with a :class:`FieldError` naming the
+field (``.field``; the message is ``"<field>: <reason>"``); car inputs round trip in each mode;
+a ``chronos_msgs/SensorBatch`` carries what the per-reading messages carry."""
 
 from __future__ import annotations
 
@@ -9,10 +10,13 @@ from typing import Any
 
 import numpy as np
 import pytest
+from rclpy.serialization import deserialize_message, serialize_message
 
+from chronos_msgs.msg import SensorBatch
 from crs_core.errors import FieldError
-from crs_core.measurements import Measurement
+from crs_core.measurements import InputSample, Measurement
 from ros4crs import conversions
+from ros4crs.interfaces import typestore
 
 
 def _imu(**fields: float) -> Any:
@@ -94,3 +98,220 @@ def test_a_negative_or_non_finite_stamp_is_refused_when_writing() -> None:
         with pytest.raises(FieldError) as error:
             conversions.stamp_ns(seconds)
         assert error.value.field == "header.stamp"
+
+
+# --- car inputs (chronos_msgs/CarInput) ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("mode", "u", "fields"),
+    [
+        ("torque", [0.12, -0.4], {"mode": 0, "steer": 0.12, "torque": -0.4, "velocity": 0.0}),
+        ("velocity", [-0.2, 1.7], {"mode": 1, "steer": -0.2, "torque": 0.0, "velocity": 1.7}),
+        ("velocity", [0.0, -4.5], {"mode": 1, "steer": 0.0, "torque": 0.0, "velocity": -4.5}),
+    ],
+)
+def test_round_trip_writes_the_fields_of_the_mode(mode: str, u: list[float], fields: dict):
+    msg = conversions.car_input_msg(np.array(u), 12.25, mode)
+    assert {name: getattr(msg, name) for name in fields} == fields
+    command = conversions.input_from_msg(msg)
+    assert command.stamp == pytest.approx(12.25, abs=1e-9)
+    assert command.mode == mode
+    np.testing.assert_array_equal(command.u, u)
+    stamp, values, read_mode = command  # a plain tuple too
+    assert (stamp, values, read_mode) == (command.stamp, command.u, mode)
+
+
+def test_default_mode_is_torque_and_the_message_constants_agree():
+    from chronos_msgs.msg import CarInput
+
+    msg = conversions.car_input_msg(np.array([0.1, 0.3]), 1.0)
+    assert msg.mode == CarInput.MODE_TORQUE == conversions.INPUT_MODES["torque"]
+    assert CarInput.MODE_VELOCITY == conversions.INPUT_MODES["velocity"]
+
+
+def test_only_a_torque_command_is_a_model_input():
+    torque = conversions.input_from_msg(conversions.car_input_msg(np.array([0.1, 0.3]), 2.0))
+    sample = torque.input_sample()
+    assert isinstance(sample, InputSample) and sample.stamp == pytest.approx(2.0)
+    np.testing.assert_array_equal(sample.u, [0.1, 0.3])
+    velocity = conversions.input_from_msg(
+        conversions.car_input_msg(np.array([0.1, 1.0]), 2.0, "velocity")
+    )
+    with pytest.raises(FieldError, match="mode: a 'velocity' command carries no torque"):
+        velocity.input_sample()
+
+
+def test_the_ignored_field_of_each_mode_is_not_validated():
+    """Torque mode ignores ``velocity``, velocity mode ``torque`` (as the message says)."""
+    msg = conversions.car_input_msg(np.array([0.1, 0.3]), 1.0)
+    msg.velocity = math.nan
+    assert conversions.input_from_msg(msg).mode == "torque"
+    msg = conversions.car_input_msg(np.array([0.1, 2.0]), 1.0, "velocity")
+    msg.torque = 7.0
+    command = conversions.input_from_msg(msg)
+    assert command.mode == "velocity" and command.u[1] == 2.0
+
+
+def _message(mode: int = 0, steer: float = 0.0, torque: float = 0.0, velocity: float = 0.0):
+    from chronos_msgs.msg import CarInput
+
+    msg = CarInput(mode=mode, steer=steer, torque=torque, velocity=velocity)
+    conversions.fill_stamp(msg.header.stamp, 3.0)
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"mode": 2}, "mode: must be 0 (MODE_TORQUE) or 1 (MODE_VELOCITY), got 2"),
+        ({"steer": math.nan}, "steer: contains NaN or inf"),
+        ({"mode": 1, "steer": math.inf, "velocity": 1.0}, "steer: contains NaN or inf"),
+        ({"torque": math.nan}, "torque: contains NaN or inf"),
+        ({"torque": 1.5}, "torque: must be within [-1, 1], got 1.5"),
+        ({"mode": 1, "velocity": math.nan}, "velocity: contains NaN or inf"),
+        ({"mode": 1, "velocity": -math.inf}, "velocity: contains NaN or inf"),
+        ({"mode": 1, "velocity": 5.5}, "velocity: must be within [-5, 5] m/s, got 5.5"),
+        ({"mode": 1, "velocity": -12.0}, "velocity: must be within [-5, 5] m/s, got -12.0"),
+    ],
+)
+def test_malformed_inputs_are_refused_naming_the_field(fields: dict, message: str):
+    with pytest.raises(FieldError) as error:
+        conversions.input_from_msg(_message(**fields))
+    assert str(error.value).startswith(message), error.value
+    assert error.value.field == message.split(":")[0]
+
+
+def test_an_unknown_mode_is_refused_when_writing():
+    with pytest.raises(
+        FieldError, match="mode: must be one of torque, velocity, got 'speed'"
+    ) as error:
+        conversions.car_input_msg(np.zeros(2), 1.0, "speed")
+    assert error.value.field == "mode"
+
+
+def test_rosbags_messages_convert_the_same(tmp_path):
+    """Bag replay reads the rosbags dataclass of the message with the same function."""
+    from rclpy.serialization import serialize_message
+
+    from ros4crs.interfaces import typestore
+
+    msg = conversions.car_input_msg(np.array([0.05, 2.5]), 4.5, "velocity")
+    store = typestore()
+    decoded = store.deserialize_cdr(serialize_message(msg), "chronos_msgs/msg/CarInput")
+    command = conversions.input_from_msg(decoded)
+    assert command.mode == "velocity"
+    np.testing.assert_array_equal(command.u, [0.05, 2.5])
+
+
+# --- sensor batches (chronos_msgs/SensorBatch): the same readings as the per-reading messages,
+# exact stamps, and a bad reading dropped alone ---------------------------------------------------
+
+
+READINGS = [
+    ("imu", [0.5, -1.25, 2.0]),
+    ("wheel_encoders", [20.0, 20.5, 21.0, 21.5]),
+    ("lighthouse/0/1", [2.1, 2.1, 2.2, 2.2]),
+    ("gyro", [-0.75]),
+    ("lighthouse/1/2", [4.2, 4.2, 4.3, 4.3]),
+    ("pose", [1.5, -0.5, 3.0]),
+]
+
+
+def measurements(t0: float = 1_764_200_000.123456789) -> list[Measurement]:
+    return [
+        Measurement(t0 + 0.004 * k + 1e-7 * k, sensor, values)
+        for k, (sensor, values) in enumerate(READINGS)
+    ]
+
+
+def test_a_batch_carries_what_the_per_reading_messages_carry() -> None:
+    """Through rclpy's CDR: each reading comes back with the stamp its own message would carry
+    (bit for bit) and its values; the header holds the newest stamp and the frame."""
+    sent = measurements()
+    msg = deserialize_message(
+        serialize_message(conversions.batch_msg(sent, "car1/base_link")), SensorBatch
+    )
+    readings = conversions.batch_from_msg(msg)
+    assert readings.rejected == []
+    assert msg.header.frame_id == "car1/base_link"
+    assert conversions.seconds_from_stamp(msg.header.stamp) == max(
+        r.stamp for r in readings.measurements
+    )
+    for original, got in zip(sent, readings.measurements, strict=True):
+        own = conversions.measurement_to_msg(original)
+        assert got.stamp == conversions.seconds_from_stamp(own.header.stamp)
+        assert got.sensor == original.sensor
+        np.testing.assert_array_equal(got.values, original.values)
+
+
+def test_a_batch_reads_the_same_from_a_bag() -> None:
+    """rosbags (bag replay) decodes the CDR to the same readings as the node."""
+    raw = serialize_message(conversions.batch_msg(measurements(), "car1/base_link"))
+    from_bag = typestore().deserialize_cdr(raw, "chronos_msgs/msg/SensorBatch")
+    live = conversions.batch_from_msg(deserialize_message(raw, SensorBatch))
+    replayed = conversions.batch_from_msg(from_bag)
+    assert replayed.rejected == live.rejected == []
+    for a, b in zip(replayed.measurements, live.measurements, strict=True):
+        assert (a.stamp, a.sensor) == (b.stamp, b.sensor)
+        np.testing.assert_array_equal(a.values, b.values)
+
+
+def test_stamps_keep_nanoseconds_far_from_the_epoch() -> None:
+    stamp = 1_764_200_000.000000001  # float64 resolution here is ~0.24 us
+    (got,) = conversions.batch_from_msg(
+        conversions.batch_msg([Measurement(stamp, "gyro", [0.1])])
+    ).measurements
+    assert abs(got.stamp - stamp) < 1e-6
+    assert conversions.stamp_ns(got.stamp) == conversions.stamp_ns(stamp)
+
+
+def test_an_empty_batch_is_refused_when_built() -> None:
+    with pytest.raises(FieldError, match=r"^measurements: ") as error:
+        conversions.batch_msg([])
+    assert error.value.field == "measurements"
+
+
+def _batch(**fields: object) -> SensorBatch:
+    msg = conversions.batch_msg(measurements())
+    for name, value in fields.items():
+        setattr(msg, name, value)
+    return msg
+
+
+@pytest.mark.parametrize(
+    ("fields", "field"),
+    [
+        ({"stamps_ns": [1, 2]}, "stamps_ns"),
+        ({"values": [0.0] * 5}, "values"),
+        (
+            {"sensors": ["imu", "wheel_encoders", "sonar", "gyro", "lighthouse/1/2", "pose"]},
+            "sensors[2]",
+        ),
+    ],
+)
+def test_a_batch_that_does_not_fit_together_is_refused_naming_the_field(
+    fields: dict[str, object], field: str
+) -> None:
+    with pytest.raises(FieldError) as error:
+        conversions.batch_from_msg(_batch(**fields))
+    assert error.value.field == field
+    assert str(error.value).startswith(f"{field}: ")
+
+
+def test_a_bad_reading_is_dropped_alone() -> None:
+    """A NaN in one reading and a negative stamp in another: those two are dropped, with the
+    reading's index and sensor in the reason; the other four are kept in order."""
+    msg = _batch()
+    msg.values[4] = math.nan  # the second value of wheel_encoders (reading 1)
+    msg.stamps_ns[3] = -5  # the gyro
+    readings = conversions.batch_from_msg(msg)
+    assert [m.sensor for m in readings.measurements] == [
+        "imu",
+        "lighthouse/0/1",
+        "lighthouse/1/2",
+        "pose",
+    ]
+    assert readings.rejected[0].startswith("readings[1] (wheel_encoders): ")
+    assert "NaN" in readings.rejected[0]
+    assert readings.rejected[1].startswith("readings[3] (gyro): stamps_ns: must be >= 0")
