@@ -1,4 +1,5 @@
-"""Every node refuses a bad parameter at start-up in one line naming it, with exit code 2.
+"""The start-up contract of :func:`ros4crs.node_support.run`: every node refuses a bad parameter
+at start-up in one line naming it, with exit code 2; so is a bad ``CRS_EXECUTOR``.
 
 Each case starts the node process as the launcher does (``python -m <module> --ros-args ...``);
 the processes run in parallel (each needs a second or two to import) and never reach DDS.
@@ -149,28 +150,6 @@ def test_unknown_executor_is_a_start_up_error():
     assert "Traceback" not in result.stderr, result.stderr
     (line,) = [line for line in result.stderr.splitlines() if "error:" in line]
     assert line == "/car1/controller: error: CRS_EXECUTOR: one of events, single, got 'multi'"
-
-
-def test_the_controller_node_logs_every_kind_of_supervisor_event() -> None:
-    """Each kind has a logger, and each can be logged twice in a row (rclpy refuses a second
-    severity from one call site: a stuck car's warning once killed the node)."""
-    import rclpy
-
-    from crs_core.control.supervisor import EVENT_KINDS
-    from ros4crs.controller_node import ControllerNode
-
-    rclpy.init(args=["--ros-args", "-p", "controller:=path"])
-    try:
-        node = ControllerNode()
-        try:
-            assert set(node._log) == set(EVENT_KINDS)
-            for _ in range(2):
-                for kind in EVENT_KINDS:
-                    node._log[kind](f"test of {kind}")
-        finally:
-            node.destroy_node()
-    finally:
-        rclpy.shutdown()
 
 
 def test_a_bad_executor_is_a_field_error_naming_the_variable(monkeypatch) -> None:
