@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from crs_core.control.mpcc import Mpcc
+from crs_core.errors import FieldError
 from crs_core.estimation.factory import make_estimator
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
@@ -93,3 +94,28 @@ def test_a_known_input_delay_is_compensated(track) -> None:
     summary = result.summary()
     assert summary["laps"] == 2 and summary["boundary_violations"] == 0
     assert summary["lap_times_s"][1] < 6.8
+
+
+@pytest.mark.parametrize(
+    ("arguments", "field"),
+    [
+        ({"rate_hz": 0.0}, "rate_hz"),
+        ({"max_duration": -1.0}, "max_duration"),
+        ({"laps": 0}, "laps"),
+    ],
+)
+def test_closed_loop_arguments_name_the_field(arguments: dict, field: str):
+    from crs_core.track import load_demo_track
+    from sim.closed_loop import run_closed_loop
+
+    arguments = {"rate_hz": 50.0, **arguments}
+    with pytest.raises(FieldError) as error:
+        run_closed_loop(
+            Simulator(CarModel(), SensorSuite()),
+            load_demo_track(),
+            lambda t, x: np.zeros(2),
+            lambda result: False,
+            arguments.pop("rate_hz"),
+            **arguments,
+        )
+    assert error.value.field == field

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from crs_core.dataset import Y_CHANNELS
-from crs_core.errors import FieldError
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_BASE_STATION
@@ -439,45 +438,3 @@ def test_a_streaming_session_keeps_constant_memory_and_the_same_samples(base_mod
     for a, b in zip(streamed, kept.measurements, strict=True):
         assert (a.stamp, a.sensor) == (b.stamp, b.sensor)
         np.testing.assert_array_equal(a.values, b.values)
-
-
-@pytest.mark.parametrize(
-    ("fields", "field"),
-    [
-        ({"rate_hz": 0.0}, "rate_hz"),
-        ({"noise_std": (0.1, -0.1)}, "noise_std"),
-        ({"bias": (0.1,)}, "bias"),
-        ({"dropout_probability": 1.0}, "dropout_probability"),
-        ({"latency_s": -0.01}, "latency_s"),
-        ({"jitter_std_s": float("nan")}, "jitter_std_s"),
-    ],
-)
-def test_a_bad_sensor_spec_names_the_field(fields: dict, field: str):
-    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
-        SensorSpec(**{"rate_hz": 100.0, "noise_std": (0.1, 0.1), **fields})
-    assert error.value.field == field
-
-
-@pytest.mark.parametrize(
-    ("arguments", "field"),
-    [
-        ({"rate_hz": 0.0}, "rate_hz"),
-        ({"max_duration": -1.0}, "max_duration"),
-        ({"laps": 0}, "laps"),
-    ],
-)
-def test_closed_loop_arguments_name_the_field(arguments: dict, field: str):
-    from crs_core.track import load_demo_track
-    from sim.closed_loop import run_closed_loop
-
-    arguments = {"rate_hz": 50.0, **arguments}
-    with pytest.raises(FieldError) as error:
-        run_closed_loop(
-            Simulator(CarModel(), SensorSuite()),
-            load_demo_track(),
-            lambda t, x: np.zeros(2),
-            lambda result: False,
-            arguments.pop("rate_hz"),
-            **arguments,
-        )
-    assert error.value.field == field

@@ -1,4 +1,8 @@
-"""Blackouts named on a command line or in a node parameter: ``SENSOR:START:DURATION``."""
+"""Sensor specs and blackouts: a bad spec names its field; blackouts are named on a command line
+or in a node parameter as ``SENSOR:START:DURATION``.
+
+(Named ``..._sim``: ``test_sensors`` is tests/crs_core/model/test_sensors.py.)
+"""
 
 from __future__ import annotations
 
@@ -7,7 +11,7 @@ import re
 import pytest
 
 from crs_core.errors import FieldError
-from sim.sensors import Blackout, parse_blackout
+from sim.sensors import Blackout, SensorSpec, parse_blackout
 
 
 def test_parse_blackout():
@@ -37,3 +41,20 @@ def test_a_bad_blackout_is_a_field_error():
         "blackout",
         "needs start >= 0 and duration > 0",
     )
+
+
+@pytest.mark.parametrize(
+    ("fields", "field"),
+    [
+        ({"rate_hz": 0.0}, "rate_hz"),
+        ({"noise_std": (0.1, -0.1)}, "noise_std"),
+        ({"bias": (0.1,)}, "bias"),
+        ({"dropout_probability": 1.0}, "dropout_probability"),
+        ({"latency_s": -0.01}, "latency_s"),
+        ({"jitter_std_s": float("nan")}, "jitter_std_s"),
+    ],
+)
+def test_a_bad_sensor_spec_names_the_field(fields: dict, field: str):
+    with pytest.raises(FieldError, match=rf"^{field}: ") as error:
+        SensorSpec(**{"rate_hz": 100.0, "noise_std": (0.1, 0.1), **fields})
+    assert error.value.field == field
