@@ -1,4 +1,4 @@
-"""Tests of sim.simulator and sim.sensors: noise, drop-outs, blackouts, latency, rates, effects."""
+"""Tests of sim.simulator: noise, drop-outs, blackouts, latency, rates, effects, streaming."""
 
 from __future__ import annotations
 
@@ -6,72 +6,25 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from sim_runs import (
+    AT_REST,
+    DRIVE,
+    DRIVE_DURATION,
+    IDEAL,
+    NOISY,
+    REST,
+    REST_DURATION,
+    STRAIGHT,
+    first_crossing,
+    model_outputs,
+    truth_index,
+)
 
-from crs_core.dataset import Y_CHANNELS
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
-from crs_core.model.lighthouse import RECORDED_BASE_STATION
 from sim import Blackout, SensorSpec, SensorSuite, SimulationResult, Simulator
 from sim.report import sensor_statistics
 from sim.simulator import LIGHTHOUSE_VIEW_LIMIT
-
-REST_DURATION = 10.0
-DRIVE_DURATION = 2.0  # the car stays inside the Lighthouse coverage for ~2.6 s with DRIVE
-IMU_BIAS = (0.1, -0.2, 0.03)
-#: Default noise everywhere, a bias on the IMU, and a motion-capture pose stream switched on.
-NOISY = SensorSuite(
-    imu=SensorSpec(250.0, (0.5, 0.5, 0.05), bias=IMU_BIAS),
-    pose=SensorSpec(100.0, (0.002, 0.002, 0.01)),
-)
-IDEAL = SensorSuite().ideal()
-AT_REST = np.zeros(6)
-
-
-def constant(steer: float, torque: float):
-    """A controller that always commands ``[steer, torque]``."""
-    command = np.array([steer, torque])
-    return lambda t, x: command.copy()
-
-
-REST = constant(0.0, 0.0)
-DRIVE = constant(0.1, 0.3)
-STRAIGHT = constant(0.0, 0.3)
-
-
-def truth_index(result: SimulationResult, times: np.ndarray) -> np.ndarray:
-    """Indices of the dense truth samples at ``times`` (which must be integration points)."""
-    index = np.clip(np.searchsorted(result.truth_t, times - 1e-12), 0, result.truth_t.size - 1)
-    assert np.allclose(result.truth_t[index], times, rtol=0, atol=1e-12), "not a truth point"
-    return index
-
-
-def model_outputs(model: CarModel, x: np.ndarray, u: np.ndarray, sensor: str) -> np.ndarray:
-    """Noise-free model output of ``sensor`` for every row of base states ``x``."""
-    p = model.parameters.vector()
-    return np.stack([model.numeric.outputs(xi, u, p)[sensor] for xi in x])
-
-
-def first_crossing(t: np.ndarray, v: np.ndarray, level: float) -> float:
-    """First time ``v`` rises above ``level`` (linear interpolation between samples)."""
-    k = int(np.argmax(v > level))
-    assert k > 0 and v[k] > level
-    return float(t[k - 1] + (level - v[k - 1]) * (t[k] - t[k - 1]) / (v[k] - v[k - 1]))
-
-
-# --- fixtures (each model compiles once; runs are shared) -----------------------------------------
-@pytest.fixture(scope="module")
-def base_model() -> CarModel:
-    return CarModel()
-
-
-@pytest.fixture(scope="module")
-def rest_run(base_model: CarModel) -> SimulationResult:
-    return Simulator(base_model, NOISY, seed=7).run(REST, REST_DURATION, AT_REST)
-
-
-@pytest.fixture(scope="module")
-def ideal_drive(base_model: CarModel) -> SimulationResult:
-    return Simulator(base_model, IDEAL, seed=0).run(DRIVE, DRIVE_DURATION, AT_REST)
 
 
 # --- noise, bias, drop-outs -----------------------------------------------------------------------
@@ -365,56 +318,6 @@ def test_wheel_radius_error_scales_encoder_readings(base_model: CarModel):
         "wheel_encoders",
     )
     np.testing.assert_allclose(wheels[-1], nominal[-1] * r / (r + dr), rtol=1e-12)
-
-
-# --- to_dataset -----------------------------------------------------------------------------------
-def test_to_dataset_samples_at_plane2_sweeps_with_exact_truth(
-    ideal_drive: SimulationResult, base_model: CarModel
-):
-    """Samples sit at station-0 plane-2 stamps, pair both planes' angles and hold exact truth."""
-    data = ideal_drive.to_dataset()
-    t1, a1 = ideal_drive.measurements_of(lighthouse_sensor(0, 1))
-    t2, a2 = ideal_drive.measurements_of(lighthouse_sensor(0, 2))
-    assert t2.size == round(50 * DRIVE_DURATION)
-    np.testing.assert_array_equal(data.t, t2)
-    np.testing.assert_array_equal(data.y[:, 4:8], a2)
-    np.testing.assert_array_equal(data.y[:, :4], a1)  # each plane-1 sweep precedes its plane 2
-    np.testing.assert_allclose(t2 - t1, 0.01, rtol=0, atol=1e-12)
-    assert data.y.shape == (t2.size, len(Y_CHANNELS))
-    np.testing.assert_allclose(
-        data.x, ideal_drive.truth_x[truth_index(ideal_drive, data.t)], rtol=0, atol=1e-12
-    )
-    u = np.array([0.1, 0.3])
-    np.testing.assert_array_equal(data.u, np.tile(u, (t2.size, 1)))
-    # plane 2 is swept at the stamp, plane 1 half a rotation (10 ms) earlier
-    plane2 = model_outputs(base_model, data.x, u, lighthouse_sensor(0, 2))
-    np.testing.assert_allclose(data.y[:, 4:8], plane2, rtol=0, atol=1e-9)
-    x_plane1 = ideal_drive.truth_x[truth_index(ideal_drive, t1)]
-    plane1 = model_outputs(base_model, x_plane1, u, lighthouse_sensor(0, 1))
-    np.testing.assert_allclose(data.y[:, :4], plane1, rtol=0, atol=1e-9)
-    # wheel speeds and yaw rate are the 250 Hz streams interpolated to the stamp
-    wheels = model_outputs(base_model, data.x, u, "wheel_encoders")
-    np.testing.assert_allclose(data.y[:, 8:12], wheels, rtol=0, atol=0.01)
-    np.testing.assert_allclose(data.y[:, 12], data.x[:, 5], rtol=0, atol=1e-3)
-    station = data.geometry.base_stations[0]
-    np.testing.assert_allclose(station.angles, RECORDED_BASE_STATION.angles, atol=1e-12)
-    assert data.meta["truth"]["effects"] == []
-    assert data.meta["truth"]["parameters"]["r"] == base_model.parameters.value("r")
-    assert data.measurements is ideal_drive.measurements
-
-
-def test_to_dataset_keeps_only_rotations_with_both_planes(rest_run: SimulationResult):
-    """With drop-outs, a sample exists exactly where plane 1 of the same rotation was received."""
-    data = rest_run.to_dataset()
-    t1, a1 = rest_run.measurements_of(lighthouse_sensor(0, 1))
-    t2, a2 = rest_run.measurements_of(lighthouse_sensor(0, 2))
-    partner = np.searchsorted(t1, t2) - 1
-    complete = (partner >= 0) & (t2 - t1[np.maximum(partner, 0)] < 0.015)
-    assert 0.85 * t2.size < complete.sum() < t2.size
-    np.testing.assert_array_equal(data.t, t2[complete])
-    np.testing.assert_array_equal(data.y[:, :4], a1[partner[complete]])
-    np.testing.assert_array_equal(data.y[:, 4:8], a2[complete])
-    assert np.all(np.isfinite(data.y))
 
 
 def test_a_streaming_session_keeps_constant_memory_and_the_same_samples(base_model: CarModel):
