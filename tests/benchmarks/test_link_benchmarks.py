@@ -1,5 +1,4 @@
-"""The link benchmark's metrics, targets and table, and its busy loops (no stack is started
-here).
+"""The link benchmark's metrics, targets, table and free ports (no stack is started here).
 
 (Named ``..._benchmarks``: ``test_link`` is tests/chronos_bridge/test_link.py.)
 """
@@ -15,7 +14,6 @@ import numpy as np
 import pytest
 
 from benchmarks.link import (
-    busy_loops,
     driving_references,
     format_table,
     free_ports,
@@ -239,16 +237,6 @@ def test_format_table_is_markdown_one_row_per_run():
     assert cells[-1] == "met"
     assert "40 s races, MHE + MPCC, seed 0" in text
     json.dumps({**result, "runs": rows})  # JSON-ready
-
-
-def test_busy_loops_start_and_always_stop_their_children():
-    with busy_loops(1) as processes:
-        assert len(processes) == 1 and processes[0].poll() is None
-    assert processes[0].poll() is not None
-    with pytest.raises(RuntimeError), busy_loops(1) as processes:
-        assert processes[0].poll() is None
-        raise RuntimeError("a failed race")
-    assert processes[0].poll() is not None
 
 
 def test_free_ports_skips_ports_in_use():

@@ -1,0 +1,104 @@
+"""The stack benchmark's bookkeeping: its busy loops, the worst case over repeats, its table (the
+stack itself is replaced by recorded reports; nothing is launched).
+
+(Named ``..._benchmarks``: ``test_stack`` is tests/integration/test_stack.py.)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from benchmarks import stack
+from benchmarks.stack import busy_loops, format_table, stack_benchmark
+
+#: What two repeats of a two-car stack reported (the fields the benchmark keeps, and one more).
+REPORTS = [
+    {
+        "cars": {
+            "car1": {
+                "laps_completed": 3,
+                "estimation_rmse": {"x": 0.002, "y": 0.004, "yaw": 0.01},
+                "estimator_deadline_misses": 1,
+                "estimator_reinitializations": 0,
+            },
+            "car2": {"laps_completed": 2, "estimator_deadline_misses": 0},
+        },
+        "cpu_percent": {"/car1/estimator": 40.0},
+        "node_deaths": [],
+        "ignored": "not kept",
+    },
+    {
+        "cars": {
+            "car1": {
+                "laps_completed": 2,
+                "estimation_rmse": {"x": 0.003, "y": 0.001, "yaw": 0.02},
+                "estimator_deadline_misses": 0,
+                "estimator_reinitializations": 2,
+            },
+            "car2": {
+                "laps_completed": 4,
+                "estimation_rmse": {"x": 0.005, "y": 0.006, "yaw": 0.03},
+                "estimator_deadline_misses": 7,
+            },
+        },
+    },
+]
+
+
+def test_busy_loops_start_and_always_stop_their_children():
+    with busy_loops(1) as processes:
+        assert len(processes) == 1 and processes[0].poll() is None
+    assert processes[0].poll() is not None
+    with pytest.raises(RuntimeError), busy_loops(1) as processes:
+        assert processes[0].poll() is None
+        raise RuntimeError("a failed race")
+    assert processes[0].poll() is not None
+
+
+@pytest.fixture
+def result(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    calls = []
+
+    def fake_run_stack(cars, estimator, duration, out, domain_id, seed):
+        calls.append((cars, estimator, duration, out, domain_id, seed))
+        return REPORTS[seed - 1]
+
+    monkeypatch.setattr(stack, "run_stack", fake_run_stack)
+    out = stack_benchmark(2, "mhe", 30.0, 2, 0, tmp_path, domain_id=5)
+    assert calls == [
+        (2, "mhe", 30.0, tmp_path / "run1", 5, 1),
+        (2, "mhe", 30.0, tmp_path / "run2", 5, 2),
+    ]
+    return out
+
+
+def test_each_repeat_keeps_the_report_fields_and_the_worst_is_taken_per_car(result) -> None:
+    assert result["runs"][0] == {
+        key: REPORTS[0][key] for key in ("cars", "cpu_percent", "node_deaths")
+    }
+    assert result["runs"][1] == {"cars": REPORTS[1]["cars"]}
+    assert result["worst"] == {
+        # fewest laps; the larger of x and y RMSE, largest over the repeats; most misses
+        "car1": {"laps": 2, "position_rmse_m": 0.004, "deadline_misses": 1},
+        # a repeat without estimates counts as an infinite position error
+        "car2": {"laps": 2, "position_rmse_m": float("inf"), "deadline_misses": 7},
+    }
+    settings = {k: result[k] for k in ("cars", "estimator", "duration_s", "repeats")}
+    assert settings == {"cars": 2, "estimator": "mhe", "duration_s": 30.0, "repeats": 2}
+    assert result["load_processes"] == 0
+
+
+def test_the_table_has_a_line_per_repeat_and_car(result) -> None:
+    assert format_table(result).splitlines() == [
+        "2 car(s), mhe, 30 s, 0 busy process(es)",
+        "  repeat 1 car1: 3 laps; RMSE x 2.0 mm, y 4.0 mm, yaw 10.0 mrad; 1 misses, "
+        "0 re-initialisations",
+        "  repeat 1 car2: 2 laps; no estimates; 0 misses, 0 re-initialisations",
+        "  repeat 2 car1: 2 laps; RMSE x 3.0 mm, y 1.0 mm, yaw 20.0 mrad; 0 misses, "
+        "2 re-initialisations",
+        "  repeat 2 car2: 4 laps; RMSE x 5.0 mm, y 6.0 mm, yaw 30.0 mrad; 7 misses, "
+        "0 re-initialisations",
+    ]
