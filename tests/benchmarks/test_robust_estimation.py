@@ -6,15 +6,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
-from benchmarks.estimation import format_table
 from benchmarks.robust_estimation import (
     INPUT_VARIANTS,
     TIMING_PATTERNS,
     inputs_withheld_rows,
     pose_solver_rows,
-    timing_robustness_rows,
 )
 from crs_core.analysis.metrics import STATE_NAMES
 from crs_core.estimation import make_estimator
@@ -71,11 +68,6 @@ def test_pose_solver_rows():
     assert _finite(rows[0]["motion_between_planes_mm"]["median"])
 
 
-@pytest.fixture(scope="module")
-def timing_rows():
-    return timing_robustness_rows((0,), duration=4.0)
-
-
 def test_timing_robustness_rows(timing_rows):
     assert [(r["estimator"], r["pattern"]) for r in timing_rows] == [
         (kind, pattern) for kind in ("ekf", "mhe") for pattern in TIMING_PATTERNS
@@ -87,9 +79,3 @@ def test_timing_robustness_rows(timing_rows):
         assert all(_finite(row["time_ms"][q]) for q in ("median", "p95", "max"))
     past = [r for r in timing_rows if r["pattern"] == "past_queries"]
     assert all(_finite(r["runs"][0]["max_position_error_past_queries_m"]) for r in past)
-
-
-def test_table_shows_the_new_rows(timing_rows):
-    table = format_table(timing_rows + pose_solver_rows((0,), duration=1.0))
-    assert "timing robustness" in table
-    assert "pose solver (stream" in table
