@@ -2,14 +2,20 @@
 
 Reads the sensor and input topics of one car from a bag (rosbags, no rclpy), converts them with
 the same :mod:`ros4crs.conversions` the nodes use, and feeds an estimator. An estimator node
-logs each of its queries on ``estimate/query`` with the newest message of every input stream it
-had received by then; :func:`replay_estimator` gives the estimator exactly those messages before
-each query, so it reproduces the node's estimates exactly, whatever the transport delays were
-(a message stamped before a query but arriving after it was not used live, nor here).
+logs each of its queries on ``estimate/query`` with the first and the newest message of every
+input stream it had received by then; :func:`replay_estimator` gives the estimator exactly those
+messages before each query, so it reproduces the node's estimates exactly, whatever the
+transport delays were (a message stamped before a query but arriving after it was not used
+live, nor here) and whichever of the recorder and the estimator subscribed to a stream first
+(a recorder that subscribed first holds messages the estimator never had; one that subscribed
+last gets the publishers' recent history, see :data:`~ros4crs.node_support.STREAM_OUT_QOS`, and
+where even that began after the estimator's first message the replay warns:
+:class:`ReplayIncompleteWarning`).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,14 +32,20 @@ from ros4crs.interfaces import typestore
 _FAMILY_OF_TOPIC = {topic: family for family, topic in conversions.TOPICS.items()}
 
 
+class ReplayIncompleteWarning(UserWarning):
+    """The bag lacks messages the estimator node had: its replay is not exact."""
+
+
 @dataclass(frozen=True)
 class Query:
     """One query of an estimator node (``estimate/query``): the time asked for, whether the
-    estimator started there, and the newest stamp per input stream it had (s)."""
+    estimator started there, and per input stream the newest stamp it had and the first
+    since the (re)start (s)."""
 
     stamp: float
     start: bool
     newest: dict[str, float]
+    oldest: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -160,6 +172,9 @@ def replay_estimator(
     :func:`~crs_core.measurements.from_start` of the data it had; before any other query it
     gets every message up to the query's newest stamp of each stream, then is asked for the
     estimate (``None`` where that fails, as the node logs and skips it; also at a start).
+    Messages of a stream older than the first the node had since its (re)start are left out
+    (the recorder subscribed before the estimator); where the bag's stream begins after that
+    first message, a :class:`ReplayIncompleteWarning` says so.
     """
     queries = list(queries)
     if not queries or not queries[0].start:
@@ -174,6 +189,9 @@ def replay_estimator(
     taken = dict.fromkeys(streams, 0)
     out: list[Estimate | None] = []
     for query in queries:
+        if query.start:
+            for stream, items in streams.items():
+                taken[stream] = _first_taken(stream, items, taken[stream], query)
         arrived: list[Measurement | InputSample] = []
         for stream, items in streams.items():
             newest, k = query.newest.get(stream, -np.inf), taken[stream]
@@ -200,6 +218,30 @@ def replay_estimator(
         except ValueError:
             out.append(None)
     return out
+
+
+def _first_taken(
+    stream: str, items: list[Measurement | InputSample], taken: int, start: Query
+) -> int:
+    """Where the (re)started estimator's data of ``stream`` begin in ``items`` (stamp order,
+    the first ``taken`` already given): at the first message the node had since ``start``
+    (also skipping those after the last query that it never had). Warns where the bag has no
+    message at that stamp."""
+    first = start.oldest.get(stream)
+    if first is None:  # a query log without first stamps: everything from here on
+        return taken
+    k = taken
+    while k < len(items) and items[k].stamp < first:
+        k += 1
+    # stamps went through a ROS Time (whole ns) and back: equal within 1 ns
+    if k == len(items) or items[k].stamp > first + 1e-9:
+        warnings.warn(
+            f"{stream}: the estimator's data began at {first:.6f} s but the bag has no message "
+            "then (the recorder joined late): the replay is not exact",
+            ReplayIncompleteWarning,
+            stacklevel=3,
+        )
+    return k
 
 
 def _stream_of(item: Measurement | InputSample, input_topic: str) -> str:

@@ -58,7 +58,7 @@ from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
-    STREAM_QOS,
+    STREAM_OUT_QOS,
     CheckedSubscription,
     ParameterError,
     declare,
@@ -192,7 +192,7 @@ class ControllerNode(Node):
         from chronos_msgs.msg import CarInput, CarState
 
         self._input_publisher = self.create_publisher(
-            CarInput, conversions.TOPICS["input"], STREAM_QOS
+            CarInput, conversions.TOPICS["input"], STREAM_OUT_QOS
         )
         self._applied = CheckedSubscription(
             self,

@@ -402,29 +402,35 @@ def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     return TFMessage(transforms=[transform])
 
 
-def query_msg(stamp: float, start: bool, newest: dict[str, float]) -> Any:
-    """``chronos_msgs/EstimatorQuery``: the time queried and, per stream, the newest stamp."""
+def query_msg(stamp: float, start: bool, newest: dict[str, float], oldest: dict[str, float]) -> Any:
+    """``chronos_msgs/EstimatorQuery``: the time queried and, per stream, the newest stamp and
+    the first since the (re)start (``oldest`` has the streams of ``newest``)."""
     from builtin_interfaces.msg import Time
 
     from chronos_msgs.msg import EstimatorQuery
 
     msg = EstimatorQuery(start=start, streams=list(newest))
     fill_stamp(msg.header.stamp, stamp)
-    for value in newest.values():
-        time_msg = Time()
-        fill_stamp(time_msg, value)
-        msg.newest.append(time_msg)
+    for stream, value in newest.items():
+        for stamps, seconds in ((msg.newest, value), (msg.oldest, oldest[stream])):
+            time_msg = Time()
+            fill_stamp(time_msg, seconds)
+            stamps.append(time_msg)
     return msg
 
 
-def query_from_msg(msg: Any) -> tuple[float, bool, dict[str, float]]:
-    """``chronos_msgs/EstimatorQuery`` -> (stamp, start, newest stamp per stream)."""
-    if len(msg.streams) != len(msg.newest):
-        raise FieldError(
-            "newest", f"{len(msg.newest)} stamps for {len(msg.streams)} streams, expected equal"
-        )
+def query_from_msg(msg: Any) -> tuple[float, bool, dict[str, float], dict[str, float]]:
+    """``chronos_msgs/EstimatorQuery`` -> (stamp, start, newest stamp per stream, first stamp
+    per stream)."""
+    for field in ("newest", "oldest"):
+        if len(getattr(msg, field)) != len(msg.streams):
+            raise FieldError(
+                field,
+                f"{len(getattr(msg, field))} stamps for {len(msg.streams)} streams, expected equal",
+            )
     newest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.newest, strict=True)}
-    return seconds_from_stamp(msg.header.stamp), bool(msg.start), newest
+    oldest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.oldest, strict=True)}
+    return seconds_from_stamp(msg.header.stamp), bool(msg.start), newest, oldest
 
 
 def sensor_message_types() -> dict[str, type]:

@@ -292,7 +292,9 @@ class EstimatorNode(Node):
             self._warn[warning.kind](warning.message)
         t = result.t
         if result.queried:
-            self._queries.publish(conversions.query_msg(t, result.started, realtime.newest))
+            self._queries.publish(
+                conversions.query_msg(t, result.started, realtime.newest, realtime.oldest)
+            )
         if result.initial is not None:
             covariance = np.diag(np.full(6, 1.0))
             self._state.publish(conversions.car_state_msg(result.initial, t, covariance))

@@ -28,6 +28,17 @@ if TYPE_CHECKING:
 STREAM_QOS = QoSProfile(
     depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST
 )
+#: The publishers of the sensor and command streams: :data:`STREAM_QOS`, transient-local. A
+#: recorder finds topics by polling the graph (every 0.2 s), so it may subscribe after the
+#: estimator has had a stream's first messages (the controller sends commands from its start);
+#: with these it still gets the last ``depth`` of them, and a bag holds what the estimator had.
+#: Volatile subscribers (every node's :data:`STREAM_QOS`) match and get only new messages.
+STREAM_OUT_QOS = QoSProfile(
+    depth=STREAM_QOS.depth,
+    reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST,
+    durability=DurabilityPolicy.TRANSIENT_LOCAL,
+)
 #: Estimates and the estimator's query log: reliable and transient-local, the last
 #: ``LOG_DEPTH`` messages kept for a subscriber that joins late (a recorder discovering the topic
 #: after the first estimates were published gets them; volatile subscribers, like the

@@ -25,7 +25,7 @@ from rclpy.node import Node
 from crs_core.errors import FieldError
 from crs_core.measurements import Measurement
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_QOS, declare, non_negative, one_of
+from ros4crs.node_support import STREAM_OUT_QOS, declare, non_negative, one_of
 
 #: Values of the ``sensor_messages`` parameter.
 SENSOR_MESSAGES = ("batch", "each")
@@ -58,11 +58,13 @@ class SensorOutput:
             from chronos_msgs.msg import SensorBatch
 
             self.publishers = {
-                "batch": node.create_publisher(SensorBatch, conversions.TOPICS["batch"], STREAM_QOS)
+                "batch": node.create_publisher(
+                    SensorBatch, conversions.TOPICS["batch"], STREAM_OUT_QOS
+                )
             }
         else:
             self.publishers = {
-                family: node.create_publisher(msg_type, conversions.TOPICS[family], STREAM_QOS)
+                family: node.create_publisher(msg_type, conversions.TOPICS[family], STREAM_OUT_QOS)
                 for family, msg_type in conversions.sensor_message_types().items()
             }
         self.batched = messages == "batch"

@@ -142,7 +142,8 @@ class UpdateResult:
         The query time of this update, s.
     queried : bool
         The estimator was started or asked at ``t`` (to be logged as a query, with
-        :attr:`RealtimeEstimator.newest`, so that a recording replays exactly).
+        :attr:`RealtimeEstimator.oldest` and :attr:`RealtimeEstimator.newest`, so that a
+        recording replays exactly).
     started : bool
         The estimator was started at ``t`` by this update.
     initial : numpy.ndarray or None
@@ -201,6 +202,9 @@ class RealtimeEstimator:
         self._delays = WindowMax(LAG_WINDOW_S)
         #: the newest stamp delivered per source (e.g. topic) since the (re)start, s
         self.newest: dict[str, float] = {}
+        #: the stamp of the first item delivered per source since the (re)start, s (a bag of
+        #: the stream may begin earlier: its recorder subscribed first)
+        self.oldest: dict[str, float] = {}
         self.started = False
         self.restarts = 0
         self.updates = 0
@@ -224,7 +228,8 @@ class RealtimeEstimator:
         now : float, optional
             Its arrival time, s (needed only when :attr:`tracks_delays`).
         source : str, optional
-            Where it came from (e.g. a topic): :attr:`newest` keeps its newest stamp.
+            Where it came from (e.g. a topic): :attr:`newest` keeps its newest stamp,
+            :attr:`oldest` its first.
 
         Returns
         -------
@@ -235,6 +240,7 @@ class RealtimeEstimator:
             newest = self.newest.get(source)
             if newest is None or item.stamp > newest:
                 self.newest[source] = item.stamp
+            self.oldest.setdefault(source, item.stamp)
         if not self.started:
             self._buffer.append((item, now))
             if not self._buffered_measurement and isinstance(item, Measurement):
@@ -385,6 +391,7 @@ class RealtimeEstimator:
         self._buffer.clear()
         self._buffered_measurement = False
         self.newest.clear()
+        self.oldest.clear()
         warnings.append(
             RealtimeWarning("restart", f"{why}: restarting the estimator (restart {self.restarts})")
         )

@@ -149,10 +149,15 @@ def test_launch_bag_has_what_foxglove_and_the_replay_need(recording: Recording):
     assert recording.contents.queries[0].start
 
 
+@pytest.mark.filterwarnings("error::ros4crs.bag_replay.ReplayIncompleteWarning")
 def test_launch_bag_replays_offline_to_the_node_estimates_exactly(recording: Recording):
     """Offline, the core MHE fed from the bag as the node's query log says (each query: every
     message up to the newest stamp per stream the node had received) gives every published
-    estimate bit for bit. Without the log (all data up to each stamp) the live node's
+    estimate bit for bit, whichever of the recorder and the estimator subscribed to a stream
+    first (measured before the query log had each stream's first stamp and the streams'
+    publishers were transient-local: 3 of 26 runs beside two busy loops differed by 9-34 mm
+    from the second estimate on, the bag holding commands from before the estimator's first, or
+    lacking its first ones). Without the log (all data up to each stamp) the live node's
     estimates are not reproduced: data that arrived after a query stamped before it were
     used offline but not live (measured: mm-level differences in the first second, fading
     later; 0.1 m in vx at worst).

@@ -13,9 +13,16 @@ import pytest
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from crs_core.measurements import Measurement
+from crs_core.measurements import InputSample, Measurement
 from ros4crs import conversions
-from ros4crs.bag_replay import read_car, read_receive_times
+from ros4crs.bag_replay import (
+    BagContents,
+    Query,
+    ReplayIncompleteWarning,
+    read_car,
+    read_receive_times,
+    replay_estimator,
+)
 from ros4crs.interfaces import typestore
 
 T0 = 1_764_000_000.0
@@ -99,3 +106,66 @@ def test_receive_times_pair_each_stamp_with_its_arrival(bag: Path) -> None:
     assert offsets("sensor") == [(0.15, 0.16), (0.2, 0.205), (0.1, 0.25), (0.3, 0.31)]
     assert offsets("input") == [(0.12, 0.125), (0.14, 0.145)]  # not input/applied
     assert offsets("estimate") == [(0.2, 0.21)]
+
+
+class _Recording:
+    """Stands in for an estimator: what it was given, and when it was asked."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[str, float]] = []
+
+    def reset(self, t: float, x0: Any) -> None:
+        self.events.append(("reset", round(t - T0, 6)))
+
+    def add(self, item: Measurement | InputSample) -> None:
+        kind = "input" if isinstance(item, InputSample) else item.sensor
+        self.events.append((kind, round(item.stamp - T0, 6)))
+
+    def estimate(self, t: float) -> str:
+        self.events.append(("estimate", round(t - T0, 6)))
+        return "estimate"
+
+
+def _contents(input_stamps: list[float]) -> BagContents:
+    """A recording: imu from 0 s every 10 ms, commands at ``input_stamps`` (s after T0)."""
+    imu = [Measurement(T0 + 0.01 * k, "imu", [0.0, 0.0, 0.0]) for k in range(10)]
+    inputs = [InputSample(T0 + t, [0.0, 0.1]) for t in input_stamps]
+    return BagContents(imu, inputs, [], [], 0)
+
+
+def _queries(first_input: float) -> list[Query]:
+    """The estimator started at 0.025 s; its first command was stamped ``first_input``."""
+
+    def query(t: float, start: bool, newest_imu: float) -> Query:
+        newest = {"sensors/imu": T0 + newest_imu, "input": T0 + 0.03}
+        oldest = {"sensors/imu": T0 + 0.02, "input": T0 + first_input}
+        return Query(T0 + t, start, newest, oldest)
+
+    return [query(0.025, True, 0.03), query(0.045, False, 0.06)]
+
+
+def test_a_replay_gives_only_what_the_estimator_had_since_its_first_messages() -> None:
+    """The recorder subscribed first: it holds commands (-0.2, -0.1 s) and imu (0-0.01 s) from
+    before the estimator's first ones (a command at 0.03 s, imu at 0.02 s). Replayed, the
+    estimator starts without a command in effect, as the node did, and never sees the rest."""
+    estimator = _Recording()
+    out = replay_estimator(_contents([-0.2, -0.1, 0.03]), estimator, _queries(0.03), None)
+    assert out == [None, "estimate"]
+    assert estimator.events == [
+        ("reset", 0.025),
+        ("input", 0.03),
+        ("imu", 0.03),
+        ("imu", 0.04),
+        ("imu", 0.05),
+        ("imu", 0.06),
+        ("estimate", 0.045),
+    ]
+
+
+def test_a_replay_warns_where_the_bag_lacks_the_estimators_first_messages() -> None:
+    """The recorder subscribed last (after the estimator's command at -0.1 s, which the bag
+    does not have): the replay is not exact, and says which stream."""
+    estimator = _Recording()
+    with pytest.warns(ReplayIncompleteWarning, match="input: the estimator's data began"):
+        replay_estimator(_contents([0.03]), estimator, _queries(-0.1), None)
+    assert ("input", 0.03) in estimator.events

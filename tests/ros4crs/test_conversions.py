@@ -56,9 +56,11 @@ def _state(status: int = 0, vx: float = 1.0) -> Any:
     return msg
 
 
-def _query() -> Any:
-    msg = conversions.query_msg(3.0, False, {"sensors/imu": 2.5})
+def _query(field: str = "newest") -> Any:
+    """An EstimatorQuery whose ``field`` has one stamp for two streams."""
+    msg = conversions.query_msg(3.0, False, {"sensors/imu": 2.5}, {"sensors/imu": 0.5})
     msg.streams = ["sensors/imu", "sensors/pose"]
+    getattr(msg, "oldest" if field == "newest" else "newest").append(msg.newest[0])
     return msg
 
 
@@ -81,6 +83,7 @@ def _query() -> Any:
         (conversions.state_from_msg, _state(vx=math.nan), "state", "contains NaN"),
         (conversions.status_from_msg, _state(status=7), "status", "must be 0 (ok)"),
         (conversions.query_from_msg, _query(), "newest", "1 stamps for 2 streams"),
+        (conversions.query_from_msg, _query("oldest"), "oldest", "1 stamps for 2 streams"),
     ],
 )
 def test_a_malformed_message_is_refused_naming_the_field(

@@ -261,10 +261,12 @@ def test_estimator_query_round_trips_with_its_time_sequence() -> None:
         start=True,
         streams=["sensors/imu", "input"],
         newest=[Time(sec=1_700_000_122, nanosec=999_999_999), Time(sec=5, nanosec=0)],
+        oldest=[Time(sec=1_700_000_100, nanosec=1), Time(sec=4, nanosec=0)],
     )
     decoded = typestore().deserialize_cdr(serialize_message(sent), typename)
     assert decoded.start is True and decoded.streams == ["sensors/imu", "input"]
     assert [(t.sec, t.nanosec) for t in decoded.newest] == [(1_700_000_122, 999_999_999), (5, 0)]
+    assert [(t.sec, t.nanosec) for t in decoded.oldest] == [(1_700_000_100, 1), (4, 0)]
     back = deserialize_message(bytes(typestore().serialize_cdr(decoded, typename)), EstimatorQuery)
     assert back == sent
     json_file = Path(sys.prefix) / "share" / PACKAGE / "msg" / "EstimatorQuery.json"

@@ -91,6 +91,7 @@ def test_starts_on_the_first_measurement_at_the_ticks_scheduled_time():
     assert [type(i).__name__ for i in fake.added] == ["InputSample", "Measurement"]
     assert fake.added[0].stamp == result.t and fake.added[1] is kept
     assert fake.diagnostics.late == 0 and realtime.newest == {"input": 9.90, "imu": 9.98}
+    assert realtime.oldest == {"input": 9.90, "imu": 9.95}  # the first each, as it arrived
     blind = RealtimeEstimator(FakeEstimator(), RealtimeSettings(rate_hz=50.0))
     blind.deliver(imu(9.99))
     assert blind.update(10.0).started and blind.update(10.0).initial is None
@@ -130,7 +131,7 @@ def test_a_clock_jump_back_restarts_blind_on_the_data_that_follow():
     assert "jumped back by 10.00 s" in result.warnings[0].message
     assert result.started and result.initial is None  # blind: it has the Lighthouse
     assert fake.resets[-1][0] == pytest.approx(result.t) and result.t < 90.04
-    assert realtime.newest == {"imu": 90.01}  # cleared at the restart
+    assert realtime.newest == realtime.oldest == {"imu": 90.01}  # cleared at the restart
     # a jump back by less than CLOCK_JUMP_S is not a restart (only nothing new to ask)
     small = realtime.update(result.t + 0.02 - 0.5 * CLOCK_JUMP_S)
     assert realtime.restarts == 1 and not small.queried
