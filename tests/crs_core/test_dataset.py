@@ -16,27 +16,10 @@ from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES
 from sim import SensorSpec, SensorSuite, Simulator
+from tests.crs_core.conftest import weaving
 
 REAL_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "chronos_real"
 REAL_RUNS = {"fie_mpc_lighthouse_1": 1462, "fie_mpc_lighthouse_2": 1472}
-
-
-def weaving(t: float, x: np.ndarray) -> np.ndarray:
-    """Varying steer so that the two input columns are distinguishable."""
-    return np.array([0.15 * np.sin(3.0 * t), 0.25])
-
-
-@pytest.fixture(scope="module")
-def simulated() -> Dataset:
-    result = Simulator(CarModel(), SensorSuite(), seed=3).run(weaving, 2.0, np.zeros(6))
-    data = result.to_dataset()
-    data.y[3, 12] = np.nan  # a missing yaw rate must survive the round trip
-    return data
-
-
-@pytest.fixture(scope="module")
-def saved(simulated: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return simulated.save(tmp_path_factory.mktemp("dataset") / "run")
 
 
 @pytest.fixture
@@ -372,16 +355,6 @@ def test_corrupt_npy_is_a_one_line_error(corruptible: Path):
     (corruptible / "u.npy").write_text("torque,steer\n0.1,0.2\n")
     with pytest.raises(ValueError, match=r"^u\.npy: not a readable \.npy array"):
         Dataset.load(corruptible)
-
-
-def test_consistency_replay_needs_inputs(saved: Path):
-    """The sensor-model replay refuses a dataset without inputs (front wheels need the steer)."""
-    from crs_core.analysis.consistency import predicted_samples
-
-    data = Dataset.load(saved)
-    data.u = None
-    with pytest.raises(ValueError, match=r"^dataset: has no inputs u\.npy"):
-        predicted_samples(data, CarModel())
 
 
 def write_user_recording(folder: Path) -> dict:
