@@ -434,3 +434,29 @@ def test_save_without_metadata_writes_the_recordings_layout(tmp_path):
     assert loaded.meta == {"source": "real"} and loaded.measurements is None
     np.testing.assert_array_equal(loaded.u, dataset.u)
     np.testing.assert_array_equal(loaded.y, dataset.y)
+
+
+def test_a_dataset_geometry_names_the_bad_field() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "position": [0, 0],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert caught.value.field == "geometry.base_stations[0].position"
+
+
+def test_a_reflected_base_station_rotation_is_named_once() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]],
+        "position": [0, 0, 2],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert str(caught.value) == (
+        "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
+    )

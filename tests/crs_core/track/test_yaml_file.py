@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from crs_core.errors import FieldError
 from crs_core.track import DEMO_TRACK_PATH, Track, read_track
 
 DEMO_LENGTH = 11.568
@@ -108,3 +109,12 @@ def test_open_centerline_is_rejected(tmp_path: Path) -> None:
 def test_missing_track_mapping_is_rejected(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="track"):
         read_track(_write(tmp_path, {"something": 1}))
+
+
+def test_a_track_file_names_the_yaml_key(tmp_path) -> None:
+    path = tmp_path / "track.yaml"
+    path.write_text("track:\n  xCoords: [0, 1]\n")
+    with pytest.raises(FieldError) as caught:
+        read_track(path)
+    assert caught.value.field == f"{path}: track.yCoords"
+    assert caught.value.reason == "required key missing"
