@@ -22,7 +22,8 @@ MIRRORED = ("crs_core",)
 #: A test of their own makes no sense for these; their behaviour is asserted where it is used.
 EXEMPT: dict[str, str] = {
     # Draws the calibration figures into files (matplotlib) and returns their paths; that they
-    # are written is checked end to end by the calibration command-line test.
+    # are written is checked end to end by the calibration command-line tests
+    # (tests/crs_core/calibration/test_calibration_cli.py, to move to tests/launch_scripts).
     "crs_core/calibration/plots.py": "figures only, checked through the calibration command",
 }
 
