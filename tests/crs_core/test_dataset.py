@@ -436,6 +436,9 @@ def test_save_without_metadata_writes_the_recordings_layout(tmp_path):
     np.testing.assert_array_equal(loaded.y, dataset.y)
 
 
+# --- geometry errors name the field ---------------------------------------------------------------
+
+
 def test_a_dataset_geometry_names_the_bad_field() -> None:
     station = {
         "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],

@@ -275,6 +275,9 @@ def test_memory_stays_flat_over_a_long_stream(kind, end, traced_from, sample_eve
     assert max(last) <= max(middle) + bound, (max(last) - max(middle), middle, last)
 
 
+# --- on the standard drive of the documented bounds: convergence, order, boundaries ---------------
+
+
 #: The sensor combinations of the paper's Table I.
 SENSOR_SETS = ("lh", "lh+imu", "lh+we", "lh+imu+we")
 

@@ -337,6 +337,9 @@ def test_simulated_lighthouse_angles_carry_the_plane_offsets():
         np.testing.assert_allclose(angles - np.array(expected), offset, rtol=0, atol=1e-12)
 
 
+# --- effects named on a command line or in a node parameter: NAME[.PARAM]=VALUE -------------------
+
+
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
