@@ -16,33 +16,10 @@ from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES
 from sim import SensorSpec, SensorSuite, Simulator
+from tests.crs_core.conftest import weaving, write_user_recording
 
 REAL_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "chronos_real"
 REAL_RUNS = {"fie_mpc_lighthouse_1": 1462, "fie_mpc_lighthouse_2": 1472}
-
-
-def weaving(t: float, x: np.ndarray) -> np.ndarray:
-    """Varying steer so that the two input columns are distinguishable."""
-    return np.array([0.15 * np.sin(3.0 * t), 0.25])
-
-
-@pytest.fixture(scope="module")
-def simulated() -> Dataset:
-    result = Simulator(CarModel(), SensorSuite(), seed=3).run(weaving, 2.0, np.zeros(6))
-    data = result.to_dataset()
-    data.y[3, 12] = np.nan  # a missing yaw rate must survive the round trip
-    return data
-
-
-@pytest.fixture(scope="module")
-def saved(simulated: Dataset, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return simulated.save(tmp_path_factory.mktemp("dataset") / "run")
-
-
-@pytest.fixture
-def corruptible(saved: Path, tmp_path: Path) -> Path:
-    """A fresh copy of the saved dataset, to be broken by a test."""
-    return Path(shutil.copytree(saved, tmp_path / "broken"))
 
 
 def real_run(name: str) -> Path:
@@ -374,55 +351,6 @@ def test_corrupt_npy_is_a_one_line_error(corruptible: Path):
         Dataset.load(corruptible)
 
 
-def test_consistency_replay_needs_inputs(saved: Path):
-    """The sensor-model replay refuses a dataset without inputs (front wheels need the steer)."""
-    from crs_core.analysis.consistency import predicted_samples
-
-    data = Dataset.load(saved)
-    data.u = None
-    with pytest.raises(ValueError, match=r"^dataset: has no inputs u\.npy"):
-        predicted_samples(data, CarModel())
-
-
-def write_user_recording(folder: Path) -> dict:
-    """A recording written the way a user would, with numpy and PyYAML only (no project code).
-
-    Two base stations; station 1 plane 2 and a gyro are recorded, one wheel-encoder row is NaN
-    (a missing sample), the stamps are Unix-like and the stream arrays unsorted.
-    """
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    t = 1.7e9 + np.arange(25) * 0.02
-    np.save(folder / "t.npy", t)
-    np.save(folder / "y.npy", np.full((13, t.size), np.nan))
-    stations = [
-        {"rotation": np.eye(3).tolist(), "position": [0.0, 0.0, 2.0], "dt1": 0.0, "dt2": 0.0},
-        {
-            "rotation": [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
-            "position": [1.0, -0.5, 2.2],
-            "dt1": -0.01,
-            "dt2": 0.02,
-        },
-    ]
-    diodes = [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
-    meta = {"source": "my-lab", "geometry": {"base_stations": stations, "photodiodes": diodes}}
-    (folder / "dataset.yaml").write_text(yaml.safe_dump(meta))
-    lh_t = t[::-1] + 0.001
-    arrays = {
-        "meas:lighthouse__1__2:t": lh_t,
-        "meas:lighthouse__1__2:v": rng.normal(0.0, 0.3, (t.size, 4)),
-        "meas:gyro:t": np.arange(100) * 0.004 + 1.7e9,
-        "meas:gyro:v": rng.normal(0.0, 1.0, (100, 1)),
-        "meas:wheel_encoders:t": np.arange(100) * 0.004 + 1.7e9,
-        "meas:wheel_encoders:v": rng.normal(50.0, 5.0, (100, 4)),
-        "inputs:t": t[::2],
-        "inputs:u": np.column_stack([np.full(13, 0.2), np.full(13, 0.5)]),  # steer, torque
-    }
-    arrays["meas:wheel_encoders:v"][7, 2] = np.nan
-    np.savez(folder / "stream.npz", **arrays)
-    return arrays
-
-
 def test_user_written_stream_is_read_back(tmp_path: Path):
     """A stream.npz written with plain numpy loads sensor by sensor; save/load keeps it."""
     arrays = write_user_recording(tmp_path / "mine")
@@ -461,47 +389,6 @@ def test_user_written_stream_is_read_back(tmp_path: Path):
     assert again.geometry.base_stations[1].position == (1.0, -0.5, 2.2)
 
 
-@pytest.mark.parametrize(
-    ("change", "message"),
-    [
-        ({"meas:sonar:t": np.zeros(2), "meas:sonar:v": np.zeros((2, 1))}, "unknown sensor 'sonar'"),
-        ({"meas:gyro:v": np.zeros((100, 2))}, r"meas:gyro:v expected shape \(100, 1\)"),
-        ({"meas:gyro:t": np.zeros((100, 1))}, "meas:gyro:t must be a 1-D numeric array"),
-        (
-            {"meas:lighthouse__2__1:t": np.zeros(1), "meas:lighthouse__2__1:v": np.zeros((1, 4))},
-            "is base station 2, but the geometry has 2",
-        ),
-        ({"meas:imu:t": np.zeros(3)}, "meas:imu:t has no values meas:imu:v"),
-        ({"meas:imu:v": np.zeros((3, 3))}, "meas:imu:v has no stamps meas:imu:t"),
-        ({"notes": np.zeros(1)}, "unknown array 'notes'"),
-        ({"meas:gyro:v": np.full((100, 1), np.inf)}, "meas:gyro:v contains inf"),
-        ({"inputs:u": np.zeros((13, 3))}, r"inputs:u expected shape \(13, 2\)"),
-        ({"inputs:u": None}, "inputs:t and inputs:u must come together"),
-    ],
-)
-def test_malformed_stream_is_rejected_naming_the_array(tmp_path: Path, change: dict, message):
-    """Every malformed part of a user-written stream.npz is a one-line error naming it."""
-    arrays = write_user_recording(tmp_path / "bad")
-    for key, value in change.items():
-        if value is None:
-            del arrays[key]
-        else:
-            arrays[key] = value
-    np.savez(tmp_path / "bad" / "stream.npz", **arrays)
-    with pytest.raises(FieldError, match=rf"^stream\.npz: .*{message}") as excinfo:
-        Dataset.load(tmp_path / "bad")
-    assert "\n" not in str(excinfo.value)
-    assert excinfo.value.field == "stream.npz"
-
-
-def test_unreadable_stream_is_a_one_line_error(corruptible: Path):
-    """A stream.npz that is not an archive is rejected naming stream.npz."""
-    (corruptible / "stream.npz").write_bytes(b"not a zip file")
-    with pytest.raises(FieldError, match=r"^stream\.npz: not a readable \.npz archive") as error:
-        Dataset.load(corruptible)
-    assert error.value.field == "stream.npz"
-
-
 def test_geometry_fields_are_validated_by_name(corruptible: Path):
     """A base station position of two numbers is rejected naming the field."""
     meta = yaml.safe_load((corruptible / "dataset.yaml").read_text())
@@ -519,13 +406,6 @@ def test_t_one_sample_short_names_the_files_and_counts(corruptible: Path):
     with pytest.raises(
         ValueError, match=rf"y\.npy: has {t.size} samples but t\.npy has {t.size - 1}"
     ):
-        Dataset.load(corruptible)
-
-
-def test_truncated_stream_is_a_one_line_error(corruptible: Path):
-    data = (corruptible / "stream.npz").read_bytes()
-    (corruptible / "stream.npz").write_bytes(data[:1000])
-    with pytest.raises(ValueError, match=r"^stream\.npz: not a readable \.npz archive"):
         Dataset.load(corruptible)
 
 
@@ -554,3 +434,32 @@ def test_save_without_metadata_writes_the_recordings_layout(tmp_path):
     assert loaded.meta == {"source": "real"} and loaded.measurements is None
     np.testing.assert_array_equal(loaded.u, dataset.u)
     np.testing.assert_array_equal(loaded.y, dataset.y)
+
+
+# --- geometry errors name the field ---------------------------------------------------------------
+
+
+def test_a_dataset_geometry_names_the_bad_field() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
+        "position": [0, 0],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert caught.value.field == "geometry.base_stations[0].position"
+
+
+def test_a_reflected_base_station_rotation_is_named_once() -> None:
+    station = {
+        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]],
+        "position": [0, 0, 2],
+        "dt1": 0,
+        "dt2": 0,
+    }
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
+    assert str(caught.value) == (
+        "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
+    )

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from chronos_bridge.packets import FieldError as BridgeFieldError
-from crs_core.dataset import Geometry
 from crs_core.errors import (
     FieldError,
     finite_number,
@@ -19,7 +18,6 @@ from crs_core.errors import (
     require_positive,
     require_within,
 )
-from crs_core.track import read_track
 
 
 def test_the_field_and_the_reason_are_attributes_and_make_the_message() -> None:
@@ -36,27 +34,6 @@ def test_the_field_and_the_reason_are_attributes_and_make_the_message() -> None:
 
 def test_the_bridge_and_the_core_share_one_error_type() -> None:
     assert BridgeFieldError is FieldError
-
-
-def test_a_dataset_geometry_names_the_bad_field() -> None:
-    station = {
-        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]],
-        "position": [0, 0],
-        "dt1": 0,
-        "dt2": 0,
-    }
-    with pytest.raises(FieldError) as caught:
-        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
-    assert caught.value.field == "geometry.base_stations[0].position"
-
-
-def test_a_track_file_names_the_yaml_key(tmp_path) -> None:
-    path = tmp_path / "track.yaml"
-    path.write_text("track:\n  xCoords: [0, 1]\n")
-    with pytest.raises(FieldError) as caught:
-        read_track(path)
-    assert caught.value.field == f"{path}: track.yCoords"
-    assert caught.value.reason == "required key missing"
 
 
 @dataclass
@@ -121,17 +98,3 @@ def test_within_names_the_interval(share: float, kwargs: dict, message: str) -> 
 )
 def test_parse_finite_reads_finite_numbers_only(text: str, number: float | None) -> None:
     assert parse_finite(text) == number
-
-
-def test_a_reflected_base_station_rotation_is_named_once() -> None:
-    station = {
-        "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, -1]],
-        "position": [0, 0, 2],
-        "dt1": 0,
-        "dt2": 0,
-    }
-    with pytest.raises(FieldError) as caught:
-        Geometry.from_dict({"base_stations": [station], "photodiodes": [[0, 0]] * 4})
-    assert str(caught.value) == (
-        "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
-    )

@@ -11,15 +11,6 @@ from crs_core.model.chronos import ROUGH_PRIOR, dynamics_parameters
 from crs_core.parameters import Parameter, ParameterSet
 
 
-def test_chronos_defaults_are_the_identified_values():
-    """Defaults equal the values identified for the recorded car (data README)."""
-    params = dynamics_parameters()
-    assert params.value("m") == 0.242 and params.value("Bf") == 5.19600518
-    assert params.value("gamma") == 0.50199235 and params.value("eps") == 0.2
-    assert params.value("r") == 0.0175 and params.value("b_car") == 0.12
-    assert params["Cm1"].unit == "N" and params["Iz"].unit == "kg m^2"
-
-
 def test_model_parameter_vector_follows_names():
     """The model's p vector is laid out in ParameterSet order, looked up by name."""
     model = CarModel()

@@ -18,6 +18,7 @@ from crs_core.estimation.offline import (
     reference_comparison,
 )
 from sim.scenarios import standard_drive
+from tests.crs_core.estimation.conftest import KINDS
 
 DURATION = 6.0
 
@@ -158,3 +159,22 @@ def test_empty_dataset_is_refused(drive: Dataset, tmp_path: Path):
     empty = Dataset(t=np.zeros(0), u=None, y=np.zeros((0, drive.y.shape[1])))
     with pytest.raises(FieldError, match=r"^dataset: has no samples \(t\.npy is empty\)"):
         estimate_dataset(empty, "ekf", "lh")
+
+
+REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "chronos_real"
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="real recordings not available")
+@pytest.mark.parametrize("kind", KINDS)
+def test_input_free_estimation_on_a_real_recording(kind):
+    """Real run 1, blind, Lighthouse + gyro + wheel encoders, commands withheld: no run-away,
+    within 2 cm of the car's own on-line estimate (the reference, not ground truth). Before the
+    MHE's backtracking went down to 2^-11 it drifted half a metre away here."""
+    from crs_core.dataset import Dataset
+    from crs_core.estimation.offline import estimate_dataset, reference_comparison
+
+    dataset = Dataset.load(REAL / "fie_mpc_lighthouse_1")
+    result = estimate_dataset(dataset, kind, "lh+gyro+we", inputs="estimated")
+    comparison = reference_comparison(result, dataset)["rmse_settled"]
+    assert comparison["position"] < 0.02, comparison
+    assert result.diagnostics["reinitializations"] == 0

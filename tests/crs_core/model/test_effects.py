@@ -1,10 +1,15 @@
-"""Effects composed onto the model: state layout, signal-chain behaviour, registry handling."""
+"""Tests of crs_core.model.effects: effects composed onto the model (state layout, signal-chain
+behaviour, registry handling) and effects named on a command line or in a node parameter
+(``NAME[.PARAM]=VALUE``)."""
+
+import re
 
 import numpy as np
 import pytest
 
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model import EFFECTS, CarModel
+from crs_core.model.effects import effect_spec, parse_effect
 from sim import SensorSuite, Simulator
 
 
@@ -332,20 +337,67 @@ def test_simulated_lighthouse_angles_carry_the_plane_offsets():
         np.testing.assert_allclose(angles - np.array(expected), offset, rtol=0, atol=1e-12)
 
 
-def test_model_pickles_by_its_constructor_arguments():
-    """A model with effects and changed values crosses a process boundary unchanged."""
-    import pickle
+# --- effects named on a command line or in a node parameter: NAME[.PARAM]=VALUE -------------------
 
-    model = CarModel({"gyro_bias": {"gyro_bias": 0.07}, "steering_lag": None}, n_base_stations=2)
-    model = CarModel(
-        {"gyro_bias": None, "steering_lag": None},
-        n_base_stations=2,
-        parameters=model.parameters.updated({"Cm1": 0.9}),
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("gyro_bias", ("gyro_bias", None, None)),
+        ("steering_lag=0.08", ("steering_lag", "tau_steer", 0.08)),
+        ("steering_lag.tau_steer=0.1", ("steering_lag", "tau_steer", 0.1)),
+        ("input_delay=0", ("input_delay", "input_delay", 0.0)),
+        ("gyro_scale=0.1", ("gyro_scale", "gyro_scale_error", 0.1)),
+        ("steering_gain=-0.2", ("steering_gain", "steering_gain_error", -0.2)),
+        ("torque_deadzone", ("torque_deadzone", None, None)),
+        ("lighthouse_offset=0.02", ("lighthouse_offset", "lh_plane1_offset", 0.02)),
+        (
+            "lighthouse_offset.lh_plane2_offset=0.01",
+            ("lighthouse_offset", "lh_plane2_offset", 0.01),
+        ),
+    ],
+)
+def test_parse_effect_forms(text: str, expected: tuple):
+    """NAME, NAME=VALUE and NAME.PARAM=VALUE parse to (effect, parameter, value)."""
+    assert parse_effect(text) == expected
+
+
+def test_parse_effect_rejects_non_numbers():
+    """A value that is not a finite number is a ValueError naming the effect."""
+    with pytest.raises(ValueError, match="effect 'steering_lag': 'slow'"):
+        parse_effect("steering_lag=slow")
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("bogus", "unknown effect 'bogus'; known: steering_offset"),
+        ("steering_lag.tau=0.1", "effect 'steering_lag' has no parameter 'tau'"),
+        ("steering_lag=nan", "effect 'steering_lag': 'nan' is not a finite number"),
+    ],
+)
+def test_parse_effect_errors_name_what_is_wrong(text: str, message: str):
+    with pytest.raises(ValueError, match=re.escape(message)):
+        parse_effect(text)
+
+
+def test_effect_spec_merges_parameters_per_effect():
+    parsed = [parse_effect(t) for t in ("gyro_bias", "steering_lag=0.08", "motor_lag")]
+    parsed.append(("steering_lag", "tau_steer", 0.1))
+    assert effect_spec(parsed) == {
+        "gyro_bias": None,
+        "steering_lag": {"tau_steer": 0.1},
+        "motor_lag": None,
+    }
+
+
+def test_parsed_lighthouse_offset_builds_a_model_with_both_plane_offsets():
+    """Both parameters of a two-parameter effect can be set from the command-line form."""
+    spec = effect_spec(
+        parse_effect(t)
+        for t in ("lighthouse_offset=0.02", "lighthouse_offset.lh_plane2_offset=-0.01")
     )
-    copy = pickle.loads(pickle.dumps(model))
-    assert copy.tag == model.tag and copy.nx == model.nx
-    np.testing.assert_array_equal(copy.parameters.vector(), model.parameters.vector())
-    x = model.initial_state([0.1, 0.2, 0.3, 1.0, 0.05, 0.4], [0.1, 0.3])
-    f_copy = copy.dynamics_function(x, [0.1, 0.3], copy.parameters.vector())
-    f_model = model.dynamics_function(x, [0.1, 0.3], model.parameters.vector())
-    np.testing.assert_array_equal(np.asarray(f_copy), np.asarray(f_model))
+    assert spec == {"lighthouse_offset": {"lh_plane1_offset": 0.02, "lh_plane2_offset": -0.01}}
+    model = CarModel(spec)
+    assert model.parameters.value("lh_plane1_offset") == 0.02
+    assert model.parameters.value("lh_plane2_offset") == -0.01
