@@ -10,25 +10,26 @@ back; 200 ms of the steering of a corner's exit, held with full throttle, turned
 0.7 rad past the track's direction and off it.
 
 :class:`HoldSafetyFilter` checks a command against that outage: it rolls the car's model out
-from the current state under the command for ``hold_time`` s and then coasting (zero torque,
-the same steering) for ``coast_time`` s more, and the command is safe when
+from the current state under the command for ``hold_time`` s, then coasting (zero torque, the
+same steering) for ``coast_time`` s, then driven back for ``recovery_time`` s as the host would
+once the link is back (steering along the track by the Stanley law, full braking), and the
+command is safe when
 
 * the car's centre stays within ``bound`` of the centreline at every sample of that rollout,
-  and still is ``lookahead`` s further along its heading at the end (it can still turn away);
-* at the end it points within ``max_heading_end`` of the track's direction (a car that comes
-  back across the direction of a hairpin cannot turn in within it);
-* at the end the car is no faster than full braking allows for every corner ahead: the
-  braking envelope ``B(s)``, the highest speed from which braking at ``braking`` m/s^2 reaches
-  each corner's speed ``sqrt(lateral / |kappa|)`` (``kappa`` the curvature of the track's
-  minimum-curvature line, :func:`~crs_core.track.racing_line.minimum_curvature_line`; the
-  centreline's hairpins and chicanes are far tighter than what a racing car drives).
+  the recovery included (a car that comes back from an outage with its nose past the track's
+  direction can be within the bound and still not turn in before the border);
+* at the end of the coast the car is no faster than full braking allows for every corner ahead:
+  the braking envelope ``B(s)``, the highest speed from which braking at ``braking`` m/s^2
+  reaches each corner's speed ``sqrt(lateral / |kappa|)`` (``kappa`` the curvature of the
+  track's minimum-curvature line, :func:`~crs_core.track.racing_line.minimum_curvature_line`;
+  the centreline's hairpins and chicanes are far tighter than what a racing car drives).
 
 The filter leaves a car slower than ``min_speed`` alone: braking is always safe to hold, so
 filtered, a slow car at the edge braked to a stand facing out. An unsafe command is replaced
-by the nearest safe one of a grid of steering angles and torques (one rollout for all of them,
-a mapped CasADi call of about 2 ms); when none is safe it is kept. A safe command passes
-unchanged, and the supervisor only asks for the filter once the link has shown an outage
-(:class:`~crs_core.control.supervisor.Supervisor`).
+by the nearest safe one of a grid of steering angles and torques (rolled out together, in two
+mapped CasADi calls); when none is safe it is kept. A safe command passes unchanged after one
+rollout of its own, and the supervisor asks for the filter once the link has shown an outage
+(or always: :class:`~crs_core.control.supervisor.Supervisor`).
 
 Conventions: state ``[x_p, y_p, psi, v_x, v_y, omega]`` (m, rad, m/s, rad/s; world pose, body
 velocities), command ``[delta, T]`` (rad, normalised torque), arc length along the centreline
@@ -57,8 +58,6 @@ __all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope"]
 GRID_STEP = 0.01
 #: Steering angles tried, as fractions of full lock (with the command's own).
 STEER_FRACTIONS = np.linspace(-1.0, 1.0, 13)
-#: Half a Chronos car's length, m: scales a heading excess (rad) to one of position.
-HALF_LENGTH = 0.06
 #: RK4 substeps of a rollout sample.
 SUBSTEPS = 2
 
@@ -77,15 +76,15 @@ class ContingencySettings:
         (the rest of the outage plus the command's delay).
     sample_time : float
         Step of the rollout, s: the track is checked at each.
-    lookahead : float
-        At the rollout's end the car must stay within the bound this long further along its
-        heading at its speed, s (room to turn away).
     edge_clearance : float
         The car's centre stays this far inside the border, m (its half width and a margin;
         the MPCC's own bound is its ``track_margin``).
-    max_heading_end : float
-        At the rollout's end the car must point within this of the track's direction, rad
-        (one coming back 0.45 rad across the direction of a hairpin could not turn in within it).
+    recovery_time : float
+        After the coast, the car is driven back towards the centreline this long (steering
+        along the track, full braking) and must stay within the bound throughout, s (0: no
+        recovery; then only the hold and the coast are checked).
+    recovery_gain : float
+        Cross-track gain of the recovery's steering, 1/s (the Stanley law's ``k``).
     min_speed : float
         Slower than this (m/s) the filter leaves the command as it is.
     lateral : float
@@ -98,9 +97,9 @@ class ContingencySettings:
     hold_time: float = 0.2
     coast_time: float = 0.15
     sample_time: float = 0.025
-    lookahead: float = 0.1
     edge_clearance: float = 0.06
-    max_heading_end: float = 0.45
+    recovery_time: float = 0.4
+    recovery_gain: float = 2.5
     min_speed: float = 0.5
     lateral: float = 4.0
     braking: float = 4.0
@@ -110,12 +109,11 @@ class ContingencySettings:
             self,
             "hold_time",
             "coast_time",
-            "lookahead",
             "edge_clearance",
-            "max_heading_end",
+            "recovery_time",
             "min_speed",
         )
-        require_positive(self, "sample_time", "lateral", "braking")
+        require_positive(self, "sample_time", "recovery_gain", "lateral", "braking")
 
 
 class HoldSafetyFilter:
@@ -163,6 +161,7 @@ class HoldSafetyFilter:
         x, y, heading, _ = track.interpolate(self._s)
         self._centre = np.column_stack((x, y))
         self._heading = np.asarray(heading, dtype=float)
+        self._curvature = _curvature(self._heading, self.length / n)
         self._tree = cKDTree(self._centre)
         self.envelope = braking_envelope(track, s.lateral, s.braking, top_speed, s.edge_clearance)
         self._nx = model.nx
@@ -170,7 +169,25 @@ class HoldSafetyFilter:
         holds = max(round(s.hold_time / s.sample_time), 0)
         coasts = max(round(s.coast_time / s.sample_time), 1)
         self._candidates = 1 + len(STEER_FRACTIONS) * 5  # see _candidate_commands
-        self._rollout = _rollout_function(model, holds, coasts, s.sample_time).map(self._candidates)
+        values = dict(zip(parameters.names, self._p, strict=True))
+        rollout = _rollout_function(model, holds, coasts, s.sample_time)
+        recovery = _recovery_function(
+            model,
+            max(round(s.recovery_time / s.sample_time), 0),
+            s.sample_time,
+            _RecoveryLaw(
+                values["lf"] + values["lr"],
+                self.steer_max,
+                self.torque_limits[0],
+                s.recovery_gain,
+                s.min_speed,
+            ),
+        )
+        # one command alone (the common case: it is safe), or the whole grid at once
+        self._functions = {
+            1: (rollout, recovery),
+            self._candidates: (rollout.map(self._candidates), recovery.map(self._candidates)),
+        }
         #: commands replaced so far
         self.replaced = 0
 
@@ -182,11 +199,10 @@ class HoldSafetyFilter:
         command = np.asarray(u, dtype=float).ravel()[:2]
         if math.hypot(state[3], state[4]) < self.settings.min_speed:
             return command.copy()  # braking is always safe: filtered, a slow car stood at the edge
-        candidates = self._candidate_commands(command)
-        excess = self.excess(state, candidates)
-        if excess[0] <= 0.0:
+        if self.excess(state, command[None, :])[0] <= 0.0:
             return command.copy()
-        safe = np.flatnonzero(excess <= 0.0)
+        candidates = self._candidate_commands(command)
+        safe = np.flatnonzero(self.excess(state, candidates) <= 0.0)
         if safe.size == 0:  # nothing is safe (the car is at the edge already): the MPCC knows
             return command.copy()
         self.replaced += 1
@@ -198,30 +214,40 @@ class HoldSafetyFilter:
 
     def excess(self, x: NDArray[np.float64], commands: NDArray[np.float64]) -> np.ndarray:
         """Per command (rows of ``commands``, at most the filter's candidate count): the worst
-        of how far its held rollout from state ``x`` leaves the bound (m, also ``lookahead``
-        s on along the final heading), points beyond ``max_heading_end`` at its end (rad,
-        scaled to m by a car's half length, 0.06 m) and exceeds the braking envelope there
-        (m/s, scaled to m by the sample time); <= 0 is safe."""
+        of how far its rollout from state ``x`` (held, coasting, driven back) leaves the bound
+        (m) and how much faster than the braking envelope it is at the end of the coast (m/s,
+        scaled to m by the sample time); <= 0 is safe."""
         count = commands.shape[0]
-        U = np.zeros((2, self._candidates))
+        width = 1 if count == 1 else self._candidates
+        rollout, recovery = self._functions[width]
+        U = np.zeros((2, width))
         U[:, :count] = commands.T
-        X0 = np.tile(x[:, None], (1, self._candidates))
-        samples = np.asarray(self._rollout(X0, U, self._p), dtype=float)
-        steps = samples.shape[1] // self._candidates
-        states = samples.reshape(self._nx, self._candidates, steps)[:, :count, :]
-        px, py, psi = states[0], states[1], states[2]
-        s, lateral, heading = self._project(px, py)
+        X0 = np.tile(x[:, None], (1, width))
+        samples = np.asarray(rollout(X0, U, self._p), dtype=float)
+        steps = samples.shape[1] // width
+        states = samples.reshape(self._nx, width, steps)[:, :count, :]
+        s, lateral = self._project(states[0], states[1])
         outside = np.max(np.abs(lateral), axis=1) - self.bound
-        # at the end: room to turn away, and slow enough to brake for what comes
-        speed = np.hypot(states[3, :, -1], states[4, :, -1])
-        ahead = speed * self.settings.lookahead * np.sin(wrap_angle(psi[:, -1] - heading[:, -1]))
-        outside = np.maximum(outside, np.abs(lateral[:, -1] + ahead) - self.bound)
-        # and pointing along the track: a car that comes back across the track's direction
-        # at a hairpin cannot turn in within it (scaled to m by the car's half length)
-        turned = np.abs(wrap_angle(psi[:, -1] - heading[:, -1])) - self.settings.max_heading_end
-        outside = np.maximum(outside, turned * HALF_LENGTH)
-        too_fast = speed - self.envelope(s[:, -1])
+        ends = samples[:, steps - 1 :: steps]
+        outside = np.maximum(outside, self._recovery_excess(recovery, ends, count))
+        too_fast = np.hypot(states[3, :, -1], states[4, :, -1]) - self.envelope(s[:, -1])
         return np.maximum(outside, too_fast * self.settings.sample_time)
+
+    def _recovery_excess(
+        self, recovery: ca.Function, ends: NDArray[np.float64], count: int
+    ) -> np.ndarray:
+        """How far each of the first ``count`` rollouts, from its end state (columns of
+        ``ends``), leaves the bound while ``recovery`` drives it back, m (``-inf`` without a
+        recovery check)."""
+        if recovery.numel_out(0) == 0:
+            return np.full(count, -np.inf)
+        _, index = self._tree.query(ends[:2].T)
+        reference = np.vstack((self._centre[index].T, self._heading[index], self._curvature[index]))
+        recovered = np.asarray(recovery(ends, reference, self._p), dtype=float)
+        width = ends.shape[1]
+        states = recovered.reshape(self._nx, width, recovered.shape[1] // width)[:, :count, :]
+        _, lateral = self._project(states[0], states[1])
+        return np.max(np.abs(lateral), axis=1) - self.bound
 
     def _candidate_commands(self, command: NDArray[np.float64]) -> np.ndarray:
         """The command itself, then every steering fraction with five torques: the
@@ -235,19 +261,14 @@ class HoldSafetyFilter:
 
     def _project(
         self, px: NDArray[np.float64], py: NDArray[np.float64]
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Arc length, signed offset (left positive) and track heading of the nearest
-        centreline sample, for points ``px``, ``py`` of any shape."""
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Arc length and signed offset (left positive) of the nearest centreline sample, for
+        points ``px``, ``py`` of any shape."""
         _, index = self._tree.query(np.column_stack((px.ravel(), py.ravel())))
         heading = self._heading[index]
         dx, dy = px.ravel() - self._centre[index, 0], py.ravel() - self._centre[index, 1]
         lateral = -np.sin(heading) * dx + np.cos(heading) * dy
-        shape = px.shape
-        return (
-            self._s[index].reshape(shape),
-            lateral.reshape(shape),
-            heading.reshape(shape),
-        )
+        return self._s[index].reshape(px.shape), lateral.reshape(px.shape)
 
 
 class BrakingEnvelope:
@@ -283,6 +304,62 @@ def braking_envelope(
         i, ahead = k % n, (k + 1) % n
         speed[i] = min(speed[i], math.sqrt(speed[ahead] ** 2 + rise))
     return BrakingEnvelope(speed, length)
+
+
+def _curvature(heading: NDArray[np.float64], step: float) -> np.ndarray:
+    """Signed curvature (1/m, left positive) of a closed line from its headings (rad) at
+    samples ``step`` m apart, smoothed over three samples."""
+    turn = wrap_angle(np.roll(heading, -1) - heading) / step
+    central = 0.5 * (turn + np.roll(turn, 1))
+    return (np.roll(central, 1) + central + np.roll(central, -1)) / 3.0
+
+
+@dataclass(frozen=True)
+class _RecoveryLaw:
+    """How the recovery drives: wheelbase (m), full lock (rad), the braking torque
+    (normalised), the Stanley cross-track gain (1/s) and the speed below which it coasts
+    (m/s)."""
+
+    wheelbase: float
+    steer_max: float
+    braking_torque: float
+    gain: float
+    min_speed: float
+
+
+def _recovery_function(model: CarModel, steps: int, step: float, law: _RecoveryLaw) -> ca.Function:
+    """``recover(x0, reference, p)``: the states after each of ``steps`` steps of ``step`` s
+    driving back to the track, ``(nx, steps)``.
+
+    ``reference`` is ``[x, y, heading, curvature]`` of the centreline point nearest ``x0``; the
+    track is taken as the circle arc through it with that curvature (a straight line at zero),
+    and the car steers by the Stanley law along it: curvature feed-forward, minus the heading
+    error, minus ``atan(gain * lateral / v)``, with full braking down to ``min_speed``."""
+    advance = model.step_function(SUBSTEPS, "contingency_recovery_step")
+    x0, p = ca.SX.sym("x0", model.nx), model.p_sym
+    reference = ca.SX.sym("reference", 4)
+    cx, cy, heading, curvature = (reference[i] for i in range(4))
+    x, samples = x0, []
+    for _ in range(steps):
+        dx, dy = x[0] - cx, x[1] - cy
+        along = ca.cos(heading) * dx + ca.sin(heading) * dy
+        left = -ca.sin(heading) * dx + ca.cos(heading) * dy
+        # signed distance to the arc and the arc's direction there (exact for a circle; well
+        # defined at zero curvature)
+        bend = 1.0 - curvature * left
+        lateral = (2.0 * left - curvature * (along**2 + left**2)) / (
+            1.0 + ca.sqrt((curvature * along) ** 2 + bend**2)
+        )
+        track_heading = heading + ca.atan2(curvature * along, bend)
+        error = ca.atan2(ca.sin(x[2] - track_heading), ca.cos(x[2] - track_heading))
+        speed = ca.fmax(ca.sqrt(x[3] ** 2 + x[4] ** 2), 0.3)
+        steer = ca.atan(law.wheelbase * curvature) - error - ca.atan(law.gain * lateral / speed)
+        steer = ca.fmin(ca.fmax(steer, -law.steer_max), law.steer_max)
+        torque = ca.if_else(x[3] > law.min_speed, law.braking_torque, 0.0)
+        x = advance(x, ca.vertcat(steer, torque), p, step)
+        samples.append(x)
+    out = ca.horzcat(*samples) if samples else ca.SX(model.nx, 0)
+    return ca.Function("contingency_recovery", [x0, reference, p], [out])
 
 
 def _rollout_function(model: CarModel, holds: int, coasts: int, step: float) -> ca.Function:

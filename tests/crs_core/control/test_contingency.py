@@ -31,6 +31,24 @@ def _held(x: np.ndarray, u: np.ndarray, settings: ContingencySettings) -> np.nda
     return model.numeric.step(x, np.array([u[0], 0.0]), p, settings.coast_time)
 
 
+def _best_recovery(x: np.ndarray, track) -> float:
+    """The smallest largest distance from the centreline (m) any of 27 fixed recoveries (nine
+    steering angles, full, half or no braking, for 0.4 s) keeps the car within from state
+    ``x``, stepped here with the model's own integrator."""
+    model = CarModel()
+    p = model.parameters.vector()
+    best = math.inf
+    for steer in np.linspace(-0.34, 0.34, 9):
+        for torque in (-1.0, -0.5, 0.0):
+            y, worst = x.copy(), 0.0
+            for _ in range(16):
+                u = np.array([steer, torque if y[3] > 0.5 else 0.0])
+                y = model.numeric.step(y, u, p, 0.025)
+                worst = max(worst, abs(track.project(y[0], y[1]).lateral_error))
+            best = min(best, worst)
+    return best
+
+
 @pytest.mark.parametrize(
     ("field", "value"),
     [("hold_time", -0.1), ("coast_time", math.nan), ("sample_time", 0.0), ("braking", -1.0)],
@@ -104,3 +122,22 @@ def test_the_steering_held_out_of_a_bend_is_checked(safety, pose_at, track) -> N
     safe = safety(x, command)
     end = _held(x, safe, safety.settings)
     assert abs(track.project(end[0], end[1]).lateral_error) <= safety.bound + 1e-3
+
+
+def test_a_command_the_car_cannot_come_back_from_is_replaced(safety, pose_at, track) -> None:
+    """Into the first bend at 1.5 m/s, turning left at 2 rad/s, 0.05 m right of the centreline:
+    0.2 rad of left steering with full throttle, held and coasting, keeps the car within the
+    bound (the check without a recovery passes it), but from where it ends none of 27 fixed
+    recoveries keeps it there. The filter replaces it; from where its command ends one does."""
+    x = pose_at(track, 0.2, -0.05, -0.2)
+    x[3], x[5] = 1.5, 2.0
+    command = np.array([0.2, 1.0])
+    model = CarModel()
+    settings = ContingencySettings(recovery_time=0.0)
+    unchecked = HoldSafetyFilter(track, model, model.parameters, 0.34, (-1.0, 1.0), 4.0, settings)
+    assert unchecked.excess(x, command[None, :])[0] <= 0
+    assert safety.excess(x, command[None, :])[0] > 0
+    assert _best_recovery(_held(x, command, safety.settings), track) > safety.bound
+    safe = safety(x, command)
+    assert not np.array_equal(safe, command)
+    assert _best_recovery(_held(x, safe, safety.settings), track) <= safety.bound
