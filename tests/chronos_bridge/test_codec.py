@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from bridge_builders import STAMP_US, make_state
 
 from chronos_bridge.car_state import IN_VIEW_RAD, CarStateConverter
 from chronos_bridge.codec import (
@@ -43,6 +42,7 @@ from chronos_bridge.packets import (
     Reference,
 )
 from chronos_bridge.proto import chronos_pb2 as pb
+from tests.chronos_bridge.bridge_builders import STAMP_US, make_state
 
 
 def f32(x: float) -> float:

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from bridge_builders import STAMP_US
 
 from chronos_bridge.codec import encode_packet
 from chronos_bridge.packets import FieldError, Packet, Reference
+from tests.chronos_bridge.bridge_builders import STAMP_US
 
 
 def test_oneof_exclusivity_in_the_typed_packets() -> None:

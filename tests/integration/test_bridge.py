@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import pytest
-from stack_probe import Probe, wait_for
 
 from chronos_bridge.car_state import IN_VIEW_RAD
 from chronos_bridge.codec import (
@@ -49,6 +48,7 @@ from chronos_bridge.packets import (
 )
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
+from tests.integration.stack_probe import Probe, wait_for
 
 pytestmark = pytest.mark.integration
 
