@@ -23,7 +23,7 @@ MIRRORED = ("crs_core",)
 EXEMPT: dict[str, str] = {
     # Draws the calibration figures into files (matplotlib) and returns their paths; that they
     # are written is checked end to end by the calibration command-line tests
-    # (tests/crs_core/calibration/test_calibration_cli.py, to move to tests/launch_scripts).
+    # (tests/launch_scripts/commands/test_calibration.py).
     "crs_core/calibration/plots.py": "figures only, checked through the calibration command",
 }
 
@@ -46,11 +46,7 @@ PENDING: dict[str, str] = {
 
 #: Test files (path from the repository root) in a mirrored folder that are not named after a
 #: module of the package, each with the reason.
-STRAY: dict[str, str] = {
-    # It tests the command line (launch_scripts.commands.calibration), not a core module; it
-    # moves to tests/launch_scripts/commands/test_calibration.py with the launch_scripts mirror.
-    "tests/crs_core/calibration/test_calibration_cli.py": "tests launch_scripts, moves there",
-}
+STRAY: dict[str, str] = {}
 
 
 def modules(package: str, root: Path = ROOT) -> list[str]:
