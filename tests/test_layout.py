@@ -29,20 +29,7 @@ EXEMPT: dict[str, str] = {
 
 #: Modules whose tests exist but still sit in another module's test file, each with where they
 #: are and where they go. Empty this as the tests move.
-PENDING: dict[str, str] = {
-    # tests/crs_core/control/test_mpcc.py is being edited elsewhere; its tests of these two
-    # modules move once that work is merged.
-    "crs_core/control/mpcc_problem.py": (
-        "test_mpcc.py: test_bad_settings_name_the_field (MpccSettings), "
-        "test_stage_dynamics_linearisation_matches_finite_differences, "
-        "test_contouring_and_lag_errors_are_distances_along_the_path_normal_and_tangent "
-        "-> tests/crs_core/control/test_mpcc_problem.py"
-    ),
-    "crs_core/control/ocp_qp.py": (
-        "test_mpcc.py: test_sparse_assembly_places_values_and_refuses_duplicates "
-        "-> tests/crs_core/control/test_ocp_qp.py"
-    ),
-}
+PENDING: dict[str, str] = {}
 
 #: Test files (path from the repository root) in a mirrored folder that are not named after a
 #: module of the package, each with the reason.
