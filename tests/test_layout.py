@@ -2,8 +2,11 @@
 ``tests/package/a/test_b.py`` (of ``package/x.py`` in ``tests/package/test_x.py``), and every
 test file there is named after the module it tests.
 
-Only the packages listed in ``MIRRORED`` are checked; another package is added by listing it
-(with its exemptions) once its tests are mirrored.
+Every package is listed in ``MIRRORED``; generated modules (``*_pb2.py``) are not mirrored.
+``tests/integration`` is the one folder that mirrors nothing (``NOT_MIRRORED``). Every folder under
+``tests/`` is a package, so test files with the same name in two folders do not clash. Helper
+modules (``stack_probe.py``, ``bridge_builders.py``, ``conftest.py``, ...) are not test files: only
+``test_*.py`` is checked.
 """
 
 from __future__ import annotations
@@ -16,49 +19,75 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The packages whose tests mirror their tree.
-MIRRORED = ("crs_core",)
+MIRRORED = ("crs_core", "ros4crs", "chronos_bridge", "sim", "launch_scripts", "benchmarks")
+
+#: Folders under tests/ that mirror no package, each with the reason.
+NOT_MIRRORED: dict[str, str] = {
+    # Its tests start real node processes talking DDS (several modules of several packages at
+    # once), so they are named after what they drive, not after one module.
+    "integration": "multi-process tests of the running stack",
+}
+
+#: Generated modules, not mirrored (their tests are named after what they check).
+GENERATED = "*_pb2.py"
 
 #: Modules (path from the repository root) with no test file of their own, each with the reason.
 #: A test of their own makes no sense for these; their behaviour is asserted where it is used.
 EXEMPT: dict[str, str] = {
     # Draws the calibration figures into files (matplotlib) and returns their paths; that they
     # are written is checked end to end by the calibration command-line tests
-    # (tests/crs_core/calibration/test_calibration_cli.py, to move to tests/launch_scripts).
+    # (tests/launch_scripts/commands/test_calibration.py).
     "crs_core/calibration/plots.py": "figures only, checked through the calibration command",
+    # ROS nodes: started as processes by tests/integration (test_bridge, test_stack, test_replay);
+    # what they share is tested in tests/ros4crs (node_support, settings_parameters, conversions).
+    "ros4crs/bridge_node.py": "a ROS node, driven by tests/integration/test_bridge.py",
+    "ros4crs/simulator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
+    "ros4crs/estimator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
+    "ros4crs/recorder_node.py": "a ROS node, driven by tests/integration/test_replay.py",
+    "ros4crs/replayer_node.py": "a ROS node, driven by tests/integration/test_replay.py",
+    # Need a running graph; tests/integration/test_tools.py drives them.
+    "ros4crs/tools.py": "needs a running ROS graph, driven by tests/integration/test_tools.py",
+    "launch_scripts/commands/ros.py": "needs a running ROS graph, driven by test_tools.py",
+    # A build tool needing grpcio-tools; its output (the *_pb2.py) is checked by
+    # tests/chronos_bridge/proto/test_bridge_wire_format.py.
+    "chronos_bridge/proto/regenerate.py": "build tool (grpcio-tools), its output is tested",
+    # A full simulation; it provides the recordings of the calibration tests.
+    "sim/mocap_recording.py": "a full simulation, used by the calibration tests",
+    # Needs a dataset on disk; covered by test_output_folder.py and the crs_core model tests.
+    "launch_scripts/commands/consistency.py": "needs a dataset on disk, covered elsewhere",
+    # Compiles the model functions (~30 s); ./run.sh setup runs it.
+    "launch_scripts/warm_cache.py": "compiles the model functions, run by ./run.sh setup",
+    # Runs of minutes without a cheap public function; their docs tables are checked by
+    # tests/benchmarks/test_docs.py.
+    "benchmarks/contingency.py": "minutes-long runs, docs table checked by test_docs.py",
+    "benchmarks/calibration.py": "minutes-long runs, docs table checked by test_docs.py",
+    "benchmarks/control_peers.py": "minutes-long runs, docs table checked by test_docs.py",
+    "benchmarks/model.py": "minutes-long runs, docs table checked by test_docs.py",
+    "benchmarks/sysid.py": "minutes-long runs, docs table checked by test_docs.py",
 }
 
 #: Modules whose tests exist but still sit in another module's test file, each with where they
 #: are and where they go. Empty this as the tests move.
-PENDING: dict[str, str] = {
-    # tests/crs_core/control/test_mpcc.py is being edited elsewhere; its tests of these two
-    # modules move once that work is merged.
-    "crs_core/control/mpcc_problem.py": (
-        "test_mpcc.py: test_bad_settings_name_the_field (MpccSettings), "
-        "test_stage_dynamics_linearisation_matches_finite_differences, "
-        "test_contouring_and_lag_errors_are_distances_along_the_path_normal_and_tangent "
-        "-> tests/crs_core/control/test_mpcc_problem.py"
-    ),
-    "crs_core/control/ocp_qp.py": (
-        "test_mpcc.py: test_sparse_assembly_places_values_and_refuses_duplicates "
-        "-> tests/crs_core/control/test_ocp_qp.py"
-    ),
-}
+PENDING: dict[str, str] = {}
 
 #: Test files (path from the repository root) in a mirrored folder that are not named after a
 #: module of the package, each with the reason.
 STRAY: dict[str, str] = {
-    # It tests the command line (launch_scripts.commands.calibration), not a core module; it
-    # moves to tests/launch_scripts/commands/test_calibration.py with the launch_scripts mirror.
-    "tests/crs_core/calibration/test_calibration_cli.py": "tests launch_scripts, moves there",
+    # Checks the parameter table of every node in docs/ros-interface.md against the parameters
+    # the nodes declare (read from the source of all of ros4crs), not one module.
+    "tests/ros4crs/test_parameter_docs.py": "docs/ros-interface.md against every node",
+    # Checks the .proto files and the generated chronos_pb2 / vector3_pb2 (not mirrored) against
+    # the wire-format spec, the output of regenerate.py.
+    "tests/chronos_bridge/proto/test_bridge_wire_format.py": "the generated protobuf modules",
 }
 
 
 def modules(package: str, root: Path = ROOT) -> list[str]:
-    """Every module of ``package`` (not ``__init__.py``), as a path from ``root``."""
+    """Every module of ``package`` (not ``__init__.py``, not generated), as a path from ``root``."""
     return sorted(
         p.relative_to(root).as_posix()
         for p in (root / package).rglob("*.py")
-        if p.name != "__init__.py"
+        if p.name != "__init__.py" and not p.match(GENERATED)
     )
 
 
@@ -111,6 +140,31 @@ def test_every_exemption_is_still_needed() -> None:
     ]
     stale += [f for f in STRAY if not (ROOT / f).is_file()]
     assert not stale, "exemptions no longer needed:\n" + "\n".join(sorted(stale))
+
+
+def test_every_tests_folder_is_a_package() -> None:
+    """An ``__init__.py`` in every folder: test files are imported by their package path, so two
+    with the same name in different folders do not clash."""
+    folders = [ROOT / "tests", *(ROOT / "tests").rglob("*/")]
+    missing = [
+        f.relative_to(ROOT).as_posix()
+        for f in folders
+        if f.is_dir() and f.name != "__pycache__" and not (f / "__init__.py").is_file()
+    ]
+    assert not missing, "folders without __init__.py:\n" + "\n".join(missing)
+
+
+def test_every_tests_folder_mirrors_a_package_or_says_why_not() -> None:
+    folders = {f.name for f in (ROOT / "tests").iterdir() if f.is_dir() and f.name != "__pycache__"}
+    assert folders == set(MIRRORED) | NOT_MIRRORED.keys()
+    assert not set(MIRRORED) & NOT_MIRRORED.keys()
+
+
+def test_generated_modules_are_not_mirrored(tmp_path: Path) -> None:
+    for name in ("pkg/__init__.py", "pkg/proto/__init__.py", "pkg/proto/wire_pb2.py"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).touch()
+    assert modules("pkg", tmp_path) == []
 
 
 def test_the_mirror_of_a_module() -> None:

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from benchmarks.robust_estimation import (
     INPUT_VARIANTS,
     TIMING_PATTERNS,
@@ -14,21 +12,10 @@ from benchmarks.robust_estimation import (
     pose_solver_rows,
 )
 from crs_core.analysis.metrics import STATE_NAMES
-from crs_core.estimation import make_estimator
-from sim.replay import replay
-from sim.scenarios import standard_drive
 
 
 def _finite(value) -> bool:
     return isinstance(value, int | float) and math.isfinite(value)
-
-
-def test_replay_blind_without_inputs_starts_lost_then_finds_the_car():
-    drive = standard_drive(0, duration=2.0)
-    run = replay(make_estimator("ekf", "lh", inputs="estimated"), drive, 60.0, None, inputs=False)
-    assert run.statuses[0] == "lost"
-    assert run.statuses[-1] != "lost"
-    assert np.all(np.isfinite(run.estimates))
 
 
 def test_inputs_withheld_rows():

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 import pytest
-from bridge_builders import STAMP_US, make_state
 
 from chronos_bridge.car_state import (
     DECK_TICK_HZ,
@@ -26,6 +25,7 @@ from chronos_bridge.car_state import (
 from chronos_bridge.codec import decode_from_car, encode_car_state
 from chronos_bridge.packets import TICKS_24BIT, ControlInput, LighthouseSweep, Packet
 from crs_core.measurements import Measurement
+from tests.chronos_bridge.bridge_builders import STAMP_US, make_state
 
 RECEIPT = 1_800_000_000.5
 

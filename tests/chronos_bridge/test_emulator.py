@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 import pytest
-from bridge_builders import HOST_STAMP_US as STAMP_US
 
 from chronos_bridge.car_state import GRAVITY, PLANE_OFFSETS, CarStateConverter
 from chronos_bridge.codec import (
@@ -28,6 +27,7 @@ from chronos_bridge.packets import CarState, ControlInput, Ping
 from chronos_bridge.proto import chronos_pb2 as pb
 from crs_core.errors import FieldError
 from sim.sensors import SensorSuite
+from tests.chronos_bridge.bridge_builders import HOST_STAMP_US as STAMP_US
 
 
 def run(emulator: CarEmulator, steps: int, start: int = 0, command=None, every: int = 5):

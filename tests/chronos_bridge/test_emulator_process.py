@@ -11,11 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from bridge_builders import HOST_STAMP_US as STAMP_US
-from emulator_run import emulator_process
 
 from chronos_bridge.codec import CAR_DATAGRAM_MAX, decode_from_car, encode_torque_command
 from chronos_bridge.packets import CarState, Ping
+from tests.chronos_bridge.bridge_builders import HOST_STAMP_US as STAMP_US
+from tests.chronos_bridge.emulator_run import emulator_process
 
 
 def test_truth_out_logs_states_commands_and_the_cut_off(tmp_path: Path) -> None:

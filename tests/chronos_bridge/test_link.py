@@ -17,7 +17,6 @@ from collections import Counter
 
 import numpy as np
 import pytest
-from bridge_builders import STAMP_US, make_state
 
 from chronos_bridge.car_state import PLANE_OFFSETS, CarStateConverter
 from chronos_bridge.codec import (
@@ -33,6 +32,7 @@ from chronos_bridge.link import BUCKETS, CarLink, DatagramFilter, field_key
 from chronos_bridge.packets import CarState, Packet, Ping, Reference
 from crs_core.errors import FieldError
 from crs_core.measurements import Measurement, parse_lighthouse
+from tests.chronos_bridge.bridge_builders import STAMP_US, make_state
 
 NOW = 1_800_000_000.0
 

@@ -4,8 +4,6 @@ definition agree, take and return the same shapes and give the same estimates
 
 from __future__ import annotations
 
-import time
-
 import casadi as ca
 import numpy as np
 import pytest
@@ -56,9 +54,7 @@ def test_library_is_cached(models, tmp_path, monkeypatch):
     built = list((tmp_path / "codegen").glob("cache_probe_*.so"))
     assert len(built) == 1
     mtime = built[0].stat().st_mtime_ns
-    start = time.perf_counter()
     compile_functions(functions, "cache_probe", "compiled")
-    assert time.perf_counter() - start < 0.5
     assert built[0].stat().st_mtime_ns == mtime
 
 

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from chronos_bridge.packets import FieldError as BridgeFieldError
 from crs_core.errors import (
     FieldError,
     finite_number,
@@ -30,10 +29,6 @@ def test_the_field_and_the_reason_are_attributes_and_make_the_message() -> None:
     )
     assert str(error.within("car_state")) == "car_state.imu.angular_velocity: contains NaN"
     assert error.renamed("--x0").field == "--x0" and error.renamed("--x0").reason == "contains NaN"
-
-
-def test_the_bridge_and_the_core_share_one_error_type() -> None:
-    assert BridgeFieldError is FieldError
 
 
 @dataclass

@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import pytest
-from stack_probe import Probe, wait_for
 
 from chronos_bridge.car_state import IN_VIEW_RAD
 from chronos_bridge.codec import (
@@ -49,6 +48,7 @@ from chronos_bridge.packets import (
 )
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
+from tests.integration.stack_probe import Probe, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -57,7 +57,6 @@ DOMAIN_TWO_CARS = 122
 N_FUZZ = 50_000
 #: Fuzz datagrams per burst and the pause after each: ~5000 datagrams/s, ~10 s for 50 000.
 BURST, PAUSE_S = 50, 0.009
-TIME_BOUND_S = 120.0
 _BAD_FLOATS = [struct.pack("<f", v) for v in (math.nan, math.inf, -math.inf, 1e30, -3.4e38)]
 
 
@@ -312,7 +311,6 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
         seeds = _seeds()
         kinds: dict[str, int] = {}
         fuzz_start = time.time()
-        started = time.monotonic()
         for n in range(N_FUZZ):
             if rng.random() < 0.05:  # a valid packet, from a foreign endpoint
                 kinds["foreign"] = kinds.get("foreign", 0) + 1
@@ -323,7 +321,6 @@ def test_fuzzed_datagrams_never_crash_the_bridge_nor_publish_garbage(tmp_path):
                 car.socket.sendto(data, ("127.0.0.1", port))
             if n % BURST == BURST - 1:
                 time.sleep(PAUSE_S)
-            assert time.monotonic() - started < TIME_BOUND_S, f"fuzzing too slow: {n} sent"
         fuzz_end = time.time()
         time.sleep(0.5)  # the car keeps sending after the fuzz
         car.stop()

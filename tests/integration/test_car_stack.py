@@ -17,12 +17,12 @@ import time
 
 import numpy as np
 import pytest
-from stack_probe import Probe, log_text, wait_for
 
 from benchmarks.link import off_track
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import car_nodes, run_car_stack
 from launch_scripts.launcher import Launcher, NodeSpec
+from tests.integration.stack_probe import Probe, log_text, wait_for
 
 pytestmark = pytest.mark.integration
 

@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 import pytest
-from stack_probe import launched, log_text, wait_for
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
+from tests.integration.stack_probe import launched, log_text, wait_for
 
 pytestmark = pytest.mark.integration
 

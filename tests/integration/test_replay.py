@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 import pytest
 from rosbags.rosbag2 import Reader
-from stack_probe import Probe, launched, log_text, message_stamp, wait_for
 
 from crs_core.estimation import MheSettings, make_estimator
 from crs_core.model import CarModel
@@ -28,6 +27,7 @@ from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import recorder_node, stack_nodes
 from ros4crs.bag_replay import BagContents, read_car, replay_estimator
 from ros4crs.interfaces import typestore
+from tests.integration.stack_probe import Probe, launched, log_text, message_stamp, wait_for
 
 pytestmark = pytest.mark.integration
 

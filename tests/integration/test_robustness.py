@@ -15,12 +15,12 @@ import time
 import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
-from stack_probe import launched, log_text, message_stamp, wait_for
 
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
 from ros4crs.bag_repair import BagDamagedWarning
 from ros4crs.bag_replay import read_car
+from tests.integration.stack_probe import launched, log_text, message_stamp, wait_for
 
 pytestmark = pytest.mark.integration
 

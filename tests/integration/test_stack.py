@@ -11,7 +11,11 @@ import time
 
 import numpy as np
 import pytest
-from stack_probe import (
+
+from crs_core.track import load_demo_track
+from launch_scripts.launcher import NodeSpec
+from launch_scripts.sim_stack import analyse, stack_nodes
+from tests.integration.stack_probe import (
     LapWatch,
     assert_clean_run,
     assert_tracked_lap,
@@ -19,10 +23,6 @@ from stack_probe import (
     message_stamp,
     wait_for,
 )
-
-from crs_core.track import load_demo_track
-from launch_scripts.launcher import NodeSpec
-from launch_scripts.sim_stack import analyse, stack_nodes
 
 pytestmark = pytest.mark.integration
 

@@ -10,10 +10,10 @@ import time
 from pathlib import Path
 
 import pytest
-from stack_probe import Probe, launched, wait_for
 
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import tools
+from tests.integration.stack_probe import Probe, launched, wait_for
 
 pytestmark = pytest.mark.integration
 

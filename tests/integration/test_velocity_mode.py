@@ -9,13 +9,20 @@ import time
 
 import numpy as np
 import pytest
-from stack_probe import LapWatch, assert_clean_run, assert_tracked_lap, launched, log_text, wait_for
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import analyse, stack_nodes
 from ros4crs import conversions
 from ros4crs.bag_replay import read_car
+from tests.integration.stack_probe import (
+    LapWatch,
+    assert_clean_run,
+    assert_tracked_lap,
+    launched,
+    log_text,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 

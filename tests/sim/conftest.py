@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import pytest
-from sim_runs import AT_REST, DRIVE, DRIVE_DURATION, IDEAL, NOISY, REST, REST_DURATION
 
 from crs_core.model import CarModel
 from sim import SimulationResult, Simulator
+from tests.sim.sim_runs import AT_REST, DRIVE, DRIVE_DURATION, IDEAL, NOISY, REST, REST_DURATION
 
 
 @pytest.fixture(scope="session")

@@ -4,13 +4,13 @@ planes of a rotation were received."""
 from __future__ import annotations
 
 import numpy as np
-from sim_runs import DRIVE_DURATION, model_outputs, truth_index
 
 from crs_core.dataset import Y_CHANNELS
 from crs_core.measurements import lighthouse_sensor
 from crs_core.model import CarModel
 from crs_core.model.lighthouse import RECORDED_BASE_STATION
 from sim import SimulationResult
+from tests.sim.sim_runs import DRIVE_DURATION, model_outputs, truth_index
 
 
 def test_to_dataset_samples_at_plane2_sweeps_with_exact_truth(

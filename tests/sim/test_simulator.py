@@ -6,7 +6,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-from sim_runs import (
+
+from crs_core.measurements import lighthouse_sensor
+from crs_core.model import CarModel
+from sim import Blackout, SensorSpec, SensorSuite, SimulationResult, Simulator
+from sim.report import sensor_statistics
+from sim.simulator import LIGHTHOUSE_VIEW_LIMIT
+from tests.sim.sim_runs import (
     AT_REST,
     DRIVE,
     DRIVE_DURATION,
@@ -19,12 +25,6 @@ from sim_runs import (
     model_outputs,
     truth_index,
 )
-
-from crs_core.measurements import lighthouse_sensor
-from crs_core.model import CarModel
-from sim import Blackout, SensorSpec, SensorSuite, SimulationResult, Simulator
-from sim.report import sensor_statistics
-from sim.simulator import LIGHTHOUSE_VIEW_LIMIT
 
 
 # --- noise, bias, drop-outs -----------------------------------------------------------------------

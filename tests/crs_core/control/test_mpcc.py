@@ -1,18 +1,15 @@
-"""MPCC: its linearisation, its QP's constraints, safe commands from bad starts, fallbacks."""
+"""MPCC: its QP's constraints, safe commands from bad starts, fallbacks."""
 
 from __future__ import annotations
 
 import dataclasses
 import math
 
-import casadi as ca
 import numpy as np
 import pytest
 
 from crs_core.control.mpcc import Mpcc
-from crs_core.control.mpcc_problem import QP_ARGUMENTS, MpccProblem, MpccSettings
-from crs_core.control.ocp_qp import SparseAssembly
-from crs_core.model import CarModel
+from crs_core.control.mpcc_problem import QP_ARGUMENTS, MpccSettings
 
 
 @pytest.fixture(scope="module")
@@ -30,70 +27,6 @@ def _within_limits(u: np.ndarray, settings: MpccSettings) -> bool:
         and abs(u[0]) <= settings.steer_max + 1e-9
         and settings.torque_min - 1e-9 <= u[1] <= settings.torque_max + 1e-9
     )
-
-
-# --- settings ---------------------------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("field", "value"),
-    [
-        ("horizon", 0),
-        ("rate_hz", 0.0),
-        ("q_lag", math.nan),
-        ("steer_max", 2.0),
-        ("torque_max", -2.0),
-        ("solver", "gurobi"),
-        ("max_failures", 1.5),
-    ],
-)
-def test_bad_settings_name_the_field(field: str, value: object) -> None:
-    with pytest.raises(ValueError, match=field):
-        MpccSettings(**{field: value})
-
-
-# --- the problem ------------------------------------------------------------------------------
-def test_stage_dynamics_linearisation_matches_finite_differences() -> None:
-    problem = MpccProblem(CarModel(["steering_lag"]), MpccSettings(horizon=3))
-    p = problem.model.parameters.vector()
-    rng = np.random.default_rng(0)
-    z = np.concatenate(([0.3, -0.2, 0.4, 1.2, 0.05, 0.8, 0.1], rng.normal(0, 0.1, 4)))
-    v = np.array([0.15, 0.4, 1.1, 0.0])
-    stage = problem._stage_linearization()
-    A, B, c = (np.asarray(o) for o in stage(z, v, np.zeros(4), MpccSettings().weights(), p)[:3])
-    f = problem.dynamics
-
-    def step(zz, vv):
-        return np.asarray(f(zz, vv, p)).ravel()
-
-    eps = 1e-6
-    A_fd = np.column_stack(
-        [(step(z + eps * e, v) - step(z - eps * e, v)) / (2 * eps) for e in np.eye(z.size)]
-    )
-    B_fd = np.column_stack(
-        [(step(z, v + eps * e) - step(z, v - eps * e)) / (2 * eps) for e in np.eye(v.size)]
-    )
-    assert np.max(np.abs(A - A_fd)) < 1e-6
-    assert np.max(np.abs(B - B_fd)) < 1e-6
-    assert np.max(np.abs(A @ z + B @ v + c.ravel() - step(z, v))) < 1e-12
-    # the progress integrates the progress speed; the input memory holds the inputs
-    nxc = problem.nx_car
-    assert step(z, v)[nxc] == pytest.approx(z[nxc] + v[2] / 30.0)
-    assert step(z, v)[nxc + 1 :] == pytest.approx(v[:3])
-
-
-def test_contouring_and_lag_errors_are_distances_along_the_path_normal_and_tangent() -> None:
-    problem = MpccProblem(CarModel(), MpccSettings(horizon=2))
-    heading = 0.7
-    ref = np.array([1.0, 2.0, heading, 5.0])
-    tangent = np.array([math.cos(heading), math.sin(heading)])
-    left = np.array([-math.sin(heading), math.cos(heading)])
-    z = np.zeros(problem.nz)
-    z[:2] = ref[:2] + 0.03 * left + 0.2 * tangent
-    z[problem.nx_car] = 5.2
-    # e_c: distance to the right of the path
-    assert float(problem.contouring_error(z, ref)) == pytest.approx(-0.03)
-    cost_terms = problem._least_squares[0]
-    lag = ca.Function("lag", [problem.z_sym, problem.v_sym, problem.ref_sym], [cost_terms[1]])
-    assert float(lag(z, np.zeros(problem.nv), ref)) == pytest.approx(0.0, abs=1e-12)
 
 
 def test_the_qp_solution_satisfies_the_constraints_it_is_accepted_with(mpcc: Mpcc, track) -> None:
@@ -142,19 +75,6 @@ def test_a_solution_that_breaks_its_constraints_is_not_accepted(mpcc: Mpcc, trac
     broken[mpcc.problem.nz] = 1.0  # stage 0's steering: 1 rad, beyond the 0.34 rad bound
     # beyond the bound by 0.66 rad, and the dynamics rows break too
     assert float(mpcc._rti.violation(broken, *data[2:7])) >= 1.0 - 0.34 - 1e-9
-
-
-def test_sparse_assembly_places_values_and_refuses_duplicates() -> None:
-    assembly = SparseAssembly((3, 4))
-    assembly.add(ca.DM([1.0, 2.0]), np.array([0, 2]), np.array([3, 0]))
-    assembly.add(ca.DM([5.0]), np.array([1]), np.array([1]))
-    dense = np.array(ca.DM(ca.evalf(assembly.build())))
-    expected = np.zeros((3, 4))
-    expected[0, 3], expected[2, 0], expected[1, 1] = 1.0, 2.0, 5.0
-    assert dense == pytest.approx(expected)
-    assembly.add(ca.DM([7.0]), np.array([0]), np.array([3]))
-    with pytest.raises(ValueError, match="same position"):
-        assembly.build()
 
 
 # --- commands from bad starts -----------------------------------------------------------------

@@ -180,6 +180,14 @@ def test_no_lighthouse_and_no_x0_is_refused():
         estimator.reset(0.0)
 
 
+def test_replay_blind_without_inputs_starts_lost_then_finds_the_car():
+    drive = standard_drive(0, duration=2.0)
+    run = replay(make_estimator("ekf", "lh", inputs="estimated"), drive, 60.0, None, inputs=False)
+    assert run.statuses[0] == "lost"
+    assert run.statuses[-1] != "lost"
+    assert np.all(np.isfinite(run.estimates))
+
+
 @pytest.mark.parametrize("kind", KINDS)
 def test_queries_in_the_past_are_answered_from_history_or_refused(drive, kind):
     """A stamp before the newest data is answered from the kept states (EKF: 2 s of them, MHE:

@@ -1,7 +1,5 @@
 """The stack benchmark's bookkeeping: its busy loops, the worst case over repeats, its table (the
 stack itself is replaced by recorded reports; nothing is launched).
-
-(Named ``..._benchmarks``: ``test_stack`` is tests/integration/test_stack.py.)
 """
 
 from __future__ import annotations

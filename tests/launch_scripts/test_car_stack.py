@@ -1,5 +1,4 @@
-"""The car stack's node specs (``crs launch car``). Named ``..._launch_scripts`` because
-``tests/integration/test_car_stack.py`` holds the basename ``test_car_stack``."""
+"""The car stack's node specs (``crs launch car``)."""
 
 from __future__ import annotations
 

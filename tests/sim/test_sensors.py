@@ -1,7 +1,5 @@
 """Sensor specs and blackouts: a bad spec names its field; blackouts are named on a command line
 or in a node parameter as ``SENSOR:START:DURATION``.
-
-(Named ``..._sim``: ``test_sensors`` is tests/crs_core/model/test_sensors.py.)
 """
 
 from __future__ import annotations

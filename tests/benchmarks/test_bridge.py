@@ -1,7 +1,5 @@
 """The bridge benchmark's table: the direct-simulator and the emulated-car runs side by side, in
 the units it names (the runs themselves launch two stacks and are not started here).
-
-(Named ``..._benchmarks``: ``test_bridge`` is tests/integration/test_bridge.py.)
 """
 
 from __future__ import annotations

@@ -1,7 +1,4 @@
-"""The link benchmark's metrics, targets, table and free ports (no stack is started here).
-
-(Named ``..._benchmarks``: ``test_link`` is tests/chronos_bridge/test_link.py.)
-"""
+"""The link benchmark's metrics, targets, table and free ports (no stack is started here)."""
 
 from __future__ import annotations
 

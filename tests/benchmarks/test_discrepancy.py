@@ -2,9 +2,6 @@
 
 The workflow itself is replaced by a stand-in that records which cases ran (the real one takes
 minutes per case); what is tested is the bookkeeping around it.
-
-(Named ``..._benchmarks``: ``test_discrepancy`` is
-tests/launch_scripts/commands/test_discrepancy.py.)
 """
 
 from __future__ import annotations

@@ -1,7 +1,5 @@
 """replay_schedule: every item that has arrived by a query's time is delivered before that
 query, in order; the estimate asked for is the one recorded.
-
-(Named ``..._sim``: ``test_replay`` is tests/integration/test_replay.py.)
 """
 
 from __future__ import annotations
