@@ -1,11 +1,13 @@
 """The MPCC racing through link outages, without middleware: what a held command does.
 
-:func:`run_outage_loop` races the model car around a track with the MPCC at its control rate,
-and takes the link down for the given windows. While the link is up the controller sees the
-true state and the car gets each command at once; while it is down nothing gets through: the
-car holds the last command it got and, once none has come for ``cut_off`` s, cuts its motors
-and coasts with the steering where it was (the Chronos firmware); the host dead-reckons its
-state with its own commands and keeps computing. The estimator, the transport and the sensors
+:func:`run_outage_loop` races the simulated car (:class:`~sim.simulator.Simulator` with its
+onboard loop: the steering follows its reference through the steering PID and motor) around a
+track with the MPCC at its control rate, and takes the link down for the given windows. While
+the link is up the controller sees the true state and the car gets each command at once; while
+it is down nothing gets through: the car holds the last command it got and, once none has come
+for ``cut_off`` s, cuts its drive motor and coasts with the steering reference where it was
+(the Chronos firmware); the host dead-reckons its state with its own commands and keeps
+computing. The estimator, the transport and the sensors
 are left out on purpose: this isolates what the command held through an outage does, which
 no host-side measure can change once the link is down.
 
@@ -28,11 +30,11 @@ from crs_core.analysis.laps import LapCounter
 from crs_core.control.mpcc import Mpcc
 from crs_core.errors import FieldError
 from sim.closed_loop import footprint_outside
+from sim.onboard import OnboardSettings
+from sim.sensors import SensorSuite
+from sim.simulator import Simulator
 
 __all__ = ["OutageRun", "random_outages", "run_outage_loop"]
-
-#: The car's integration step between control ticks, s.
-CAR_STEP = 0.005
 
 
 @dataclass(frozen=True)
@@ -81,34 +83,39 @@ def run_outage_loop(
         raise FieldError("duration", f"must be a finite number > 0 s, got {duration!r}")
     windows = np.asarray(outages, dtype=float).reshape(-1, 2)
     track = mpcc.path.track
-    model, p = mpcc.model, mpcc.p
-    numeric = model.numeric
     dt = mpcc.settings.dt
-    substeps = max(round(dt / CAR_STEP), 1)
     mpcc.reset()
     x0, y0, heading, _ = (float(v) for v in track.interpolate(0.0))
-    car = np.array([x0, y0, heading, 0.0, 0.0, 0.0])
-    host, held, last_received = car.copy(), np.zeros(2), 0.0
+    car = Simulator(mpcc.model, SensorSuite().ideal(), onboard=OnboardSettings()).session(
+        np.array([x0, y0, heading, 0.0, 0.0, 0.0]), keep_history=False
+    )
+    host, held, last_received = car.base_state, np.zeros(2), 0.0
     laps = LapCounter(track.length)
-    laps.update(0.0, track.project(car[0], car[1]).s)  # on the line: the lap from rest starts
+    laps.update(0.0, track.project(x0, y0).s)  # on the line: the lap from rest starts
     replaced_before = mpcc.hold_safe_replaced
     t, off, episodes, was_off, s_hint = 0.0, 0.0, 0, False, None
     while t < duration:
         link_up = not np.any((t >= windows[:, 0]) & (t < windows[:, 1]))
         # the host sees the car while the link is up, else dead-reckons with its own commands
-        host = car.copy() if link_up else numeric.step(host, mpcc.last_command, p, dt)
+        if link_up:
+            host = car.base_state
+        else:
+            host = mpcc.model.numeric.step(host, mpcc.last_command, mpcc.p, dt)
         command = mpcc(host, None, dt, hold_safe)
+        cut = last_received + cut_off  # the firmware's cut-off, if no command comes first
         if link_up:
             held, last_received = command.copy(), t
-        for k in range(substeps):
-            now = t + k * dt / substeps
-            applied = held if now - last_received < cut_off else np.array([held[0], 0.0])
-            car = numeric.step(car, applied, p, dt / substeps)
+            car.command(held)
+        elif t <= cut < t + dt:
+            car.advance(cut)
+            car.command(np.array([held[0], 0.0]))  # the drive motor off, the steering kept
         t += dt
-        projection = track.project(car[0], car[1], s_hint)
+        car.advance(t)
+        state = car.base_state
+        projection = track.project(state[0], state[1], s_hint)
         s_hint = projection.s
         laps.update(t, projection.s)
-        outside = footprint_outside(track, car[0], car[1], car[2], s_hint) > 0
+        outside = footprint_outside(track, state[0], state[1], state[2], s_hint) > 0
         off += dt if outside else 0.0
         episodes += int(outside and not was_off)
         was_off = outside

@@ -72,8 +72,14 @@ class ContingencySettings:
         How long the car holds the last command before it cuts the motors, s (the firmware's
         ``CONFIG_DISCONNECT_THRESHOLD_MS``).
     coast_time : float
-        Coasting after the cut-off until the host's first command after the outage acts, s
-        (the rest of the outage plus the command's delay).
+        Coasting after the cut-off until the host's first command after the outage acts, s:
+        the rest of a 300 ms outage, plus the way of a command to the car (about 50 ms), plus
+        the time from a command to the car's last reading of it (the hold begins there; the
+        bridge repeats commands every 33 ms).
+    steering_time_constant : float
+        The car's steering follows its reference as a first-order lag of this time constant,
+        s (the Chronos steering loop: 90 % of a 0.3 rad step after 0.10 s); it starts from the
+        angle the car steers at now. 0: the steering is where it is told at once.
     sample_time : float
         Step of the rollout, s: the track is checked at each.
     edge_clearance : float
@@ -95,7 +101,8 @@ class ContingencySettings:
     """
 
     hold_time: float = 0.2
-    coast_time: float = 0.15
+    coast_time: float = 0.2
+    steering_time_constant: float = 0.04
     sample_time: float = 0.025
     edge_clearance: float = 0.06
     recovery_time: float = 0.4
@@ -109,6 +116,7 @@ class ContingencySettings:
             self,
             "hold_time",
             "coast_time",
+            "steering_time_constant",
             "edge_clearance",
             "recovery_time",
             "min_speed",
@@ -170,11 +178,12 @@ class HoldSafetyFilter:
         coasts = max(round(s.coast_time / s.sample_time), 1)
         self._candidates = 1 + len(STEER_FRACTIONS) * 5  # see _candidate_commands
         values = dict(zip(parameters.names, self._p, strict=True))
-        rollout = _rollout_function(model, holds, coasts, s.sample_time)
+        step = _lagged_step(model, s.sample_time, s.steering_time_constant)
+        rollout = _rollout_function(step, model.nx, holds, coasts)
         recovery = _recovery_function(
-            model,
+            step,
+            model.nx,
             max(round(s.recovery_time / s.sample_time), 0),
-            s.sample_time,
             _RecoveryLaw(
                 values["lf"] + values["lr"],
                 self.steer_max,
@@ -191,18 +200,20 @@ class HoldSafetyFilter:
         #: commands replaced so far
         self.replaced = 0
 
-    def __call__(self, x: ArrayLike, u: ArrayLike) -> np.ndarray:
-        """Command ``u`` (2,) if it is safe to hold from state ``x`` (6 or more), else the
-        nearest safe one (steering and torque each relative to their range); ``u`` itself
-        when none is (a car at the edge already is the MPCC's to bring back)."""
+    def __call__(self, x: ArrayLike, u: ArrayLike, steering: float | None = None) -> np.ndarray:
+        """Command ``u`` (2,) if it is safe to hold from state ``x`` (6 or more) with the car
+        steering at ``steering`` rad now (default: ``u``'s angle), else the nearest safe one
+        (steering and torque each relative to their range); ``u`` itself when none is (a car
+        at the edge already is the MPCC's to bring back)."""
         state = np.asarray(x, dtype=float).ravel()[: self._nx]
         command = np.asarray(u, dtype=float).ravel()[:2]
         if math.hypot(state[3], state[4]) < self.settings.min_speed:
             return command.copy()  # braking is always safe: filtered, a slow car stood at the edge
-        if self.excess(state, command[None, :])[0] <= 0.0:
+        angle = command[0] if steering is None else float(steering)
+        if self.excess(state, command[None, :], angle)[0] <= 0.0:
             return command.copy()
         candidates = self._candidate_commands(command)
-        safe = np.flatnonzero(self.excess(state, candidates) <= 0.0)
+        safe = np.flatnonzero(self.excess(state, candidates, angle) <= 0.0)
         if safe.size == 0:  # nothing is safe (the car is at the edge already): the MPCC knows
             return command.copy()
         self.replaced += 1
@@ -212,20 +223,27 @@ class HoldSafetyFilter:
         ) ** 2
         return candidates[safe[int(np.argmin(change))]].copy()
 
-    def excess(self, x: NDArray[np.float64], commands: NDArray[np.float64]) -> np.ndarray:
+    def excess(
+        self,
+        x: NDArray[np.float64],
+        commands: NDArray[np.float64],
+        steering: float | None = None,
+    ) -> np.ndarray:
         """Per command (rows of ``commands``, at most the filter's candidate count): the worst
-        of how far its rollout from state ``x`` (held, coasting, driven back) leaves the bound
-        (m) and how much faster than the braking envelope it is at the end of the coast (m/s,
-        scaled to m by the sample time); <= 0 is safe."""
+        of how far its rollout from state ``x`` with the car steering at ``steering`` rad
+        (default: each command's angle; held, coasting, driven back) leaves the bound (m) and
+        how much faster than the braking envelope it is at the end of the coast (m/s, scaled
+        to m by the sample time); <= 0 is safe."""
         count = commands.shape[0]
         width = 1 if count == 1 else self._candidates
         rollout, recovery = self._functions[width]
         U = np.zeros((2, width))
         U[:, :count] = commands.T
-        X0 = np.tile(x[:, None], (1, width))
+        X0 = np.tile(np.append(x, 0.0)[:, None], (1, width))
+        X0[-1] = U[0] if steering is None else steering
         samples = np.asarray(rollout(X0, U, self._p), dtype=float)
         steps = samples.shape[1] // width
-        states = samples.reshape(self._nx, width, steps)[:, :count, :]
+        states = samples.reshape(self._nx + 1, width, steps)[:, :count, :]
         s, lateral = self._project(states[0], states[1])
         outside = np.max(np.abs(lateral), axis=1) - self.bound
         ends = samples[:, steps - 1 :: steps]
@@ -245,7 +263,7 @@ class HoldSafetyFilter:
         reference = np.vstack((self._centre[index].T, self._heading[index], self._curvature[index]))
         recovered = np.asarray(recovery(ends, reference, self._p), dtype=float)
         width = ends.shape[1]
-        states = recovered.reshape(self._nx, width, recovered.shape[1] // width)[:, :count, :]
+        states = recovered.reshape(self._nx + 1, width, -1)[:, :count, :]
         _, lateral = self._project(states[0], states[1])
         return np.max(np.abs(lateral), axis=1) - self.bound
 
@@ -327,21 +345,39 @@ class _RecoveryLaw:
     min_speed: float
 
 
-def _recovery_function(model: CarModel, steps: int, step: float, law: _RecoveryLaw) -> ca.Function:
-    """``recover(x0, reference, p)``: the states after each of ``steps`` steps of ``step`` s
-    driving back to the track, ``(nx, steps)``.
+def _lagged_step(model: CarModel, step: float, lag: float) -> ca.Function:
+    """``F(xs, target, torque, p)``: ``step`` s of the car, ``xs = [x; delta]`` with its
+    steering angle ``delta`` following ``target`` as a first-order lag of ``lag`` s (the
+    model driven with the angle's mean over the step; ``lag = 0``: the angle is the target)."""
+    advance = model.step_function(SUBSTEPS, "contingency_step")
+    xs, target, torque = ca.SX.sym("xs", model.nx + 1), ca.SX.sym("target"), ca.SX.sym("torque")
+    decay = math.exp(-step / lag) if lag > 0 else 0.0
+    mean_share = lag / step * (1.0 - decay) if lag > 0 else 0.0
+    angle = xs[model.nx]
+    mean = target + (angle - target) * mean_share
+    x = advance(xs[: model.nx], ca.vertcat(mean, torque), model.p_sym, step)
+    return ca.Function(
+        "contingency_lagged_step",
+        [xs, target, torque, model.p_sym],
+        [ca.vertcat(x, target + (angle - target) * decay)],
+    )
 
-    ``reference`` is ``[x, y, heading, curvature]`` of the centreline point nearest ``x0``; the
-    track is taken as the circle arc through it with that curvature (a straight line at zero),
-    and the car steers by the Stanley law along it: curvature feed-forward, minus the heading
-    error, minus ``atan(gain * lateral / v)``, with full braking down to ``min_speed``."""
-    advance = model.step_function(SUBSTEPS, "contingency_recovery_step")
-    x0, p = ca.SX.sym("x0", model.nx), model.p_sym
+
+def _recovery_function(step: ca.Function, nx: int, steps: int, law: _RecoveryLaw) -> ca.Function:
+    """``recover(xs0, reference, p)``: the states ``[x; delta]`` after each of ``steps`` of the
+    lagged ``step`` driving back to the track, ``(nx + 1, steps)``.
+
+    ``reference`` is ``[x, y, heading, curvature]`` of the centreline point nearest ``xs0``;
+    the track is taken as the circle arc through it with that curvature (a straight line at
+    zero), and the car steers by the Stanley law along it: curvature feed-forward, minus the
+    heading error, minus ``atan(gain * lateral / v)``, with full braking down to
+    ``min_speed``."""
+    xs0, p = ca.SX.sym("xs0", nx + 1), ca.SX.sym("p", step.numel_in(3))
     reference = ca.SX.sym("reference", 4)
     cx, cy, heading, curvature = (reference[i] for i in range(4))
-    x, samples = x0, []
+    xs, samples = xs0, []
     for _ in range(steps):
-        dx, dy = x[0] - cx, x[1] - cy
+        dx, dy = xs[0] - cx, xs[1] - cy
         along = ca.cos(heading) * dx + ca.sin(heading) * dy
         left = -ca.sin(heading) * dx + ca.cos(heading) * dy
         # signed distance to the arc and the arc's direction there (exact for a circle; well
@@ -351,25 +387,24 @@ def _recovery_function(model: CarModel, steps: int, step: float, law: _RecoveryL
             1.0 + ca.sqrt((curvature * along) ** 2 + bend**2)
         )
         track_heading = heading + ca.atan2(curvature * along, bend)
-        error = ca.atan2(ca.sin(x[2] - track_heading), ca.cos(x[2] - track_heading))
-        speed = ca.fmax(ca.sqrt(x[3] ** 2 + x[4] ** 2), 0.3)
+        error = ca.atan2(ca.sin(xs[2] - track_heading), ca.cos(xs[2] - track_heading))
+        speed = ca.fmax(ca.sqrt(xs[3] ** 2 + xs[4] ** 2), 0.3)
         steer = ca.atan(law.wheelbase * curvature) - error - ca.atan(law.gain * lateral / speed)
         steer = ca.fmin(ca.fmax(steer, -law.steer_max), law.steer_max)
-        torque = ca.if_else(x[3] > law.min_speed, law.braking_torque, 0.0)
-        x = advance(x, ca.vertcat(steer, torque), p, step)
-        samples.append(x)
-    out = ca.horzcat(*samples) if samples else ca.SX(model.nx, 0)
-    return ca.Function("contingency_recovery", [x0, reference, p], [out])
+        torque = ca.if_else(xs[3] > law.min_speed, law.braking_torque, 0.0)
+        xs = step(xs, steer, torque, p)
+        samples.append(xs)
+    out = ca.horzcat(*samples) if samples else ca.SX(nx + 1, 0)
+    return ca.Function("contingency_recovery", [xs0, reference, p], [out])
 
 
-def _rollout_function(model: CarModel, holds: int, coasts: int, step: float) -> ca.Function:
-    """``rollout(x0, u, p)``: the states after each of ``holds`` steps of ``step`` s under ``u``
-    and ``coasts`` more with the steering of ``u`` and zero torque, (nx, holds + coasts)."""
-    advance = model.step_function(SUBSTEPS, "contingency_step")
-    x0, u, p = ca.SX.sym("x0", model.nx), ca.SX.sym("u", 2), model.p_sym
-    coasting = ca.vertcat(u[0], 0.0)
-    x, samples = x0, []
+def _rollout_function(step: ca.Function, nx: int, holds: int, coasts: int) -> ca.Function:
+    """``rollout(xs0, u, p)``: the states ``[x; delta]`` after each of ``holds`` lagged steps
+    under ``u`` and ``coasts`` more with the steering of ``u`` and zero torque,
+    ``(nx + 1, holds + coasts)``."""
+    xs0, u, p = ca.SX.sym("xs0", nx + 1), ca.SX.sym("u", 2), ca.SX.sym("p", step.numel_in(3))
+    xs, samples = xs0, []
     for k in range(holds + coasts):
-        x = advance(x, u if k < holds else coasting, p, step)
-        samples.append(x)
-    return ca.Function("contingency_rollout", [x0, u, p], [ca.horzcat(*samples)])
+        xs = step(xs, u[0], u[1] if k < holds else 0.0, p)
+        samples.append(xs)
+    return ca.Function("contingency_rollout", [xs0, u, p], [ca.horzcat(*samples)])

@@ -185,6 +185,7 @@ class Mpcc:
         self._hold_safe = False  # this call's commands must be safe to hold
         self._held = 0  # stops in a row with the plan kept
         self._command = np.zeros(2)
+        self._steering = 0.0  # the angle the car steers at: the commands through its lag
         self._in_flight.clear()
         self._progress_speed = 0.0
         self.status: MpccStatus | None = None
@@ -265,6 +266,7 @@ class Mpcc:
         if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
             return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
         self._held = 0
+        self._follow_steering(self.settings.dt if elapsed is None else float(elapsed))
         self._v_upper[2] = self.settings.progress_speed_max
         if speed_limit is not None and math.isfinite(speed_limit):
             self._v_upper[2] = min(max(float(speed_limit), 0.0), self._v_upper[2])
@@ -306,6 +308,14 @@ class Mpcc:
         return self._fall_back(Z, V, z0, started, reason)
 
     # --- steps ---------------------------------------------------------------------------
+    def _follow_steering(self, elapsed: float) -> None:
+        """The car's steering angle now: it has followed the last command for ``elapsed`` s
+        as the contingency settings' first-order lag."""
+        lag = self.contingency.steering_time_constant
+        decay = math.exp(-max(elapsed, 0.0) / lag) if lag > 0 else 0.0
+        target = float(self._command[0])
+        self._steering = target + (self._steering - target) * decay
+
     def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
         nxc = self._nxc
         state = self._kinematic_at_low_speed(state)
@@ -558,7 +568,7 @@ class Mpcc:
                 s.progress_speed_max,
                 self.contingency,
             )
-        V[0, :2] = self._safety(z0[: self._nxc], V[0, :2])
+        V[0, :2] = self._safety(z0[: self._nxc], V[0, :2], self._steering)
 
     def _fall_back(self, Z, V, z0, started, reason: str) -> np.ndarray:
         self._failures += 1
