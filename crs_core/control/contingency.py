@@ -1,8 +1,9 @@
 """Commands safe to hold through a link outage: the MPCC's hold-safety filter.
 
-A Chronos car holds its last reference until none has come for ``hold_time`` (the firmware's
-200 ms cut-off), then cuts the motors and coasts with the steering where it was; the host's
-next command acts only once the link is back. Nothing the host sends meanwhile arrives, so
+A Chronos car holds its last reference until none has come for 200 ms (the firmware's
+cut-off; ``hold_time`` allows for the command's way to the car), then cuts the motors and
+coasts with the steering where it was; the host's next command acts only once the link is
+back. Nothing the host sends meanwhile arrives, so
 what a car does in an outage is decided by the command sent *before* it. Racing commands are
 not safe to hold: 300 ms of full throttle towards a hairpin took a car 0.7 m further at
 2.3 m/s, and it could not brake to the hairpin's speed within the track once the link was
@@ -69,13 +70,14 @@ class ContingencySettings:
     Attributes
     ----------
     hold_time : float
-        How long the car holds the last command before it cuts the motors, s (the firmware's
-        ``CONFIG_DISCONNECT_THRESHOLD_MS``).
+        How long the car holds a command before it cuts the motors, s: the firmware's
+        ``CONFIG_DISCONNECT_THRESHOLD_MS`` (200 ms) counts from the car's last reading of a
+        reference, which comes up to a command period (33 ms; the bridge repeats the last
+        command meanwhile) and the link's jitter after the command acts (in the link
+        benchmark's bad Wi-Fi a command was held 0.27 s).
     coast_time : float
         Coasting after the cut-off until the host's first command after the outage acts, s:
-        the rest of a 300 ms outage, plus the way of a command to the car (about 50 ms), plus
-        the time from a command to the car's last reading of it (the hold begins there; the
-        bridge repeats commands every 33 ms).
+        the rest of a 300 ms outage and the way of a command to the car (about 50 ms).
     steering_time_constant : float
         The car's steering follows its reference as a first-order lag of this time constant,
         s (the Chronos steering loop: 90 % of a 0.3 rad step after 0.10 s); it starts from the
@@ -100,7 +102,7 @@ class ContingencySettings:
         Deceleration of full braking, m/s^2 (the Chronos car's ``Cm1 / m`` is 4.0).
     """
 
-    hold_time: float = 0.2
+    hold_time: float = 0.25
     coast_time: float = 0.2
     steering_time_constant: float = 0.04
     sample_time: float = 0.025

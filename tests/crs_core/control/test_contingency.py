@@ -18,8 +18,11 @@ HAIRPIN = 1.1
 
 @pytest.fixture(scope="module")
 def safety(track) -> HoldSafetyFilter:
+    """The filter for the firmware's bare 200 ms hold (the scenarios below are set at it; the
+    default adds the command's way to the car)."""
     model = CarModel()
-    return HoldSafetyFilter(track, model, model.parameters, 0.34, (-1.0, 1.0), 4.0)
+    settings = ContingencySettings(hold_time=0.2)
+    return HoldSafetyFilter(track, model, model.parameters, 0.34, (-1.0, 1.0), 4.0, settings)
 
 
 #: Time step of the independent stepping here, s.
@@ -150,7 +153,7 @@ def test_a_command_the_car_cannot_come_back_from_is_replaced(safety, pose_at, tr
     x[3], x[5] = 1.5, 2.0
     command = np.array([0.2, 1.0])
     model = CarModel()
-    settings = ContingencySettings(recovery_time=0.0)
+    settings = ContingencySettings(hold_time=0.2, recovery_time=0.0)
     unchecked = HoldSafetyFilter(track, model, model.parameters, 0.34, (-1.0, 1.0), 4.0, settings)
     assert unchecked.excess(x, command[None, :])[0] <= 0
     assert safety.excess(x, command[None, :])[0] > 0
