@@ -39,6 +39,7 @@ CASES = [
     ("simulator_node", ["-p", "effects:=bogus"], "error: effects: unknown effect 'bogus'"),
     ("simulator_node", ["-p", "blackouts:=lighthouse:1"], "error: blackouts: 'lighthouse:1'"),
     ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
+    ("simulator_node", ["-p", "seed:=-1"], "error: seed: must be >= 0, got -1"),
     ("controller_node", ["-p", "v_ref:=-1.0"], "error: v_ref: must be a finite number > 0"),
     # parameters of a settings dataclass: its checks, the error naming the parameter
     ("estimator_node", ["-p", "lag:=-0.01"], "error: lag: must be a finite number >= 0, got -0.01"),
