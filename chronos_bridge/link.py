@@ -144,7 +144,8 @@ class CarLinkSettings:
     Attributes
     ----------
     port : int
-        Local UDP port, 0..65535 (0: any free one).
+        Local UDP port, 0..65535 (0: any free one, see :attr:`CarLink.address`; not for the
+        bridge node, whose car must know the port).
     bind : str
         Local IPv4 address to bind; ``0.0.0.0`` for every interface (a real car).
     car_ip : str
