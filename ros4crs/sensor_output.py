@@ -10,9 +10,8 @@ more delay, well inside the estimator's ``lag``. With ``sensor_messages`` ``each
 is its own message on its own topic (``sensors/imu``, ``sensors/wheel_speeds``, ...), for ROS tools
 that want ``sensor_msgs/Imu``. The estimator node takes both forms.
 
-Parameters (declared by :func:`declare_sensor_output` from :class:`SensorOutputSettings`):
-``sensor_messages`` (``batch`` | ``each``, default ``batch``), ``batch_period`` (s, default 0.01;
-0: a batch per step).
+Parameters (declared by :func:`declare_sensor_output`; default, description and bounds: the
+fields of :class:`SensorOutputSettings`): ``sensor_messages`` and ``batch_period``.
 """
 
 from __future__ import annotations
