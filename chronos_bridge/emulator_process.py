@@ -49,6 +49,7 @@ import sys
 import time
 from collections.abc import Sequence
 
+from chronos_bridge import DEFAULT_PORT
 from chronos_bridge.impairment import (
     SPEC_HELP,
     ImpairedChannel,
@@ -66,7 +67,6 @@ DESCRIPTION = (
     "references with its onboard loop and cuts the motors 200 ms after the last one. "
     "SIGINT/SIGTERM stop it with a one-line summary."
 )
-DEFAULT_PORT = 20211
 #: Largest datagram read (the emulator rejects anything over 256 bytes anyway).
 RECEIVE_BUFFER = 4096
 #: Furthest the loop catches up on overdue steps, s; beyond it the schedule is re-anchored.

@@ -68,6 +68,7 @@ import socket
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -84,7 +85,7 @@ from chronos_bridge.codec import (
     now_us,
 )
 from chronos_bridge.packets import CarState, Packet, Ping
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, require_non_negative
 
 #: The buckets of :attr:`CarLink.counts`, in report order.
 BUCKETS = (
@@ -130,6 +131,60 @@ def _ipv4(name: str, value: str) -> str:
         return str(ipaddress.IPv4Address(value))
     except ValueError:
         raise FieldError(name, f"not an IPv4 address, got {value!r}") from None
+
+
+#: What :attr:`CarLinkSettings.imu_sensor` may be.
+IMU_SENSORS = ("imu", "gyro")
+
+
+@dataclass(frozen=True)
+class CarLinkSettings:
+    """Where a :class:`CarLink` listens, which car it pairs with, how it repeats commands.
+
+    Attributes
+    ----------
+    port : int
+        Local UDP port, 0..65535 (0: any free one, see :attr:`CarLink.address`; not for the
+        bridge node, whose car must know the port).
+    bind : str
+        Local IPv4 address to bind; ``0.0.0.0`` for every interface (a real car).
+    car_ip : str
+        The car's IPv4 address; empty: learn it from the first valid datagram.
+    car_port : int
+        The car's UDP port, 0..65535; 0: learn it (a port needs ``car_ip``).
+    imu_sensor : {"imu", "gyro"}
+        The IMU's readings as ``imu`` (accelerations and yaw rate) or ``gyro`` (yaw rate).
+    repeat_period : float
+        The newest command is sent again this often, s (0: never).
+    repeat_for : float
+        ... for this long after it was first sent, s.
+    """
+
+    port: int = DEFAULT_PORT
+    bind: str = "127.0.0.1"
+    car_ip: str = ""
+    car_port: int = 0
+    imu_sensor: Literal["imu", "gyro"] = "imu"
+    repeat_period: float = 0.02
+    repeat_for: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in ("port", "car_port"):
+            value = getattr(self, name)
+            if not 0 <= int(value) <= 65535:
+                raise FieldError(name, f"must be in 0..65535, got {value!r}")
+        _ipv4("bind", self.bind)
+        if self.car_ip:
+            _ipv4("car_ip", self.car_ip)
+        if self.car_port and not self.car_ip:
+            raise FieldError(
+                "car_port", f"needs car_ip (the port alone cannot pair), got {self.car_port}"
+            )
+        if self.imu_sensor not in IMU_SENSORS:
+            raise FieldError(
+                "imu_sensor", f"must be one of {', '.join(IMU_SENSORS)}, got {self.imu_sensor!r}"
+            )
+        require_non_negative(self, "repeat_period", "repeat_for")
 
 
 class DatagramFilter:
@@ -198,16 +253,9 @@ class CarLink:
 
     Parameters
     ----------
-    port : int
-        Local UDP port (default 20211; 0 picks a free one, see :attr:`address`).
-    bind : str
-        Local IPv4 address to bind (default loopback; ``0.0.0.0`` for every interface).
-    car_ip : str
-        The car's IPv4 address; empty: learn it from the first valid datagram.
-    car_port : int
-        The car's UDP port; 0: learn it. Needs ``car_ip``.
-    imu_sensor : "imu" or "gyro"
-        What the IMU becomes (:class:`~chronos_bridge.car_state.CarStateConverter`).
+    port, bind, car_ip, car_port, imu_sensor, repeat_period, repeat_for
+        The fields of :class:`CarLinkSettings` (its defaults, checked there; ``port`` 0 picks a
+        free one, see :attr:`address`), kept as :attr:`settings`.
     warn : callable
         Called with a one-line warning for rejects, refused commands and send failures (each
         kind throttled to one per ``warn_period`` s); default the module's logger.
@@ -216,38 +264,27 @@ class CarLink:
     max_per_poll : int
         At most this many datagrams per :meth:`poll` (a flood cannot starve the caller; the rest
         wait in the socket for the next poll).
-    repeat_period : float
-        The newest reference is sent again this often, s (0: never; :meth:`repeat`).
-    repeat_for : float
-        ... for this long after it was first sent, s.
     """
 
     def __init__(
         self,
-        port: int = DEFAULT_PORT,
-        bind: str = "127.0.0.1",
-        car_ip: str = "",
-        car_port: int = 0,
-        imu_sensor: Literal["imu", "gyro"] = "imu",
+        port: int = CarLinkSettings.port,
+        bind: str = CarLinkSettings.bind,
+        car_ip: str = CarLinkSettings.car_ip,
+        car_port: int = CarLinkSettings.car_port,
+        imu_sensor: Literal["imu", "gyro"] = CarLinkSettings.imu_sensor,
         warn: Callable[[str], None] | None = None,
         warn_period: float = 1.0,
         max_per_poll: int = 2000,
-        repeat_period: float = 0.02,
-        repeat_for: float = 0.1,
+        repeat_period: float = CarLinkSettings.repeat_period,
+        repeat_for: float = CarLinkSettings.repeat_for,
     ) -> None:
-        if not 0 <= int(port) <= 65535:
-            raise FieldError("port", f"must be in 0..65535, got {port!r}")
-        if not 0 <= int(car_port) <= 65535:
-            raise FieldError("car_port", f"must be in 0..65535, got {car_port!r}")
-        if car_port and not car_ip:
-            raise FieldError(
-                "car_port", f"needs car_ip (the port alone cannot pair), got {car_port}"
-            )
+        #: The link's settings (checked).
+        self.settings = CarLinkSettings(
+            port, bind, car_ip, car_port, imu_sensor, repeat_period, repeat_for
+        )
         if max_per_poll < 1:
             raise FieldError("max_per_poll", f"must be >= 1, got {max_per_poll}")
-        for name, value in (("repeat_period", repeat_period), ("repeat_for", repeat_for)):
-            if not (math.isfinite(value) and value >= 0):
-                raise FieldError(name, f"must be a finite number >= 0 s, got {value!r}")
         bind = _ipv4("bind", bind)
         self.car_ip = _ipv4("car_ip", car_ip) if car_ip else ""
         self.car_port = int(car_port)

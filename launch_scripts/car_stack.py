@@ -53,6 +53,7 @@ from typing import Any
 import numpy as np
 
 from chronos_bridge.impairment import parse_link
+from chronos_bridge.link import CarLinkSettings
 from crs_core.analysis.latency import LATENCY_DEFINITIONS, command_latencies, input_chain_latency
 from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
@@ -67,8 +68,9 @@ from launch_scripts.sim_stack import (
 )
 from launch_scripts.warm_cache import warm_compile_cache
 
-#: The bridge of car N listens on ``HOST_PORT + N - 1`` (the firmware's default host port first).
-HOST_PORT = 20211
+#: The bridge of car N listens on ``HOST_PORT + N - 1`` (the bridge's default port first, the
+#: firmware's default host port).
+HOST_PORT = CarLinkSettings.port
 #: The emulator of car N binds ``EMULATOR_PORT + N - 1`` (127.0.0.1).
 EMULATOR_PORT = 20311
 #: The bridge's own topic the recorder adds to the car's record set.

@@ -66,16 +66,17 @@ oversize, undecodable or with a bad field is dropped and counted (``CarLink.coun
 warning naming the field (throttled, 1/s); the counts are logged every ``log_period`` s and at
 shutdown. Nothing a sender can put in a datagram stops the node.
 
-Parameters: ``port`` (20211), ``bind`` (``127.0.0.1``; ``0.0.0.0`` for a real car), ``car_ip``
-(empty: learn the car from its first valid datagram), ``car_port`` (0: learn), ``imu_sensor``
-(``imu`` | ``gyro``), ``poll_hz`` (200), ``telemetry_hz`` (50), ``diagnostics_period`` (1 s),
-``log_period`` (10 s), ``command_repeat_period`` (0.02 s), ``command_repeat_for`` (0.1 s),
-``sensor_messages`` (``batch`` | ``each``) and ``batch_period`` (0.01 s).
+Parameters: the link's, ``port`` (but not 0), ``bind``, ``car_ip``, ``car_port``, ``imu_sensor``,
+``command_repeat_period`` and ``command_repeat_for`` (default, description with the unit and
+bounds: the fields of :class:`~chronos_bridge.link.CarLinkSettings`, the last two its
+``repeat_period`` and ``repeat_for``); ``poll_hz`` (200), ``telemetry_hz`` (50),
+``diagnostics_period`` (1 s), ``log_period`` (10 s); ``sensor_messages`` and ``batch_period``
+(:mod:`ros4crs.sensor_output`).
 """
 
 from __future__ import annotations
 
-import ipaddress
+import dataclasses
 import json
 import time
 from collections.abc import Callable, Sequence
@@ -83,22 +84,21 @@ from typing import Any
 
 from rclpy.node import Node
 
-from chronos_bridge import DEFAULT_PORT
 from chronos_bridge.car_state import Converted
-from chronos_bridge.link import CarLink
+from chronos_bridge.link import CarLink, CarLinkSettings
 from ros4crs import conversions
 from ros4crs.node_support import (
+    STREAM_OUT_QOS,
     STREAM_QOS,
     declare,
     in_range,
     input_subscription,
-    non_negative,
-    one_of,
     positive,
     run,
     throttled_warning,
 )
 from ros4crs.sensor_output import declare_sensor_output
+from ros4crs.settings_parameters import SettingsParameters, declare_settings
 
 #: The bridge's own topics (relative to the car's namespace), besides the sensor topics.
 BRIDGE_TOPICS = {
@@ -110,18 +110,12 @@ BRIDGE_TOPICS = {
 }
 
 
-def _ipv4_or_empty(value: str) -> str | None:
-    if not value:
-        return None
-    try:
-        ipaddress.IPv4Address(value)
-    except ValueError:
-        return "must be an IPv4 address (or empty)"
-    return None
-
-
-def _ipv4(value: str) -> str | None:
-    return _ipv4_or_empty(value) if value else "must be an IPv4 address"
+#: The link's settings, all parameters (default, description and bounds: the dataclass's).
+LINK_PARAMETERS = SettingsParameters(
+    CarLinkSettings,
+    ("port", "bind", "car_ip", "car_port", "imu_sensor", "repeat_period", "repeat_for"),
+    rename={"repeat_period": "command_repeat_period", "repeat_for": "command_repeat_for"},
+)
 
 
 #: ``input/applied`` is published when the car's steering angle moved by more than this, rad ...
@@ -135,13 +129,8 @@ class BridgeNode(Node):
 
     def __init__(self) -> None:
         super().__init__("bridge")
-        port = declare(self, "port", DEFAULT_PORT, "local UDP port", in_range(1, 65535))
-        bind = declare(self, "bind", "127.0.0.1", "local IPv4 address to bind", _ipv4)
-        car_ip = declare(self, "car_ip", "", "the car's IPv4 address; empty: learn", _ipv4_or_empty)
-        car_port = declare(self, "car_port", 0, "the car's UDP port; 0: learn", in_range(0, 65535))
-        imu_sensor = declare(
-            self, "imu_sensor", "imu", "publish imu or gyro", one_of("imu", "gyro")
-        )
+        # a node on port 0 would listen where no car knows to send
+        link = declare_settings(self, LINK_PARAMETERS, checks={"port": in_range(1, 65535)})
         poll_hz = declare(self, "poll_hz", 200.0, "socket polls per s", positive)
         telemetry_hz = declare(
             self, "telemetry_hz", 50.0, "battery and telemetry/* at most, Hz", positive
@@ -153,26 +142,7 @@ class BridgeNode(Node):
         )
         log_period = declare(self, "log_period", 10.0, "counts summary log period, s", positive)
         self._warn = throttled_warning(self)
-        repeat_period = declare(
-            self,
-            "command_repeat_period",
-            0.02,
-            "resend the newest command this often, s (0: no)",
-            non_negative,
-        )
-        repeat_for = declare(
-            self, "command_repeat_for", 0.1, "... for this long after it was sent, s", non_negative
-        )
-        self.link = CarLink(
-            port,
-            bind,
-            car_ip,
-            car_port,
-            imu_sensor,
-            warn=self.get_logger().warning,
-            repeat_period=repeat_period,
-            repeat_for=repeat_for,
-        )
+        self.link = CarLink(**dataclasses.asdict(link), warn=self.get_logger().warning)
         self.frame = conversions.body_frame(self.get_namespace())
         self.publish_errors = 0
         self._paired = self.link.endpoint
@@ -189,7 +159,7 @@ class BridgeNode(Node):
         self._velocity = self.create_publisher(TwistStamped, BRIDGE_TOPICS["velocity"], STREAM_QOS)
         self._diagnostics = self.create_publisher(String, BRIDGE_TOPICS["diagnostics"], 10)
         self._applied = self.create_publisher(
-            CarInput, conversions.TOPICS["applied_input"], STREAM_QOS
+            CarInput, conversions.TOPICS["applied_input"], STREAM_OUT_QOS
         )
         self._last_applied: tuple[float, float, float] | None = None  # stamp, steer, torque
         self._inputs = input_subscription(self, self._on_input)
@@ -197,9 +167,13 @@ class BridgeNode(Node):
         self.create_timer(diagnostics_period, self._publish_diagnostics)
         self.create_timer(log_period, lambda: self.get_logger().info(self.link.summary()))
         host, local_port = self.link.address
-        peer = f"{car_ip}:{car_port or 'any port'}" if car_ip else "the first valid sender"
+        peer = (
+            f"{link.car_ip}:{link.car_port or 'any port'}"
+            if link.car_ip
+            else "the first valid sender"
+        )
         self.get_logger().info(
-            f"listening on UDP {host}:{local_port}, car: {peer}; publishing {imu_sensor}, "
+            f"listening on UDP {host}:{local_port}, car: {peer}; publishing {link.imu_sensor}, "
             f"stamps from the packet when present, else on receipt"
         )
 

@@ -10,25 +10,58 @@ more delay, well inside the estimator's ``lag``. With ``sensor_messages`` ``each
 is its own message on its own topic (``sensors/imu``, ``sensors/wheel_speeds``, ...), for ROS tools
 that want ``sensor_msgs/Imu``. The estimator node takes both forms.
 
-Parameters (declared by :func:`declare_sensor_output`): ``sensor_messages`` (``batch`` |
-``each``, default ``batch``), ``batch_period`` (s, default 0.01; 0: a batch per step).
+Parameters (declared by :func:`declare_sensor_output`; default, description and bounds: the
+fields of :class:`SensorOutputSettings`): ``sensor_messages`` and ``batch_period``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import Any
 
 from rclpy.node import Node
 
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, require_non_negative
 from crs_core.measurements import Measurement
 from ros4crs import conversions
-from ros4crs.node_support import STREAM_OUT_QOS, declare, non_negative, one_of
+from ros4crs.node_support import STREAM_OUT_QOS
+from ros4crs.settings_parameters import SettingsParameters, declare_settings
 
 #: Values of the ``sensor_messages`` parameter.
 SENSOR_MESSAGES = ("batch", "each")
+
+
+@dataclass(frozen=True)
+class SensorOutputSettings:
+    """How a node publishes a car's sensor readings.
+
+    Attributes
+    ----------
+    sensor_messages : {"batch", "each"}
+        ``batch``: readings in batches on ``sensors/batch``; ``each``: one message per reading
+        (``sensors/imu``, ...).
+    batch_period : float
+        Longest a reading waits for its batch, s (0: a batch per step).
+    """
+
+    sensor_messages: str = "batch"
+    batch_period: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.sensor_messages not in SENSOR_MESSAGES:
+            raise FieldError(
+                "sensor_messages",
+                f"must be one of {', '.join(SENSOR_MESSAGES)}, got {self.sensor_messages!r}",
+            )
+        require_non_negative(self, "batch_period")
+
+
+#: Both settings, parameters of the simulator and the bridge.
+SENSOR_OUTPUT_PARAMETERS = SettingsParameters(
+    SensorOutputSettings, ("sensor_messages", "batch_period")
+)
 
 
 class SensorOutput:
@@ -47,10 +80,7 @@ class SensorOutput:
     """
 
     def __init__(self, node: Node, frame_id: str, messages: str, batch_period: float) -> None:
-        if messages not in SENSOR_MESSAGES:
-            raise FieldError("sensor_messages", f"must be batch or each, got {messages!r}")
-        if not math.isfinite(batch_period) or batch_period < 0:
-            raise FieldError("batch_period", f"must be finite and >= 0, got {batch_period}")
+        SensorOutputSettings(messages, batch_period)  # checked
         self.frame_id, self.batch_period = frame_id, batch_period
         self._pending: list[Measurement] = []
         self._due = -math.inf
@@ -99,14 +129,5 @@ class SensorOutput:
 
 def declare_sensor_output(node: Node, frame_id: str) -> SensorOutput:
     """Declare ``sensor_messages`` and ``batch_period`` on ``node``; its :class:`SensorOutput`."""
-    messages = declare(
-        node,
-        "sensor_messages",
-        "batch",
-        "batch (sensors/batch) or each (a message per reading)",
-        one_of(*SENSOR_MESSAGES),
-    )
-    period = declare(
-        node, "batch_period", 0.01, "longest a reading waits for its batch, s", non_negative
-    )
-    return SensorOutput(node, frame_id, messages, period)
+    settings = declare_settings(node, SENSOR_OUTPUT_PARAMETERS)
+    return SensorOutput(node, frame_id, settings.sensor_messages, settings.batch_period)

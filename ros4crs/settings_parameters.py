@@ -1,6 +1,7 @@
-"""Settings written once: a node's ROS parameters derived from a ``crs_core`` settings dataclass.
+"""Settings written once: a node's ROS parameters derived from a settings dataclass.
 
-A setting that is both a field of a settings dataclass (``SupervisorSettings.stale_timeout``)
+A setting that is both a field of a settings dataclass (of ``crs_core``, ``sim``,
+``chronos_bridge`` or ``ros4crs`` itself: ``SupervisorSettings.stale_timeout``)
 and a ROS parameter of a node (the controller's ``stale_timeout``) is written once, in the
 dataclass: the parameter's default is the field's, its description the field's entry in the
 ``Attributes`` section of the dataclass's numpydoc docstring (which gives the unit), and its

@@ -62,7 +62,7 @@ class Simulator:
     sensors : SensorSuite
         Rates and imperfections; ``SensorSuite().ideal()`` for noise-free sensors.
     seed : int
-        Seed of every random draw.
+        Seed of every random draw, >= 0.
     onboard : OnboardSettings, optional
         Run the car's onboard low-level loop (steering actuator, steering and velocity PIDs;
         :mod:`sim.onboard`). Default ``None``: commands act on the model directly.
@@ -79,6 +79,8 @@ class Simulator:
             raise FieldError("onboard", f"must be an OnboardSettings or None, got {onboard!r}")
         if onboard is not None and model.estimated_inputs:
             raise FieldError("onboard", "the input-free model takes no commands")
+        if int(seed) < 0:  # numpy's seeds are not negative
+            raise FieldError("seed", f"must be >= 0, got {seed!r}")
         self.model = model
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)

@@ -40,6 +40,7 @@ CASES = [
     ("simulator_node", ["-p", "effects:=bogus"], "error: effects: unknown effect 'bogus'"),
     ("simulator_node", ["-p", "blackouts:=lighthouse:1"], "error: blackouts: 'lighthouse:1'"),
     ("simulator_node", ["-p", "tick_hz:=0.0"], "error: tick_hz: must be a finite number > 0"),
+    ("simulator_node", ["-p", "seed:=-1"], "error: seed: must be >= 0, got -1"),
     ("controller_node", ["-p", "v_ref:=-1.0"], "error: v_ref: must be a finite number > 0"),
     # parameters of a settings dataclass: its checks, the error naming the parameter
     ("estimator_node", ["-p", "lag:=-0.01"], "error: lag: must be a finite number >= 0, got -0.01"),
@@ -81,9 +82,31 @@ CASES = [
     ("replayer_node", ["-p", "bag:={tmp}/none"], "error: bag: {tmp}/none: not a bag folder"),
     ("replayer_node", ["-p", "rate:=0.0"], "error: rate: must be a finite number > 0"),
     ("bridge_node", ["-p", "imu_sensor:=accel"], "error: imu_sensor: must be one of imu, gyro"),
-    ("bridge_node", ["-p", "car_ip:=car.local"], "error: car_ip: must be an IPv4 address"),
+    ("bridge_node", ["-p", "car_ip:=car.local"], "error: car_ip: not an IPv4 address"),
     ("bridge_node", ["-p", "car_port:=20211"], "error: car_port: needs car_ip"),
     ("bridge_node", ["-p", "port:=0"], "error: port: must be in 1..65535, got 0"),
+    # the link's and the sensor output's settings (CarLinkSettings, SensorOutputSettings)
+    (
+        "bridge_node",
+        ["-p", "command_repeat_period:=-0.02"],
+        "error: command_repeat_period: must be a finite number >= 0, got -0.02",
+    ),
+    (
+        "bridge_node",
+        ["-p", "command_repeat_for:=soon"],
+        "error: command_repeat_for: expected a number, got 'soon'",
+    ),
+    ("bridge_node", ["-p", "port:=70000"], "error: port: must be in 1..65535, got 70000"),
+    (
+        "simulator_node",
+        ["-p", "batch_period:=-0.01"],
+        "error: batch_period: must be a finite number >= 0, got -0.01",
+    ),
+    (
+        "simulator_node",
+        ["-p", "sensor_messages:=all"],
+        "error: sensor_messages: must be one of batch, each, got 'all'",
+    ),
 ]
 
 

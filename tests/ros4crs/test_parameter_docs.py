@@ -2,10 +2,10 @@
 parameter it declares is in its section, every parameter of its table is declared, and the
 documented default is the declared one.
 
-The parameters are read from the nodes' source: each ``declare(node, "name", default, ...)``, in
-the node's module and in the ``declare_*`` helpers of ``ros4crs`` it calls, and each
-``declare_fields`` / ``declare_settings`` of a module-level
-:class:`~ros4crs.settings_parameters.SettingsParameters` (the defaults of a settings dataclass).
+The parameters are read from the nodes' source: each ``declare(node, "name", default, ...)`` and
+each ``declare_fields`` / ``declare_settings`` of a module-level
+:class:`~ros4crs.settings_parameters.SettingsParameters` (the defaults of a settings dataclass),
+in the node's module and in the ``declare_*`` helpers of ``ros4crs`` it calls.
 A default computed in the node (``rate_hz``: 30 Hz for the MPCC, 50 Hz for the path follower) is
 not compared.
 """
@@ -78,13 +78,16 @@ def _declared(tree: ast.AST, module: Any) -> dict[str, Any]:
 
 
 def _helpers() -> dict[str, dict[str, Any]]:
-    """The ``declare_*`` functions of ``ros4crs`` that declare parameters themselves, with
-    their parameters."""
+    """The ``declare_*`` functions of ``ros4crs`` that declare parameters themselves (by hand or
+    from a settings dataclass), with their parameters; not those of the machinery,
+    :mod:`ros4crs.settings_parameters`."""
     found = {}
     for path in (ROOT / "ros4crs").glob("*.py"):
+        if path.stem == "settings_parameters":
+            continue
         for function in ast.parse(path.read_text()).body:
             if isinstance(function, ast.FunctionDef) and function.name.startswith("declare_"):
-                if _calls(function, "declare"):
+                if _calls(function, "declare", "declare_fields", "declare_settings"):
                     found[function.name] = _declared(function, _module(path))
     return found
 
@@ -101,10 +104,13 @@ def declared_parameters(source: Path) -> dict[str, Any]:
 
 
 def test_the_helpers_and_settings_are_found() -> None:
-    assert "declare_sensor_output" in _helpers()
+    assert _helpers()["declare_sensor_output"] == {"sensor_messages": "batch", "batch_period": 0.01}
     bridge = declared_parameters(ROOT / "ros4crs" / "bridge_node.py")
     assert {"sensor_messages", "batch_period", "poll_hz"} <= set(bridge)
     assert bridge["port"] == 20211
+    assert bridge["command_repeat_period"] == 0.02 and bridge["car_ip"] == ""
+    simulator = declared_parameters(ROOT / "ros4crs" / "simulator_node.py")
+    assert {"sensor_messages", "batch_period", "tick_hz", "track_file"} <= set(simulator)
     controller = declared_parameters(ROOT / "ros4crs" / "controller_node.py")
     assert controller["speed_ramp"] == 1.5
     assert controller["command_delay"] == 0.02

@@ -1,15 +1,21 @@
-"""``SensorOutput``: batches go out once per period, every reading once and in order."""
+"""``SensorOutput``: batches go out once per period, every reading once and in order; its
+settings (``sensor_messages``, ``batch_period``, parameters of the simulator and the bridge)
+come from :class:`~ros4crs.sensor_output.SensorOutputSettings` with their names and defaults
+of before."""
 
 from __future__ import annotations
 
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
 import pytest
 
+from crs_core.errors import FieldError
 from crs_core.measurements import Measurement
 from ros4crs import conversions
-from ros4crs.sensor_output import SensorOutput
+from ros4crs.node_support import ParameterError
+from ros4crs.sensor_output import SENSOR_OUTPUT_PARAMETERS, SensorOutput, SensorOutputSettings
 
 
 class FakePublisher:
@@ -100,3 +106,34 @@ def test_each_publishes_one_message_per_reading_on_its_topic() -> None:
 def test_bad_settings_name_the_parameter(messages: str, period: float, field: str) -> None:
     with pytest.raises(ValueError, match=f"^{field}"):
         SensorOutput(FakeNode(), "base_link", messages, period)
+
+
+def test_the_sensor_output_parameters_keep_their_names_and_defaults() -> None:
+    """As the nodes declared them by hand before (docs/ros-interface.md)."""
+    assert SENSOR_OUTPUT_PARAMETERS.parameters == ("sensor_messages", "batch_period")
+    values = {f: SENSOR_OUTPUT_PARAMETERS.default(f) for f in SENSOR_OUTPUT_PARAMETERS.fields}
+    assert values == {"sensor_messages": "batch", "batch_period": 0.01}
+    assert SENSOR_OUTPUT_PARAMETERS.build(values) == SensorOutputSettings()
+    assert SENSOR_OUTPUT_PARAMETERS.description("batch_period").startswith(
+        "Longest a reading waits for its batch, s"
+    )
+
+
+@pytest.mark.parametrize(
+    ("parameter", "value", "message"),
+    [
+        ("batch_period", -0.01, "must be a finite number >= 0, got -0.01"),
+        ("batch_period", float("inf"), "must be a finite number >= 0, got inf"),
+        ("sensor_messages", "all", "must be one of batch, each, got 'all'"),
+    ],
+)
+def test_a_bad_sensor_output_parameter_is_refused_naming_it(
+    parameter: str, value: Any, message: str
+) -> None:
+    given = {**asdict(SensorOutputSettings()), parameter: value}
+    with pytest.raises(ParameterError) as error:
+        SENSOR_OUTPUT_PARAMETERS.build(given)
+    assert (error.value.field, error.value.reason) == (parameter, message)
+    with pytest.raises(FieldError) as refused:  # the publisher checks them with the same class
+        SensorOutput(object(), "car1/base_link", given["sensor_messages"], given["batch_period"])
+    assert str(refused.value) == str(error.value)
