@@ -14,7 +14,7 @@ import numpy as np
 from crs_core.analysis.statistics import summary
 
 #: The two real Chronos recordings, in the shared data beside the project folder (read-only).
-REAL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "chronos_real"
+REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "chronos_real"
 
 
 def machine() -> dict[str, Any]:
