@@ -164,15 +164,15 @@ def control_benchmark(
                 out.append(v.status.qp_iterations)
 
         result, times = _race(variant, track, laps=2, after_call=count)
-        summary = result.summary()
+        raced = result.summary()  # not "summary": that is the statistics function used below
         solvers.append(
             {
                 "solver": name,
                 "solve_ms": _stats_ms(times[1:]),
                 "qp_iterations_median": float(np.median(counts)) if counts else None,
-                "laps": summary["laps"],
-                "lap_times_s": summary["lap_times_s"],
-                "controller_modes": summary["controller_modes"],
+                "laps": raced["laps"],
+                "lap_times_s": raced["lap_times_s"],
+                "controller_modes": raced["controller_modes"],
             }
         )
 
