@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.control_peers import IpoptMpcc
-from benchmarks.machine import machine
+from benchmarks.machine import format_ms, machine
 from crs_core.analysis.statistics import summary
 from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
@@ -252,7 +252,7 @@ QP_SOLVER_NAMES = {
 
 def format_table(result: dict[str, Any]) -> str:
     """The benchmark's figures as the docs' Markdown tables: the solve time against the peer,
-    the QP solvers, the closed-loop races (ms, 3 significant digits; m; mm)."""
+    the QP solvers, the closed-loop races (ms: :func:`~benchmarks.machine.format_ms`; m; mm)."""
     settings, solve, peer = result["settings"], result["solve_ms"], result["peer"]
     laps = settings.get("laps", 5)
     converged = peer.get("converged_fraction")
@@ -268,10 +268,10 @@ def format_table(result: dict[str, Any]) -> str:
         "| controller | median ms | p95 ms | p99 ms | max ms | iterations (median) |",
         "|---|---|---|---|---|---|",
         f"| MPCC, real-time iteration + {settings['solver'].upper()} | "
-        + " | ".join(f"{solve[k]:.3g}" for k in ("median", "p95", "p99", "max"))
+        + " | ".join(format_ms(solve[k]) for k in ("median", "p95", "p99", "max"))
         + f" | {result['qp_iterations']['median']:g} (QP) |",
         f"| peer: {peer['name']} | "
-        + " | ".join(f"{peer['solve_ms'][k]:.3g}" for k in ("median", "p95", "p99", "max"))
+        + " | ".join(format_ms(peer["solve_ms"][k]) for k in ("median", "p95", "p99", "max"))
         + f" | {peer['iterations_median']:g} (NLP)"
         + ("" if converged is None else f", {converged:.0%} converged")
         + " |",
@@ -291,7 +291,7 @@ def format_table(result: dict[str, Any]) -> str:
         iterations = row["qp_iterations_median"]
         lines.append(
             f"| {QP_SOLVER_NAMES.get(row['solver'], row['solver'])} | "
-            f"{row['solve_ms']['median']:.3g} | {row['solve_ms']['p99']:.3g} | "
+            f"{format_ms(row['solve_ms']['median'])} | {format_ms(row['solve_ms']['p99'])} | "
             f"{'(not reported)' if iterations is None else f'{iterations:g}'} | "
             f"{', '.join(f'{v:.2f}' for v in row['lap_times_s'])} | "
             f"{failed} of {sum(modes.values())}"
@@ -309,14 +309,14 @@ def format_table(result: dict[str, Any]) -> str:
     for row in result["closed_loop"]:
         mean = "–" if row["mean_lap_s"] is None else f"{row['mean_lap_s']:.3f} s"
         rmse = row.get("estimation_rmse")
-        position = "–" if not rmse else f"{1e3 * float(np.hypot(rmse['x'], rmse['y'])):.1f} mm"
+        position = "–" if not rmse else f"{1e3 * rmse['position']:.1f} mm"
         lap_times = ", ".join(f"{v:.2f}" for v in row["lap_times_s"]) or "–"
         lines.append(
             f"| {'true' if row['state'] == 'true' else row['state'].upper()} | "
             f"{blackout if row['blackout'] else '–'} | {row['truth']} | {lap_times} | "
             f"{mean} | {row['boundary_violations']} | {row['max_contouring_error_m']:.3f} m | "
             f"{-row['max_outside_m']:.3f} m | {position} | "
-            f"{row['solve_ms']['median']:.3g} / {row['solve_ms']['p99']:.3g} ms |"
+            f"{format_ms(row['solve_ms']['median'])} / {format_ms(row['solve_ms']['p99'])} ms |"
         )
     first = result["closed_loop"][0] if result["closed_loop"] else {}
     if result.get("mhe_vs_true_lap_ratio") is not None and "max_speed_mps" in first:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks.machine import format_ms
 from benchmarks.robust_estimation import (
     format_rows,
     inputs_withheld_rows,
@@ -435,9 +436,10 @@ def _seeds(seeds: Sequence[int]) -> str:
 
 
 def format_markdown(rows: list[dict]) -> str:
-    """The docs' estimation figures (Markdown): accuracy against the paper's Table I, the
-    blackout, the speed per update, the peers and the real recordings (mm, mrad, mm/s, ms).
-    The robust-estimation rows are not shown (:func:`format_table` prints them)."""
+    """The docs' estimation figures (Markdown): accuracy against the paper's Table I (by sensor
+    set, then estimator), the blackout, the speed per update, the peers and the real recordings
+    (mm, mrad, mm/s, ms). The robust-estimation rows are not shown (:func:`format_table` prints
+    them)."""
     of = {kind: [r for r in rows if r["benchmark"] == kind] for kind in
           ("accuracy", "blackout", "speed", "peer", "real")}  # fmt: skip
     lines: list[str] = []
@@ -450,7 +452,8 @@ def format_markdown(rows: list[dict]) -> str:
             "| paper x / y / yaw / v_x / v_y |",
             "|---|---|---|---|---|---|---|---|---|",
         ]
-        for row in of["accuracy"]:
+        order = {sensors: k for k, sensors in enumerate(SENSOR_SETS)}
+        for row in sorted(of["accuracy"], key=lambda r: (order.get(r["sensors"]), r["estimator"])):
             cells = [
                 f"{row['rmse'][s] * 1e3:.{d}f}±{row['rmse_std'][s] * 1e3:.{d}f}"
                 for s, d in zip(STATE_NAMES, (1, 1, 1, 1, 1, 0), strict=True)
@@ -495,7 +498,7 @@ def format_markdown(rows: list[dict]) -> str:
                 else f"{row['estimator'].upper()} per measurement"
             )
             t = row["time_ms"]
-            cells = " | ".join(f"{t[k]:.3g} ms" for k in ("median", "p95", "p99", "max"))
+            cells = " | ".join(f"{format_ms(t[k])} ms" for k in ("median", "p95", "p99", "max"))
             lines.append(f"| {what} | {cells} | {SPEED_TARGETS.get(row['estimator'], '–')} |")
         lines.append("")
     if of["peer"]:
@@ -515,7 +518,7 @@ def format_markdown(rows: list[dict]) -> str:
             rmse_ratios = " / ".join(f"{ratio['rmse'][s]:.2f}" for s in STATE_NAMES[:5])
             lines.append(
                 f"| {PEER_NAMES.get(row['estimator'], row['estimator'])} | our "
-                f"{row['compared_with'].upper()} | {row['time_ms']['median']:.3g} ms "
+                f"{row['compared_with'].upper()} | {format_ms(row['time_ms']['median'])} ms "
                 f"| {pace} | {rmse_ratios} |"
             )
         lines.append("")
