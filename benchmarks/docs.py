@@ -22,7 +22,11 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.contingency import format_table as contingency_table
+from benchmarks.control import format_table as control_table
+from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
+from benchmarks.stack import format_markdown as stack_markdown
+from benchmarks.sysid import format_markdown as sysid_markdown
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -46,10 +50,30 @@ def _contingency(result: dict[str, Any]) -> str:
     return f"`{command}`: {contingency_table(result)}\n"
 
 
+def _headed(name: str, body: Callable[[dict[str, Any]], str]) -> Callable[[dict[str, Any]], str]:
+    """A renderer: the command that produced the JSON and the machine it ran on, then
+    ``body(result)``."""
+
+    def render(result: dict[str, Any]) -> str:
+        machine = result.get("machine")
+        where = (
+            f" ({machine['cpu']}, {machine['cores']} cores, Python {machine['python']})"
+            if machine
+            else ""
+        )
+        return f"`{result.get('command', f'crs bench {name}')}`{where}:\n\n{body(result)}\n"
+
+    return render
+
+
 #: What each saved benchmark's block shows, by the JSON file's stem.
 RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "link": _link,
     "contingency": _contingency,
+    "estimation": _headed("estimation", lambda result: estimation_markdown(result["rows"])),
+    "control": _headed("control", control_table),
+    "sysid": _headed("sysid", sysid_markdown),
+    "stack": _headed("stack", stack_markdown),
 }
 
 

@@ -14,7 +14,7 @@ import numpy as np
 from crs_core.analysis.statistics import summary
 
 #: The two real Chronos recordings, in the shared data beside the project folder (read-only).
-REAL_DATA = Path(__file__).resolve().parents[3] / "shared" / "data" / "chronos_real"
+REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "chronos_real"
 
 
 def machine() -> dict[str, Any]:
@@ -42,3 +42,9 @@ def timing(call: Callable[[], object], repeats: int) -> dict[str, float]:
         call()
         samples[k] = time.perf_counter() - start
     return {f"{key}_us": value for key, value in summary(samples * 1e6, digits=2).items()}
+
+
+def format_ms(value: float) -> str:
+    """A time in ms for a table: 3 significant digits, whole milliseconds from 1000 ms on (no
+    exponent)."""
+    return f"{value:.3g}" if abs(value) < 1000 else f"{value:.0f}"

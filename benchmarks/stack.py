@@ -20,6 +20,8 @@ from typing import Any
 
 from launch_scripts.sim_stack import rmse_text, run_stack
 
+#: A car's pipeline: the nodes whose CPU the docs add up per car.
+PIPELINE = ("simulator", "estimator", "controller")
 #: A process that keeps one core busy until it is killed.
 BUSY_LOOP = "while True:\n    pass\n"
 
@@ -117,3 +119,76 @@ def format_table(result: dict[str, Any]) -> str:
                 f"{c.get('estimator_reinitializations', 0)} re-initialisations"
             )
     return "\n".join(lines)
+
+
+def _span(values: list[float], form: str) -> str:
+    """``a–b`` of the formatted smallest and largest value, ``a`` when they are the same."""
+    if not values:
+        return "–"
+    low, high = format(min(values), form), format(max(values), form)
+    return low if low == high else f"{low}–{high}"
+
+
+def _spans(items: list[dict[str, float]], keys: tuple[str, str], form: str, scale=1.0) -> str:
+    """``span of the first key / span of the second`` over ``items``."""
+    return " / ".join(_span([scale * item[key] for item in items], form) for key in keys)
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The docs' row of the run (Markdown): per car over all repeats, the smallest and largest
+    laps, lap time, position RMSE x / y (mm), deadline misses, sensor -> input latency (median /
+    p95, ms), CPU of the car's simulator + estimator + controller and of the recorder (% of one
+    core once running); then node deaths, re-initialisations, yaw RMSE and peak memory."""
+    cars = [(run, car, c) for run in result["runs"] for car, c in run["cars"].items()]
+    laps = [c.get("laps_completed", 0) for _, _, c in cars]
+    lap_times = [t for _, _, c in cars for t in c.get("lap_times_s", [])]
+    rmse = [c["estimation_rmse"] for _, _, c in cars if c.get("estimation_rmse")]
+    latency = [
+        c["latency_ms"]["sensor_to_input"]
+        for _, _, c in cars
+        if (c.get("latency_ms") or {}).get("sensor_to_input")
+    ]
+    pipelines, recorder = [], []
+    for run, car, _ in cars:
+        cpu = run.get("cpu_percent_running") or run.get("cpu_percent") or {}
+        pipelines.append([cpu.get(f"/{car}/{n}", 0.0) for n in PIPELINE])
+        recorder += [cpu["/recorder"]] if "/recorder" in cpu else []
+    pipeline = _span([sum(p) for p in pipelines], ".1f") + " %"
+    if len(pipelines) == 1:
+        pipeline += " (" + " + ".join(f"{v:g}" for v in pipelines[0]) + ")"
+    who = ", ".join(sorted({car.removeprefix("car") for _, car, _ in cars}))
+    if result["repeats"] > 1:
+        who += f" ({result['repeats']} repeats)"
+    if result.get("load_processes"):
+        who += f", {result['load_processes']} busy processes"
+    laps_text = _span(laps, "d") + (f" in each of {len(cars)} car runs" if len(cars) > 1 else "")
+    if lap_times:
+        laps_text += f" ({_span(lap_times, '.2f')} s)"
+    misses = [c.get("estimator_deadline_misses", 0) for _, _, c in cars]
+    updates = [c.get("estimator_updates", 0) for _, _, c in cars]
+    row = [
+        f"`{result.get('command', 'crs bench stack')}`",
+        who,
+        laps_text,
+        f"{_spans(rmse, ('x', 'y'), '.2f', 1e3)} mm",
+        f"{_span(misses, 'd')} in {_span(updates, 'd')}",
+        f"{_spans(latency, ('median', 'p95'), '.0f')} ms",
+        pipeline,
+        f"{_span(recorder, '.0f')} %",
+    ]
+    deaths = sum(len(run.get("node_deaths", [])) for run in result["runs"])
+    reinit = [c.get("estimator_reinitializations", 0) for _, _, c in cars]
+    memory = [m for run in result["runs"] for m in (run.get("peak_memory_mib") or {}).values()]
+    return "\n".join(
+        [
+            "| command | car | laps (lap time) | RMSE x / y | misses | sensor → input | "
+            "pipeline CPU | recorder CPU |",
+            "|---|---|---|---|---|---|---|---|",
+            "| " + " | ".join(row) + " |",
+            "",
+            f"{result['duration_s']:g} s per run, {result['estimator'].upper()}; node deaths: "
+            f"{deaths}; re-initialisations: {_span(reinit, 'd')}; yaw RMSE "
+            f"{_span([1e3 * r['yaw'] for r in rmse], '.1f')} mrad; peak memory per node "
+            f"{_span(memory, '.0f')} MiB.",
+        ]
+    )

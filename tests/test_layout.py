@@ -62,7 +62,6 @@ EXEMPT: dict[str, str] = {
     "benchmarks/calibration.py": "minutes-long runs, docs table checked by test_docs.py",
     "benchmarks/control_peers.py": "minutes-long runs, docs table checked by test_docs.py",
     "benchmarks/model.py": "minutes-long runs, docs table checked by test_docs.py",
-    "benchmarks/sysid.py": "minutes-long runs, docs table checked by test_docs.py",
 }
 
 #: Modules whose tests exist but still sit in another module's test file, each with where they

@@ -46,3 +46,21 @@ def test_a_block_is_rendered_from_its_file(tmp_path: Path, monkeypatch) -> None:
 def test_an_unknown_benchmark_file_is_refused_naming_it() -> None:
     with pytest.raises(ValueError, match=r"docs/benchmarks/nothing\.json: no renderer"):
         docs.render("docs/benchmarks/nothing.json")
+
+
+def test_every_saved_benchmark_has_a_renderer() -> None:
+    saved = {path.stem for path in (docs.DOCS / "benchmarks").glob("*.json")}
+    assert saved <= set(docs.RENDERERS)
+    assert {"estimation", "control", "sysid", "stack"} <= set(docs.RENDERERS)
+
+
+def test_a_block_names_the_command_and_the_machine_of_its_run() -> None:
+    result = {
+        "command": "crs bench sysid --seeds 10 --out x.json",
+        "machine": {"cpu": "Some CPU", "cores": 2, "python": "3.11.7", "platform": "Linux"},
+        "speed": {},
+    }
+    assert docs.RENDERERS["sysid"](result) == (
+        "`crs bench sysid --seeds 10 --out x.json` (Some CPU, 2 cores, Python 3.11.7):\n\n"
+        "| | figure |\n|---|---|\n"
+    )

@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 
 from benchmarks import stack
-from benchmarks.stack import busy_loops, format_table, stack_benchmark
+from benchmarks.stack import busy_loops, format_markdown, format_table, stack_benchmark
 
 #: What two repeats of a two-car stack reported (the fields the benchmark keeps, and one more).
 REPORTS = [
@@ -100,3 +100,81 @@ def test_the_table_has_a_line_per_repeat_and_car(result) -> None:
         "  repeat 2 car2: 4 laps; RMSE x 5.0 mm, y 6.0 mm, yaw 30.0 mrad; 7 misses, "
         "0 re-initialisations",
     ]
+
+
+def _car(laps: list[float], x: float, misses: int, median: float) -> dict[str, Any]:
+    return {
+        "laps_completed": len(laps),
+        "lap_times_s": laps,
+        "estimation_rmse": {"x": x, "y": 0.001, "yaw": 0.0068},
+        "estimator_deadline_misses": misses,
+        "estimator_updates": 2100 + misses,
+        "estimator_reinitializations": 0,
+        "latency_ms": {"sensor_to_input": {"median": median, "p95": 42.4}},
+    }
+
+
+def _cpu(car: str, simulator: float) -> dict[str, float]:
+    return {
+        f"/{car}/simulator": simulator,
+        f"/{car}/estimator": 25.9,
+        f"/{car}/controller": 6.6,
+        "/recorder": 20.4,
+    }
+
+
+def _runs_result(runs: list[dict[str, Any]], repeats: int) -> dict[str, Any]:
+    return {
+        "command": "crs bench stack --cars 2 --repeats 2 --out x.json",
+        "cars": len(runs[0]["cars"]),
+        "estimator": "mhe",
+        "duration_s": 40.0,
+        "repeats": repeats,
+        "load_processes": 0,
+        "runs": runs,
+    }
+
+
+def test_the_docs_row_spans_every_car_and_repeat() -> None:
+    runs = [
+        {
+            "cars": {
+                "car1": _car([11.77, 11.8], 0.00083, 0, 32.2),
+                "car2": _car([11.86, 11.8], 0.00092, 1, 35.4),
+            },
+            "cpu_percent_running": {**_cpu("car1", 17.9), **_cpu("car2", 19.4)},
+            "peak_memory_mib": {"/car1/estimator": 134.2, "/recorder": 83.0},
+            "node_deaths": [],
+        },
+        {
+            "cars": {"car1": _car([11.8, 11.8], 0.0009, 0, 33.0)},
+            "cpu_percent_running": _cpu("car1", 18.0),
+            "peak_memory_mib": {"/car1/estimator": 120.0},
+        },
+    ]
+    lines = format_markdown(_runs_result(runs, 2)).splitlines()
+    assert lines[0].startswith("| command | car | laps (lap time) |")
+    assert len({line.count("|") for line in lines[:3]}) == 1
+    assert [cell.strip() for cell in lines[2].strip("|").split("|")] == [
+        "`crs bench stack --cars 2 --repeats 2 --out x.json`",
+        "1, 2 (2 repeats)",
+        "2 in each of 3 car runs (11.77–11.86 s)",
+        "0.83–0.92 / 1.00 mm",
+        "0–1 in 2100–2101",
+        "32–35 / 42 ms",
+        "50.4–51.9 %",
+        "20 %",
+    ]
+    assert lines[4] == (
+        "40 s per run, MHE; node deaths: 0; re-initialisations: 0; yaw RMSE 6.8 mrad; peak "
+        "memory per node 83–134 MiB."
+    )
+
+
+def test_one_car_once_shows_its_pipeline_node_by_node() -> None:
+    run = {"cars": {"car1": _car([11.8], 0.00083, 0, 34.0)}, "cpu_percent": _cpu("car1", 17.9)}
+    cells = format_markdown(_runs_result([run], 1)).splitlines()[2].strip("|").split("|")
+    assert [cell.strip() for cell in cells[1:]] == [
+        "1", "1 (11.80 s)", "0.83 / 1.00 mm", "0 in 2100", "34 / 42 ms",
+        "50.4 % (17.9 + 25.9 + 6.6)", "20 %",
+    ]  # fmt: skip
