@@ -53,7 +53,7 @@ from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
 from crs_core.track import Track, minimum_curvature_line
 
-__all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope"]
+__all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope", "lag_decay"]
 
 #: Arc-length step of the braking envelope and of the centreline lookup, m.
 GRID_STEP = 0.01
@@ -178,7 +178,7 @@ class HoldSafetyFilter:
         self._p = parameters.vector()
         holds = max(round(s.hold_time / s.sample_time), 0)
         coasts = max(round(s.coast_time / s.sample_time), 1)
-        self._candidates = 1 + len(STEER_FRACTIONS) * 5  # see _candidate_commands
+        self._candidates = len(STEER_FRACTIONS) * 5  # see _candidate_commands
         values = dict(zip(parameters.names, self._p, strict=True))
         step = _lagged_step(model, s.sample_time, s.steering_time_constant)
         rollout = _rollout_function(step, model.nx, holds, coasts)
@@ -270,14 +270,14 @@ class HoldSafetyFilter:
         return np.max(np.abs(lateral), axis=1) - self.bound
 
     def _candidate_commands(self, command: NDArray[np.float64]) -> np.ndarray:
-        """The command itself, then every steering fraction with five torques: the
-        command's, half a unit less, no throttle, half and full braking (within the limits)."""
+        """Every steering fraction with five torques: the command's, half a unit less, no
+        throttle, half and full braking (within the limits); the command itself, found unsafe
+        before the grid is asked for, is not among them."""
         low, high = self.torque_limits
         torque = float(command[1])
         torques = np.clip([torque, torque - 0.5, min(torque, 0.0), -0.5, -1.0], low, high)
         steer = STEER_FRACTIONS * self.steer_max
-        grid = np.array([[d, t] for t in torques for d in steer])
-        return np.vstack((command[None, :], grid))
+        return np.array([[d, t] for t in torques for d in steer])
 
     def _project(
         self, px: NDArray[np.float64], py: NDArray[np.float64]
@@ -347,13 +347,19 @@ class _RecoveryLaw:
     min_speed: float
 
 
+def lag_decay(elapsed: float, lag: float) -> float:
+    """What is left after ``elapsed`` s (>= 0) of a first-order lag of time constant ``lag`` s
+    of the gap between an angle and its target (``lag = 0``: nothing)."""
+    return math.exp(-max(elapsed, 0.0) / lag) if lag > 0 else 0.0
+
+
 def _lagged_step(model: CarModel, step: float, lag: float) -> ca.Function:
     """``F(xs, target, torque, p)``: ``step`` s of the car, ``xs = [x; delta]`` with its
     steering angle ``delta`` following ``target`` as a first-order lag of ``lag`` s (the
     model driven with the angle's mean over the step; ``lag = 0``: the angle is the target)."""
     advance = model.step_function(SUBSTEPS, "contingency_step")
     xs, target, torque = ca.SX.sym("xs", model.nx + 1), ca.SX.sym("target"), ca.SX.sym("torque")
-    decay = math.exp(-step / lag) if lag > 0 else 0.0
+    decay = lag_decay(step, lag)
     mean_share = lag / step * (1.0 - decay) if lag > 0 else 0.0
     angle = xs[model.nx]
     mean = target + (angle - target) * mean_share

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import compile_functions
-from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter
+from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter, lag_decay
 from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, MpccProblem, MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
@@ -311,8 +311,7 @@ class Mpcc:
     def _follow_steering(self, elapsed: float) -> None:
         """The car's steering angle now: it has followed the last command for ``elapsed`` s
         as the contingency settings' first-order lag."""
-        lag = self.contingency.steering_time_constant
-        decay = math.exp(-max(elapsed, 0.0) / lag) if lag > 0 else 0.0
+        decay = lag_decay(elapsed, self.contingency.steering_time_constant)
         target = float(self._command[0])
         self._steering = target + (self._steering - target) * decay
 
