@@ -172,7 +172,8 @@ def replay_estimator(
     :func:`~crs_core.measurements.from_start` of the data it had; before any other query it
     gets every message up to the query's newest stamp of each stream, then is asked for the
     estimate (``None`` where that fails, as the node logs and skips it; also at a start).
-    Messages of a stream older than the first the node had since its (re)start are left out
+    Messages of a stream older than the first the node had since its (re)start (its ``oldest``
+    in the first query that lists the stream, which may come after the start) are left out
     (the recorder subscribed before the estimator); where the bag's stream begins after that
     first message, a :class:`ReplayIncompleteWarning` says so.
     """
@@ -187,11 +188,17 @@ def replay_estimator(
     for item in in_stamp_order(contents.measurements, contents.inputs):
         streams.setdefault(_stream_of(item, contents.input_topic), []).append(item)
     taken = dict.fromkeys(streams, 0)
+    begun: set[str] = set()  # the streams the node has had since its (re)start
     out: list[Estimate | None] = []
     for query in queries:
         if query.start:
-            for stream, items in streams.items():
+            begun.clear()
+        for stream, items in streams.items():
+            # a stream's first message may reach the node after its start (the controller's
+            # first commands came before the estimator subscribed; the recorder has them)
+            if stream not in begun and stream in query.oldest:
                 taken[stream] = _first_taken(stream, items, taken[stream], query)
+                begun.add(stream)
         arrived: list[Measurement | InputSample] = []
         for stream, items in streams.items():
             newest, k = query.newest.get(stream, -np.inf), taken[stream]
@@ -221,15 +228,13 @@ def replay_estimator(
 
 
 def _first_taken(
-    stream: str, items: list[Measurement | InputSample], taken: int, start: Query
+    stream: str, items: list[Measurement | InputSample], taken: int, query: Query
 ) -> int:
     """Where the (re)started estimator's data of ``stream`` begin in ``items`` (stamp order,
-    the first ``taken`` already given): at the first message the node had since ``start``
+    the first ``taken`` already given): at the first message the node had, as ``query`` logs it
     (also skipping those after the last query that it never had). Warns where the bag has no
     message at that stamp."""
-    first = start.oldest.get(stream)
-    if first is None:  # a query log without first stamps: everything from here on
-        return taken
+    first = query.oldest[stream]
     k = taken
     while k < len(items) and items[k].stamp < first:
         k += 1
