@@ -6,9 +6,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from crs_core.dataset import Y_CHANNELS, Dataset, Geometry
+from crs_core.dataset import Dataset, Geometry
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
+from crs_core.stream_samples import held_at, sample_stream
 from sim.onboard import dataset_inputs
 from sim.sensors import SensorSuite
 
@@ -43,10 +44,7 @@ class SimulationResult:
 
     def input_at(self, t: np.ndarray) -> np.ndarray:
         """Commanded input (zero-order hold) at times ``t``, shape ``(len(t), 2)``."""
-        stamps = np.array([s.stamp for s in self.inputs])
-        values = np.stack([s.u for s in self.inputs])
-        index = np.clip(np.searchsorted(stamps, t, side="right") - 1, 0, len(stamps) - 1)
-        return values[index]
+        return held_at(self.inputs, t)
 
     def applied_input_at(self, t: np.ndarray) -> np.ndarray:
         """Input ``[delta, T]`` reaching the car model at times ``t``, shape ``(len(t), 2)``.
@@ -56,10 +54,7 @@ class SimulationResult:
         """
         if not self.applied_inputs:
             return self.input_at(np.asarray(t, dtype=float) - self.model.input_delay())
-        stamps = np.array([s.stamp for s in self.applied_inputs])
-        values = np.stack([s.u for s in self.applied_inputs])
-        index = np.clip(np.searchsorted(stamps, t, side="right") - 1, 0, len(stamps) - 1)
-        return values[index]
+        return held_at(self.applied_inputs, t)
 
     def truth_at(self, t: np.ndarray) -> np.ndarray:
         """True base state at times ``t`` (linear interpolation of the dense truth)."""
@@ -69,41 +64,16 @@ class SimulationResult:
         """Samples at the stamps of station 0's second-plane sweeps, like the real recordings.
 
         A sample holds the sweep pair of one rotation (both planes present), wheel speeds and yaw
-        rate linearly interpolated to the stamp, the commanded input and the true state. With
+        rate linearly interpolated to the stamp (:func:`crs_core.stream_samples.sample_stream`,
+        with the simulated sensors' rates), the commanded input and the true state. With
         the onboard loop in velocity mode the input's torque is the loop's
         (:func:`sim.onboard.dataset_inputs`).
         """
-        t1, a1 = self.measurements_of(lighthouse_sensor(0, 1))
-        t2, a2 = self.measurements_of(lighthouse_sensor(0, 2))
-        period = 1.0 / self.sensors.lighthouse.rate_hz
-        stamps, rows = [], []
-        if t1.size and t2.size:
-            previous = np.searchsorted(t1, t2, side="right") - 1
-            for k, j in enumerate(previous):
-                if j >= 0 and t2[k] - t1[j] < period * 0.75:
-                    stamps.append(t2[k])
-                    rows.append(np.concatenate([a1[j], a2[k]]))
-        stamps_arr = np.array(stamps)
-        y = np.full((stamps_arr.size, len(Y_CHANNELS)), np.nan)
-        if stamps_arr.size:
-            y[:, :8] = np.stack(rows)
-            for sensor, columns, source in (
-                ("wheel_encoders", slice(8, 12), slice(0, 4)),
-                ("imu", slice(12, 13), slice(2, 3)),
-            ):
-                ts, values = self.measurements_of(sensor)
-                if ts.size:
-                    picked = values[:, source]
-                    y[:, columns] = np.stack(
-                        [np.interp(stamps_arr, ts, picked[:, i]) for i in range(picked.shape[1])],
-                        axis=1,
-                    )
-                    # no values invented across a gap (drop-out, blackout): NaN there
-                    gap = 1.5 / self.sensors.spec(sensor).rate_hz
-                    after = np.clip(np.searchsorted(ts, stamps_arr), 1, ts.size - 1)
-                    bracket = ts[after] - ts[after - 1] if ts.size > 1 else np.zeros(1)
-                    outside = (stamps_arr < ts[0]) | (stamps_arr > ts[-1])
-                    y[(bracket > gap) | outside, columns] = np.nan
+        periods = {
+            sensor: 1.0 / self.sensors.spec(sensor).rate_hz for sensor in ("wheel_encoders", "imu")
+        }
+        periods[lighthouse_sensor(0, 2)] = 1.0 / self.sensors.lighthouse.rate_hz
+        samples = sample_stream(self.measurements, periods)
         meta = {
             "source": "simulated",
             "seed": self.seed,
@@ -119,11 +89,12 @@ class SimulationResult:
         if self.reference_modes:
             inputs = dataset_inputs(self.inputs, self.reference_modes, self.applied_inputs)
         sampled = replace(self, inputs=inputs) if inputs is not self.inputs else self
+        t = samples.t
         return Dataset(
-            t=stamps_arr,
-            u=sampled.input_at(stamps_arr) if stamps_arr.size else np.zeros((0, 2)),
-            y=y,
-            x=self.truth_at(stamps_arr) if stamps_arr.size else np.zeros((0, 6)),
+            t=t,
+            u=sampled.input_at(t) if t.size else np.zeros((0, 2)),
+            y=samples.y,
+            x=self.truth_at(t) if t.size else np.zeros((0, 6)),
             geometry=Geometry.from_parameters(self.model.parameters, self.model.n_base_stations),
             meta=meta,
             measurements=self.measurements,
