@@ -608,7 +608,8 @@ def check(bag: str | Path) -> BagCheck:
     Parameters
     ----------
     bag : str or Path
-        The bag folder (holding ``metadata.yaml`` and the storage file(s)).
+        The bag folder (holding ``metadata.yaml`` and the storage file(s)), or one ``.mcap``
+        file (as ros2 bag and Foxglove take it).
 
     Returns
     -------
@@ -618,23 +619,28 @@ def check(bag: str | Path) -> BagCheck:
     Raises
     ------
     ValueError
-        Not a bag folder; a storage file without MCAP magic; a damaged sqlite3 or
-        file-compressed bag (salvage supports MCAP only).
+        Not a bag folder or an ``.mcap`` file; a storage file without MCAP magic; a damaged
+        sqlite3 or file-compressed bag (salvage supports MCAP only).
     """
     path = Path(bag)
-    if not path.is_dir():
-        state = "a file" if path.exists() else "missing"
-        raise ValueError(f"{path}: not a bag folder ({state})")
-    info = _load_metadata(path)
-    storage, files = _storage_files(path, info)
+    single_file = path.is_file() and path.suffix == ".mcap"
+    if single_file:
+        info, storage, files = None, "mcap", [path]
+    elif path.is_dir():
+        info = _load_metadata(path)
+        storage, files = _storage_files(path, info)
+    else:
+        state = "another kind of file" if path.exists() else "missing"
+        raise ValueError(f"{path}: not a bag folder or an .mcap file ({state})")
     reader_error = ""
     is_mcap = storage == "mcap" and all(f.suffix == ".mcap" for f in files)
-    if info is not None and (not is_mcap or all(_footer_ok(f) for f in files)):
+    described = info is not None or single_file
+    if described and (not is_mcap or all(_footer_ok(f) for f in files)):
         try:
             return _complete_check(path, storage, files, info)
         except Exception as error:  # whatever rosbags raises on a bag it cannot open
             reader_error = _one_line(error)
-    elif info is None:
+    elif not described:
         reader_error = "metadata.yaml is missing or unreadable"
     else:
         reader_error = "an MCAP file has no footer and end magic"
@@ -665,7 +671,7 @@ def check(bag: str | Path) -> BagCheck:
         topics,
         min(firsts) if firsts else None,
         max(lasts) if lasts else None,
-        metadata_missing=info is None,
+        metadata_missing=not described,
         expected_messages=expected if isinstance(expected, int) else None,
         unreadable_messages=sum(s.unreadable for s in scans),
         reader_error=reader_error,
@@ -789,7 +795,7 @@ def repair(bag: str | Path, out: str | Path) -> BagCheck:
     Parameters
     ----------
     bag : str or Path
-        The (damaged or complete) bag folder.
+        The (damaged or complete) bag folder, or ``.mcap`` file.
     out : str or Path
         The new bag folder; must not exist.
 
@@ -820,7 +826,7 @@ def open_bag(
     Parameters
     ----------
     bag : str or Path
-        The bag folder.
+        The bag folder, or ``.mcap`` file.
     on_damage : callable, optional
         Called with the :class:`BagCheck` of a damaged bag; by default a
         :class:`BagDamagedWarning` with its ``warning`` text is emitted.
@@ -844,7 +850,7 @@ def open_bag(
             yield reader
         return
     with tempfile.TemporaryDirectory(prefix="crs-bag-repair-", dir=workdir) as tmp:
-        copy = Path(tmp) / (report.path.resolve().name or "bag")
+        copy = Path(tmp) / (report.path.resolve().name.removesuffix(".mcap") or "bag")
         _write_salvage(report, copy)
         if on_damage is None:
             warnings.warn(report.warning, BagDamagedWarning, stacklevel=3)

@@ -257,6 +257,26 @@ def test_truncated_bag_is_salvaged_up_to_its_last_complete_message(
     assert not any(workdir.iterdir())  # the temporary copy is gone
 
 
+def test_an_mcap_file_is_a_bag_too(layout: Layout, tmp_path: Path) -> None:
+    """The ``.mcap`` file alone (as ros2 bag and Foxglove take it): complete, it is checked and
+    read as its folder is; cut off, it is salvaged the same way (no metadata.yaml is missing)."""
+    whole = layout.bag / "rec.mcap"
+    report = check(whole)
+    assert report.complete and report.messages == COUNT and not report.metadata_missing
+    with open_bag(whole) as reader:
+        assert _read(reader) == layout.messages
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(layout.data[: layout.ends[150]])
+    report = check(cut)
+    assert not report.complete and not report.metadata_missing
+    assert report.messages == 151
+    with pytest.warns(BagDamagedWarning), open_bag(cut, workdir=tmp_path) as reader:
+        assert _read(reader) == layout.messages[:151]
+    repair(cut, tmp_path / "repaired")
+    with Reader(tmp_path / "repaired") as reader:
+        assert _read(reader) == layout.messages[:151]
+
+
 def test_salvage_grows_with_the_cut_offset(layout: Layout, tmp_path: Path) -> None:
     counts = []
     cuts = [*range(layout.ends[0] - 50, len(layout.data), 250_000), len(layout.data) - 8]
@@ -324,6 +344,7 @@ def test_a_cut_compressed_chunk_is_lost_and_said_so(tmp_path: Path) -> None:
 def test_bad_inputs_raise_a_one_line_value_error_naming_the_file(tmp_path: Path) -> None:
     empty = tmp_path / "empty"
     empty.mkdir()
+    (tmp_path / "notes.txt").write_text("not a bag")
     junk = tmp_path / "junk"
     junk.mkdir()
     (junk / "junk.mcap").write_bytes(bytes(range(256)) * 8)
@@ -337,7 +358,8 @@ def test_bad_inputs_raise_a_one_line_value_error_naming_the_file(tmp_path: Path)
     cases = [
         (lambda: check(empty), "empty: not a bag folder"),
         (lambda: check(tmp_path / "nowhere"), "nowhere: not a bag folder"),
-        (lambda: check(junk / "junk.mcap"), r"junk\.mcap: not a bag folder"),
+        (lambda: check(junk / "junk.mcap"), r"junk\.mcap: no MCAP magic"),
+        (lambda: check(tmp_path / "notes.txt"), r"notes\.txt: not a bag folder or an \.mcap"),
         (lambda: repair(junk, tmp_path / "out1"), r"junk\.mcap: no MCAP magic"),
         (lambda: open_bag(junk).__enter__(), r"junk\.mcap: no MCAP magic"),
         (lambda: repair(sqlite, tmp_path / "out2"), r"sqlite\.db3: sqlite3 .*MCAP only"),
