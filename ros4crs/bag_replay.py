@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from rosbags.rosbag2 import Reader
 
 from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimate, Estimator
@@ -78,44 +79,49 @@ def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -
     A cut-off bag is read up to its last complete message, with a
     :class:`~ros4crs.bag_repair.BagDamagedWarning` saying what was lost.
     """
+    with open_bag(bag) as reader:
+        return read_car_from(reader, namespace, input_topic)
+
+
+def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input") -> BagContents:
+    """:func:`read_car` on an open reader (:func:`~ros4crs.bag_repair.open_bag`)."""
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
     malformed = velocity_references = 0
     diagnostics = None
-    with open_bag(bag) as reader:
-        wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
-        for connection, _, data in reader.messages(wanted) if wanted else ():
-            relative = connection.topic[len(prefix) :]
-            family = _FAMILY_OF_TOPIC.get(relative)
-            if family in ("input", "applied_input"):
-                family = "input" if relative == input_topic else None
-            if family is None:
-                continue
-            msg = store.deserialize_cdr(bytes(data), connection.msgtype)
-            try:
-                if family in conversions.SENSOR_PARSERS:
-                    measurements.append(conversions.SENSOR_PARSERS[family](msg))
-                elif family == "batch":
-                    readings = conversions.batch_from_msg(msg)
-                    measurements.extend(readings.measurements)
-                    malformed += len(readings.rejected)
-                elif family == "input":
-                    command = conversions.input_from_msg(msg)
-                    if command.mode == "torque":
-                        inputs.append(command.input_sample())
-                    else:  # a velocity reference is no model input (as in the estimator node)
-                        velocity_references += 1
-                elif family == "state":
-                    estimates.append(conversions.state_from_msg(msg))
-                elif family == "ground_truth":
-                    truth.append(conversions.state_from_msg(msg))
-                elif family == "diagnostics":
-                    diagnostics = msg
-                elif family == "query":
-                    queries.append(Query(*conversions.query_from_msg(msg)))
-            except ValueError:
-                malformed += 1
+    wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
+    for connection, _, data in reader.messages(wanted) if wanted else ():
+        relative = connection.topic[len(prefix) :]
+        family = _FAMILY_OF_TOPIC.get(relative)
+        if family in ("input", "applied_input"):
+            family = "input" if relative == input_topic else None
+        if family is None:
+            continue
+        msg = store.deserialize_cdr(bytes(data), connection.msgtype)
+        try:
+            if family in conversions.SENSOR_PARSERS:
+                measurements.append(conversions.SENSOR_PARSERS[family](msg))
+            elif family == "batch":
+                readings = conversions.batch_from_msg(msg)
+                measurements.extend(readings.measurements)
+                malformed += len(readings.rejected)
+            elif family == "input":
+                command = conversions.input_from_msg(msg)
+                if command.mode == "torque":
+                    inputs.append(command.input_sample())
+                else:  # a velocity reference is no model input (as in the estimator node)
+                    velocity_references += 1
+            elif family == "state":
+                estimates.append(conversions.state_from_msg(msg))
+            elif family == "ground_truth":
+                truth.append(conversions.state_from_msg(msg))
+            elif family == "diagnostics":
+                diagnostics = msg
+            elif family == "query":
+                queries.append(Query(*conversions.query_from_msg(msg)))
+        except ValueError:
+            malformed += 1
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
     inputs.sort(key=lambda s: s.stamp)
     contents = BagContents(
