@@ -215,8 +215,8 @@ def held_out_scores(
     prediction = OpenLoopPredictor(data, model, horizon_s).predict()
     index = horizon_index(data, prediction)
     groups, columns = [], []
-    if data.x is not None:
-        error = position_errors(data, prediction)
+    error = position_errors(prediction)
+    if np.isfinite(error).any():
         groups.append("position")
         columns.append(np.nanmean(np.sum(error**2, axis=2), axis=1))
     residual = prediction.outputs - data.y[index]

@@ -94,7 +94,7 @@ def fit_prediction_error(
         nonlocal evaluations
         p = base.copy()
         p[columns] = theta
-        error = position_errors(dataset, predictor.predict(p, outputs=False))
+        error = position_errors(predictor.predict(p, outputs=False))
         error = error[np.isfinite(error[..., 0])]
         evaluations += 1
         r = error.ravel() / np.sqrt(len(error))

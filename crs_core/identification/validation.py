@@ -10,7 +10,9 @@ at every sample inside the horizon ``(t_j, t_j + horizon]``:
   and every sample ``i`` inside its horizon, of the squared planar distance
   ``|p_pred(t_i; j) - p_ref(t_i)|^2``; the reference ``p_ref`` is the dataset's ``x`` (simulation
   truth, or on the real runs the car's own Lighthouse-based on-line estimate, *not* motion
-  capture). The RMSE at the horizon's end alone is reported too.
+  capture) or, without one, each sample's Lighthouse fix
+  (:func:`~crs_core.identification.reference.position_reference`). The RMSE at the horizon's
+  end alone is reported too.
 * **per-channel RMS**: the same mean over the model's predicted sensor outputs minus the
   measured ``y`` (NaN samples skipped), per dataset column.
 
@@ -29,6 +31,7 @@ from crs_core.codegen import compile_functions
 from crs_core.dataset import Y_CHANNELS, Dataset
 from crs_core.errors import FieldError
 from crs_core.identification.data import Y_LAYOUT, input_segments
+from crs_core.identification.reference import position_reference
 from crs_core.identification.solve import initial_trajectory
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
@@ -52,6 +55,7 @@ class OpenLoopPrediction:
     positions : (S, steps, 2) predicted x, y at samples ``start + 1 ... start + steps`` (NaN
         beyond the horizon)
     outputs : (S, steps, 13) predicted measurements (dataset columns), NaN beyond the horizon
+    reference : (S, steps, 2) the reference positions at those samples (NaN where none)
     """
 
     horizon_s: float
@@ -59,6 +63,7 @@ class OpenLoopPrediction:
     steps: int
     positions: np.ndarray
     outputs: np.ndarray
+    reference: np.ndarray
 
 
 class OpenLoopPredictor:
@@ -88,6 +93,7 @@ class OpenLoopPredictor:
             )
         self.dataset, self.model, self.horizon_s = dataset, model, horizon_s
         self._u: np.ndarray = dataset.u
+        self.reference = position_reference(dataset)
         self.states = initial_trajectory(dataset, model) if states is None else states
         self.end = np.searchsorted(t, t + horizon_s + 1e-9, side="right") - 1  # last in horizon
         self.starts = np.flatnonzero(t + horizon_s <= t[-1] + 1e-9)[::every]
@@ -141,7 +147,13 @@ class OpenLoopPredictor:
                 u_next = u[np.minimum(kk + 1, len(t) - 1)].T
                 y = self._output(x, u_next, p_all)[0].reshape(len(Y_CHANNELS), capacity, order="F")
                 predicted[ours, i] = y[:, :n][:, ours].T
-        return OpenLoopPrediction(self.horizon_s, starts, self.steps, positions, predicted)
+        index = np.minimum(starts[:, None] + 1 + np.arange(self.steps)[None, :], len(t) - 1)
+        reference = np.where(
+            np.isfinite(positions), self.reference.xy[index], np.nan
+        )  # none beyond the horizon
+        return OpenLoopPrediction(
+            self.horizon_s, starts, self.steps, positions, predicted, reference
+        )
 
 
 def predict_open_loop(
@@ -177,28 +189,31 @@ def horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarra
     return np.minimum(index, len(dataset.t) - 1)
 
 
-def position_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:
-    """Predicted minus reference position, ``(S, steps, 2)`` m (NaN beyond the horizon)."""
-    if dataset.x is None:
-        raise FieldError("dataset", "has no reference states (x.npy) for the position RMSE")
-    return prediction.positions - dataset.x[horizon_index(dataset, prediction), :2]
+def position_errors(prediction: OpenLoopPrediction) -> np.ndarray:
+    """Predicted minus reference position, ``(S, steps, 2)`` m (NaN beyond the horizon and
+    where the reference has none)."""
+    return prediction.positions - prediction.reference
 
 
 def validation_errors(dataset: Dataset, prediction: OpenLoopPrediction) -> dict:
-    """Position RMSE (over the horizon and at its end; None without reference states) and
-    per-channel RMS, JSON-ready."""
+    """Position RMSE (over the horizon and at its end, over the starts whose horizon's last
+    sample has a reference; None without any reference) and per-channel RMS, JSON-ready."""
     index = horizon_index(dataset, prediction)
     position: dict[str, float | None] = dict.fromkeys(
         ("position_rmse_m", "position_rmse_at_horizon_m")
     )
-    if dataset.x is not None:
-        error = np.linalg.norm(position_errors(dataset, prediction), axis=2)
-        valid = np.isfinite(error)
-        last = np.array([np.flatnonzero(row)[-1] for row in valid])
+    error = np.linalg.norm(position_errors(prediction), axis=2)
+    valid = np.isfinite(error)
+    if valid.any():
+        predicted = np.isfinite(prediction.positions[..., 0])
+        last = np.array([np.flatnonzero(row)[-1] for row in predicted])
         end_error = error[np.arange(len(last)), last]
+        end_error = end_error[np.isfinite(end_error)]
         position = {
             "position_rmse_m": float(np.sqrt(np.mean(error[valid] ** 2))),
-            "position_rmse_at_horizon_m": float(np.sqrt(np.mean(end_error**2))),
+            "position_rmse_at_horizon_m": (
+                float(np.sqrt(np.mean(end_error**2))) if end_error.size else None
+            ),
         }
     measured = dataset.y[index]
     channel_error = prediction.outputs - measured
@@ -231,12 +246,7 @@ def validate(
         candidates = {"prior": prior, **candidates}
     summary: dict = {
         "horizon_s": horizon_s,
-        "reference": (
-            "simulation truth"
-            if dataset.meta.get("source") == "simulated"
-            else "the recording's own on-line estimate x.npy (Lighthouse-derived, not motion "
-            "capture)"
-        ),
+        "reference": position_reference(dataset).description,
         "metric": (
             "position RMSE: sqrt of the mean over every start and every sample within the "
             "horizon of the squared planar distance between prediction and reference"

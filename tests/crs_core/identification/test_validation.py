@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from crs_core.identification.reference import LIGHTHOUSE_REFERENCE
 from crs_core.identification.validation import (
     OpenLoopPredictor,
     predict_open_loop,
+    validate,
 )
 from crs_core.model import CarModel
 
@@ -24,3 +28,19 @@ def test_predictor_reuses_its_build_for_other_parameters(drive):
     np.testing.assert_allclose(reused.outputs, fresh.outputs, rtol=0, atol=1e-12)
     same = predict_open_loop(drive, model, horizon_s=1.0)
     np.testing.assert_array_equal(predictor.predict().positions, same.positions)
+
+
+def test_validation_without_reference_states_scores_against_the_lighthouse(drive):
+    """Without x the position RMSE is taken against the samples' Lighthouse fixes and named so:
+    on a simulated drive 12 mm against 8 mm with the truth (the fixes' own error, 8 mm median,
+    adds to the prediction's); the per-channel figures do not change."""
+    model = CarModel()
+    truth, _ = validate(drive, model, model.parameters, horizon_s=1.0)
+    bare, _ = validate(replace(drive, x=None), model, model.parameters, horizon_s=1.0)
+    assert bare["reference"] == LIGHTHOUSE_REFERENCE and truth["reference"] == "simulation truth"
+    with_truth, with_fixes = (
+        truth["position_rmse_m"]["identified"],
+        bare["position_rmse_m"]["identified"],
+    )
+    assert abs(with_fixes - with_truth) < 0.01
+    assert bare["channel_rms"] == truth["channel_rms"]
