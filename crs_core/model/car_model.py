@@ -228,17 +228,22 @@ class CarModel:
             derivatives.append(ca.SX.zeros(2))
         return ca.vertcat(state_derivative(x[: len(STATE_NAMES)], u, P), *derivatives), u
 
+    def function_of_xup(self, name: str, expression: ca.SX, output: str) -> ca.Function:
+        """``name(x, u, p) -> output``: ``expression`` as a function of the model's state,
+        input and parameters (named arguments, common subexpressions eliminated)."""
+        return ca.Function(
+            name,
+            [self.x_sym, self.u_sym, self.p_sym],
+            [expression],
+            ["x", "u", "p"],
+            [output],
+            SX_OPTIONS,
+        )
+
     @cached_property
     def dynamics_function(self) -> ca.Function:
         """``f(x, u, p) -> xdot``."""
-        return ca.Function(
-            "f",
-            [self.x_sym, self.u_sym, self.p_sym],
-            [self.xdot_expression],
-            ["x", "u", "p"],
-            ["xdot"],
-            SX_OPTIONS,
-        )
+        return self.function_of_xup("f", self.xdot_expression, "xdot")
 
     def step_function(self, substeps: int = 1, name: str = "rk4") -> ca.Function:
         """``F(x, u, p, dt) -> x_next`` with ``substeps`` RK4 substeps of ``dt / substeps``."""
@@ -262,14 +267,7 @@ class CarModel:
         """``h(x, u, p) -> y`` for one sensor."""
         if sensor not in self.output_expressions:
             raise KeyError(f"unknown sensor {sensor!r}; known: {', '.join(self.outputs)}")
-        return ca.Function(
-            _c_name("h_" + sensor),
-            [self.x_sym, self.u_sym, self.p_sym],
-            [self.output_expressions[sensor]],
-            ["x", "u", "p"],
-            ["y"],
-            SX_OPTIONS,
-        )
+        return self.function_of_xup(_c_name("h_" + sensor), self.output_expressions[sensor], "y")
 
     # --- numbers --------------------------------------------------------------------------
     def input_delay(self, parameters: ParameterSet | None = None) -> float:
@@ -318,22 +316,8 @@ class NumericModel:
         functions = [
             model.dynamics_function,
             model.step_function(1, "rk4_step"),
-            ca.Function(
-                "outputs",
-                [model.x_sym, model.u_sym, model.p_sym],
-                [sensors_all],
-                ["x", "u", "p"],
-                ["y"],
-                SX_OPTIONS,
-            ),
-            ca.Function(
-                "applied_input",
-                [model.x_sym, model.u_sym, model.p_sym],
-                [model.applied_input_expression],
-                ["x", "u", "p"],
-                ["u_applied"],
-                SX_OPTIONS,
-            ),
+            model.function_of_xup("outputs", sensors_all, "y"),
+            model.function_of_xup("applied_input", model.applied_input_expression, "u_applied"),
         ]
         self.functions: dict[str, NumericFunction] = compile_functions(
             functions, _c_name(f"chronos_{model.tag}_{model.n_base_stations}bs"), backend

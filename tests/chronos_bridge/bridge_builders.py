@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import struct
+
 from chronos_bridge.packets import (
     CURRENT_TORQUE_REF_LIMIT,
     Battery,
@@ -17,6 +20,8 @@ from chronos_bridge.packets import (
 STAMP_US = 1_700_000_000_000_000
 #: The host's stamp on its commands to an emulated car (ignored by the car).
 HOST_STAMP_US = 1_760_000_000_000_000
+#: Float32 values a decoder must refuse (NaN, infinities, beyond every range), as wire bytes.
+BAD_FLOATS = [struct.pack("<f", v) for v in (math.nan, math.inf, -math.inf, 1e30, -3.4e38)]
 
 
 def make_state(**changes: object) -> CarState:
@@ -34,3 +39,24 @@ def make_state(**changes: object) -> CarState:
     )
     fields.update(changes)
     return CarState(**fields)  # type: ignore[arg-type]
+
+
+# ---- hand encoders (independent of protobuf): tag = number << 3 | wire type
+def varint(n: int) -> bytes:
+    """``n`` as a protobuf varint (7 bits a byte, low first)."""
+    if n < 0:
+        n += 1 << 64  # int32/int64 negatives: two's complement over 64 bits -> 10 bytes
+    out = bytearray()
+    while True:
+        byte = n & 0x7F
+        n >>= 7
+        if n:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def tag(number: int, wire_type: int) -> bytes:
+    """The key of field ``number`` with ``wire_type`` (0 varint, 2 length-delimited, 5 32-bit)."""
+    return varint(number << 3 | wire_type)

@@ -42,7 +42,7 @@ from chronos_bridge.packets import (
     Reference,
 )
 from chronos_bridge.proto import chronos_pb2 as pb
-from tests.chronos_bridge.bridge_builders import STAMP_US, make_state
+from tests.chronos_bridge.bridge_builders import BAD_FLOATS, STAMP_US, make_state, tag
 
 
 def f32(x: float) -> float:
@@ -256,7 +256,6 @@ def test_datagram_level_errors() -> None:
 # published is finite and within range.
 
 N_DATAGRAMS = 100_000
-_BAD_FLOATS = [struct.pack("<f", v) for v in (math.nan, math.inf, -math.inf, 1e30, -3.4e38)]
 
 
 def _seeds() -> list[bytes]:
@@ -293,7 +292,7 @@ def _mutate(rng: random.Random, seeds: list[bytes]) -> bytes:
         return bytes(base)
     if kind == 4:  # NaN / inf / huge float written over 4 bytes
         i = rng.randrange(max(1, len(base) - 4))
-        base[i : i + 4] = rng.choice(_BAD_FLOATS)
+        base[i : i + 4] = rng.choice(BAD_FLOATS)
         return bytes(base)
     if kind == 5:  # huge repeated field: many sweep or frame records appended in car_state
         record = bytes([0x4A if rng.random() < 0.5 else 0x42]) + bytes([rng.randrange(0, 40)])
@@ -301,21 +300,12 @@ def _mutate(rng: random.Random, seeds: list[bytes]) -> bytes:
         return bytes(base) + record * rng.randrange(1, 60)
     if kind == 6:  # an unknown oneof tag / unknown field, before or after
         number = rng.choice([4, 5, 9, 11, 50, 98, 100, 2**20])
-        field = bytes(_varint(number << 3 | 2)) + bytes([2, 8, 1])
+        field = tag(number, 2) + bytes([2, 8, 1])
         return field + bytes(base) if rng.random() < 0.5 else bytes(base) + field
     if kind == 7:  # inserted random bytes
         i = rng.randrange(len(base) + 1)
         return bytes(base[:i]) + rng.randbytes(rng.randrange(1, 8)) + bytes(base[i:])
     return bytes(base)  # valid as sent
-
-
-def _varint(n: int) -> bytearray:
-    out = bytearray()
-    while n > 0x7F:
-        out.append(n & 0x7F | 0x80)
-        n >>= 7
-    out.append(n)
-    return out
 
 
 def _check(measurement) -> None:

@@ -12,7 +12,6 @@ import json
 import math
 import random
 import socket
-import struct
 import threading
 import time
 from pathlib import Path
@@ -48,6 +47,7 @@ from chronos_bridge.packets import (
 )
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
+from tests.chronos_bridge.bridge_builders import BAD_FLOATS, tag, varint
 from tests.integration.stack_probe import Probe, wait_for
 
 pytestmark = pytest.mark.integration
@@ -57,7 +57,6 @@ DOMAIN_TWO_CARS = 122
 N_FUZZ = 50_000
 #: Fuzz datagrams per burst and the pause after each: ~5000 datagrams/s, ~10 s for 50 000.
 BURST, PAUSE_S = 50, 0.009
-_BAD_FLOATS = [struct.pack("<f", v) for v in (math.nan, math.inf, -math.inf, 1e30, -3.4e38)]
 
 
 def _free_port() -> int:
@@ -147,15 +146,6 @@ def _seeds() -> list[bytes]:
     return seeds
 
 
-def _varint(n: int) -> bytes:
-    out = bytearray()
-    while n > 0x7F:
-        out.append(n & 0x7F | 0x80)
-        n >>= 7
-    out.append(n)
-    return bytes(out)
-
-
 def _mutate(rng: random.Random, seeds: list[bytes]) -> tuple[str, bytes]:
     """A named mutation of a valid seed (or random bytes)."""
     base = bytearray(rng.choice(seeds))
@@ -175,13 +165,13 @@ def _mutate(rng: random.Random, seeds: list[bytes]) -> tuple[str, bytes]:
         base[i] = (base[i] & ~7) | rng.randrange(8)
     elif kind == "nan":
         i = rng.randrange(max(1, len(base) - 4))
-        base[i : i + 4] = rng.choice(_BAD_FLOATS)
+        base[i : i + 4] = rng.choice(BAD_FLOATS)
     elif kind == "repeated":  # many sweep (9) or frame (8) records inside car_state (3)
         record = bytes([rng.choice([0x42, 0x4A]), 20]) + rng.randbytes(20)
         body = record * rng.randrange(1, 200)
-        return kind, bytes(base) + b"\x1a" + _varint(len(body)) + body
+        return kind, bytes(base) + b"\x1a" + varint(len(body)) + body
     elif kind == "oneof":  # an unknown field / oneof tag, before or after
-        field = _varint(rng.choice([4, 5, 9, 11, 50, 98, 100, 2**20]) << 3 | 2) + b"\x02\x08\x01"
+        field = tag(rng.choice([4, 5, 9, 11, 50, 98, 100, 2**20]), 2) + b"\x02\x08\x01"
         return kind, field + bytes(base) if rng.random() < 0.5 else bytes(base) + field
     else:
         i = rng.randrange(len(base) + 1)

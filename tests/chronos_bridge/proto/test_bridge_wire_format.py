@@ -12,30 +12,13 @@ from google.protobuf import descriptor, descriptor_pb2
 
 from chronos_bridge.proto import chronos_pb2 as pb
 from chronos_bridge.proto import vector3_pb2
+from tests.chronos_bridge.bridge_builders import tag, varint
 
 ROOT = Path(__file__).resolve().parents[3]
 REQ, OPT, REP = "required", "optional", "repeated"
 
 
-# ---- hand encoders (independent of protobuf): tag = number << 3 | wire type
-def varint(n: int) -> bytes:
-    if n < 0:
-        n += 1 << 64  # int32/int64 negatives: two's complement over 64 bits -> 10 bytes
-    out = bytearray()
-    while True:
-        byte = n & 0x7F
-        n >>= 7
-        if n:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
-
-
-def tag(number: int, wire_type: int) -> bytes:
-    return varint(number << 3 | wire_type)
-
-
+# ---- hand encoders (independent of protobuf; varint and tag are in bridge_builders)
 def f32(number: int, value: float) -> bytes:
     return tag(number, 5) + struct.pack("<f", value)
 

@@ -51,19 +51,26 @@ def _moved(station: BaseStation, shift: float, turn: float) -> BaseStation:
     )
 
 
-def test_the_jacobian_matches_central_differences(sweep_model: SweepModel):
-    """With the tilts, the photodiodes and the pose unknown free, every column of the exact
-    Jacobian equals the central difference of the residuals."""
-    fit = LighthouseFit(
-        _observations(0.02),
-        [_moved(s, 0.03, 0.02) for s in STATIONS],
+def _fit(
+    sweep_model: SweepModel, yaw_offset: float, shift: float, turn: float, **options: bool
+) -> LighthouseFit:
+    """The fit of the observations at ``yaw_offset`` (the pose unknown), starting from the
+    stations moved by ``shift`` (m) and turned by ``turn`` (rad)."""
+    return LighthouseFit(
+        _observations(yaw_offset),
+        [_moved(s, shift, turn) for s in STATIONS],
         RECORDED_PHOTODIODES,
         _poses,
         n_extra=1,
-        fit_tilt=True,
-        fit_photodiodes=True,
         sweep_model=sweep_model,
+        **options,
     )
+
+
+def test_the_jacobian_matches_central_differences(sweep_model: SweepModel):
+    """With the tilts, the photodiodes and the pose unknown free, every column of the exact
+    Jacobian equals the central difference of the residuals."""
+    fit = _fit(sweep_model, 0.02, 0.03, 0.02, fit_tilt=True, fit_photodiodes=True)
     z = fit.start_vector(np.array([0.01])) + np.random.default_rng(0).normal(0, 1e-3, fit.n_vars)
     _, jacobian = fit.evaluate(z)
     assert np.all(np.isfinite(jacobian))
@@ -78,14 +85,7 @@ def test_the_jacobian_matches_central_differences(sweep_model: SweepModel):
 def test_noise_free_sweeps_give_the_stations_and_the_unknown_back(sweep_model: SweepModel):
     """From stations 5 cm and 0.03 rad off and a zero yaw offset, the fit lands on the truth
     with residuals at rounding level."""
-    fit = LighthouseFit(
-        _observations(0.05),
-        [_moved(s, 0.05, 0.03) for s in STATIONS],
-        RECORDED_PHOTODIODES,
-        _poses,
-        n_extra=1,
-        sweep_model=sweep_model,
-    )
+    fit = _fit(sweep_model, 0.05, 0.05, 0.03)
     result = fit.solve(np.array([0.0]))
     assert result.extra[0] == pytest.approx(0.05, abs=1e-9)
     assert np.max(np.abs(result.residuals)) < 1e-9

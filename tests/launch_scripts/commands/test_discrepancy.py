@@ -71,11 +71,10 @@ def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recording
         (["--params", "/nonexistent.yaml"], "--params"),
     ],
 )
-def test_bad_input_is_one_line_error_and_writes_nothing(recordings, tmp_path, extra, expected, crs):
+def test_bad_input_is_one_line_error_and_writes_nothing(
+    recordings, tmp_path, extra, expected, crs_refuses
+):
     train, _ = recordings
     out = tmp_path / "never"
-    code, _, stderr = crs(["discrepancy", str(train), "--out", str(out), *extra])
-    assert code == 2
-    lines = [line for line in stderr.splitlines() if line.strip()]
-    assert len(lines) == 1 and expected in lines[0], stderr
+    assert expected in crs_refuses(["discrepancy", str(train), "--out", str(out), *extra])
     assert not out.exists()

@@ -80,27 +80,21 @@ def test_estimate_prints_a_short_summary(estimate_run):
     ],
 )
 def test_estimate_bad_arguments_are_one_line_errors(
-    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture, arguments, message
+    small_dataset: Path, tmp_path: Path, crs_refuses, arguments, message
 ):
     """Bad --x0, --rate or --sensors: exit code 2 and one line naming the option."""
     out = tmp_path / "out"
     argv = ["estimate", str(small_dataset), "--estimator", "ekf", "--out", str(out), *arguments]
-    assert main(argv) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("crs estimate: error: ") and message in err
-    assert err.count("\n") == 1 and "Traceback" not in err
+    assert message in crs_refuses(argv)
 
 
 def test_estimate_missing_dataset_or_unwritable_out(
-    small_dataset: Path, tmp_path: Path, capsys: pytest.CaptureFixture
+    small_dataset: Path, tmp_path: Path, crs_refuses
 ):
     """A missing dataset folder, or an --out inside a file: one-line errors, exit code 2."""
-    assert main(["estimate", str(tmp_path / "none"), "--estimator", "ekf", "--out", "o"]) == 2
-    err = capsys.readouterr().err
+    err = crs_refuses(["estimate", str(tmp_path / "none"), "--estimator", "ekf", "--out", "o"])
     assert err == f"crs estimate: error: dataset folder {tmp_path / 'none'} does not exist\n"
     (tmp_path / "file").write_text("")
     out = tmp_path / "file" / "out"
-    assert main(["estimate", str(small_dataset), "--estimator", "ekf", "--out", str(out)]) == 2
-    err = capsys.readouterr().err
+    err = crs_refuses(["estimate", str(small_dataset), "--estimator", "ekf", "--out", str(out)])
     assert err.startswith(f"crs estimate: error: --out: cannot write to {out}")
-    assert err.count("\n") == 1
