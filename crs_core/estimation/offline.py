@@ -4,7 +4,8 @@
 it would have arrived live, and queries the estimate at every sample stamp ``dataset.t[k]``
 after delivering every measurement and input stamped up to it (in stamp order, inputs first at
 equal stamps). The result is on the dataset's own time base, so it lines up sample by sample
-with ``y``, ``u`` and the reference ``x`` of the dataset.
+with ``y``, ``u`` and the reference ``x`` of the dataset; or at any stamps asked for within the
+data (``at``: a motion-capture clock, or a fixed rate from :func:`rate_stamps`).
 
 Data used: the full-rate stream (``stream.npz``) when the dataset has one, else the 13-channel
 samples of ``y.npy`` (:meth:`~crs_core.dataset.Dataset.sample_stream`; the yaw rate is then the
@@ -131,7 +132,7 @@ class OfflineEstimates:
     Attributes
     ----------
     t : np.ndarray
-        (N,) the dataset's own stamps ``dataset.t``, s.
+        (N,) the stamps estimated at: the dataset's own ``dataset.t``, or those asked for, s.
     x : np.ndarray
         (6, N) estimates ``[x, y, yaw, vx, vy, omega]`` (m, m, rad, m/s, m/s, rad/s; world pose,
         body velocities). Where the status is ``lost`` this is the estimator's held guess (zeros
@@ -190,8 +191,10 @@ def estimate_dataset(
     x0: Any = None,
     rate_hz: float | None = None,
     progress: Callable[[float], None] | None = None,
+    at: Any = None,
 ) -> OfflineEstimates:
-    """Run an estimator over ``dataset`` and return its estimates at every ``dataset.t[k]``.
+    """Run an estimator over ``dataset`` and return its estimates at every ``dataset.t[k]``
+    (or at the stamps ``at``).
 
     Parameters
     ----------
@@ -219,6 +222,10 @@ def estimate_dataset(
         it.
     progress : callable, optional
         Called with the fraction done (0..1) now and then.
+    at : array-like, optional
+        Stamps to estimate at instead (s, the dataset's clock): strictly increasing, within the
+        data (from the first measurement or sample to the last); e.g. a motion-capture clock,
+        or a fixed rate (:func:`rate_stamps`).
 
     Returns
     -------
@@ -227,8 +234,8 @@ def estimate_dataset(
     Raises
     ------
     ValueError
-        For an empty dataset and invalid ``kind``, ``sensors``, ``inputs``, ``x0`` or
-        ``rate_hz``, with a one-line message naming it.
+        For an empty dataset and invalid ``kind``, ``sensors``, ``inputs``, ``x0``,
+        ``rate_hz`` or ``at``, with a one-line message naming it.
     """
     if kind not in KINDS:
         raise FieldError("estimator", f"must be 'ekf' or 'mhe', got {kind!r}")
@@ -266,13 +273,15 @@ def estimate_dataset(
 
     events = in_stamp_order(measurements, delivered_inputs)
     t_start = min(float(dataset.t[0]), events[0].stamp if events else math.inf)
+    t_end = max(float(dataset.t[-1]), events[-1].stamp if events else -math.inf)
+    stamps = np.array(dataset.t, dtype=float) if at is None else query_stamps(at, t_start, t_end)
     estimator.reset(t_start, start_x, start_cov)
-    n = len(dataset.t)
+    n = len(stamps)
     x, variances, times = np.zeros((6, n)), np.zeros((6, n)), np.zeros(n)
     status, reasons = np.empty(n, dtype=object), np.empty(n, dtype=object)
     k_event, report_every = 0, max(1, n // 200)
     wall = time.perf_counter()
-    for k, stamp in enumerate(dataset.t):
+    for k, stamp in enumerate(stamps):
         started = time.perf_counter()
         while k_event < len(events) and events[k_event].stamp <= stamp:
             estimator.add(events[k_event])
@@ -303,7 +312,7 @@ def estimate_dataset(
         "events_after_last_sample": len(events) - k_event,
         "groups_without_data": sorted(groups - present),
         "status_counts": {s: int(np.sum(status == s)) for s in STATUS_CODES},
-        "time_to_first_fix_s": float(dataset.t[found[0]] - t_start) if found.size else None,
+        "time_to_first_fix_s": float(stamps[found[0]] - t_start) if found.size else None,
         "processed": dict(sorted(d.processed.items())),
         "rejected": dict(sorted(d.rejected.items())),
         "ignored": dict(sorted(d.ignored.items())),
@@ -317,16 +326,51 @@ def estimate_dataset(
         "wall_time_s": wall,
         "time_per_sample_ms": summary(times * 1e3),
     }
-    return OfflineEstimates(
-        np.array(dataset.t, dtype=float), x, variances, status, reasons, diagnostics, estimator
-    )
+    return OfflineEstimates(stamps, x, variances, status, reasons, diagnostics, estimator)
+
+
+def query_stamps(at: Any, start: float, end: float) -> np.ndarray:
+    """``at`` as the stamps of an offline run over data from ``start`` to ``end`` (s):
+    :class:`~crs_core.errors.FieldError` (field ``at``) unless a non-empty 1-D array of finite,
+    strictly increasing stamps within that span."""
+    try:
+        stamps = np.asarray(at, dtype=float)
+    except (TypeError, ValueError):
+        raise FieldError("at", "must be an array of stamps (s)") from None
+    if stamps.ndim != 1 or stamps.size == 0:
+        raise FieldError("at", f"must be a non-empty 1-D array of stamps, got shape {stamps.shape}")
+    if not np.all(np.isfinite(stamps)):
+        raise FieldError("at", "holds a stamp that is not a finite number")
+    if stamps.size > 1 and np.any(np.diff(stamps) <= 0):
+        raise FieldError("at", "stamps must be strictly increasing")
+    if stamps[0] < start or stamps[-1] > end:
+        raise FieldError(
+            "at",
+            f"{stamps[0]:.3f} .. {stamps[-1]:.3f} s reaches outside the data "
+            f"({start:.3f} .. {end:.3f} s)",
+        )
+    return stamps
+
+
+def rate_stamps(dataset: Dataset, rate_hz: float) -> np.ndarray:
+    """Stamps every ``1 / rate_hz`` s over the dataset's samples (from its first to its last)."""
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise FieldError("output_rate", f"must be finite and > 0 Hz, got {rate_hz}")
+    if not len(dataset.t):
+        raise FieldError("dataset", "has no samples (t.npy is empty)")
+    count = math.floor((dataset.t[-1] - dataset.t[0]) * rate_hz + 1e-9) + 1
+    return dataset.t[0] + np.arange(count) / rate_hz
 
 
 def reference_label(dataset: Dataset) -> str:
-    """What the dataset's ``x`` is: simulation truth or a recording's own estimate."""
+    """What the dataset's ``x`` is: what its metadata say (a bag's dataset names the topic),
+    else simulation truth or a recording's own on-line estimate."""
+    described = dataset.meta.get("reference")
+    if isinstance(described, str) and described:
+        return described
     if dataset.meta.get("source") == "simulated":
         return "simulation truth"
-    return "recorded on-line estimate x.npy (not ground truth)"
+    return "the recording's own on-line estimate x.npy (Lighthouse-derived, not ground truth)"
 
 
 def reference_comparison(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | None:
@@ -338,14 +382,25 @@ def reference_comparison(result: OfflineEstimates, dataset: Dataset) -> dict[str
     """
     if dataset.x is None:
         return None
+    reference = dataset.x
     found = result.status != "lost"
+    if not np.array_equal(result.t, dataset.t):  # estimates at other stamps: interpolated
+        reference = _interpolated_states(dataset.t, dataset.x, result.t)
+        found &= (result.t >= dataset.t[0]) & (result.t <= dataset.t[-1])
     first = result.t[found][0] if found.any() else math.inf
     settled = found & (result.t >= first + SETTLING_S)
     return {
         "reference": reference_label(dataset),
-        "rmse": state_rmse(result.x.T, dataset.x, found),
-        "rmse_settled": state_rmse(result.x.T, dataset.x, settled),
+        "rmse": state_rmse(result.x.T, reference, found),
+        "rmse_settled": state_rmse(result.x.T, reference, settled),
         "settling_s": SETTLING_S,
         "samples": int(found.sum()),
         "samples_settled": int(settled.sum()),
     }
+
+
+def _interpolated_states(t: np.ndarray, x: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """States ``x`` (N, 6) at stamps ``t`` linearly interpolated to ``at`` (yaw unwrapped)."""
+    x = x.copy()
+    x[:, 2] = np.unwrap(x[:, 2])
+    return np.stack([np.interp(at, t, x[:, i]) for i in range(x.shape[1])], axis=1)

@@ -23,7 +23,7 @@ import numpy as np
 
 from crs_core.dataset import Dataset
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver
-from crs_core.estimation.offline import dataset_model
+from crs_core.estimation.offline import dataset_model, reference_label
 from crs_core.measurements import lighthouse_sensor
 
 __all__ = ["LIGHTHOUSE_REFERENCE", "PositionReference", "position_reference"]
@@ -58,17 +58,8 @@ def position_reference(dataset: Dataset) -> PositionReference:
     """The reference positions of ``dataset``'s samples: its ``x`` where it has one, else the
     Lighthouse fixes of its samples."""
     if dataset.x is not None:
-        return PositionReference(dataset.x[:, :2], _states_description(dataset))
+        return PositionReference(dataset.x[:, :2], reference_label(dataset))
     return PositionReference(_lighthouse_fixes(dataset), LIGHTHOUSE_REFERENCE)
-
-
-def _states_description(dataset: Dataset) -> str:
-    described = dataset.meta.get("reference")
-    if isinstance(described, str) and described:
-        return described
-    if dataset.meta.get("source") == "simulated":
-        return "simulation truth"
-    return "the recording's own on-line estimate x.npy (Lighthouse-derived, not motion capture)"
 
 
 def _lighthouse_fixes(dataset: Dataset) -> np.ndarray:
