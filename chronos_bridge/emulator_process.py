@@ -30,6 +30,8 @@ The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces
   delay counts from the tick that read it). An outage longer than 200 ms cuts the motors
   (one line on stderr, as any cut-off). The link's settings are one line on stderr at the
   start when not clean, and its counters end the summary line;
+- ``--params FILE`` and ``--effect NAME[.PARAM][=VALUE]`` (repeatable) make the emulated car
+  differ from the defaults, and from the host's model: its truth is its own (a car to identify);
 - ``--truth-out FILE`` writes, on exit, an ``.npz`` with the emulator's ground truth and the
   link's timing log (:func:`write_truth`), all on the clock of its packet stamps (Unix s), so
   a host's estimates and latencies can be checked against them (``crs launch car --emulate``).
@@ -48,6 +50,7 @@ import socket
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from chronos_bridge import DEFAULT_PORT
 from chronos_bridge.impairment import (
@@ -58,6 +61,8 @@ from chronos_bridge.impairment import (
     parse_link,
 )
 from crs_core.errors import FieldError, parse_finite
+from crs_core.model import CarModel
+from crs_core.model.effects import effect_spec, parse_effect
 
 PROG = "crs car-emulator"
 DESCRIPTION = (
@@ -84,6 +89,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--bind", default="127.0.0.1", help="own IPv4 address to bind (default 127.0.0.1)"
     )
     parser.add_argument("--seed", default="0", help="seed of the simulation's noise (default 0)")
+    parser.add_argument(
+        "--params",
+        help="the emulated car's parameter YAML (its truth; default the Chronos defaults): a car "
+        "that is not the host's model",
+    )
+    parser.add_argument(
+        "--effect",
+        action="append",
+        metavar="NAME[.PARAM][=VALUE]",
+        help="a hidden effect of the emulated car (repeatable), e.g. steering_lag=0.05",
+    )
     parser.add_argument(
         "--duration", help="stop after this many s (default: run until SIGINT/SIGTERM)"
     )
@@ -156,6 +172,7 @@ def options(args: argparse.Namespace) -> dict:
         if duration is None or not duration > 0:
             raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
     return {
+        "model": _car_model(args.params, args.effect or []),
         "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),
         "bind": (str(bind), _port("--port", args.port, allow_zero=True)),
         "seed": seed,
@@ -165,6 +182,31 @@ def options(args: argparse.Namespace) -> dict:
         "link": parse_link(args.link, args.link_up, args.link_down),
         "link_seed": link_seed,
     }
+
+
+def _car_model(params: str | None, effects: list[str]) -> CarModel:
+    """The emulated car: the parameter file and effects given (``--params``, ``--effect``)."""
+    parsed = []
+    for text in effects:
+        try:
+            parsed.append(parse_effect(text))
+        except ValueError as error:
+            raise FieldError("--effect", str(error)) from None
+    if params is not None and not Path(params).is_file():
+        raise FieldError("--params", f"{params!r} is not a file")
+    try:
+        return CarModel.from_file(params, effect_spec(parsed))
+    except (ValueError, KeyError) as error:
+        message = error.args[0] if isinstance(error, KeyError) else str(error)
+        raise FieldError("--params", str(message)) from None
+
+
+def _describe_car(args: argparse.Namespace) -> str:
+    """``params FILE, effects a, b`` for the start-up line of a car that is not the default."""
+    parts = [f"params {args.params}"] if args.params is not None else []
+    if args.effect:
+        parts.append("effects " + ", ".join(args.effect))
+    return "; ".join(parts)
 
 
 def _seed(name: str, text: str) -> int:
@@ -180,8 +222,6 @@ def _seed(name: str, text: str) -> int:
 def _truth_path(text: str | None):
     if text is None:
         return None
-    from pathlib import Path
-
     path = Path(text)
     if path.suffix != ".npz":
         raise FieldError("--truth-out", f"{text!r} must end in .npz")
@@ -276,6 +316,7 @@ def run(args: argparse.Namespace) -> int:
     previous = {s: signal.signal(s, stop) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.monotonic()
     emulator = CarEmulator(
+        model=opts["model"],
         seed=opts["seed"],
         unix_offset=time.time() - start,
         timestamps=opts["timestamps"],
@@ -286,6 +327,8 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
         flush=True,
     )
+    if args.params is not None or args.effect:
+        print(f"{PROG}: car {_describe_car(args)}", file=sys.stderr, flush=True)
     if not (link.up.clean and link.down.clean):
         print(
             f"{PROG}: link car -> host {describe(link.up)}; host -> car {describe(link.down)}; "

@@ -175,15 +175,11 @@ def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> Ca
     from crs_core.model import CarModel
 
     path = declare(node, "params_file", "", "model parameter YAML; empty: defaults", file_or_empty)
-    model = CarModel(effects, n_base_stations=n_base_stations)
-    if not path:
-        return model
     try:
-        parameters = model.parameters.updated_from_yaml(path)
+        return CarModel.from_file(path or None, effects, n_base_stations)
     except (ValueError, KeyError, OSError) as error:
         message = error.args[0] if isinstance(error, KeyError) else error
         raise ParameterError("params_file", str(message)) from None
-    return CarModel(effects, n_base_stations=n_base_stations, parameters=parameters)
 
 
 def message_class(msgtype: str) -> type:

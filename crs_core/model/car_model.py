@@ -11,6 +11,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -239,6 +240,21 @@ class CarModel:
             [output],
             SX_OPTIONS,
         )
+
+    @classmethod
+    def from_file(
+        cls,
+        path: str | Path | None,
+        effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None] = (),
+        n_base_stations: int = 1,
+    ) -> CarModel:
+        """The model with ``effects`` and the parameter YAML ``path`` applied (None: the Chronos
+        defaults; :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`, whose errors name
+        the file); an effect's own value (``steering_lag=0.05``) wins over the file."""
+        model = cls(effects, n_base_stations)
+        if path is None:
+            return model
+        return cls(effects, n_base_stations, model.parameters.updated_from_yaml(path))
 
     @cached_property
     def dynamics_function(self) -> ca.Function:

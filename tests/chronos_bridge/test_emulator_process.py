@@ -180,3 +180,56 @@ def test_emulator_through_a_bad_link_loses_and_reorders_and_says_so() -> None:
     assert np.sum(np.round(gaps) - 1) >= 0.5 * lost  # the stamps lost (the rest: in flight)
     # the last references may reach the socket after the emulator's last read
     assert commands_sent - 3 <= down_sent <= commands_sent and 0 < down_lost < 0.3 * down_sent
+
+
+def _drive_for(seconds: float, out: Path, *options: str) -> tuple[np.ndarray, str]:
+    """The truth of an emulated car given torque 0.5 for ``seconds``, and its stderr."""
+    with emulator_process(str(seconds), "--truth-out", str(out), *options, timeout=5.0) as (
+        process,
+        host,
+        car,
+    ):
+        start = time.monotonic()
+        while time.monotonic() - start < seconds - 0.2:
+            decode_from_car(host.recvfrom(1024)[0])
+            host.sendto(encode_torque_command(0.0, 0.5, round(time.time() * 1e6)), car)
+            time.sleep(0.01)
+        _, errors = process.communicate(timeout=10)
+    return np.load(out)["x"], errors
+
+
+def test_a_car_that_is_not_the_default(tmp_path: Path) -> None:
+    """--params and --effect make the emulated car its own: with half the motor gain Cm1 it is
+    slower under the same commands than the default car, and it says what car it is."""
+    params = tmp_path / "weak_motor.yaml"
+    params.write_text("parameters:\n  Cm1: 0.49\n")
+    default, _ = _drive_for(1.2, tmp_path / "default.npz")
+    weak, errors = _drive_for(
+        1.2, tmp_path / "weak.npz", "--params", str(params), "--effect", "steering_lag=0.05"
+    )
+    assert f"crs car-emulator: car params {params}; effects steering_lag=0.05" in errors
+    assert default[-1, 3] > 0.5
+    assert weak[-1, 3] < 0.75 * default[-1, 3]
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["--effect", "wind"], "--effect: unknown effect 'wind'; known: "),
+        (["--effect", "steering_lag=fast"], "--effect: effect 'steering_lag': 'fast' is not a"),
+        (["--params", "nowhere.yaml"], "--params: 'nowhere.yaml' is not a file"),
+        (["--params", "BAD"], "--params: BAD: unknown parameter"),
+    ],
+)
+def test_car_option_errors_name_the_option(
+    options: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from launch_scripts.cli import main
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("parameters:\n  warp_drive: 1.0\n")
+    options = [str(bad) if o == "BAD" else o for o in options]
+    message = message.replace("BAD", str(bad))
+    assert main(["car-emulator", "--host", "127.0.0.1", "--host-port", "9", *options]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crs car-emulator: error: {message}") and err.count("\n") == 1, err
