@@ -1,6 +1,7 @@
-"""Tests of crs_core.model.car_model: substepped integration and pickling of the model."""
+"""Tests of crs_core.model.car_model: substepped integration, pickling, a model from a file."""
 
 import numpy as np
+import pytest
 
 from crs_core.model import CarModel
 
@@ -41,3 +42,19 @@ def test_substepping_integrates_long_intervals_stably():
     for _ in range(6):
         x = np.array(single(x, u, p, 1 / 30)).ravel()
     assert not np.allclose(x, fine, atol=1e-2)
+
+
+def test_a_model_from_a_parameter_file_and_effects(tmp_path):
+    """The file's values apply; an effect's own value wins over the file; no file: defaults."""
+    from crs_core.errors import FieldError
+
+    path = tmp_path / "car.yaml"
+    path.write_text("parameters:\n  m: 0.25\n  tau_steer: 0.2\n")
+    model = CarModel.from_file(path, {"steering_lag": 0.04}, n_base_stations=2)
+    assert model.parameters.value("m") == 0.25
+    assert model.parameters.value("tau_steer") == 0.04
+    assert model.n_base_stations == 2 and [e.name for e in model.effects] == ["steering_lag"]
+    assert CarModel.from_file(None).parameters.value("m") == CarModel().parameters.value("m")
+    path.write_text("parameters:\n  warp: 1.0\n")
+    with pytest.raises(FieldError, match="warp"):
+        CarModel.from_file(path)
