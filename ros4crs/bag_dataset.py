@@ -38,7 +38,15 @@ from ros4crs import conversions
 from ros4crs.bag_repair import open_bag
 from ros4crs.bag_replay import BagContents, read_car_from
 
-__all__ = ["INPUT_CHOICES", "REFERENCE_CHOICES", "BagDatasetWarning", "cars_in", "dataset_from_bag"]
+__all__ = [
+    "INPUT_CHOICES",
+    "REFERENCE_CHOICES",
+    "BagDatasetWarning",
+    "cars_in",
+    "dataset_from_bag",
+    "is_bag",
+    "load_recording",
+]
 
 #: Where the inputs are read from: ``auto`` (applied where the bag has them, else commands).
 INPUT_CHOICES = ("auto", "applied", "commands")
@@ -261,3 +269,39 @@ def _span(
             reasons.append("within the reference states' span")
         start, end = max(start, first), min(end, last)
     return _Span(start, end, tuple(reasons))
+
+
+def is_bag(path: str | Path) -> bool:
+    """Whether ``path`` is a bag: an ``.mcap`` file, or a folder with ``metadata.yaml`` or
+    storage files (``*.mcap``, ``*.db3``) and no dataset (``t.npy``)."""
+    path = Path(path)
+    if path.is_file():
+        return path.suffix == ".mcap"
+    if not path.is_dir() or (path / "t.npy").exists():
+        return False
+    return (path / "metadata.yaml").exists() or any(
+        next(path.glob(pattern), None) is not None for pattern in ("*.mcap", "*.db3")
+    )
+
+
+def load_recording(
+    path: str | Path, car: str | None = None, geometry: Geometry | None = None
+) -> Dataset:
+    """A recording as a dataset: a dataset folder (:meth:`~crs_core.dataset.Dataset.load`), or a
+    bag (:func:`dataset_from_bag`, with ``car`` and ``geometry``; the defaults otherwise).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` is neither.
+    FieldError
+        ``car`` or ``geometry`` given for a dataset folder (it has its own), and as
+        :meth:`~crs_core.dataset.Dataset.load` and :func:`dataset_from_bag`.
+    """
+    if is_bag(path):
+        return dataset_from_bag(path, car, geometry=geometry)
+    if car is not None:
+        raise FieldError("car", f"{path} is a dataset folder (one car), not a bag")
+    if geometry is not None:
+        raise FieldError("geometry", f"{path} is a dataset folder: its geometry is its own")
+    return Dataset.load(path)

@@ -19,7 +19,7 @@ from crs_core.dataset import Dataset, Geometry
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from ros4crs import conversions
-from ros4crs.bag_dataset import BagDatasetWarning, dataset_from_bag
+from ros4crs.bag_dataset import BagDatasetWarning, dataset_from_bag, is_bag, load_recording
 from ros4crs.interfaces import typestore
 from sim import SimulationResult, Simulator
 from tests.sim.sim_runs import AT_REST, DRIVE, NOISY
@@ -194,3 +194,20 @@ def test_bags_without_what_a_dataset_needs(run: SimulationResult, tmp_path: Path
         dataset_from_bag(_write(tmp_path / "wheels", wheels_only))
     with pytest.raises(FieldError, match=r"^inputs: must be one of"):
         dataset_from_bag(tmp_path / "wheels", inputs="sent")
+
+
+def test_a_recording_is_a_dataset_folder_or_a_bag(bag: Path, tmp_path: Path):
+    folder = dataset_from_bag(bag, "car1").save(tmp_path / "dataset")
+    single = tmp_path / "run.mcap"
+    shutil.copy(next(bag.glob("*.mcap")), single)
+    (tmp_path / "empty").mkdir()
+    assert is_bag(bag) and is_bag(single) and is_bag(tmp_path)  # a folder with an .mcap file
+    assert not is_bag(folder) and not is_bag(tmp_path / "empty")
+    from_folder = load_recording(folder)
+    from_bag = load_recording(bag, "car1")
+    np.testing.assert_array_equal(from_folder.t, from_bag.t)
+    assert load_recording(single, "car2").meta["car"] == "car2"
+    with pytest.raises(FieldError, match=r"^car: .* is a dataset folder \(one car\), not a bag"):
+        load_recording(folder, "car1")
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_recording(tmp_path / "nowhere")
