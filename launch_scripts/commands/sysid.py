@@ -16,6 +16,7 @@ from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
 from launch_scripts.arguments import (
     OVERWRITE_HELP,
+    Command,
     add_effect,
     add_process_scale,
     bounded_number,
@@ -117,17 +118,8 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
-    sub = subparsers.add_parser(
-        "sysid",
-        help="identify model parameters from a dataset (FIE, IPOPT)",
-        description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
-        "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
-        "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
-        "--params of every command), result.json, report.md and figures; one progress line per "
-        "IPOPT iteration on stderr.",
-    )
+def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs sysid``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder (crs_core.dataset format)")
     sub.add_argument("--out", required=True, help="output folder")
     sub.add_argument(
@@ -155,16 +147,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "real runs; 0.1 on simulated data, whose truth has no process noise)",
     )
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.set_defaults(handler=run_sysid)
 
-    sub = subparsers.add_parser(
-        "validate",
-        help="open-loop prediction error of parameters on a dataset",
-        description="Predict open loop over --horizon from every sample (start state from an "
-        "EKF with the same parameters) and compare with the dataset's reference positions "
-        "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
-        "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
-    )
+
+def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs validate``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder")
     sub.add_argument("--params", required=True, help="parameter YAML to validate (or 'rough')")
     sub.add_argument("--prior", help="a second parameter YAML shown side by side (or 'rough')")
@@ -177,4 +163,26 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     add_effect(sub, "model effect (repeatable; inferred from --params)")
     sub.add_argument("--out", required=True, help="output folder")
     sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.set_defaults(handler=run_validate)
+
+
+SYSID = Command(
+    "sysid",
+    help="identify model parameters from a dataset (FIE, IPOPT)",
+    description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
+    "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
+    "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
+    "--params of every command), result.json, report.md and figures; one progress line per "
+    "IPOPT iteration on stderr.",
+    arguments=add_sysid_arguments,
+    handler=run_sysid,
+)
+VALIDATE = Command(
+    "validate",
+    help="open-loop prediction error of parameters on a dataset",
+    description="Predict open loop over --horizon from every sample (start state from an "
+    "EKF with the same parameters) and compare with the dataset's reference positions "
+    "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
+    "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
+    arguments=add_validate_arguments,
+    handler=run_validate,
+)
