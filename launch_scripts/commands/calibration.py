@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from launch_scripts.arguments import OVERWRITE_HELP, Command, bounded_number, command_line
+from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
 NAME = "calibrate-lighthouse"
@@ -53,7 +53,7 @@ def _static_arguments(sub: argparse.ArgumentParser) -> None:
         metavar="POINTS_FILE",
         help="YAML, format chronos-lighthouse-points/1 (see the README)",
     )
-    sub.add_argument("--out", type=Path, required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--stations",
         type=bounded_number("stations", "", 1, 16, int, include_low=True),
@@ -63,13 +63,12 @@ def _static_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument(
         "--no-sweep", action="store_true", help="skip the mean/max-vs-number-of-points study"
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _moving_arguments(sub: argparse.ArgumentParser) -> None:
     """``moving``'s arguments."""
     sub.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
-    sub.add_argument("--out", type=Path, required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--fit-offset",
         action="store_true",
@@ -88,7 +87,6 @@ def _moving_arguments(sub: argparse.ArgumentParser) -> None:
         help="also fit the photodiode positions (body frame)",
     )
     _add_fit_tilt(sub)
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _simulate_points_arguments(sub: argparse.ArgumentParser) -> None:
@@ -120,7 +118,7 @@ def _simulate_points_arguments(sub: argparse.ArgumentParser) -> None:
 
 def _simulate_moving_arguments(sub: argparse.ArgumentParser) -> None:
     """``simulate-moving``'s arguments."""
-    sub.add_argument("--out", type=Path, required=True, help="dataset folder")
+    add_out(sub, "dataset folder", required=True)
     sub.add_argument(
         "--duration",
         type=bounded_number("duration", "s", 1.0, 600.0, include_low=True),
@@ -130,7 +128,6 @@ def _simulate_moving_arguments(sub: argparse.ArgumentParser) -> None:
     _add_offset(sub, 0.02, "motion-capture clock minus car clock, s (default 0.02)")
     _add_simulated_stations(sub, "base stations, 1..8 (default 1)")
     sub.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _write_calibration(
@@ -167,7 +164,7 @@ def run_static(args: argparse.Namespace) -> Path:
             f"--stations: POINTS_FILE lists {points.n_stations} station(s); got {args.stations}"
         )
     calibration = calibrate_static(points, args.stations, args.fit_tilt)
-    out = prepare_output(Path(args.out), NAME, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     reports = point_reports(points, calibration.stations, calibration.yaws)
     if args.no_sweep or len(points.points) < 5:
         rows, order = [], spread_order(np.array([p.position for p in points.points]))
@@ -207,7 +204,7 @@ def run_moving(args: argparse.Namespace) -> Path:
         max_offset=args.max_offset,
         offset=args.offset,
     )
-    out = prepare_output(Path(args.out), NAME, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     fixes = moving_fixes(calibration)
     summary = moving_summary(
         calibration, fixes, args.fit_offset, args.fit_photodiodes, args.fit_tilt
@@ -258,7 +255,7 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
     from crs_core.model.chronos import default_base_stations
     from sim.mocap_recording import simulate_mocap_recording
 
-    out = prepare_output(Path(args.out), NAME, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     dataset = simulate_mocap_recording(
         duration=args.duration,
         clock_offset=args.offset,

@@ -13,9 +13,9 @@ from crs_core.identification.data import FieData
 from crs_core.identification.problem import FieSettings
 from crs_core.model import EFFECTS
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
     Command,
     add_effect,
+    add_out,
     add_process_scale,
     bounded_number,
 )
@@ -60,7 +60,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         candidates=parse_candidates(args.candidates),
         workers=args.workers,
     )
-    out = prepare_output(Path(args.out), "discrepancy", args.overwrite)
+    out = prepare_output(args.out, "discrepancy", args.overwrite)
     started = time.perf_counter()
 
     def progress(line: str) -> None:
@@ -88,7 +88,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs discrepancy``'s arguments."""
     sub.add_argument("train", type=Path, help="training dataset folder")
     sub.add_argument("--validate", type=Path, help="held-out dataset folder")
-    sub.add_argument("--out", required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
@@ -117,7 +117,6 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         default=min(2, os.cpu_count() or 1),
         help="processes fitting hypotheses at once (default: 2, or 1 on a one-core machine)",
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 COMMAND = Command(

@@ -15,10 +15,10 @@ from crs_core.control.path_following import PathFollowerSettings
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
     Command,
     add_duration,
     add_effect,
+    add_out,
     add_seed,
     argument_type,
     bounded_number,
@@ -55,7 +55,7 @@ def simulate(args: argparse.Namespace) -> Path:
 
     track = read_track(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
-    out = prepare_output(Path(args.out), args.command, args.overwrite)
+    out = prepare_output(args.out, args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
     if args.noise_free:
         sensors = sensors.ideal()
@@ -86,11 +86,11 @@ def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> 
     default."""
     add_duration(sub, duration, "simulated time")
     add_seed(sub)
-    sub.add_argument(
-        "--out",
+    add_out(
+        sub,
+        "output folder" + (" (default out/demo)" if demo else ""),
         required=not demo,
         default="out/demo",
-        help="output folder" + (" (default out/demo)" if demo else ""),
     )
     sub.add_argument(
         "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
@@ -135,7 +135,6 @@ def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> 
         default=demo,
         help=f"write OUT/report/ (default: {'on' if demo else 'off'})",
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def _simulation_command(name: str, help_text: str, duration: float) -> Command:

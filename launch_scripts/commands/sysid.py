@@ -15,9 +15,9 @@ from crs_core.identification.models import effects_of_yaml, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
     Command,
     add_effect,
+    add_out,
     add_process_scale,
     bounded_number,
 )
@@ -72,7 +72,7 @@ def run_sysid(args: argparse.Namespace) -> int:
         process_scale=args.process_scale,
     )
     FieData.from_dataset(dataset, settings.noise)  # refuse bad data before touching --out
-    out = prepare_output(Path(args.out), "sysid", args.overwrite)
+    out = prepare_output(args.out, "sysid", args.overwrite)
     result = identify(dataset, model, settings, progress=stderr_progress)
     summary = write_sysid_report(result, out, str(args.dataset))
     for warning in summary["warnings"]:
@@ -103,7 +103,7 @@ def run_validate(args: argparse.Namespace) -> int:
     span = dataset.t[-1] - dataset.t[0] if len(dataset.t) else 0.0
     if args.horizon > span:
         raise ValueError(f"--horizon: {args.horizon:g} s is longer than the dataset ({span:.2f} s)")
-    out = prepare_output(Path(args.out), "validate", args.overwrite)
+    out = prepare_output(args.out, "validate", args.overwrite)
     summary, predictions = validate(dataset, model, model.parameters, prior, args.horizon)
     summary["dataset"] = str(args.dataset)
     summary["params"] = str(args.params)
@@ -121,7 +121,7 @@ def run_validate(args: argparse.Namespace) -> int:
 def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs sysid``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder (crs_core.dataset format)")
-    sub.add_argument("--out", required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",
         help="prior parameter YAML ('parameters:' mapping), or 'rough' for the rough prior of "
@@ -146,7 +146,6 @@ def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
         "factor on the estimator's process noise std for the FIE's Q (default 1.0, best on the "
         "real runs; 0.1 on simulated data, whose truth has no process noise)",
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
 
 
 def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
@@ -161,8 +160,7 @@ def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
     add_effect(sub, "model effect (repeatable; inferred from --params)")
-    sub.add_argument("--out", required=True, help="output folder")
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
+    add_out(sub, "output folder", required=True)
 
 
 SYSID = Command(

@@ -147,6 +147,6 @@ def test_sysid_and_validate_are_two_commands_with_their_own_handlers():
     sysid_command.SYSID(commands)
     sysid_command.VALIDATE(commands)
     args = parser.parse_args(["sysid", "d", "--out", "o"])
-    assert args.handler is sysid_command.run_sysid
+    assert args.handler is sysid_command.run_sysid and args.out == Path("o")
     args = parser.parse_args(["validate", "d", "--params", "p.yaml", "--out", "o"])
     assert args.handler is sysid_command.run_validate and args.horizon == 2.0
