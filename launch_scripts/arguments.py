@@ -1,4 +1,6 @@
-"""Argument types and texts shared by the ``crs`` commands (one-line errors naming the value)."""
+"""What the ``crs`` commands share: :class:`Command`, the declaration of a command (its parser,
+arguments and handler, added by :mod:`launch_scripts.cli`), the option blocks several commands
+take, and argument types (one-line errors naming the value)."""
 
 from __future__ import annotations
 
@@ -6,7 +8,8 @@ import argparse
 import math
 import shlex
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +18,53 @@ from crs_core.model.effects import parse_effect
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
+
+
+@dataclass(frozen=True)
+class Command:
+    """A ``crs`` command, or a sub-command of one, declared as data.
+
+    ``name``, ``help`` (its line in the parent's ``--help``), ``description``, ``epilog`` and
+    ``formatter_class`` make its parser; ``arguments(parser)`` adds its options; ``handler(args)``
+    runs it (:func:`launch_scripts.cli.main` calls it: an exit code, or anything else for 0).
+    A command with ``subcommands`` picks one of them (required) as ``args.<dest>``, listed as
+    ``metavar`` (default: their names); each sub-command has its own handler. Called with a
+    parser's sub-commands, it adds itself there (the registry of :mod:`launch_scripts.cli`).
+    """
+
+    name: str
+    help: str
+    description: str | None = None
+    arguments: Callable[[argparse.ArgumentParser], None] | None = None
+    handler: Callable[[argparse.Namespace], Any] | None = None
+    subcommands: Sequence[Command] = ()
+    dest: str | None = None
+    metavar: str | None = None
+    epilog: str | None = None
+    formatter_class: type[argparse.HelpFormatter] = argparse.HelpFormatter
+
+    def __post_init__(self) -> None:
+        if self.subcommands and self.dest is None:
+            raise ValueError(f"{self.name}: a command with sub-commands needs a dest")
+
+    def __call__(self, parsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+        """Add this command to ``parsers`` (a parser's sub-commands); return its parser."""
+        parser = parsers.add_parser(
+            self.name,
+            help=self.help,
+            description=self.description,
+            epilog=self.epilog,
+            formatter_class=self.formatter_class,
+        )
+        if self.arguments is not None:
+            self.arguments(parser)
+        if self.subcommands:
+            chosen = parser.add_subparsers(dest=self.dest, required=True, metavar=self.metavar)
+            for subcommand in self.subcommands:
+                subcommand(chosen)
+        if self.handler is not None:
+            parser.set_defaults(handler=self.handler)
+        return parser
 
 
 def command_line() -> str:

@@ -1,16 +1,18 @@
 """The ``crs`` command line: a registry of the commands in :mod:`launch_scripts.commands`.
 
-Each command module has ``add_command(commands)`` (its parser, its options, its handler as the
-``handler`` default); a handler returns an exit code or anything else (0). ROS is imported only by
-the commands that need it. A ``ValueError``, ``KeyError`` or missing / existing file raised by a
-handler is reported in one line, ``crs <command>: error: <field>: <reason>``, with exit code 2.
+Each command module declares its command as data, a :class:`~launch_scripts.arguments.Command`
+(name, help, description, a function adding its arguments, the handler that runs it); the
+registry adds them in order. A handler returns an exit code or anything else (0). ROS is imported
+only by the commands that need it. A ``ValueError``, ``KeyError`` or missing / existing file
+raised by a handler is reported in one line, ``crs <command>: error: <field>: <reason>``, with
+exit code 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 from chronos_bridge.emulator_process import add_command as add_car_emulator
 from launch_scripts.commands import (
@@ -26,19 +28,23 @@ from launch_scripts.commands import (
     sysid,
 )
 
-#: Adds each command to the ``crs`` parser, in the order ``crs --help`` lists them.
-REGISTRY = (
-    simulate.add_command,
-    estimate.add_command,
-    consistency.add_command,
-    sysid.add_commands,
-    discrepancy.add_commands,
-    calibration.add_commands,
-    launch.add_command,
+#: The commands in the order ``crs --help`` lists them; each adds itself to the ``crs`` parser's
+#: sub-commands (a :class:`~launch_scripts.arguments.Command`, or ``car-emulator``'s own
+#: ``add_command``: :mod:`chronos_bridge` declares its parser itself).
+REGISTRY: tuple[Callable[[argparse._SubParsersAction], object], ...] = (
+    simulate.SIM,
+    simulate.DEMO,
+    estimate.COMMAND,
+    consistency.COMMAND,
+    sysid.SYSID,
+    sysid.VALIDATE,
+    discrepancy.COMMAND,
+    calibration.COMMAND,
+    launch.COMMAND,
     add_car_emulator,
-    bag.add_command,
-    ros.add_command,
-    bench.add_command,
+    bag.COMMAND,
+    ros.COMMAND,
+    bench.COMMAND,
 )
 
 

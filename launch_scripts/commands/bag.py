@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from launch_scripts.arguments import Command
+
 
 def bag_tool(args: argparse.Namespace) -> int:
     """``crs bag check|repair``: what a (cut-off) bag holds; a complete copy of it."""
@@ -25,17 +27,20 @@ def bag_tool(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``bag``."""
-    sub = commands.add_parser(
-        "bag",
-        help="check a bag, or repair one whose recording was cut off",
-        description="check: what a ROS 2 bag folder holds (topics, messages, duration) and, for "
-        "an MCAP file cut off by a killed recorder or a full disk, what is still readable and how "
-        "much was lost; exit code 0 complete, 1 damaged. repair: write every complete message "
-        "of a bag into a new, complete bag at --out (the original is only read).",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs bag``'s arguments."""
     sub.add_argument("tool", choices=["check", "repair"])
     sub.add_argument("bag", type=Path, help="bag folder (holding metadata.yaml and/or *.mcap)")
     sub.add_argument("--out", type=Path, help="repair: the new bag folder (must not exist)")
-    sub.set_defaults(handler=bag_tool)
+
+
+COMMAND = Command(
+    "bag",
+    help="check a bag, or repair one whose recording was cut off",
+    description="check: what a ROS 2 bag folder holds (topics, messages, duration) and, for "
+    "an MCAP file cut off by a killed recorder or a full disk, what is still readable and how "
+    "much was lost; exit code 0 complete, 1 damaged. repair: write every complete message "
+    "of a bag into a new, complete bag at --out (the original is only read).",
+    arguments=add_arguments,
+    handler=bag_tool,
+)

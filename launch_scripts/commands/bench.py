@@ -7,11 +7,13 @@ import argparse
 import json
 import sys
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import (
+    Command,
     add_cars,
     add_duration,
     add_estimator,
@@ -153,14 +155,14 @@ def calibration(args: argparse.Namespace) -> Outcome:
     return result, json.dumps(result, indent=2)
 
 
-def run(args: argparse.Namespace) -> None:
-    """Run the benchmark ``args.benchmark``; print its figures; write ``--out``."""
+def run(benchmark: Callable[[argparse.Namespace], Outcome], args: argparse.Namespace) -> None:
+    """Run ``benchmark``; print its figures; write ``--out``."""
     resume = getattr(args, "resume", False)
     if resume and not args.out:
         raise ValueError("--resume: needs --out FILE (the run to continue)")
     if args.out:
         prepare_output_file(args.out, args.overwrite or resume)
-    result, text = args.benchmark(args)
+    result, text = benchmark(args)
     print(text)
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2))
@@ -345,19 +347,31 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
 }
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``bench`` and its sub-commands."""
-    parser = commands.add_parser(
-        "bench",
-        help="benchmarks that print and save JSON",
-        description="Benchmarks: each prints its figures and, with --out FILE, saves them as "
-        "JSON. crs bench NAME --help for one.",
-    )
-    benchmarks = parser.add_subparsers(dest="what", required=True, metavar="NAME")
-    for name, (function, add_options, description) in BENCHMARKS.items():
-        headline = description.split(": ")[0].split("; ")[0]
-        sub = benchmarks.add_parser(name, help=headline, description=f"{description}.")
+def _benchmark_command(
+    name: str, function: Callable[[argparse.Namespace], Outcome], add_options: Any, description: str
+) -> Command:
+    """``crs bench NAME``: ``--out`` and ``--overwrite``, then the benchmark's own options."""
+
+    def add_arguments(sub: argparse.ArgumentParser) -> None:
         add_out(sub, "also write the JSON to this file")
         if add_options is not None:
             add_options(sub)
-        sub.set_defaults(handler=run, benchmark=function)
+
+    return Command(
+        name,
+        help=description.split(": ")[0].split("; ")[0],
+        description=f"{description}.",
+        arguments=add_arguments,
+        handler=partial(run, function),
+    )
+
+
+COMMAND = Command(
+    "bench",
+    help="benchmarks that print and save JSON",
+    description="Benchmarks: each prints its figures and, with --out FILE, saves them as "
+    "JSON. crs bench NAME --help for one.",
+    subcommands=tuple(_benchmark_command(name, *spec) for name, spec in BENCHMARKS.items()),
+    dest="what",
+    metavar="NAME",
+)

@@ -6,7 +6,9 @@ known static poses (format: :mod:`crs_core.calibration.points`).
 with a motion-capture pose reference (:mod:`crs_core.calibration.moving`).
 ``simulate-points FILE`` and ``simulate-moving --out DIR`` write simulated inputs for both.
 Every mode writes ``geometry.yaml`` (the ``geometry`` block of ``dataset.yaml``), ``report.md``,
-``report.json`` and PNG figures. :func:`add_commands` adds the sub-command to the ``crs`` parser.
+``report.json`` and PNG figures.
+
+:data:`COMMAND` declares the command and its modes for :mod:`launch_scripts.cli`.
 """
 
 from __future__ import annotations
@@ -18,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from launch_scripts.arguments import OVERWRITE_HELP, bounded_number, command_line
+from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 
-COMMAND = "calibrate-lighthouse"
+NAME = "calibrate-lighthouse"
 
 
 def _add_fit_tilt(parser: argparse.ArgumentParser) -> None:
@@ -43,120 +45,89 @@ def _add_simulated_stations(parser: argparse.ArgumentParser, help_text: str) -> 
     parser.add_argument("--stations", type=stations, default=1, help=help_text)
 
 
-def add_commands(subparsers) -> None:
-    """Add ``calibrate-lighthouse`` (modes static, moving, simulate-points, simulate-moving)."""
-    parser = subparsers.add_parser(
-        COMMAND,
-        help="calibrate Lighthouse base stations (static points or a moving recording)",
-        description=__doc__.split("\n\n")[1] if __doc__ else None,
-    )
-    modes = parser.add_subparsers(dest="mode", required=True)
-    static = modes.add_parser(
-        "static",
-        help="base stations from sweeps at known static poses",
-        description="Fit every base station (rotation, position; tilt offsets with --fit-tilt) "
-        "to the sweeps recorded at known car poses, using every photodiode angle. Writes "
-        "DIR/geometry.yaml, report.md, report.json, angle_residuals.png, "
-        "position_residuals.png, residual_vs_n.png.",
-    )
-    static.add_argument(
+def _static_arguments(sub: argparse.ArgumentParser) -> None:
+    """``static``'s arguments."""
+    sub.add_argument(
         "points_file",
         type=Path,
         metavar="POINTS_FILE",
         help="YAML, format chronos-lighthouse-points/1 (see the README)",
     )
-    static.add_argument("--out", type=Path, required=True, help="output folder")
-    static.add_argument(
+    add_out(sub, "output folder", required=True)
+    sub.add_argument(
         "--stations",
         type=bounded_number("stations", "", 1, 16, int, include_low=True),
         help="calibrate stations 0..N-1 (default: every station in the file)",
     )
-    _add_fit_tilt(static)
-    static.add_argument(
+    _add_fit_tilt(sub)
+    sub.add_argument(
         "--no-sweep", action="store_true", help="skip the mean/max-vs-number-of-points study"
     )
-    static.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    static.set_defaults(handler=run_static)
-    moving = modes.add_parser(
-        "moving",
-        help="base stations (and clock offset, photodiodes) from a recording with mocap poses",
-        description="Fit the base stations to every sweep of a dataset folder whose stream.npz "
-        "holds motion-capture poses (sensor 'pose'); inputs, IMU and encoders may be absent. "
-        "Writes DIR/geometry.yaml, report.md, report.json, moving_residuals.png and, with "
-        "--fit-offset, offset_scan.png.",
-    )
-    moving.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
-    moving.add_argument("--out", type=Path, required=True, help="output folder")
-    moving.add_argument(
+
+
+def _moving_arguments(sub: argparse.ArgumentParser) -> None:
+    """``moving``'s arguments."""
+    sub.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
+    add_out(sub, "output folder", required=True)
+    sub.add_argument(
         "--fit-offset",
         action="store_true",
         help="fit the clock offset (motion capture minus car), s",
     )
-    _add_offset(moving, 0.0, "clock offset, s: fixed, or the start with --fit-offset (default 0)")
-    moving.add_argument(
+    _add_offset(sub, 0.0, "clock offset, s: fixed, or the start with --fit-offset (default 0)")
+    sub.add_argument(
         "--max-offset",
         type=bounded_number("max-offset", "s", 0.0, 1.0, include_low=True),
         default=0.25,
         help="search range of --fit-offset, +-s (default 0.25)",
     )
-    moving.add_argument(
+    sub.add_argument(
         "--fit-photodiodes",
         action="store_true",
         help="also fit the photodiode positions (body frame)",
     )
-    _add_fit_tilt(moving)
-    moving.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    moving.set_defaults(handler=run_moving)
-    points = modes.add_parser(
-        "simulate-points",
-        help="write a simulated POINTS_FILE (and its true geometry)",
-        description="Simulate the car standing at N well-spread poses on the demo-track area "
-        "with the simulator's Lighthouse noise (1 mrad per sweep); writes FILE and "
-        "FILE's stem + '_truth.yaml' (the true geometry).",
-    )
-    points.add_argument("file", type=Path, metavar="FILE", help="points YAML to write")
-    points.add_argument(
+    _add_fit_tilt(sub)
+
+
+def _simulate_points_arguments(sub: argparse.ArgumentParser) -> None:
+    """``simulate-points``'s arguments."""
+    sub.add_argument("file", type=Path, metavar="FILE", help="points YAML to write")
+    sub.add_argument(
         "--points",
         type=bounded_number("points", "", 1, 1000, int, include_low=True),
         default=24,
         help="number of points (default 24)",
     )
-    _add_simulated_stations(points, "base stations, 1..8 (default 1: the recorded one)")
-    points.add_argument(
+    _add_simulated_stations(sub, "base stations, 1..8 (default 1: the recorded one)")
+    sub.add_argument(
         "--sweeps",
         type=bounded_number("sweeps", "", 1, 10000, int, include_low=True),
         default=20,
         help="sweeps per plane at each point (default 20)",
     )
-    points.add_argument(
+    sub.add_argument(
         "--position-std",
         type=bounded_number("position-std", "m", 0.0, 1.0, include_low=True),
         default=0.0,
         help="error of the written positions, m (default 0)",
     )
-    points.add_argument("--unknown-yaw", action="store_true", help="do not write the yaws")
-    points.add_argument("--seed", type=int, default=0, help="noise and layout seed (default 0)")
-    points.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
-    points.set_defaults(handler=run_simulate_points)
-    recording = modes.add_parser(
-        "simulate-moving",
-        help="write a simulated recording with mocap poses and a clock offset",
-        description="Drive the demo track in the simulator and write a dataset folder with "
-        "only Lighthouse sweeps and motion-capture poses (100 Hz, 0.5 mm), the motion-capture "
-        "clock --offset s ahead of the car's.",
-    )
-    recording.add_argument("--out", type=Path, required=True, help="dataset folder")
-    recording.add_argument(
+    sub.add_argument("--unknown-yaw", action="store_true", help="do not write the yaws")
+    sub.add_argument("--seed", type=int, default=0, help="noise and layout seed (default 0)")
+    sub.add_argument("--overwrite", action="store_true", help="replace an existing FILE")
+
+
+def _simulate_moving_arguments(sub: argparse.ArgumentParser) -> None:
+    """``simulate-moving``'s arguments."""
+    add_out(sub, "dataset folder", required=True)
+    sub.add_argument(
         "--duration",
         type=bounded_number("duration", "s", 1.0, 600.0, include_low=True),
         default=20.0,
         help="simulated time, s (default 20)",
     )
-    _add_offset(recording, 0.02, "motion-capture clock minus car clock, s (default 0.02)")
-    _add_simulated_stations(recording, "base stations, 1..8 (default 1)")
-    recording.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
-    recording.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    recording.set_defaults(handler=run_simulate_moving)
+    _add_offset(sub, 0.02, "motion-capture clock minus car clock, s (default 0.02)")
+    _add_simulated_stations(sub, "base stations, 1..8 (default 1)")
+    sub.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
 
 
 def _write_calibration(
@@ -193,7 +164,7 @@ def run_static(args: argparse.Namespace) -> Path:
             f"--stations: POINTS_FILE lists {points.n_stations} station(s); got {args.stations}"
         )
     calibration = calibrate_static(points, args.stations, args.fit_tilt)
-    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     reports = point_reports(points, calibration.stations, calibration.yaws)
     if args.no_sweep or len(points.points) < 5:
         rows, order = [], spread_order(np.array([p.position for p in points.points]))
@@ -233,7 +204,7 @@ def run_moving(args: argparse.Namespace) -> Path:
         max_offset=args.max_offset,
         offset=args.offset,
     )
-    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     fixes = moving_fixes(calibration)
     summary = moving_summary(
         calibration, fixes, args.fit_offset, args.fit_photodiodes, args.fit_tilt
@@ -284,7 +255,7 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
     from crs_core.model.chronos import default_base_stations
     from sim.mocap_recording import simulate_mocap_recording
 
-    out = prepare_output(Path(args.out), COMMAND, args.overwrite)
+    out = prepare_output(args.out, NAME, args.overwrite)
     dataset = simulate_mocap_recording(
         duration=args.duration,
         clock_offset=args.offset,
@@ -297,3 +268,51 @@ def run_simulate_moving(args: argparse.Namespace) -> Path:
         f"{1e3 * args.offset:.1f} ms; true geometry in dataset.yaml)"
     )
     return out
+
+
+COMMAND = Command(
+    NAME,
+    help="calibrate Lighthouse base stations (static points or a moving recording)",
+    description=__doc__.split("\n\n")[1] if __doc__ else None,
+    subcommands=(
+        Command(
+            "static",
+            help="base stations from sweeps at known static poses",
+            description="Fit every base station (rotation, position; tilt offsets with "
+            "--fit-tilt) to the sweeps recorded at known car poses, using every photodiode "
+            "angle. Writes DIR/geometry.yaml, report.md, report.json, angle_residuals.png, "
+            "position_residuals.png, residual_vs_n.png.",
+            arguments=_static_arguments,
+            handler=run_static,
+        ),
+        Command(
+            "moving",
+            help="base stations (and clock offset, photodiodes) from a recording with mocap poses",
+            description="Fit the base stations to every sweep of a dataset folder whose "
+            "stream.npz holds motion-capture poses (sensor 'pose'); inputs, IMU and encoders may "
+            "be absent. Writes DIR/geometry.yaml, report.md, report.json, moving_residuals.png "
+            "and, with --fit-offset, offset_scan.png.",
+            arguments=_moving_arguments,
+            handler=run_moving,
+        ),
+        Command(
+            "simulate-points",
+            help="write a simulated POINTS_FILE (and its true geometry)",
+            description="Simulate the car standing at N well-spread poses on the demo-track "
+            "area with the simulator's Lighthouse noise (1 mrad per sweep); writes FILE and "
+            "FILE's stem + '_truth.yaml' (the true geometry).",
+            arguments=_simulate_points_arguments,
+            handler=run_simulate_points,
+        ),
+        Command(
+            "simulate-moving",
+            help="write a simulated recording with mocap poses and a clock offset",
+            description="Drive the demo track in the simulator and write a dataset folder with "
+            "only Lighthouse sweeps and motion-capture poses (100 Hz, 0.5 mm), the "
+            "motion-capture clock --offset s ahead of the car's.",
+            arguments=_simulate_moving_arguments,
+            handler=run_simulate_moving,
+        ),
+    ),
+    dest="mode",
+)

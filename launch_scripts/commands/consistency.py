@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 
 from benchmarks.machine import REAL_DATA
-from launch_scripts.arguments import add_out, command_line
+from launch_scripts.arguments import Command, add_out, command_line
 from launch_scripts.output_folder import prepare_output_file
 
 
@@ -39,14 +39,8 @@ def consistency(args: argparse.Namespace) -> None:
     print("(median / p95 of |recorded - model(recorded state)|; rad for Lighthouse, rad/s else)")
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``consistency``."""
-    sub = commands.add_parser(
-        "consistency",
-        help="sensor models vs. the real recordings",
-        description="Replay recorded states through the sensor models and print the error per "
-        "channel (median / p95).",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs consistency``'s arguments."""
     sub.add_argument(
         "--data",
         type=Path,
@@ -54,4 +48,13 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         help=f"dataset folder (repeatable; default: the real recordings in {REAL_DATA})",
     )
     add_out(sub, "also write the table as JSON to this file")
-    sub.set_defaults(handler=consistency)
+
+
+COMMAND = Command(
+    "consistency",
+    help="sensor models vs. the real recordings",
+    description="Replay recorded states through the sensor models and print the error per "
+    "channel (median / p95).",
+    arguments=add_arguments,
+    handler=consistency,
+)

@@ -13,8 +13,9 @@ from crs_core.identification.data import FieData
 from crs_core.identification.problem import FieSettings
 from crs_core.model import EFFECTS
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
+    Command,
     add_effect,
+    add_out,
     add_process_scale,
     bounded_number,
 )
@@ -59,7 +60,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         candidates=parse_candidates(args.candidates),
         workers=args.workers,
     )
-    out = prepare_output(Path(args.out), "discrepancy", args.overwrite)
+    out = prepare_output(args.out, "discrepancy", args.overwrite)
     started = time.perf_counter()
 
     def progress(line: str) -> None:
@@ -83,22 +84,11 @@ def run_discrepancy(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``discrepancy`` to the ``crs`` sub-commands."""
-    sub = subparsers.add_parser(
-        "discrepancy",
-        help="find the physical effect the model misses, add it, show the gap shrink",
-        description="Identify the current model on TRAIN, diagnose its residuals channel by "
-        "channel, fit every effect of the registry as a hypothesis and test it on held-out "
-        "data (--validate, or the last 30 % of TRAIN) with a test designed for a false-alarm "
-        "rate of --false-alarm-rate per round; name the winner (or 'none', or 'unexplained' "
-        "with the channel and regime of the misfit), and report the held-out gap before and "
-        "after. Writes OUT/report.json, report.md, params.yaml (the final model: --params "
-        "everywhere) and figures; one progress line per step on stderr.",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs discrepancy``'s arguments."""
     sub.add_argument("train", type=Path, help="training dataset folder")
     sub.add_argument("--validate", type=Path, help="held-out dataset folder")
-    sub.add_argument("--out", required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
@@ -127,5 +117,18 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default=min(2, os.cpu_count() or 1),
         help="processes fitting hypotheses at once (default: 2, or 1 on a one-core machine)",
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.set_defaults(handler=run_discrepancy)
+
+
+COMMAND = Command(
+    "discrepancy",
+    help="find the physical effect the model misses, add it, show the gap shrink",
+    description="Identify the current model on TRAIN, diagnose its residuals channel by "
+    "channel, fit every effect of the registry as a hypothesis and test it on held-out "
+    "data (--validate, or the last 30 % of TRAIN) with a test designed for a false-alarm "
+    "rate of --false-alarm-rate per round; name the winner (or 'none', or 'unexplained' "
+    "with the channel and regime of the misfit), and report the held-out gap before and "
+    "after. Writes OUT/report.json, report.md, params.yaml (the final model: --params "
+    "everywhere) and figures; one progress line per step on stderr.",
+    arguments=add_arguments,
+    handler=run_discrepancy,
+)

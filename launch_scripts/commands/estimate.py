@@ -12,7 +12,7 @@ import yaml
 
 from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
-from launch_scripts.arguments import add_out, command_line
+from launch_scripts.arguments import Command, add_out, command_line
 from launch_scripts.output_folder import prepare_output
 
 
@@ -105,15 +105,8 @@ def estimate(args: argparse.Namespace) -> None:
     print(f"wrote {out / 'estimates.npz'}, diagnostics.json, estimate.png")
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``estimate``."""
-    sub = commands.add_parser(
-        "estimate",
-        help="run an EKF or MHE over a recorded dataset (offline)",
-        description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) and "
-        "write DIR/estimates.npz (t, x (6, N), status 0 ok / 1 degraded / 2 lost, "
-        "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs estimate``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder")
     sub.add_argument("--estimator", choices=KINDS, required=True, help="EKF or MHE")
     sub.add_argument(
@@ -145,4 +138,14 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "dataset's Lighthouse geometry)",
     )
     add_out(sub, "output folder", required=True)
-    sub.set_defaults(handler=estimate)
+
+
+COMMAND = Command(
+    "estimate",
+    help="run an EKF or MHE over a recorded dataset (offline)",
+    description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) and "
+    "write DIR/estimates.npz (t, x (6, N), status 0 ok / 1 degraded / 2 lost, "
+    "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
+    arguments=add_arguments,
+    handler=estimate,
+)

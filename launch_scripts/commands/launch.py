@@ -9,7 +9,14 @@ from pathlib import Path
 
 from chronos_bridge.impairment import SPEC_HELP
 from crs_core.control.supervisor import HOLD_SAFE_MODES
-from launch_scripts.arguments import add_cars, add_duration, add_estimator, add_out, bounded_number
+from launch_scripts.arguments import (
+    Command,
+    add_cars,
+    add_duration,
+    add_estimator,
+    add_out,
+    bounded_number,
+)
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS
@@ -151,21 +158,8 @@ def launch_car(args: argparse.Namespace) -> None:
     return verdict(report, args.require_laps)
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``launch``."""
-    sub = commands.add_parser(
-        "launch",
-        help="run the ROS 2 node suite",
-        description="sim: per car a simulator, an estimator and a controller node (namespaces "
-        "/car1, /car2, ...) and one recorder, as processes on DDS (loopback), for --duration; "
-        "then OUT/report.json (laps, estimation RMSE, deadline misses, latencies, CPU), "
-        "OUT/path.png, OUT/bag (MCAP) and OUT/logs. car: per car a bridge node (UDP port "
-        "20211, 20212, ...), an estimator and a controller, against emulated cars on loopback "
-        "(--emulate: one crs car-emulator per car on port 20311, 20312, ...; truth and link "
-        "timing in OUT/truth_carN.npz) or real cars (--car-ip IP[,IP...]: the bridge binds "
-        "0.0.0.0 and pairs only with that address); the report adds the latency sensor packet "
-        "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs.",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs launch``'s arguments."""
     sub.add_argument(
         "scenario",
         choices=["sim", "car"],
@@ -259,4 +253,20 @@ def add_command(commands: argparse._SubParsersAction) -> None:
         "estimates, odometry, /tf; replays the estimator offline exactly), estimates (no 250 Hz "
         "sensor streams) or sensors (no estimates)",
     )
-    sub.set_defaults(handler=launch)
+
+
+COMMAND = Command(
+    "launch",
+    help="run the ROS 2 node suite",
+    description="sim: per car a simulator, an estimator and a controller node (namespaces "
+    "/car1, /car2, ...) and one recorder, as processes on DDS (loopback), for --duration; "
+    "then OUT/report.json (laps, estimation RMSE, deadline misses, latencies, CPU), "
+    "OUT/path.png, OUT/bag (MCAP) and OUT/logs. car: per car a bridge node (UDP port "
+    "20211, 20212, ...), an estimator and a controller, against emulated cars on loopback "
+    "(--emulate: one crs car-emulator per car on port 20311, 20312, ...; truth and link "
+    "timing in OUT/truth_carN.npz) or real cars (--car-ip IP[,IP...]: the bridge binds "
+    "0.0.0.0 and pairs only with that address); the report adds the latency sensor packet "
+    "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs.",
+    arguments=add_arguments,
+    handler=launch,
+)

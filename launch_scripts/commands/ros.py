@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from launch_scripts.arguments import bounded_number
+from launch_scripts.arguments import Command, bounded_number
 
 
 def ros_tool(args: argparse.Namespace) -> None:
@@ -24,15 +24,8 @@ def ros_tool(args: argparse.Namespace) -> None:
         print(json.dumps(tools.rate(args.topic, args.window, args.timeout)))
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``ros``."""
-    sub = commands.add_parser(
-        "ros",
-        help="topics, echo, hz (no ros2 CLI here)",
-        description="topics: list the topics and types seen in the ROS domain ($ROS_DOMAIN_ID). "
-        "echo: print the next messages of a topic. hz: its receive rate (JSON: rate_hz, "
-        "messages, gap_ms_median, gap_ms_max).",
-    )
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs ros``'s arguments."""
     sub.add_argument("tool", choices=["topics", "echo", "hz"], help="which tool")
     sub.add_argument("topic", nargs="?", help="echo, hz: the topic, e.g. /car1/estimate/state")
     sub.add_argument(
@@ -48,4 +41,14 @@ def add_command(commands: argparse._SubParsersAction) -> None:
     ):
         seconds = bounded_number(option.removeprefix("--"), "s", 0.0, 3600.0)
         sub.add_argument(option, type=seconds, default=default, help=help_text)
-    sub.set_defaults(handler=ros_tool)
+
+
+COMMAND = Command(
+    "ros",
+    help="topics, echo, hz (no ros2 CLI here)",
+    description="topics: list the topics and types seen in the ROS domain ($ROS_DOMAIN_ID). "
+    "echo: print the next messages of a topic. hz: its receive rate (JSON: rate_hz, "
+    "messages, gap_ms_median, gap_ms_max).",
+    arguments=add_arguments,
+    handler=ros_tool,
+)

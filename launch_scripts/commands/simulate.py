@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 from collections.abc import Sequence
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -14,9 +15,10 @@ from crs_core.control.path_following import PathFollowerSettings
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
+    Command,
     add_duration,
     add_effect,
+    add_out,
     add_seed,
     argument_type,
     bounded_number,
@@ -53,7 +55,7 @@ def simulate(args: argparse.Namespace) -> Path:
 
     track = read_track(args.track) if args.track else load_demo_track()
     model = build_model(args.effect or [], args.stations, args.params)
-    out = prepare_output(Path(args.out), args.command, args.overwrite)
+    out = prepare_output(args.out, args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
     if args.noise_free:
         sensors = sensors.ideal()
@@ -79,72 +81,77 @@ def simulate(args: argparse.Namespace) -> Path:
     return out
 
 
-def add_command(commands: argparse._SubParsersAction) -> None:
-    """Add ``sim`` and ``demo`` (the same simulation; ``demo`` has defaults and a report)."""
-    for name, help_text, duration in (
-        ("sim", "simulate the car on a track and save a dataset", 30.0),
-        ("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0),
-    ):
-        sub = commands.add_parser(
-            name,
-            help=help_text,
-            description=f"{help_text[0].upper()}{help_text[1:]}: the ROS-free simulator "
-            "(noisy sensors at their own rates) with the path follower in the loop; writes a "
-            "dataset folder (crs_core.dataset format) and, with --report, OUT/report/ "
-            "(summary.txt, summary.json, path.png, sensors.png, estimation.png).",
-            epilog=EFFECTS_EPILOG,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
-        )
-        add_duration(sub, duration, "simulated time")
-        add_seed(sub)
-        sub.add_argument(
-            "--out",
-            required=name == "sim",
-            default="out/demo",
-            help="output folder" + (" (default out/demo)" if name == "demo" else ""),
-        )
-        sub.add_argument(
-            "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
-        )
-        add_effect(
-            sub,
-            "hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME alone "
-            "uses the default; the effects and parameters are listed below",
-        )
-        sub.add_argument(
-            "--blackout",
-            type=argument_type(parse_blackout),
-            action="append",
-            metavar="SENSOR:START:DURATION",
-            help="no samples of SENSOR (lighthouse, lighthouse/<station>, imu, wheel_encoders, "
-            "gyro, pose) from START for DURATION, s of simulated time (repeatable), e.g. "
-            "lighthouse:10:1.127",
-        )
-        sub.add_argument(
-            "--stations",
-            type=bounded_number("stations", "", 0, 8, int),
-            default=1,
-            help="Lighthouse base stations, 1..8 (default 1)",
-        )
-        sub.add_argument(
-            "--speed",
-            type=bounded_number("speed", "m/s", 0.0, 5.0),
-            default=PathFollowerSettings.v_ref,
-            help="reference speed of the path follower, m/s "
-            f"(default {PathFollowerSettings.v_ref}, at most 5)",
-        )
-        sub.add_argument(
-            "--params",
-            type=Path,
-            help="parameter YAML applied to the simulated car (a top-level 'parameters:' "
-            "mapping of name: value; default: the Chronos parameters)",
-        )
-        sub.add_argument("--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK)")
-        sub.add_argument(
-            "--report",
-            action=argparse.BooleanOptionalAction,
-            default=name == "demo",
-            help=f"write OUT/report/ (default: {'on' if name == 'demo' else 'off'})",
-        )
-        sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-        sub.set_defaults(handler=simulate)
+def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> None:
+    """``crs sim``'s and ``crs demo``'s arguments: ``demo`` writes to out/demo and its report by
+    default."""
+    add_duration(sub, duration, "simulated time")
+    add_seed(sub)
+    add_out(
+        sub,
+        "output folder" + (" (default out/demo)" if demo else ""),
+        required=not demo,
+        default="out/demo",
+    )
+    sub.add_argument(
+        "--noise-free", action="store_true", help="ideal sensors (no noise, bias, drop-outs)"
+    )
+    add_effect(
+        sub,
+        "hidden truth effect (repeatable); NAME=VALUE sets its first parameter, NAME alone "
+        "uses the default; the effects and parameters are listed below",
+    )
+    sub.add_argument(
+        "--blackout",
+        type=argument_type(parse_blackout),
+        action="append",
+        metavar="SENSOR:START:DURATION",
+        help="no samples of SENSOR (lighthouse, lighthouse/<station>, imu, wheel_encoders, "
+        "gyro, pose) from START for DURATION, s of simulated time (repeatable), e.g. "
+        "lighthouse:10:1.127",
+    )
+    sub.add_argument(
+        "--stations",
+        type=bounded_number("stations", "", 0, 8, int),
+        default=1,
+        help="Lighthouse base stations, 1..8 (default 1)",
+    )
+    sub.add_argument(
+        "--speed",
+        type=bounded_number("speed", "m/s", 0.0, 5.0),
+        default=PathFollowerSettings.v_ref,
+        help="reference speed of the path follower, m/s "
+        f"(default {PathFollowerSettings.v_ref}, at most 5)",
+    )
+    sub.add_argument(
+        "--params",
+        type=Path,
+        help="parameter YAML applied to the simulated car (a top-level 'parameters:' "
+        "mapping of name: value; default: the Chronos parameters)",
+    )
+    sub.add_argument("--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK)")
+    sub.add_argument(
+        "--report",
+        action=argparse.BooleanOptionalAction,
+        default=demo,
+        help=f"write OUT/report/ (default: {'on' if demo else 'off'})",
+    )
+
+
+def _simulation_command(name: str, help_text: str, duration: float) -> Command:
+    """``sim`` or ``demo``: the same simulation, ``demo`` with defaults and a report."""
+    return Command(
+        name,
+        help=help_text,
+        description=f"{help_text[0].upper()}{help_text[1:]}: the ROS-free simulator "
+        "(noisy sensors at their own rates) with the path follower in the loop; writes a "
+        "dataset folder (crs_core.dataset format) and, with --report, OUT/report/ "
+        "(summary.txt, summary.json, path.png, sensors.png, estimation.png).",
+        arguments=partial(add_arguments, duration=duration, demo=name == "demo"),
+        handler=simulate,
+        epilog=EFFECTS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+
+
+SIM = _simulation_command("sim", "simulate the car on a track and save a dataset", 30.0)
+DEMO = _simulation_command("demo", "the main job: a few laps of DEMO_TRACK with a report", 40.0)

@@ -15,8 +15,9 @@ from crs_core.identification.models import effects_of_yaml, identification_model
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
 from launch_scripts.arguments import (
-    OVERWRITE_HELP,
+    Command,
     add_effect,
+    add_out,
     add_process_scale,
     bounded_number,
 )
@@ -71,7 +72,7 @@ def run_sysid(args: argparse.Namespace) -> int:
         process_scale=args.process_scale,
     )
     FieData.from_dataset(dataset, settings.noise)  # refuse bad data before touching --out
-    out = prepare_output(Path(args.out), "sysid", args.overwrite)
+    out = prepare_output(args.out, "sysid", args.overwrite)
     result = identify(dataset, model, settings, progress=stderr_progress)
     summary = write_sysid_report(result, out, str(args.dataset))
     for warning in summary["warnings"]:
@@ -102,7 +103,7 @@ def run_validate(args: argparse.Namespace) -> int:
     span = dataset.t[-1] - dataset.t[0] if len(dataset.t) else 0.0
     if args.horizon > span:
         raise ValueError(f"--horizon: {args.horizon:g} s is longer than the dataset ({span:.2f} s)")
-    out = prepare_output(Path(args.out), "validate", args.overwrite)
+    out = prepare_output(args.out, "validate", args.overwrite)
     summary, predictions = validate(dataset, model, model.parameters, prior, args.horizon)
     summary["dataset"] = str(args.dataset)
     summary["params"] = str(args.params)
@@ -117,19 +118,10 @@ def run_validate(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Add ``sysid`` and ``validate`` to the ``crs`` sub-commands."""
-    sub = subparsers.add_parser(
-        "sysid",
-        help="identify model parameters from a dataset (FIE, IPOPT)",
-        description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
-        "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
-        "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
-        "--params of every command), result.json, report.md and figures; one progress line per "
-        "IPOPT iteration on stderr.",
-    )
+def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs sysid``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder (crs_core.dataset format)")
-    sub.add_argument("--out", required=True, help="output folder")
+    add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",
         help="prior parameter YAML ('parameters:' mapping), or 'rough' for the rough prior of "
@@ -154,17 +146,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "factor on the estimator's process noise std for the FIE's Q (default 1.0, best on the "
         "real runs; 0.1 on simulated data, whose truth has no process noise)",
     )
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.set_defaults(handler=run_sysid)
 
-    sub = subparsers.add_parser(
-        "validate",
-        help="open-loop prediction error of parameters on a dataset",
-        description="Predict open loop over --horizon from every sample (start state from an "
-        "EKF with the same parameters) and compare with the dataset's reference positions "
-        "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
-        "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
-    )
+
+def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs validate``'s arguments."""
     sub.add_argument("dataset", type=Path, help="dataset folder")
     sub.add_argument("--params", required=True, help="parameter YAML to validate (or 'rough')")
     sub.add_argument("--prior", help="a second parameter YAML shown side by side (or 'rough')")
@@ -175,6 +160,27 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
     add_effect(sub, "model effect (repeatable; inferred from --params)")
-    sub.add_argument("--out", required=True, help="output folder")
-    sub.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
-    sub.set_defaults(handler=run_validate)
+    add_out(sub, "output folder", required=True)
+
+
+SYSID = Command(
+    "sysid",
+    help="identify model parameters from a dataset (FIE, IPOPT)",
+    description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
+    "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
+    "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
+    "--params of every command), result.json, report.md and figures; one progress line per "
+    "IPOPT iteration on stderr.",
+    arguments=add_sysid_arguments,
+    handler=run_sysid,
+)
+VALIDATE = Command(
+    "validate",
+    help="open-loop prediction error of parameters on a dataset",
+    description="Predict open loop over --horizon from every sample (start state from an "
+    "EKF with the same parameters) and compare with the dataset's reference positions "
+    "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
+    "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
+    arguments=add_validate_arguments,
+    handler=run_validate,
+)

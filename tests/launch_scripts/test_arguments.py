@@ -1,5 +1,5 @@
-"""The shared argparse types: bounded numbers and parsers whose ``ValueError`` becomes the one-line
-argument error."""
+"""The shared argparse pieces: a command declared as data, bounded numbers and parsers whose
+``ValueError`` becomes the one-line argument error."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from launch_scripts.arguments import argument_type, bounded_number
+from launch_scripts.arguments import Command, argument_type, bounded_number
 
 
 def test_a_bounded_number_takes_its_interval_and_refuses_the_rest_naming_itself() -> None:
@@ -55,3 +55,41 @@ def test_argument_type_turns_a_value_error_into_an_argument_error() -> None:
     parser.add_argument("--angle", type=parse)
     with pytest.raises(argparse.ArgumentError, match="'inf': the angle must be finite"):
         parser.parse_args(["--angle", "inf"])
+
+
+def _add_name(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("name")
+
+
+def _greet(args: argparse.Namespace) -> str:
+    return f"hello {args.name}"
+
+
+def test_a_command_adds_its_parser_arguments_and_handler() -> None:
+    parser = argparse.ArgumentParser(prog="crs")
+    commands = parser.add_subparsers(dest="command", required=True)
+    greet = Command(
+        "greet", help="say hello", description="Say hello.", arguments=_add_name, handler=_greet
+    )
+    added = greet(commands)
+    assert added.prog == "crs greet" and added.description == "Say hello."
+    assert "say hello" in parser.format_help()
+    args = parser.parse_args(["greet", "you"])
+    assert args.command == "greet" and args.handler(args) == "hello you"
+
+
+def test_a_command_with_subcommands_requires_one_of_them(capsys: pytest.CaptureFixture) -> None:
+    parser = argparse.ArgumentParser(prog="crs")
+    commands = parser.add_subparsers(dest="command", required=True)
+    modes = tuple(
+        Command(name, help=f"{name} mode", arguments=_add_name, handler=_greet)
+        for name in ("loud", "quiet")
+    )
+    Command("greet", help="say hello", subcommands=modes, dest="mode", metavar="MODE")(commands)
+    args = parser.parse_args(["greet", "quiet", "you"])
+    assert (args.command, args.mode, args.handler(args)) == ("greet", "quiet", "hello you")
+    with pytest.raises(SystemExit):
+        parser.parse_args(["greet"])
+    assert "the following arguments are required: MODE" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="greet: a command with sub-commands needs a dest"):
+        Command("greet", help="say hello", subcommands=modes)

@@ -12,13 +12,13 @@ import pytest
 import yaml
 
 from crs_core.dataset import Dataset, Geometry
-from launch_scripts.commands.calibration import add_commands
+from launch_scripts.commands.calibration import COMMAND
 from launch_scripts.output_folder import MARKER
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="crs")
-    add_commands(parser.add_subparsers(dest="command", required=True))
+    COMMAND(parser.add_subparsers(dest="command", required=True))
     return parser
 
 

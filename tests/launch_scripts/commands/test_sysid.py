@@ -141,6 +141,12 @@ def test_bad_input_is_one_line_error(case: str, expected: str, drive: Path, tmp_
     assert not (tmp_path / "out").exists()  # nothing written before the input was checked
 
 
-def test_add_commands_returns_nothing():
+def test_sysid_and_validate_are_two_commands_with_their_own_handlers():
     parser = argparse.ArgumentParser()
-    assert sysid_command.add_commands(parser.add_subparsers()) is None
+    commands = parser.add_subparsers(dest="command")
+    sysid_command.SYSID(commands)
+    sysid_command.VALIDATE(commands)
+    args = parser.parse_args(["sysid", "d", "--out", "o"])
+    assert args.handler is sysid_command.run_sysid and args.out == Path("o")
+    args = parser.parse_args(["validate", "d", "--params", "p.yaml", "--out", "o"])
+    assert args.handler is sysid_command.run_validate and args.horizon == 2.0
