@@ -26,9 +26,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import MISSING, dataclass
+from types import SimpleNamespace
 from typing import Any, ClassVar
 
 from crs_core.errors import (
+    FieldError,
     require_finite,
     require_non_negative,
     require_positive,
@@ -102,6 +104,15 @@ class Bound:
                 unit=self.unit,
                 prefix=prefix,
             )
+
+    def requirement(self) -> str:
+        """What the bound asks of a value, in the words of its error: ``"a finite number > 0"``,
+        ``"within [0, 1) s"`` (e.g. a ROS parameter's constraints)."""
+        try:  # None is outside every bound: the check words its reason
+            self.check(SimpleNamespace(value=None), "value")
+        except FieldError as error:
+            return error.reason.removeprefix("must be ").removesuffix(", got None")
+        raise AssertionError("None passed a bound")
 
 
 def _bounded(default: Any, bound: Bound) -> Any:

@@ -229,6 +229,16 @@ def test_the_bound_is_in_the_field_metadata() -> None:
     }
 
 
+def test_a_bound_words_its_requirement_as_its_error_does() -> None:
+    bounds = [bound_of(f) for f in dataclasses.fields(_Timing)][:4]
+    assert [bound.requirement() for bound in bounds if bound is not None] == [
+        "a finite number > 0",
+        "a finite number >= 0",
+        "within [0, 1) s",
+        "a finite number",
+    ]
+
+
 def test_a_malformed_bound_is_a_programming_error() -> None:
     with pytest.raises(ValueError, match="kind"):
         Bound("odd")
