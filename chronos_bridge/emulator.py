@@ -64,9 +64,9 @@ from chronos_bridge.packets import (
     Steering,
 )
 from crs_core.control.low_level import rear_axle_speed
-from crs_core.errors import require_non_negative
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
+from crs_core.settings import Settings, non_negative
 from sim.onboard import OnboardSettings
 from sim.sensors import SensorSuite
 from sim.simulator import SimulationSession, Simulator
@@ -85,7 +85,7 @@ _log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class BatteryModel:
+class BatteryModel(Settings):
     """A 2S LiPo with internal resistance: ``V = V_oc(soc) - R · I``.
 
     ``V_oc = empty_voltage + (full_voltage - empty_voltage) · soc`` (linear, 6.8 V .. 8.4 V,
@@ -96,17 +96,16 @@ class BatteryModel:
     at full throttle, dropping by about 0.07 V per minute at full throttle.
     """
 
-    full_voltage: float = 8.4
-    empty_voltage: float = 6.8
-    capacity_ah: float = 0.3
-    initial_charge: float = 0.8
-    internal_resistance: float = 0.1
-    idle_current: float = 0.25
-    drive_current: float = 3.0
-    steer_current: float = 0.5
+    full_voltage: float = non_negative(8.4)
+    empty_voltage: float = non_negative(6.8)
+    capacity_ah: float = non_negative(0.3)
+    initial_charge: float = non_negative(0.8)
+    internal_resistance: float = non_negative(0.1)
+    idle_current: float = non_negative(0.25)
+    drive_current: float = non_negative(3.0)
+    steer_current: float = non_negative(0.5)
 
-    def __post_init__(self) -> None:
-        require_non_negative(self, *vars(self))
+    def _check_relations(self) -> None:
         if not self.empty_voltage < self.full_voltage:
             raise FieldError("empty_voltage", "must be < full_voltage")
         if self.capacity_ah <= 0:

@@ -85,7 +85,8 @@ from chronos_bridge.codec import (
     now_us,
 )
 from chronos_bridge.packets import CarState, Packet, Ping
-from crs_core.errors import FieldError, require_non_negative
+from crs_core.errors import FieldError
+from crs_core.settings import Settings, non_negative
 
 #: The buckets of :attr:`CarLink.counts`, in report order.
 BUCKETS = (
@@ -138,7 +139,7 @@ IMU_SENSORS = ("imu", "gyro")
 
 
 @dataclass(frozen=True)
-class CarLinkSettings:
+class CarLinkSettings(Settings):
     """Where a :class:`CarLink` listens, which car it pairs with, how it repeats commands.
 
     Attributes
@@ -165,10 +166,10 @@ class CarLinkSettings:
     car_ip: str = ""
     car_port: int = 0
     imu_sensor: Literal["imu", "gyro"] = "imu"
-    repeat_period: float = 0.02
-    repeat_for: float = 0.1
+    repeat_period: float = non_negative(0.02)
+    repeat_for: float = non_negative(0.1)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         for name in ("port", "car_port"):
             value = getattr(self, name)
             if not 0 <= int(value) <= 65535:
@@ -184,7 +185,6 @@ class CarLinkSettings:
             raise FieldError(
                 "imu_sensor", f"must be one of {', '.join(IMU_SENSORS)}, got {self.imu_sensor!r}"
             )
-        require_non_negative(self, "repeat_period", "repeat_for")
 
 
 class DatagramFilter:

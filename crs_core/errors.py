@@ -12,6 +12,8 @@ The checks that settings classes repeat (each of these fields a finite number, >
 an interval) are written once here: :func:`require_finite`, :func:`require_positive`,
 :func:`require_non_negative` and :func:`require_within` check attributes of a settings object by
 name, :func:`finite_number` one value, and each raises a :class:`FieldError` naming the field.
+A settings dataclass declares them on its fields instead (:mod:`crs_core.settings`), which runs
+these same checks.
 Parsers of text that word their own errors read a number with :func:`parse_finite`.
 """
 

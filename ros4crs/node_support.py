@@ -62,16 +62,21 @@ def declare(
     default: Any,
     description: str = "",
     check: Callable[[Any], str | None] | None = None,
+    constraints: str = "",
 ) -> Any:
     """Declare a parameter with a default and return its value, of the default's type.
 
     An integer is accepted for a float parameter (``rate_hz: 60``) and integers for a list of
     floats; any other type than the default's is refused. ``check(value)`` returns what is
     wrong (``None``: nothing). Raises :class:`ParameterError` naming the parameter.
+    ``constraints`` tells ``ros2 param describe`` what a value must be (the descriptor's
+    ``additional_constraints``: text, which ROS does not enforce; the checks do).
     """
     from rcl_interfaces.msg import ParameterDescriptor
 
-    descriptor = ParameterDescriptor(description=description, dynamic_typing=True)
+    descriptor = ParameterDescriptor(
+        description=description, additional_constraints=constraints, dynamic_typing=True
+    )
     value = _of_type(name, node.declare_parameter(name, default, descriptor).value, default)
     problem = check(value) if check is not None else None
     if problem:

@@ -23,8 +23,9 @@ from typing import Any
 
 from rclpy.node import Node
 
-from crs_core.errors import FieldError, require_non_negative
+from crs_core.errors import FieldError
 from crs_core.measurements import Measurement
+from crs_core.settings import Settings, non_negative
 from ros4crs import conversions
 from ros4crs.node_support import STREAM_OUT_QOS
 from ros4crs.settings_parameters import SettingsParameters, declare_settings
@@ -34,7 +35,7 @@ SENSOR_MESSAGES = ("batch", "each")
 
 
 @dataclass(frozen=True)
-class SensorOutputSettings:
+class SensorOutputSettings(Settings):
     """How a node publishes a car's sensor readings.
 
     Attributes
@@ -47,15 +48,14 @@ class SensorOutputSettings:
     """
 
     sensor_messages: str = "batch"
-    batch_period: float = 0.01
+    batch_period: float = non_negative(0.01)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         if self.sensor_messages not in SENSOR_MESSAGES:
             raise FieldError(
                 "sensor_messages",
                 f"must be one of {', '.join(SENSOR_MESSAGES)}, got {self.sensor_messages!r}",
             )
-        require_non_negative(self, "batch_period")
 
 
 #: Both settings, parameters of the simulator and the bridge.

@@ -5,12 +5,18 @@ A setting that is both a field of a settings dataclass (of ``crs_core``, ``sim``
 and a ROS parameter of a node (the controller's ``stale_timeout``) is written once, in the
 dataclass: the parameter's default is the field's, its description the field's entry in the
 ``Attributes`` section of the dataclass's numpydoc docstring (which gives the unit), and its
-bounds are the dataclass's own checks (``__post_init__``, raising
+bounds are the dataclass's own checks (made when it is built, raising
 :class:`~crs_core.errors.FieldError`). A node names the fields it takes as parameters in a
 :class:`SettingsParameters` (with the parameter's name where it differs from the field's),
 declares them with :func:`declare_fields` and builds the settings with
 :meth:`SettingsParameters.build` (or both at once: :func:`declare_settings`); a bad value is a
 :class:`~ros4crs.node_support.ParameterError` naming the parameter, with the dataclass's reason.
+
+A bound declared on the field (:mod:`crs_core.settings`: ``rate_hz: float = positive(60.0)``)
+is also the parameter's ``additional_constraints``, which ``ros2 param describe`` shows
+(``a finite number > 0``). It is text, not a ``floating_point_range``: rclpy would enforce a
+range itself, with its own error before the dataclass names the parameter, and a range has
+neither open ends (``> 0``) nor "finite".
 
 Each parameter is declared with the type of its default (:func:`~ros4crs.node_support.declare`:
 an integer is accepted for a float), so a value of the wrong type is refused when it is declared,
@@ -28,6 +34,7 @@ from typing import Any, Generic, TypeVar
 from rclpy.node import Node
 
 from crs_core.errors import FieldError
+from crs_core.settings import bound_of
 from ros4crs.node_support import ParameterError, declare
 
 __all__ = ["SettingsParameters", "attribute_docs", "declare_fields", "declare_settings"]
@@ -79,7 +86,8 @@ class SettingsParameters(Generic[S]):
     Attributes
     ----------
     settings : type
-        A dataclass whose ``__post_init__`` checks its fields, raising
+        A dataclass that checks its fields when it is built (a
+        :class:`~crs_core.settings.Settings`, or its own ``__post_init__``), raising
         :class:`~crs_core.errors.FieldError` naming the field.
     fields : tuple of str
         The fields that are parameters, in the order they are declared; each must have a
@@ -129,6 +137,13 @@ class SettingsParameters(Generic[S]):
         """The ``Attributes`` entry of ``field`` in the dataclass's docstring, as plain text."""
         return attribute_docs(self.settings)[field]
 
+    def constraints(self, field: str) -> str:
+        """What the bound declared on ``field`` asks (``"a finite number > 0"``); empty if the
+        field declares none."""
+        item = next(f for f in dataclasses.fields(self.settings) if f.name == field)  # type: ignore[arg-type]
+        bound = bound_of(item)
+        return bound.requirement() if bound is not None else ""
+
     def build(self, values: Mapping[str, Any], **given: Any) -> S:
         """The settings from the parameters' ``values`` (by field) and the other fields
         ``given``; a :class:`ParameterError` naming the parameter when the dataclass refuses a
@@ -149,9 +164,10 @@ def declare_fields(
     """Declare each of ``parameters`` on ``node``; their values by field name.
 
     Each is declared with the dataclass's default (or the node's own in ``defaults``, by field:
-    one that depends on another parameter, or where the dataclass has ``None``) and its
-    docstring entry as the description; ``checks`` (by field) are the node's own checks on top
-    of the dataclass's, made at once. A tuple field's value is a tuple.
+    one that depends on another parameter, or where the dataclass has ``None``), its
+    docstring entry as the description and its declared bound as the constraints; ``checks``
+    (by field) are the node's own checks on top of the dataclass's, made at once. A tuple
+    field's value is a tuple.
     """
     defaults = defaults or {}
     checks = checks or {}
@@ -166,6 +182,7 @@ def declare_fields(
             default,
             parameters.description(field),
             checks.get(field),
+            parameters.constraints(field),
         )
         values[field] = tuple(value) if isinstance(default, tuple) else value
     return values

@@ -28,8 +28,9 @@ from crs_core.control.low_level import (
     VelocityController,
     VelocitySettings,
 )
-from crs_core.errors import FieldError, require_positive
+from crs_core.errors import FieldError
 from crs_core.measurements import InputSample
+from crs_core.settings import Settings, positive
 from sim.actuators import (
     PotentiometerSettings,
     SteeringActuator,
@@ -41,7 +42,7 @@ MODES = ("torque", "velocity")
 
 
 @dataclass(frozen=True)
-class OnboardSettings:
+class OnboardSettings(Settings):
     """The simulated car's low-level loop: controllers, steering actuator, potentiometer.
 
     Attributes
@@ -62,9 +63,9 @@ class OnboardSettings:
     velocity: VelocitySettings = field(default_factory=VelocitySettings)
     actuator: SteeringActuatorSettings = field(default_factory=SteeringActuatorSettings)
     potentiometer: PotentiometerSettings = field(default_factory=PotentiometerSettings)
-    rate_hz: float = 250.0
+    rate_hz: float = positive(250.0)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         kinds = {
             "steering": SteeringSettings,
             "velocity": VelocitySettings,
@@ -74,7 +75,6 @@ class OnboardSettings:
         for name, kind in kinds.items():
             if not isinstance(getattr(self, name), kind):
                 raise FieldError(name, f"must be a {kind.__name__}, got {getattr(self, name)!r}")
-        require_positive(self, "rate_hz")
         rate = self.rate_hz
         for name in ("steering", "velocity"):
             pid_rate = getattr(self, name).pid.rate_hz

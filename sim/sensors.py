@@ -13,17 +13,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from crs_core.errors import (
-    FieldError,
-    parse_finite,
-    require_non_negative,
-    require_positive,
-    require_within,
-)
+from crs_core.errors import FieldError, parse_finite
+from crs_core.settings import Settings, non_negative, positive, within
 
 
 @dataclass(frozen=True)
-class SensorSpec:
+class SensorSpec(Settings):
     """Rate and imperfections of one sensor.
 
     Attributes
@@ -42,21 +37,18 @@ class SensorSpec:
         Standard deviation of the sampling-time jitter, s.
     """
 
-    rate_hz: float
+    rate_hz: float = positive()
     noise_std: tuple[float, ...]
     bias: tuple[float, ...] = ()
-    latency_s: float = 0.0
-    dropout_probability: float = 0.0
-    jitter_std_s: float = 0.0
+    latency_s: float = non_negative(0.0)
+    dropout_probability: float = within(0.0, low=0, high=1, high_open=True)
+    jitter_std_s: float = non_negative(0.0)
 
-    def __post_init__(self) -> None:
-        require_positive(self, "rate_hz")
+    def _check_relations(self) -> None:
         if any(s < 0 for s in self.noise_std):
             raise FieldError("noise_std", "must be >= 0")
         if self.bias and len(self.bias) != len(self.noise_std):
             raise FieldError("bias", "needs one value per channel")
-        require_within(self, "dropout_probability", 0, 1, high_open=True)
-        require_non_negative(self, "latency_s", "jitter_std_s")
 
     def ideal(self) -> SensorSpec:
         """Same rate, no noise, bias, latency, drop-outs or jitter."""

@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crs_core.errors import FieldError, require_non_negative
+from crs_core.errors import FieldError
+from crs_core.settings import Settings, non_negative
 
 __all__ = ["CommandDelay", "CommandDelaySettings"]
 
@@ -44,7 +45,7 @@ class _Sent:
 
 
 @dataclass(frozen=True)
-class CommandDelaySettings:
+class CommandDelaySettings(Settings):
     """How the command delay is measured.
 
     Attributes
@@ -63,14 +64,13 @@ class CommandDelaySettings:
         (normalised torque; the wire carries float32).
     """
 
-    initial: float = 0.02
-    max_delay: float = 0.15
+    initial: float = non_negative(0.02)
+    max_delay: float = non_negative(0.15)
     samples: int = 31
     min_matches: int = 5
-    tolerance: float = 1e-6
+    tolerance: float = non_negative(1e-6)
 
-    def __post_init__(self) -> None:
-        require_non_negative(self, "initial", "max_delay", "tolerance")
+    def _check_relations(self) -> None:
         if not self.initial <= self.max_delay:
             raise FieldError(
                 "initial", f"must not exceed max_delay ({self.max_delay:g} s), got {self.initial!r}"

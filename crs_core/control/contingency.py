@@ -48,9 +48,10 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.errors import FieldError, require_non_negative, require_positive
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
+from crs_core.settings import Settings, non_negative, positive
 from crs_core.track import Track, minimum_curvature_line
 
 __all__ = ["ContingencySettings", "HoldSafetyFilter", "braking_envelope", "lag_decay"]
@@ -64,7 +65,7 @@ SUBSTEPS = 2
 
 
 @dataclass(frozen=True)
-class ContingencySettings:
+class ContingencySettings(Settings):
     """What an outage is assumed to do to a car, and what is safe after it.
 
     Attributes
@@ -102,28 +103,16 @@ class ContingencySettings:
         Deceleration of full braking, m/s^2 (the Chronos car's ``Cm1 / m`` is 4.0).
     """
 
-    hold_time: float = 0.25
-    coast_time: float = 0.2
-    steering_time_constant: float = 0.04
-    sample_time: float = 0.025
-    edge_clearance: float = 0.06
-    recovery_time: float = 0.4
-    recovery_gain: float = 2.5
-    min_speed: float = 0.5
-    lateral: float = 4.0
-    braking: float = 4.0
-
-    def __post_init__(self) -> None:
-        require_non_negative(
-            self,
-            "hold_time",
-            "coast_time",
-            "steering_time_constant",
-            "edge_clearance",
-            "recovery_time",
-            "min_speed",
-        )
-        require_positive(self, "sample_time", "recovery_gain", "lateral", "braking")
+    hold_time: float = non_negative(0.25)
+    coast_time: float = non_negative(0.2)
+    steering_time_constant: float = non_negative(0.04)
+    sample_time: float = positive(0.025)
+    edge_clearance: float = non_negative(0.06)
+    recovery_time: float = non_negative(0.4)
+    recovery_gain: float = positive(2.5)
+    min_speed: float = non_negative(0.5)
+    lateral: float = positive(4.0)
+    braking: float = positive(4.0)
 
 
 class HoldSafetyFilter:

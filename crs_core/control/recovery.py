@@ -21,14 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.errors import FieldError, require_positive
+from crs_core.errors import FieldError
+from crs_core.settings import Settings, positive
 from crs_core.track import Track
 
 __all__ = ["RecoverySettings", "StuckRecovery"]
 
 
 @dataclass(frozen=True)
-class RecoverySettings:
+class RecoverySettings(Settings):
     """When a car counts as stuck and how it is backed out.
 
     Attributes
@@ -46,14 +47,13 @@ class RecoverySettings:
         has reversed at least a quarter of ``reverse_time``).
     """
 
-    stuck_speed: float = 0.2
-    stuck_after: float = 0.5
-    reverse_torque: float = 0.25
-    reverse_time: float = 0.8
+    stuck_speed: float = positive(0.2)
+    stuck_after: float = positive(0.5)
+    reverse_torque: float = positive(0.25)
+    reverse_time: float = positive(0.8)
     aligned_heading: float = 0.3
 
-    def __post_init__(self) -> None:
-        require_positive(self, "stuck_speed", "stuck_after", "reverse_torque", "reverse_time")
+    def _check_relations(self) -> None:
         if not (math.isfinite(self.aligned_heading) and 0 < self.aligned_heading < math.pi):
             raise FieldError(
                 "aligned_heading", f"must be within (0, pi) rad, got {self.aligned_heading!r}"

@@ -58,8 +58,9 @@ from numpy.typing import ArrayLike
 from crs_core.control.command_delay import CommandDelay
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.recovery import StuckRecovery
-from crs_core.errors import FieldError, require_non_negative, require_positive
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
+from crs_core.settings import Settings, non_negative, positive
 
 __all__ = [
     "EVENT_KINDS",
@@ -95,7 +96,7 @@ STOP.flags.writeable = False
 
 
 @dataclass(frozen=True)
-class SupervisorSettings:
+class SupervisorSettings(Settings):
     """Limits and timings of :class:`Supervisor`.
 
     Attributes
@@ -135,35 +136,25 @@ class SupervisorSettings:
         estimator's first estimates are degraded until the Lighthouse is accepted).
     """
 
-    stale_timeout: float = 0.2
-    degraded_speed: float = 0.5
-    max_speed: float = 4.0
-    ramp_rate: float = 1.5
-    rise_rate: float = 3.0
-    ok_hold: float = 1.0
-    steer_max: float = 0.34
+    stale_timeout: float = positive(0.2)
+    degraded_speed: float = positive(0.5)
+    max_speed: float = positive(4.0)
+    ramp_rate: float = positive(1.5)
+    rise_rate: float = positive(3.0)
+    ok_hold: float = non_negative(1.0)
+    steer_max: float = positive(0.34)
     torque_min: float = -1.0
     torque_max: float = 1.0
-    velocity_max: float = 5.0
+    velocity_max: float = non_negative(5.0)
     hold_safe: str = "after_outage"
-    caution_memory: float = 60.0
-    ok_before_outage: float = 1.0
+    caution_memory: float = non_negative(60.0)
+    ok_before_outage: float = non_negative(1.0)
 
-    def __post_init__(self) -> None:
-        require_positive(
-            self,
-            "stale_timeout",
-            "degraded_speed",
-            "max_speed",
-            "ramp_rate",
-            "rise_rate",
-            "steer_max",
-        )
+    def _check_relations(self) -> None:
         if self.hold_safe not in HOLD_SAFE_MODES:
             raise FieldError(
                 "hold_safe", f"must be one of {', '.join(HOLD_SAFE_MODES)}, got {self.hold_safe!r}"
             )
-        require_non_negative(self, "ok_hold", "velocity_max", "caution_memory", "ok_before_outage")
         if not self.degraded_speed <= self.max_speed:
             raise FieldError(
                 "degraded_speed",

@@ -57,13 +57,14 @@ from crs_core.identification.problem import FieSettings, check_fit
 from crs_core.identification.solve import FieResult, identify
 from crs_core.identification.validation import DEFAULT_HORIZON_S, validate
 from crs_core.model import EFFECTS, CarModel
+from crs_core.settings import Settings, within
 
 #: Verdicts of the workflow.
 VERDICTS = ("effect", "none", "unexplained")
 
 
 @dataclass(frozen=True)
-class DiscrepancySettings:
+class DiscrepancySettings(Settings):
     """Settings of :func:`find_discrepancy`.
 
     Attributes
@@ -105,7 +106,7 @@ class DiscrepancySettings:
     identification: FieSettings = field(default_factory=FieSettings)
     test: TestSettings = field(default_factory=TestSettings)
     candidates: tuple[str, ...] | None = None
-    held_out_fraction: float = 0.3
+    held_out_fraction: float = within(0.3, low=0.1, high=0.7)
     horizon_s: float = DEFAULT_HORIZON_S
     max_effects: int = 2
     hidden_candidates: int = 2
@@ -113,11 +114,7 @@ class DiscrepancySettings:
     workers: int = 1
     estimate_plane1_lag: bool = True
 
-    def __post_init__(self) -> None:
-        if not 0.1 <= self.held_out_fraction <= 0.7:
-            raise FieldError(
-                "held_out_fraction", f"must be within [0.1, 0.7], got {self.held_out_fraction}"
-            )
+    def _check_relations(self) -> None:
         if self.workers < 1:
             raise FieldError("workers", f"must be >= 1, got {self.workers}")
         if self.max_effects < 1:

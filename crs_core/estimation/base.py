@@ -41,6 +41,7 @@ from crs_core.estimation.health import HealthMonitor, HealthSettings
 from crs_core.estimation.initialization import InitializationSettings, PoseInitializer
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import InputSample, Measurement, parse_lighthouse, sensor_size
+from crs_core.settings import Settings
 
 #: Sensor groups an estimator can be told to use.
 SENSOR_GROUPS = ("lh", "imu", "gyro", "we", "pose")
@@ -87,7 +88,7 @@ def checked_initial_state(x0: ArrayLike) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class EstimatorSettings:
+class EstimatorSettings(Settings):
     """Settings every estimator of this package shares (EKF and MHE settings extend it).
 
     Attributes
@@ -115,7 +116,7 @@ class EstimatorSettings:
     health: HealthSettings = field(default_factory=HealthSettings)
     initialization: InitializationSettings = field(default_factory=InitializationSettings)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         if len(self.initial_std) != 6 or not all(
             math.isfinite(v) and v > 0 for v in self.initial_std
         ):

@@ -52,8 +52,8 @@ class EkfSettings(EstimatorSettings):
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 25
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def _check_relations(self) -> None:
+        super()._check_relations()
         if not 0 < self.gate_probability < 1:
             raise FieldError("gate_probability", "must be in (0, 1)")
         if self.max_consecutive_rejections < 1:

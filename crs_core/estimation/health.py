@@ -25,14 +25,15 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from crs_core.errors import FieldError, require_positive, require_within
+from crs_core.errors import FieldError
+from crs_core.settings import Settings, positive, within
 
 #: The three status words, best first.
 STATUSES = ("ok", "degraded", "lost")
 
 
 @dataclass(frozen=True)
-class HealthSettings:
+class HealthSettings(Settings, prefix="health"):
     """Thresholds of :class:`HealthMonitor` (and of re-initialisation).
 
     Attributes
@@ -55,25 +56,15 @@ class HealthSettings:
         ``|omega|`` above this (rad/s) is outside the physical envelope: ``lost``.
     """
 
-    window_s: float = 1.0
-    rejected_fraction: float = 0.2
-    dead_reckoning_after_s: float = 0.25
-    lost_after_s: float = 0.5
+    window_s: float = positive(1.0)
+    rejected_fraction: float = within(0.2, low=0, high=1)
+    dead_reckoning_after_s: float = positive(0.25)
+    lost_after_s: float = positive(0.5)
     lost_min_samples: int = 10
-    max_speed: float = 10.0
-    max_yaw_rate: float = 40.0
+    max_speed: float = positive(10.0)
+    max_yaw_rate: float = positive(40.0)
 
-    def __post_init__(self) -> None:
-        require_positive(
-            self,
-            "window_s",
-            "dead_reckoning_after_s",
-            "lost_after_s",
-            "max_speed",
-            "max_yaw_rate",
-            prefix="health",
-        )
-        require_within(self, "rejected_fraction", 0, 1, prefix="health")
+    def _check_relations(self) -> None:
         if self.lost_min_samples < 1:
             raise FieldError("health.lost_min_samples", "must be >= 1")
 

@@ -24,14 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.errors import FieldError, require_positive
+from crs_core.errors import FieldError
 from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import Measurement, parse_lighthouse
+from crs_core.settings import Settings, positive
 
 
 @dataclass(frozen=True)
-class InitializationSettings:
+class InitializationSettings(Settings, prefix="initialization"):
     """How a blind start builds its state (see the module docstring).
 
     Attributes
@@ -49,24 +50,15 @@ class InitializationSettings:
     """
 
     min_fixes: int = 3
-    span_s: float = 0.3
-    max_pair_gap: float = 0.03
-    jump_tolerance: float = 0.05
-    velocity_std: float = 0.3
-    yaw_rate_std: float = 1.0
+    span_s: float = positive(0.3)
+    max_pair_gap: float = positive(0.03)
+    jump_tolerance: float = positive(0.05)
+    velocity_std: float = positive(0.3)
+    yaw_rate_std: float = positive(1.0)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         if self.min_fixes < 2:
             raise FieldError("initialization.min_fixes", "must be >= 2 (velocities need two)")
-        require_positive(
-            self,
-            "span_s",
-            "max_pair_gap",
-            "jump_tolerance",
-            "velocity_std",
-            "yaw_rate_std",
-            prefix="initialization",
-        )
 
 
 @dataclass(frozen=True)

@@ -55,7 +55,7 @@ import numpy as np
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import compile_functions
-from crs_core.errors import FieldError, require_positive, require_within
+from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.mhe_problem import (
     Band,
@@ -68,6 +68,7 @@ from crs_core.estimation.readout import ForwardReadOut
 from crs_core.estimation.rejection import RejectionCap
 from crs_core.measurements import InputSample, Measurement
 from crs_core.model import MAX_SUBSTEP, CarModel
+from crs_core.settings import positive, within
 
 #: Soft bounds of effect states by name (lower, upper); other effect states are unbounded.
 EXTRA_STATE_BOUNDS: dict[str, tuple[float, float]] = {
@@ -129,8 +130,8 @@ class MheSettings(EstimatorSettings):
     """
 
     horizon: int = 40
-    rate_hz: float = 60.0
-    discount: float = 0.95
+    rate_hz: float = positive(60.0)
+    discount: float = within(0.95, low=0, high=1, low_open=True)
     arrival_floor_std: float = 10.0
     state_lower: tuple[float, float, float] = (-1.0, -2.0, -12.0)
     state_upper: tuple[float, float, float] = (5.0, 2.0, 12.0)
@@ -143,12 +144,10 @@ class MheSettings(EstimatorSettings):
     max_catch_up: int | None = None
     catch_up_solves: int | None = None
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
+    def _check_relations(self) -> None:
+        super()._check_relations()
         if self.horizon < 1:
             raise FieldError("horizon", "must be >= 1")
-        require_within(self, "discount", 0, 1, low_open=True)
-        require_positive(self, "rate_hz")
         if self.iterations < 1:
             raise FieldError("iterations", "must be >= 1")
         if len(self.process_bound) != 6 or not all(b > 0 for b in self.process_bound):

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from crs_core.errors import require_non_negative, require_positive
 from crs_core.estimation.base import Estimate, Estimator, checked_initial_state
 from crs_core.measurements import InputSample, Measurement, from_start
+from crs_core.settings import Settings, non_negative, positive
 
 __all__ = [
     "CLOCK_JUMP_S",
@@ -89,7 +89,7 @@ class WindowMax:
 
 
 @dataclass(frozen=True)
-class RealtimeSettings:
+class RealtimeSettings(Settings):
     """Timing of :class:`RealtimeEstimator`.
 
     Attributes
@@ -105,13 +105,9 @@ class RealtimeSettings:
         which drops late data; the MHE takes them into its window at its next update.
     """
 
-    rate_hz: float = 60.0
-    lag: float = 0.02
-    max_lag: float = 0.0
-
-    def __post_init__(self) -> None:
-        require_positive(self, "rate_hz")
-        require_non_negative(self, "lag", "max_lag")
+    rate_hz: float = positive(60.0)
+    lag: float = non_negative(0.02)
+    max_lag: float = non_negative(0.0)
 
 
 @dataclass(frozen=True)

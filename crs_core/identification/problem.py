@@ -34,12 +34,13 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from crs_core.errors import FieldError, require_positive
+from crs_core.errors import FieldError
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT, FieData
 from crs_core.identification.jacobian import DefectBlock, MeasurementBlock, residual_jacobian
 from crs_core.model import CarModel
 from crs_core.model.car_model import MAX_SUBSTEP
+from crs_core.settings import Settings, positive
 
 #: The paper's 15 dynamics parameters: the default ``--fit``.
 DYNAMICS_FIT = (
@@ -73,7 +74,7 @@ SUBSTEP_LADDER = (1, 2, 3, 4, 5, 6, 8, 10, 12, 16, 20, 25, 32, 40, 50, 64, 80, 1
 
 
 @dataclass(frozen=True)
-class FieSettings:
+class FieSettings(Settings):
     """Tuning of the FIE problem and its solver.
 
     Attributes
@@ -105,20 +106,19 @@ class FieSettings:
     fit: tuple[str, ...] = DYNAMICS_FIT
     hessian: str = "gauss-newton"
     noise: EstimatorNoise = field(default_factory=EstimatorNoise)
-    process_scale: float = 1.0
+    process_scale: float = positive(1.0)
     max_iter: int = 200
     tol: float = 1e-6
     starts: int = 1
     seed: int = 0
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         if self.hessian not in ("gauss-newton", "exact"):
             raise FieldError("hessian", f"must be 'exact' or 'gauss-newton', got {self.hessian!r}")
         if not self.fit:
             raise FieldError("fit", "name at least one parameter")
         if len(set(self.fit)) != len(self.fit):
             raise FieldError("fit", f"a parameter is named twice in {', '.join(self.fit)}")
-        require_positive(self, "process_scale")
         for name in ("max_iter", "starts"):
             if getattr(self, name) < 1:
                 raise FieldError(name, f"must be >= 1, got {getattr(self, name)!r}")

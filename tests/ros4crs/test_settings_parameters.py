@@ -203,3 +203,40 @@ def test_the_controller_and_estimator_parameters_keep_their_defaults() -> None:
         SUPERVISOR_PARAMETERS.build(values)
     with pytest.raises(ParameterError, match=r"^command_delay: must not exceed max_delay"):
         declare_settings(FakeNode(command_delay=0.5), COMMAND_DELAY_PARAMETERS)
+
+
+def test_a_declared_bound_is_the_parameter_s_constraints() -> None:
+    """``ros2 param describe`` shows the bound declared on the field; none without one."""
+    from ros4crs.controller_node import SUPERVISOR_PARAMETERS
+    from ros4crs.estimator_node import REALTIME_PARAMETERS
+
+    class DescribedNode(FakeNode):
+        def __init__(self) -> None:
+            super().__init__()
+            self.constraints: dict[str, str] = {}
+
+        def declare_parameter(self, name: str, default: Any, descriptor: Any) -> Any:
+            self.constraints[name] = descriptor.additional_constraints
+            return super().declare_parameter(name, default, descriptor)
+
+    node = DescribedNode()
+    declare_settings(node, REALTIME_PARAMETERS)
+    declare_fields(node, SUPERVISOR_PARAMETERS)
+    declare_settings(node, SPEC)  # Timing checks in __post_init__: no declared bound
+    assert node.constraints == {
+        "rate_hz": "a finite number > 0",
+        "lag": "a finite number >= 0",
+        "max_lag": "a finite number >= 0",
+        "stale_timeout": "a finite number > 0",
+        "degraded_speed": "a finite number > 0",
+        "speed_ramp": "a finite number > 0",
+        "speed_rise": "a finite number > 0",
+        "ok_hold": "a finite number >= 0",
+        "hold_safe": "",
+        "caution_memory": "a finite number >= 0",
+        "timer_period": "",
+        "high": "",
+        "mode": "",
+        "count": "",
+        "offsets": "",
+    }
