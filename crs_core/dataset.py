@@ -174,6 +174,23 @@ class Geometry:
             raise FieldError("geometry.base_stations", "needs at least one base station")
         return cls(tuple(stations), tuple((float(x), float(y)) for x, y in diodes))
 
+    @classmethod
+    def from_file(cls, path: str | Path) -> Geometry:
+        """The ``geometry`` block of a YAML file: the ``geometry.yaml`` of ``crs
+        calibrate-lighthouse``, or a dataset's ``dataset.yaml``. Errors name the file (it cannot
+        be read, is not YAML, has no ``geometry``) or the block's field."""
+        path = Path(path)
+        try:
+            document = yaml.safe_load(path.read_text())
+        except OSError as error:
+            raise FieldError(str(path), f"cannot read it ({error.strerror or error})") from None
+        except yaml.YAMLError as error:
+            problem = str(error).splitlines()[0]
+            raise FieldError(str(path), f"not valid YAML ({problem})") from None
+        if not isinstance(document, Mapping) or not isinstance(document.get("geometry"), Mapping):
+            raise FieldError(str(path), "expected a mapping with a 'geometry' block")
+        return cls.from_dict(document["geometry"])
+
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
     try:

@@ -463,3 +463,29 @@ def test_a_reflected_base_station_rotation_is_named_once() -> None:
     assert str(caught.value) == (
         "geometry.base_stations[0].rotation: matrix is a reflection (det < 0)"
     )
+
+
+def test_a_geometry_from_a_file(tmp_path: Path):
+    """A calibration's geometry.yaml and a dataset.yaml give their geometry block; a file
+    without one, or not YAML, is an error naming the file."""
+    from crs_core.calibration.report import write_geometry
+    from crs_core.model.chronos import default_base_stations
+
+    stations = default_base_stations(2)
+    written = write_geometry(tmp_path / "geometry.yaml", stations, RECORDED_PHOTODIODES)
+    geometry = Geometry.from_file(written)
+    assert len(geometry.base_stations) == 2
+    np.testing.assert_allclose(geometry.base_stations[1].position, stations[1].position)
+    folder = Dataset(np.array([0.0, 1.0]), None, np.zeros((2, 13)), geometry=geometry).save(
+        tmp_path / "dataset"
+    )
+    again = Geometry.from_file(folder / "dataset.yaml")
+    np.testing.assert_allclose(again.parameters().vector(), geometry.parameters().vector())
+    (tmp_path / "other.yaml").write_text("parameters: {m: 0.2}\n")
+    with pytest.raises(FieldError, match=r"other\.yaml: expected a mapping with a 'geometry'"):
+        Geometry.from_file(tmp_path / "other.yaml")
+    (tmp_path / "bad.yaml").write_text("geometry: [\n")
+    with pytest.raises(FieldError, match=r"bad\.yaml: not valid YAML"):
+        Geometry.from_file(tmp_path / "bad.yaml")
+    with pytest.raises(FieldError, match=r"nowhere\.yaml: cannot read it"):
+        Geometry.from_file(tmp_path / "nowhere.yaml")
