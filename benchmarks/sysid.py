@@ -15,12 +15,11 @@ import numpy as np
 from benchmarks.machine import REAL_DATA, machine
 from crs_core.dataset import Dataset
 from crs_core.identification.models import ROUGH, identification_model
-from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.identification.problem import DEFAULT_FIT, DYNAMICS_FIT, FieSettings
 from crs_core.model import CarModel
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 
 #: The benchmark's fit: the 15 dynamics parameters, wheel radius and track width.
-BENCHMARK_FIT = (*DYNAMICS_FIT, "r", "b_car")
 
 
 def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, Any]:
@@ -39,7 +38,7 @@ def simulated_study(seeds: Sequence[int], duration: float = 60.0) -> dict[str, A
     for seed in seeds:
         dataset = simulate_dataset(duration, seed)
         model = identification_model(dataset, [], ROUGH)
-        settings = FieSettings(fit=BENCHMARK_FIT, process_scale=SIM_PROCESS_SCALE)
+        settings = FieSettings(fit=DEFAULT_FIT, process_scale=SIM_PROCESS_SCALE)
         result = identify(dataset, model, settings)
         z = (result.theta - np.array([truth.value(n) for n in result.fit])) / result.uncertainty.std
         inside2 += int(np.sum(np.abs(z) <= 2))
@@ -86,7 +85,7 @@ def real_study() -> dict[str, Any]:
         _say(f"real: identify on {train.name}, validate on {test.name}, prediction-error floor")
         dataset = Dataset.load(train)
         model = identification_model(dataset, [], ROUGH)
-        result = identify(dataset, model, FieSettings(fit=BENCHMARK_FIT))
+        result = identify(dataset, model, FieSettings(fit=DEFAULT_FIT))
         summary, _ = validate(Dataset.load(test), model, result.parameters, model.parameters)
         out[f"{train.name} -> {test.name}"] = {
             "samples": len(dataset.t),
@@ -140,10 +139,10 @@ def speed_study() -> dict[str, Any]:
         model = identification_model(dataset, [], ROUGH)
         scale = SIM_PROCESS_SCALE if label.startswith("simulated") else 1.0
         started = time.perf_counter()
-        result = identify(dataset, model, FieSettings(fit=BENCHMARK_FIT, process_scale=scale))
+        result = identify(dataset, model, FieSettings(fit=DEFAULT_FIT, process_scale=scale))
         out[label] = {
             "samples": len(dataset.t),
-            "parameters": len(BENCHMARK_FIT),
+            "parameters": len(DEFAULT_FIT),
             "time_s": round(time.perf_counter() - started, 2),
             "build_s": round(result.build_s, 2),
             "iterations": result.iterations,
@@ -225,7 +224,7 @@ def format_markdown(result: dict[str, Any]) -> str:
         train, test = (name.rsplit("_", 1)[-1] for name in direction.split(" -> "))
         lines.append(
             f"| real, identify on run {train}, validate on run {test} "
-            f"({len(BENCHMARK_FIT)} parameters) | {_rmse_change(real['position_rmse_m'])} |"
+            f"({len(DEFAULT_FIT)} parameters) | {_rmse_change(real['position_rmse_m'])} |"
         )
         floor = real.get("prediction_error_floor")
         if floor:

@@ -20,6 +20,7 @@ from launch_scripts.commands import (
     bench,
     calibration,
     consistency,
+    dataset,
     discrepancy,
     estimate,
     launch,
@@ -34,6 +35,7 @@ from launch_scripts.commands import (
 REGISTRY: tuple[Callable[[argparse._SubParsersAction], object], ...] = (
     simulate.SIM,
     simulate.DEMO,
+    dataset.COMMAND,
     estimate.COMMAND,
     consistency.COMMAND,
     sysid.SYSID,

@@ -29,7 +29,12 @@ from crs_core.analysis.figures import (
 from crs_core.analysis.metrics import band_statistics, pose_error_bands
 from crs_core.dataset import Dataset
 from crs_core.estimation.base import sensor_group
-from crs_core.estimation.offline import OfflineEstimates, dataset_stream, reference_label
+from crs_core.estimation.offline import (
+    OfflineEstimates,
+    dataset_stream,
+    reference_label,
+    reference_states_at,
+)
 from crs_core.track import Track, load_demo_track
 
 #: Label and unit of each state in the time plots.
@@ -108,11 +113,13 @@ def error_bands(result: OfflineEstimates, dataset: Dataset) -> dict[str, Any] | 
     :func:`~crs_core.analysis.metrics.band_statistics` (RMSE and the fraction inside ±2σ) over
     the samples that are not lost.
     """
-    if dataset.x is None:
+    reference = reference_states_at(dataset, result.t)
+    if reference is None:
         return None
     factors = np.array([factor for _, _, factor in ERROR_COMPONENTS])
+    found = (result.status != "lost") & np.isfinite(reference[:, 0])
     errors, sigmas = pose_error_bands(
-        result.x[:3].T, result.covariance_diag[:3].T, dataset.x, result.status != "lost"
+        result.x[:3].T, result.covariance_diag[:3].T, reference, found
     )
     errors, sigmas = errors * factors, sigmas * factors
     stats = {
@@ -208,7 +215,8 @@ def _plot_states(axes, result: OfflineEstimates, dataset: Dataset) -> None:
     t = result.t - result.t[0]
     found = result.status != "lost"
     estimate = result.x.copy()
-    reference = None if dataset.x is None else dataset.x[:, :6].T.copy()
+    states = reference_states_at(dataset, result.t)
+    reference = None if states is None else states[:, :6].T.copy()
     if found.any():  # yaw unwrapped for reading, the reference moved by whole turns to match
         estimate[2, found] = np.unwrap(estimate[2, found])
         if reference is not None:
@@ -241,8 +249,8 @@ def _reference(dataset: Dataset) -> str:
     Lighthouse-based when the recording has Lighthouse data and no motion capture (as the
     Chronos recordings in ``shared/data/chronos_real``)."""
     label = reference_label(dataset)
-    if label == "simulation truth":
-        return label
+    if label == "simulation truth" or dataset.meta.get("reference"):
+        return label  # as the simulator or a bag's conversion named it
     measurements, _, _ = dataset_stream(dataset)
     groups = {sensor_group(m.sensor) for m in measurements}
     if "lh" in groups and "pose" not in groups:

@@ -285,10 +285,14 @@ def is_bag(path: str | Path) -> bool:
 
 
 def load_recording(
-    path: str | Path, car: str | None = None, geometry: Geometry | None = None
+    path: str | Path,
+    car: str | None = None,
+    geometry: Geometry | None = None,
+    inputs: str = "auto",
+    reference: str = "auto",
 ) -> Dataset:
     """A recording as a dataset: a dataset folder (:meth:`~crs_core.dataset.Dataset.load`), or a
-    bag (:func:`dataset_from_bag`, with ``car`` and ``geometry``; the defaults otherwise).
+    bag (:func:`dataset_from_bag`, with ``car``, ``geometry``, ``inputs`` and ``reference``).
 
     Raises
     ------
@@ -299,7 +303,7 @@ def load_recording(
         :meth:`~crs_core.dataset.Dataset.load` and :func:`dataset_from_bag`.
     """
     if is_bag(path):
-        return dataset_from_bag(path, car, geometry=geometry)
+        return dataset_from_bag(path, car, inputs=inputs, reference=reference, geometry=geometry)
     if car is not None:
         raise FieldError("car", f"{path} is a dataset folder (one car), not a bag")
     if geometry is not None:

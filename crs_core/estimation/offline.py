@@ -272,8 +272,7 @@ def estimate_dataset(
     )
 
     events = in_stamp_order(measurements, delivered_inputs)
-    t_start = min(float(dataset.t[0]), events[0].stamp if events else math.inf)
-    t_end = max(float(dataset.t[-1]), events[-1].stamp if events else -math.inf)
+    t_start, t_end = data_span(dataset, with_inputs=bool(delivered_inputs))
     stamps = np.array(dataset.t, dtype=float) if at is None else query_stamps(at, t_start, t_end)
     estimator.reset(t_start, start_x, start_cov)
     n = len(stamps)
@@ -329,6 +328,17 @@ def estimate_dataset(
     return OfflineEstimates(stamps, x, variances, status, reasons, diagnostics, estimator)
 
 
+def data_span(dataset: Dataset, with_inputs: bool = True) -> tuple[float, float]:
+    """The first and the last stamp of a dataset's data (its samples, its stream and, unless
+    they are withheld, its inputs), s: where an offline run starts and may be asked."""
+    measurements, inputs, _ = dataset_stream(dataset)
+    stamps = [float(dataset.t[0]), float(dataset.t[-1])]
+    for items in (measurements, inputs if with_inputs else []):
+        if items:
+            stamps += [min(i.stamp for i in items), max(i.stamp for i in items)]
+    return min(stamps), max(stamps)
+
+
 def query_stamps(at: Any, start: float, end: float) -> np.ndarray:
     """``at`` as the stamps of an offline run over data from ``start`` to ``end`` (s):
     :class:`~crs_core.errors.FieldError` (field ``at``) unless a non-empty 1-D array of finite,
@@ -380,13 +390,10 @@ def reference_comparison(result: OfflineEstimates, dataset: Dataset) -> dict[str
     :data:`SETTLING_S` after the first fix. SI units, yaw error wrapped; ``position`` is
     ``sqrt(rmse_x² + rmse_y²)``.
     """
-    if dataset.x is None:
+    reference = reference_states_at(dataset, result.t)
+    if reference is None:
         return None
-    reference = dataset.x
-    found = result.status != "lost"
-    if not np.array_equal(result.t, dataset.t):  # estimates at other stamps: interpolated
-        reference = _interpolated_states(dataset.t, dataset.x, result.t)
-        found &= (result.t >= dataset.t[0]) & (result.t <= dataset.t[-1])
+    found = (result.status != "lost") & np.isfinite(reference[:, 0])
     first = result.t[found][0] if found.any() else math.inf
     settled = found & (result.t >= first + SETTLING_S)
     return {
@@ -399,8 +406,15 @@ def reference_comparison(result: OfflineEstimates, dataset: Dataset) -> dict[str
     }
 
 
-def _interpolated_states(t: np.ndarray, x: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """States ``x`` (N, 6) at stamps ``t`` linearly interpolated to ``at`` (yaw unwrapped)."""
-    x = x.copy()
+def reference_states_at(dataset: Dataset, t: np.ndarray) -> np.ndarray | None:
+    """The dataset's reference states at stamps ``t``, ``(N, 6)`` (None without ``x``): its own
+    rows at its own stamps, else linearly interpolated (yaw unwrapped), NaN outside them."""
+    if dataset.x is None:
+        return None
+    if np.array_equal(t, dataset.t):
+        return dataset.x
+    x = dataset.x.copy()
     x[:, 2] = np.unwrap(x[:, 2])
-    return np.stack([np.interp(at, t, x[:, i]) for i in range(x.shape[1])], axis=1)
+    return np.stack(
+        [np.interp(t, dataset.t, x[:, i], left=np.nan, right=np.nan) for i in range(6)], axis=1
+    )

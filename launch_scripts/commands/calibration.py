@@ -22,6 +22,7 @@ import numpy as np
 
 from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
+from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
 NAME = "calibrate-lighthouse"
 
@@ -67,7 +68,13 @@ def _static_arguments(sub: argparse.ArgumentParser) -> None:
 
 def _moving_arguments(sub: argparse.ArgumentParser) -> None:
     """``moving``'s arguments."""
-    sub.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder")
+    sub.add_argument(
+        "dataset",
+        type=Path,
+        metavar="DATASET",
+        help=RECORDING_HELP + ", with motion-capture poses",
+    )
+    add_bag_options(sub)
     add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--fit-offset",
@@ -189,13 +196,12 @@ def run_moving(args: argparse.Namespace) -> Path:
     from crs_core.calibration.moving import calibrate_moving
     from crs_core.calibration.plots import moving_figures
     from crs_core.calibration.report import moving_markdown, moving_summary
-    from crs_core.dataset import Dataset
 
     if abs(args.offset) > args.max_offset:
         raise ValueError(
             f"--offset: {args.offset} s lies outside +-{args.max_offset} s (--max-offset)"
         )
-    dataset = Dataset.load(args.dataset)
+    dataset = load_recording(args.dataset, args)
     calibration = calibrate_moving(
         dataset,
         fit_offset=args.fit_offset,

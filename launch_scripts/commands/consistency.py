@@ -9,12 +9,12 @@ from pathlib import Path
 from benchmarks.machine import REAL_DATA
 from launch_scripts.arguments import Command, add_out, command_line
 from launch_scripts.output_folder import prepare_output_file
+from launch_scripts.recording import add_bag_options, load_recording
 
 
 def consistency(args: argparse.Namespace) -> None:
     """Real-data consistency of the sensor models (median / p95 error per channel)."""
     from crs_core.analysis.consistency import channel_errors
-    from crs_core.dataset import Dataset
 
     if args.out:
         prepare_output_file(args.out, args.overwrite)
@@ -26,7 +26,7 @@ def consistency(args: argparse.Namespace) -> None:
     folders = args.data or sorted(p for p in REAL_DATA.iterdir() if p.is_dir())
     rows = {}
     for folder in folders:
-        rows[Path(folder).name] = channel_errors(Dataset.load(folder))
+        rows[Path(folder).name] = channel_errors(load_recording(Path(folder), args, "--data"))
     text = json.dumps({"command": command_line(), "runs": rows}, indent=2)
     if args.out:
         Path(args.out).write_text(text)
@@ -45,8 +45,10 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "--data",
         type=Path,
         action="append",
-        help=f"dataset folder (repeatable; default: the real recordings in {REAL_DATA})",
+        help=f"a recording with reference states: dataset folder or bag (repeatable; default: "
+        f"the real recordings in {REAL_DATA})",
     )
+    add_bag_options(sub)
     add_out(sub, "also write the table as JSON to this file")
 
 

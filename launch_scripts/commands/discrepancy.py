@@ -19,13 +19,9 @@ from launch_scripts.arguments import (
     add_process_scale,
     bounded_number,
 )
-from launch_scripts.commands.sysid import (
-    add_fit,
-    identification_model,
-    load_dataset,
-    parse_fit,
-)
+from launch_scripts.commands.sysid import add_fit, identification_model, parse_fit
 from launch_scripts.output_folder import prepare_output
+from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
 
 def parse_candidates(text: str | None) -> tuple[str, ...] | None:
@@ -47,8 +43,8 @@ def run_discrepancy(args: argparse.Namespace) -> int:
     from crs_core.discrepancy.report import write_discrepancy_report
     from crs_core.discrepancy.workflow import DiscrepancySettings, find_discrepancy
 
-    train = load_dataset(args.train, "TRAIN")
-    validation = load_dataset(args.validate, "--validate") if args.validate else None
+    train = load_recording(args.train, args, "TRAIN")
+    validation = load_recording(args.validate, args, "--validate") if args.validate else None
     model = identification_model(train, args.effect or [], args.params, "--params")
     identification = FieSettings(fit=parse_fit(args.fit, model), process_scale=args.process_scale)
     FieData.from_dataset(train, identification.noise)  # refuse bad data before touching --out
@@ -86,8 +82,9 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
 def add_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs discrepancy``'s arguments."""
-    sub.add_argument("train", type=Path, help="training dataset folder")
-    sub.add_argument("--validate", type=Path, help="held-out dataset folder")
+    sub.add_argument("train", type=Path, help="training recording: " + RECORDING_HELP)
+    sub.add_argument("--validate", type=Path, help="held-out recording (the same kinds)")
+    add_bag_options(sub)
     add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",

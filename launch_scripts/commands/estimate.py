@@ -1,4 +1,4 @@
-"""``crs estimate``: an EKF or MHE over a recorded dataset, offline."""
+"""``crs estimate``: an EKF or MHE over a recording (dataset folder or bag), offline."""
 
 from __future__ import annotations
 
@@ -12,8 +12,9 @@ import yaml
 
 from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
-from launch_scripts.arguments import Command, add_out, command_line
+from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output
+from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
 
 def parse_x0(text: str | None) -> np.ndarray | None:
@@ -47,8 +48,14 @@ def estimate(args: argparse.Namespace) -> None:
     """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
     from tqdm import tqdm
 
-    from crs_core.dataset import Dataset
-    from crs_core.estimation.offline import dataset_model, estimate_dataset, reference_comparison
+    from crs_core.estimation.offline import (
+        data_span,
+        dataset_model,
+        estimate_dataset,
+        query_stamps,
+        rate_stamps,
+        reference_comparison,
+    )
     from launch_scripts.estimate_report import format_summary, write_figure
 
     x0 = parse_x0(args.x0)
@@ -58,7 +65,16 @@ def estimate(args: argparse.Namespace) -> None:
             parse_sensor_set(args.sensors)
         except FieldError as error:
             raise error.renamed("--sensors") from None
-    dataset = Dataset.load(args.dataset)
+    dataset = load_recording(args.dataset, args)
+    at = None
+    if args.at is not None:  # checked before --out is touched
+        try:
+            span = data_span(dataset, with_inputs=args.inputs != "estimated")
+            at = query_stamps(_stamps(args.at), *span)
+        except FieldError as error:
+            raise error.renamed("--at") from None
+    elif args.output_rate is not None:
+        at = rate_stamps(dataset, args.output_rate)
     try:
         model = dataset_model(dataset, args.params)
     except yaml.YAMLError as error:
@@ -81,9 +97,11 @@ def estimate(args: argparse.Namespace) -> None:
                 x0=x0,
                 rate_hz=rate,
                 progress=lambda fraction: bar.update(round(1000 * fraction) - bar.n),
+                at=at,
             )
         except FieldError as error:  # name the option, not the argument of the function
-            options = {"x0": "--x0", "rate_hz": "--rate", "sensors": "--sensors"}
+            at_option = "--at" if args.at is not None else "--output-rate"
+            options = {"x0": "--x0", "rate_hz": "--rate", "sensors": "--sensors", "at": at_option}
             raise error.renamed(options.get(error.field, error.field)) from None
     comparison = reference_comparison(result, dataset)
     result.save_npz(out / "estimates.npz")
@@ -105,9 +123,19 @@ def estimate(args: argparse.Namespace) -> None:
     print(f"wrote {out / 'estimates.npz'}, diagnostics.json, estimate.png")
 
 
+def _stamps(path: Path) -> np.ndarray:
+    """``--at FILE``: the stamps in a ``.npy`` file (checked by the estimator: ``--at: ...``)."""
+    try:
+        return np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as error:
+        problem = str(error).splitlines()[0] if str(error) else type(error).__name__
+        raise FieldError("--at", f"{path}: not a readable .npy array ({problem})") from None
+
+
 def add_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs estimate``'s arguments."""
-    sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("dataset", type=Path, help=RECORDING_HELP)
+    add_bag_options(sub)
     sub.add_argument("--estimator", choices=KINDS, required=True, help="EKF or MHE")
     sub.add_argument(
         "--sensors",
@@ -137,13 +165,27 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         help="parameter YAML applied to the model (default: the Chronos parameters with the "
         "dataset's Lighthouse geometry)",
     )
+    when = sub.add_mutually_exclusive_group()
+    when.add_argument(
+        "--at",
+        type=Path,
+        metavar="TIMES.npy",
+        help="estimate at these stamps (s, the recording's clock; strictly increasing, within "
+        "the data; e.g. a motion-capture clock) instead of the recording's samples",
+    )
+    when.add_argument(
+        "--output-rate",
+        type=bounded_number("output-rate", "Hz", 0.0),
+        metavar="HZ",
+        help="estimate every 1/HZ s from the first sample to the last instead",
+    )
     add_out(sub, "output folder", required=True)
 
 
 COMMAND = Command(
     "estimate",
-    help="run an EKF or MHE over a recorded dataset (offline)",
-    description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) and "
+    help="run an EKF or MHE over a recording (offline)",
+    description="Run an EKF or MHE over a dataset folder (crs_core.dataset format) or a bag and "
     "write DIR/estimates.npz (t, x (6, N), status 0 ok / 1 degraded / 2 lost, "
     "covariance_diag), DIR/diagnostics.json and DIR/estimate.png.",
     arguments=add_arguments,

@@ -9,10 +9,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from crs_core.dataset import Dataset
 from crs_core.identification.data import FieData
 from crs_core.identification.models import effects_of_yaml, identification_model
-from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
+from crs_core.identification.problem import DEFAULT_FIT, FieSettings
 from crs_core.model import CarModel
 from launch_scripts.arguments import (
     Command,
@@ -22,12 +21,14 @@ from launch_scripts.arguments import (
     bounded_number,
 )
 from launch_scripts.output_folder import prepare_output
+from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
 
 def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
-    """``--fit a,b,c`` (default: the 15 dynamics parameters and every effect parameter)."""
+    """``--fit a,b,c`` (default: the 15 dynamics parameters, the wheel encoders' ``r`` and
+    ``b_car``, and every effect parameter)."""
     if text is None:
-        return DYNAMICS_FIT + tuple(p.name for e in model.effects for p in e.parameters)
+        return DEFAULT_FIT + tuple(p.name for e in model.effects for p in e.parameters)
     names = tuple(part.strip() for part in text.split(",") if part.strip())
     if not names:
         raise ValueError("--fit: name at least one parameter")
@@ -45,17 +46,9 @@ def add_fit(parser: argparse.ArgumentParser, what: str) -> None:
     """``--fit a,b,c`` (:func:`parse_fit`): ``what`` they are, and the default."""
     parser.add_argument(
         "--fit",
-        help=f"{what} (default: the 15 dynamics parameters {','.join(DYNAMICS_FIT)} plus every "
-        "--effect parameter)",
+        help=f"{what} (default: the 15 dynamics parameters and the wheel encoders' radius and "
+        f"track width, {','.join(DEFAULT_FIT)}, plus every --effect parameter)",
     )
-
-
-def load_dataset(path: Path, option: str = "DATASET") -> Dataset:
-    """``Dataset.load``; a missing folder is a ``ValueError`` naming ``option``."""
-    try:
-        return Dataset.load(path)
-    except FileNotFoundError as error:
-        raise ValueError(f"{option}: {error}") from None
 
 
 def run_sysid(args: argparse.Namespace) -> int:
@@ -63,7 +56,7 @@ def run_sysid(args: argparse.Namespace) -> int:
     from crs_core.identification.report import write_sysid_report
     from crs_core.identification.solve import identify, stderr_progress
 
-    dataset = load_dataset(args.dataset)
+    dataset = load_recording(args.dataset, args)
     model = identification_model(dataset, args.effect or [], args.params, "--params")
     settings = FieSettings(
         fit=parse_fit(args.fit, model),
@@ -87,12 +80,11 @@ def run_sysid(args: argparse.Namespace) -> int:
 
 def run_validate(args: argparse.Namespace) -> int:
     """``crs validate``: open-loop predictions with --params (and --prior) on a dataset."""
+    from crs_core.identification.reference import position_reference
     from crs_core.identification.report import write_validation_report
     from crs_core.identification.validation import validate
 
-    dataset = load_dataset(args.dataset)
-    if dataset.x is None:
-        raise ValueError("DATASET: has no reference states (x.npy) to validate against")
+    dataset = load_recording(args.dataset, args)
     effects = list(
         dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_of_yaml(args.params)])
     )
@@ -108,7 +100,7 @@ def run_validate(args: argparse.Namespace) -> int:
     summary["dataset"] = str(args.dataset)
     summary["params"] = str(args.params)
     summary["prior"] = None if args.prior is None else str(args.prior)
-    write_validation_report(summary, predictions, dataset.x[:, :2], out)
+    write_validation_report(summary, predictions, position_reference(dataset).xy, out)
     rmse = summary["position_rmse_m"]
     print(
         f"validate: {summary['horizon_s']:g} s open-loop position RMSE "
@@ -120,7 +112,8 @@ def run_validate(args: argparse.Namespace) -> int:
 
 def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs sysid``'s arguments."""
-    sub.add_argument("dataset", type=Path, help="dataset folder (crs_core.dataset format)")
+    sub.add_argument("dataset", type=Path, help=RECORDING_HELP)
+    add_bag_options(sub)
     add_out(sub, "output folder", required=True)
     sub.add_argument(
         "--params",
@@ -150,7 +143,8 @@ def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
 
 def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs validate``'s arguments."""
-    sub.add_argument("dataset", type=Path, help="dataset folder")
+    sub.add_argument("dataset", type=Path, help=RECORDING_HELP)
+    add_bag_options(sub)
     sub.add_argument("--params", required=True, help="parameter YAML to validate (or 'rough')")
     sub.add_argument("--prior", help="a second parameter YAML shown side by side (or 'rough')")
     sub.add_argument(
@@ -167,7 +161,7 @@ SYSID = Command(
     "sysid",
     help="identify model parameters from a dataset (FIE, IPOPT)",
     description="Full-information estimation of the model parameters (paper Sec. IV-B) on "
-    "a dataset folder: states on every sample, RK4 defects as process noise, every sensor "
+    "a dataset folder or a bag: states on every sample, RK4 defects as process noise, every sensor "
     "the dataset has, priors from the parameter set. Writes OUT/params.yaml (loadable by "
     "--params of every command), result.json, report.md and figures; one progress line per "
     "IPOPT iteration on stderr.",
@@ -178,9 +172,10 @@ VALIDATE = Command(
     "validate",
     help="open-loop prediction error of parameters on a dataset",
     description="Predict open loop over --horizon from every sample (start state from an "
-    "EKF with the same parameters) and compare with the dataset's reference positions "
+    "EKF with the same parameters) and compare with the recording's reference positions "
     "(simulation truth, or on real runs the Lighthouse-based on-line estimate, not motion "
-    "capture) and measurements. Writes OUT/validation.json, validation.md, validation.png.",
+    "capture; without reference states, each sample's Lighthouse fix) and measurements. "
+    "Writes OUT/validation.json, validation.md, validation.png.",
     arguments=add_validate_arguments,
     handler=run_validate,
 )

@@ -4,93 +4,37 @@ the simulator writes of the same run; bad bags get one error naming what is wron
 
 from __future__ import annotations
 
-import itertools
 import shutil
 import warnings
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
-from rclpy.serialization import serialize_message
-from rosbags.rosbag2 import StoragePlugin, Writer
 
 from crs_core.dataset import Dataset, Geometry
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from ros4crs import conversions
 from ros4crs.bag_dataset import BagDatasetWarning, dataset_from_bag, is_bag, load_recording
-from ros4crs.interfaces import typestore
-from sim import SimulationResult, Simulator
-from tests.sim.sim_runs import AT_REST, DRIVE, NOISY
-
-#: The run's clock starts here in the bag (Unix time, as a real recording's).
-T0 = 1_764_000_000.0
-#: Seconds simulated.
-DURATION = 2.0
+from sim import SimulationResult
+from tests.ros4crs.bag_builders import (
+    DURATION,
+    T0,
+    simulated_run,
+    stack_messages,
+    two_car_bag,
+    write_bag,
+)
 
 
 @pytest.fixture(scope="module")
 def run() -> SimulationResult:
-    return Simulator(CarModel(), NOISY, seed=5).run(DRIVE, DURATION, AT_REST)
-
-
-def _type_name(msg: Any) -> str:
-    return f"{type(msg).__module__.split('.')[0]}/msg/{type(msg).__name__}"
-
-
-def _write(path: Path, messages: list[tuple[str, Any, float]]) -> Path:
-    """A bag of ``(topic, message, receive time s)``."""
-    store = typestore()
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
-        connections: dict[str, Any] = {}
-        for topic, msg, received in messages:
-            if topic not in connections:
-                connections[topic] = writer.add_connection(topic, _type_name(msg), typestore=store)
-            writer.write(connections[topic], round(received * 1e9), serialize_message(msg))
-    return path
-
-
-def _shifted(run: SimulationResult) -> tuple[list, list, list]:
-    """The run's measurements, inputs and truth on the bag's clock."""
-    from crs_core.measurements import InputSample, Measurement
-
-    measurements = [Measurement(T0 + m.stamp, m.sensor, m.values) for m in run.measurements]
-    inputs = [InputSample(T0 + s.stamp, s.u) for s in run.inputs]
-    truth = [(T0 + t, x) for t, x in zip(run.truth_t, run.truth_x, strict=True)]
-    return measurements, inputs, truth
-
-
-def _stack_messages(
-    run: SimulationResult, car: str = "/car1", truth: bool = True, estimates: bool = False
-) -> list[tuple[str, Any, float]]:
-    """What the recorder of the stack gets of ``run``: 10 ms sensor batches, the commands (and
-    a velocity reference, which is no input), the truth and, optionally, estimates."""
-    measurements, inputs, states = _shifted(run)
-    out: list[tuple[str, Any, float]] = []
-    edges = np.arange(T0, T0 + DURATION + 0.01, 0.01)
-    for start, end in itertools.pairwise(edges):
-        batch = [m for m in measurements if start <= m.stamp < end]
-        if batch:
-            out.append((f"{car}/sensors/batch", conversions.batch_msg(batch), end + 0.001))
-    for sample in inputs:
-        out.append(
-            (f"{car}/input", conversions.car_input_msg(sample.u, sample.stamp), sample.stamp)
-        )
-    out.append(
-        (f"{car}/input", conversions.car_input_msg([0.0, 1.0], T0 + 1.0, "velocity"), T0 + 1)
-    )
-    for t, x in [*states[::5], states[-1]] if truth else ():
-        out.append((f"{car}/ground_truth", conversions.car_state_msg(x, t), t))
-    for t, x in states[::20] if estimates else ():
-        out.append((f"{car}/estimate/state", conversions.car_state_msg(x, t), t + 0.02))
-    return out
+    return simulated_run()
 
 
 @pytest.fixture(scope="module")
 def bag(run: SimulationResult, tmp_path_factory: pytest.TempPathFactory) -> Path:
-    messages = _stack_messages(run) + _stack_messages(run, "/car2", truth=False)
-    return _write(tmp_path_factory.mktemp("stack") / "bag", sorted(messages, key=lambda m: m[2]))
+    return two_car_bag(run, tmp_path_factory.mktemp("stack") / "bag")
 
 
 def test_the_bag_of_a_run_gives_the_simulators_dataset_of_it(run: SimulationResult, bag: Path):
@@ -133,9 +77,9 @@ def test_the_car_must_be_named_where_the_bag_holds_several(bag: Path):
 def test_without_truth_the_estimates_are_the_reference_and_the_samples_are_cut_to_them(
     run: SimulationResult, tmp_path: Path
 ):
-    messages = _stack_messages(run, truth=False, estimates=True)
+    messages = stack_messages(run, truth=False, estimates=True)
     messages = [m for m in messages if m[0] != "/car1/estimate/state" or m[2] > T0 + 0.5]
-    bag = _write(tmp_path / "bag", sorted(messages, key=lambda m: m[2]))
+    bag = write_bag(tmp_path / "bag", sorted(messages, key=lambda m: m[2]))
     with pytest.warns(BagDatasetWarning, match="within the reference states' span"):
         data = dataset_from_bag(bag)  # one car: no name needed
     assert data.t[0] >= T0 + 0.48 and data.meta["source"] == "bag"
@@ -149,15 +93,15 @@ def test_without_truth_the_estimates_are_the_reference_and_the_samples_are_cut_t
 def test_applied_inputs_are_preferred_and_a_bag_without_inputs_warns(
     run: SimulationResult, tmp_path: Path
 ):
-    messages = [m for m in _stack_messages(run) if not m[0].endswith("/input")]
-    bare = _write(tmp_path / "bare", messages)
+    messages = [m for m in stack_messages(run) if not m[0].endswith("/input")]
+    bare = write_bag(tmp_path / "bare", messages)
     with pytest.warns(BagDatasetWarning, match="no torque-mode inputs on /car1/input"):
         assert dataset_from_bag(bare).u is None
     applied = [
         ("/car1/input/applied", conversions.car_input_msg([0.05, 0.2], T0 + t), T0 + t)
         for t in np.arange(0.0, DURATION, 0.01)
     ]
-    with_applied = _write(tmp_path / "applied", sorted(messages + applied, key=lambda m: m[2]))
+    with_applied = write_bag(tmp_path / "applied", sorted(messages + applied, key=lambda m: m[2]))
     data = dataset_from_bag(with_applied)
     assert data.meta["inputs"] == "/car1/input/applied"
     np.testing.assert_array_equal(data.u, np.tile([0.05, 0.2], (data.t.size, 1)))
@@ -173,13 +117,13 @@ def test_an_mcap_file_and_a_given_geometry(bag: Path, tmp_path: Path):
 
 
 def test_bags_without_what_a_dataset_needs(run: SimulationResult, tmp_path: Path):
-    no_sensors = _write(
-        tmp_path / "no_sensors", [m for m in _stack_messages(run) if "sensors" not in m[0]]
+    no_sensors = write_bag(
+        tmp_path / "no_sensors", [m for m in stack_messages(run) if "sensors" not in m[0]]
     )
     with pytest.raises(FieldError, match=r"^bag: holds no sensor readings"):
         dataset_from_bag(no_sensors)
     wheels_only = [
-        (topic, msg, t) for topic, msg, t in _stack_messages(run) if topic != "/car1/sensors/batch"
+        (topic, msg, t) for topic, msg, t in stack_messages(run) if topic != "/car1/sensors/batch"
     ]
     wheels_only.append(
         (
@@ -191,7 +135,7 @@ def test_bags_without_what_a_dataset_needs(run: SimulationResult, tmp_path: Path
         )
     )
     with pytest.raises(FieldError, match=r"^bag: no Lighthouse sweep pair of station 0"):
-        dataset_from_bag(_write(tmp_path / "wheels", wheels_only))
+        dataset_from_bag(write_bag(tmp_path / "wheels", wheels_only))
     with pytest.raises(FieldError, match=r"^inputs: must be one of"):
         dataset_from_bag(tmp_path / "wheels", inputs="sent")
 

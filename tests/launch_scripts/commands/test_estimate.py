@@ -93,8 +93,36 @@ def test_estimate_missing_dataset_or_unwritable_out(
 ):
     """A missing dataset folder, or an --out inside a file: one-line errors, exit code 2."""
     err = crs_refuses(["estimate", str(tmp_path / "none"), "--estimator", "ekf", "--out", "o"])
-    assert err == f"crs estimate: error: dataset folder {tmp_path / 'none'} does not exist\n"
+    assert (
+        err == f"crs estimate: error: DATASET: dataset folder {tmp_path / 'none'} does not exist\n"
+    )
     (tmp_path / "file").write_text("")
     out = tmp_path / "file" / "out"
     err = crs_refuses(["estimate", str(small_dataset), "--estimator", "ekf", "--out", str(out)])
     assert err.startswith(f"crs estimate: error: --out: cannot write to {out}")
+
+
+def test_estimate_a_bag_at_a_fixed_rate_and_at_given_stamps(tmp_path: Path, crs, crs_refuses):
+    """A bag is a recording too (its car named); --output-rate and --at choose the stamps, which
+    must lie within the data."""
+    from tests.ros4crs.bag_builders import simulated_run, two_car_bag
+
+    bag = two_car_bag(simulated_run(), tmp_path / "bag")
+    geometry = Dataset(np.zeros(1), None, np.zeros((1, 13))).save(tmp_path / "g") / "dataset.yaml"
+    base = ["estimate", str(bag), "--car", "car1", "--geometry", str(geometry), "--estimator"]
+    base.append("ekf")
+    code, printed, warned = crs([*base, "--output-rate", "100", "--out", str(tmp_path / "fast")])
+    assert code == 0, warned
+    saved = np.load(tmp_path / "fast" / "estimates.npz")
+    np.testing.assert_allclose(np.diff(saved["t"]), 0.01, rtol=0, atol=1e-6)
+    assert "RMSE vs simulation truth" in printed
+    stamps = saved["t"][10:20] + 0.003
+    np.save(tmp_path / "at.npy", stamps)
+    code, _, warned = crs([*base, "--at", str(tmp_path / "at.npy"), "--out", str(tmp_path / "at")])
+    assert code == 0, warned
+    np.testing.assert_array_equal(np.load(tmp_path / "at" / "estimates.npz")["t"], stamps)
+    np.save(tmp_path / "late.npy", saved["t"][-2:] + 10.0)
+    late = [*base, "--at", str(tmp_path / "late.npy"), "--out", str(tmp_path / "late")]
+    assert "--at: " in crs_refuses(late) and "reaches outside the data" in crs_refuses(late)
+    both = [*base, "--at", "x.npy", "--output-rate", "5", "--out", str(tmp_path / "both")]
+    assert "not allowed with argument" in crs_refuses(both)

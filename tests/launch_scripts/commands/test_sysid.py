@@ -150,3 +150,19 @@ def test_sysid_and_validate_are_two_commands_with_their_own_handlers():
     assert args.handler is sysid_command.run_sysid and args.out == Path("o")
     args = parser.parse_args(["validate", "d", "--params", "p.yaml", "--out", "o"])
     assert args.handler is sysid_command.run_validate and args.horizon == 2.0
+
+
+def test_validate_a_bag_without_reference_states(tmp_path: Path, crs):
+    """car2 of the bag has neither truth nor estimates: its samples' Lighthouse fixes are the
+    reference, and the report says so."""
+    from tests.ros4crs.bag_builders import simulated_run, two_car_bag
+
+    bag = two_car_bag(simulated_run(), tmp_path / "bag")
+    out = tmp_path / "validation"
+    argv = ["validate", str(bag), "--car", "car2", "--params", "rough", "--horizon", "0.5"]
+    code, printed, warned = crs([*argv, "--out", str(out)])
+    assert code == 0, warned
+    summary = json.loads((out / "validation.json").read_text())
+    assert summary["reference"].startswith("each sample's Lighthouse fix")
+    assert 0 < summary["position_rmse_m"]["identified"] < 0.5
+    assert "open-loop position RMSE" in printed
