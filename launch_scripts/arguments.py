@@ -161,11 +161,15 @@ def add_cars(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def add_effect(parser: argparse.ArgumentParser, help_text: str) -> None:
+def add_effect(
+    parser: argparse.ArgumentParser, help_text: str, dest: str = "effect", flag: str = "--effect"
+) -> None:
     """``--effect NAME[.PARAM][=VALUE]`` (repeatable): a model effect, every command building a
-    model takes it."""
+    model takes it (``flag`` and ``dest``: another option of the same kind, e.g. the simulated
+    car's ``--car-effect``)."""
     parser.add_argument(
-        "--effect",
+        flag,
+        dest=dest,
         type=argument_type(parse_effect),
         action="append",
         metavar="NAME[.PARAM][=VALUE]",

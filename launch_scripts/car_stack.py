@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import ipaddress
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -59,6 +59,7 @@ from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
+    CarTruth,
     analyse,
     car_control_nodes,
     checked_record_set,
@@ -140,21 +141,28 @@ def car_nodes(
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
     hold_safe: str = "always",
+    car: CarTruth | None = None,
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
     when ``emulate``, started last: its car waits for references anyway), and one recorder.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
     the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
     ``hold_safe``: the controllers' parameter (``always`` by default: over Wi-Fi the first
-    outage can come at any time, :mod:`crs_core.control.contingency`)."""
+    outage can come at any time, :mod:`crs_core.control.contingency`). ``car``: the emulated
+    cars' own truth where it is not ``params_file``."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
     if link.given and not emulate:
         raise ValueError("--link: only for emulated cars (a real car's link is the real one)")
+    car = car or CarTruth()
+    if (car.params_file or car.effects) and not emulate:
+        raise ValueError("--car-params: only for emulated cars (a real car is what it is)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
     per_car, global_topics = checked_record_set(cars, estimator, output, record)
     files = {"params_file": str(Path(params_file).resolve())} if params_file else {}
+    # the emulated cars are the stack's params_file unless they have their own
+    truth = car if car.params_file or params_file is None else replace(car, params_file=params_file)
     nodes, emulators, topics = [], [], list(global_topics)
     for i in range(1, cars + 1):
         ns, host_port = f"/car{i}", ports[0] + i - 1
@@ -165,6 +173,7 @@ def car_nodes(
             arguments += ["--port", str(car_port), "--seed", str(seed + i)]
             arguments += ["--truth-out", str(Path(out).resolve() / f"truth_car{i}.npz")]
             arguments += link.arguments(i)
+            arguments += truth.emulator_arguments()
             emulators.append(
                 NodeSpec(
                     "emulator",
@@ -211,10 +220,12 @@ def run_car_stack(
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
     hold_safe: str = "always",
+    car: CarTruth | None = None,
 ) -> dict[str, Any]:
     """Run the stack against the cars for ``duration`` s, then write ``out/report.json``
     (``link``: the emulators' link impairment, recorded in it)."""
     out, bag, domain = run_folder(out, domain_id)
+    car = car or CarTruth()
     nodes = car_nodes(
         cars,
         estimator,
@@ -231,8 +242,9 @@ def run_car_stack(
         ports=ports,
         link=link,
         hold_safe=hold_safe,
+        car=car,
     )
-    warm_compile_cache(estimator, controller, output, params_file)
+    warm_compile_cache(estimator, controller, output, params_file, car_effects=car.effects)
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
     report = launch_and_report(
         nodes,
@@ -252,6 +264,7 @@ def run_car_stack(
             "recorded": record,
             "seed": seed,
             "link": asdict(link),
+            "car_truth": car.described(),
         },
     )
     if emulate:

@@ -11,6 +11,7 @@ import json
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ import numpy as np
 
 from crs_core.analysis.latency import latencies
 from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
+from crs_core.model.effects import effect_text
 from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_plot import plot
@@ -43,6 +45,44 @@ SETTLE_S = 10.0
 OUTPUTS = ("torque", "velocity")
 
 
+@dataclass(frozen=True)
+class CarTruth:
+    """The simulated or emulated cars' own truth, where it differs from the stack's model.
+
+    Attributes
+    ----------
+    params_file : Path or None
+        Their parameter YAML (None: the stack's ``params_file``).
+    effects : tuple
+        Their hidden effects, parsed (:func:`crs_core.model.effects.parse_effect`).
+    """
+
+    params_file: Path | None = None
+    effects: tuple[tuple[str, str | None, float | None], ...] = ()
+
+    def simulator_parameters(self) -> dict[str, str]:
+        """The simulator node's ``params_file`` and ``effects`` for this truth (none: its
+        defaults)."""
+        out = {"params_file": str(Path(self.params_file).resolve())} if self.params_file else {}
+        if self.effects:
+            out["effects"] = ",".join(effect_text(e) for e in self.effects)
+        return out
+
+    def described(self) -> dict[str, Any]:
+        """For a report: the parameter file and the effects (None / [] : the stack's model)."""
+        return {
+            "params_file": str(self.params_file) if self.params_file else None,
+            "effects": [effect_text(e) for e in self.effects],
+        }
+
+    def emulator_arguments(self) -> list[str]:
+        """``crs car-emulator``'s ``--params`` and ``--effect`` for this truth."""
+        out = ["--params", str(Path(self.params_file).resolve())] if self.params_file else []
+        for effect in self.effects:
+            out += ["--effect", effect_text(effect)]
+        return out
+
+
 def stack_nodes(
     cars: int,
     estimator: str,
@@ -56,6 +96,7 @@ def stack_nodes(
     output: str = "torque",
     onboard: bool = False,
     hold_safe: str | None = None,
+    car: CarTruth = CarTruth(),
 ) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
 
@@ -70,7 +111,8 @@ def stack_nodes(
     ``onboard: true``; the estimators ignore such commands and estimate the inputs).
     ``onboard``: the simulators run the car's onboard loop also for torque commands (its
     steering servo then moves the wheels, as on the emulator and a real car). ``hold_safe``:
-    the controllers' parameter (default: the node's, ``after_outage``).
+    the controllers' parameter (default: the node's, ``after_outage``). ``car``: the simulated
+    cars' own truth where it is not ``params_file`` (:class:`CarTruth`).
     """
     per_car, global_topics = checked_record_set(cars, estimator, output, record)
     if output == "velocity" and controller != "mpcc":
@@ -100,6 +142,7 @@ def stack_nodes(
                     "wait_for_commands": True,
                     **onboard_loop,
                     **files,
+                    **car.simulator_parameters(),
                 },
             ),
             *car_control_nodes(ns, estimator, blind_start, controller, output, files, hold_safe),
@@ -178,6 +221,7 @@ def run_stack(
     output: str = "torque",
     onboard: bool = False,
     hold_safe: str | None = None,
+    car: CarTruth = CarTruth(),
 ) -> dict[str, Any]:
     """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
     out, bag, domain = run_folder(out, domain_id)
@@ -194,9 +238,10 @@ def run_stack(
         output=output,
         onboard=onboard,
         hold_safe=hold_safe,
+        car=car,
     )
     track = read_track(track_file) if track_file else load_demo_track()
-    warm_compile_cache(estimator, controller, output, params_file)
+    warm_compile_cache(estimator, controller, output, params_file, car_effects=car.effects)
     report = launch_and_report(
         nodes,
         domain,
@@ -210,6 +255,7 @@ def run_stack(
             "output": output,
             "duration_s": duration,
             "recorded": record,
+            "car_truth": car.described(),
         },
     )
     plot(bag, cars, out, estimator, track)

@@ -16,6 +16,7 @@ test suite, start from a warm cache.
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 __all__ = ["warm_compile_cache"]
@@ -27,6 +28,7 @@ def warm_compile_cache(
     output: str,
     params_file: Path | None = None,
     label: str = "[launch]",
+    car_effects: Sequence[tuple[str, str | None, float | None]] = (),
 ) -> float:
     """Build (and so compile and cache) the estimator's, the controller's and the simulated
     car's functions with the nodes' default settings, with a line before and after on stdout;
@@ -44,6 +46,9 @@ def warm_compile_cache(
         The parameter YAML the nodes get.
     label : str
         Prefix of the two lines printed.
+    car_effects : sequence of parsed effects, optional
+        The simulated or emulated cars' hidden effects (their truth model's structure; its
+        parameter values do not change the compiled code).
     """
     from chronos_bridge.emulator import CarEmulator
     from crs_core.control.mpcc import Mpcc
@@ -51,20 +56,20 @@ def warm_compile_cache(
     from crs_core.estimation import EkfSettings, MheSettings, make_estimator
     from crs_core.estimation.realtime import RealtimeSettings
     from crs_core.model import CarModel
+    from crs_core.model.effects import effect_spec
     from crs_core.track import load_demo_track
 
     print(f"{label} preparing the compiled model functions (compiled once, then cached)")
     started = time.perf_counter()
-    model = CarModel()
-    if params_file is not None:
-        model = CarModel(parameters=model.parameters.updated_from_yaml(params_file))
+    model = CarModel.from_file(params_file)
     # the nodes' defaults: the estimator's rate is RealtimeSettings', the MPCC's MpccSettings'
     rate_hz = RealtimeSettings.rate_hz
     settings = MheSettings(rate_hz=rate_hz) if estimator == "mhe" else EkfSettings()
     make_estimator(estimator, "lh+imu+we", model, settings)
     if controller == "mpcc":
         Mpcc(load_demo_track(), model, MpccSettings(), output=output)
-    CarEmulator()  # the simulator's truth model with the onboard loop
+    # the simulator's truth model with the onboard loop
+    CarEmulator(model=CarModel(effect_spec(car_effects)))
     elapsed = time.perf_counter() - started
     print(f"{label} compiled model functions ready in {elapsed:.1f} s")
     return elapsed

@@ -335,6 +335,15 @@ def parse_effect(text: str) -> tuple[str, str | None, float | None]:
     return effect, parameter or names[0], number
 
 
+def effect_text(effect: tuple[str, str | None, float | None]) -> str:
+    """A parsed effect (:func:`parse_effect`) as the text it reads from: ``NAME``,
+    ``NAME.PARAM=VALUE`` (``repr`` of the value: it reads back exactly)."""
+    name, parameter, value = effect
+    if parameter is None or value is None:
+        return name
+    return f"{name}.{parameter}={value!r}"
+
+
 def effect_spec(
     effects: Iterable[tuple[str, str | None, float | None]],
 ) -> dict[str, dict[str, float] | None]:

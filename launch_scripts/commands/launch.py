@@ -13,6 +13,7 @@ from launch_scripts.arguments import (
     Command,
     add_cars,
     add_duration,
+    add_effect,
     add_estimator,
     add_out,
     bounded_number,
@@ -59,12 +60,15 @@ def launch(args: argparse.Namespace) -> None:
 
 def _stack_options(args: argparse.Namespace) -> dict[str, object]:
     """The keywords ``run_stack`` and ``run_car_stack`` both take, from their options."""
+    from launch_scripts.sim_stack import CarTruth
+
     return {
         "blind_start": args.blind_start,
         "record": args.record,
         "params_file": args.params,
         "controller": args.controller,
         "output": args.output,
+        "car": CarTruth(args.car_params, tuple(args.car_effect or ())),
     }
 
 
@@ -83,6 +87,13 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
         )
     if args.params is not None:
         build_model([], 1, args.params)
+    car_truth = args.car_params is not None or args.car_effect
+    if car_truth and args.scenario == "car" and not args.emulate:
+        raise ValueError(
+            "--car-params: only for simulated or emulated cars (a real car is what it is)"
+        )
+    if car_truth:
+        build_model(args.car_effect or [], 1, args.car_params or args.params, "--car-params")
     prepare_output(Path(args.out), "launch", args.overwrite)
 
 
@@ -244,6 +255,19 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         type=Path,
         help="parameter YAML of the cars: the simulated truth and the model of the estimators "
         "and controllers (default: the Chronos parameters)",
+    )
+    sub.add_argument(
+        "--car-params",
+        type=Path,
+        help="sim, car --emulate: the simulated or emulated cars' own parameter YAML, their "
+        "truth apart from the stack's model (--params): a car to identify (default: --params)",
+    )
+    add_effect(
+        sub,
+        "sim, car --emulate: a hidden effect of the simulated or emulated cars (repeatable), "
+        "e.g. steering_lag=0.05; the stack's model does not have it",
+        dest="car_effect",
+        flag="--car-effect",
     )
     sub.add_argument(
         "--record",

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from crs_core.control.path_following import PathFollowerSettings
+from crs_core.errors import FieldError
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec
 from launch_scripts.arguments import (
@@ -35,15 +36,18 @@ EFFECTS_EPILOG = "effects (--effect NAME[.PARAM][=VALUE]; parameter, unit, defau
 
 
 def build_model(
-    effects: Sequence[tuple[str, str | None, float | None]], stations: int, params_yaml: Path | None
+    effects: Sequence[tuple[str, str | None, float | None]],
+    stations: int,
+    params_yaml: Path | None,
+    option: str = "--params",
 ) -> CarModel:
     """The car model with ``effects``, ``stations`` base stations and the parameters of
-    ``params_yaml`` (``None``: the Chronos parameters)."""
-    spec = effect_spec(effects)
-    model = CarModel(spec, n_base_stations=stations)
-    if params_yaml is not None:
-        model = CarModel(spec, stations, model.parameters.updated_from_yaml(params_yaml))
-    return model
+    ``params_yaml`` (``None``: the Chronos parameters); a bad file names ``option``."""
+    try:
+        return CarModel.from_file(params_yaml, effect_spec(effects), stations)
+    except (ValueError, KeyError) as error:
+        message = error.args[0] if isinstance(error, KeyError) else str(error)
+        raise FieldError(option, str(message)) from None
 
 
 def simulate(args: argparse.Namespace) -> Path:

@@ -30,3 +30,38 @@ def test_crs_launch_car_passes_the_link_to_each_emulator_with_its_own_seed(tmp_p
         car_nodes(1, "ekf", tmp_path / "bag", tmp_path, True, link=EmulatedLink(up="loss=2"))
     with pytest.raises(ValueError, match=r"^--link: only for emulated cars"):
         car_nodes(1, "ekf", tmp_path, tmp_path, False, ["10.0.0.2"], link=EmulatedLink("bad"))
+
+
+def test_emulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path) -> None:
+    """--car-params / --car-effect reach every emulator (as parsed by the emulator itself);
+    without them the emulators are the stack's --params; a real car takes neither."""
+    from chronos_bridge.emulator_process import add_arguments, options
+    from crs_core.model.effects import parse_effect
+    from launch_scripts.car_stack import car_nodes
+    from launch_scripts.sim_stack import CarTruth
+
+    stack, truth = tmp_path / "model.yaml", tmp_path / "truth.yaml"
+    stack.write_text("parameters:\n  m: 0.25\n")
+    truth.write_text("parameters:\n  m: 0.3\n  Df: 0.55\n")
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+
+    def emulated(**kwargs) -> list:
+        nodes = car_nodes(2, "ekf", tmp_path / "bag", tmp_path, True, params_file=stack, **kwargs)
+        return [
+            options(parser.parse_args(n.arguments))["model"] for n in nodes if n.name == "emulator"
+        ]
+
+    own = emulated(car=CarTruth(truth, (parse_effect("steering_lag=0.06"),)))
+    assert [m.parameters.value("m") for m in own] == [0.3, 0.3]
+    assert [e.name for e in own[0].effects] == ["steering_lag"]
+    assert own[0].parameters.value("tau_steer") == 0.06
+    assert [m.parameters.value("m") for m in emulated()] == [0.25, 0.25]
+    estimator = next(
+        n
+        for n in car_nodes(1, "ekf", tmp_path, tmp_path, True, params_file=stack)
+        if n.name == "estimator"
+    )
+    assert estimator.parameters["params_file"] == str(stack.resolve())
+    with pytest.raises(ValueError, match=r"^--car-params: only for emulated cars"):
+        car_nodes(1, "ekf", tmp_path, tmp_path, False, ["10.0.0.2"], car=CarTruth(truth))

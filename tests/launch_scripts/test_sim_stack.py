@@ -55,3 +55,28 @@ def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_pa
     assert "hold_safe" not in controllers(stack_nodes(1, "mhe", tmp_path / "bag"))[0]
     told = stack_nodes(1, "mhe", tmp_path / "bag", hold_safe="never")
     assert controllers(told)[0]["hold_safe"] == "never"
+
+
+def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
+    """The simulators get the car's own parameter file and effects (as the node parses them:
+    the same model), the estimators and controllers the stack's."""
+    from crs_core.model.effects import effect_spec, parse_effect
+    from launch_scripts.sim_stack import CarTruth
+    from ros4crs.simulator_node import parse_effects
+
+    stack, truth = tmp_path / "model.yaml", tmp_path / "truth.yaml"
+    effects = (parse_effect("steering_lag=0.06"), parse_effect("gyro_bias"))
+    car = CarTruth(truth, effects)
+    nodes = stack_nodes(1, "ekf", tmp_path / "bag", params_file=stack, car=car)
+    parameters = {spec.name: spec.parameters for spec in nodes}
+    assert parameters["simulator"]["params_file"] == str(truth.resolve())
+    assert parse_effects(parameters["simulator"]["effects"]) == effect_spec(effects)
+    assert parameters["estimator"]["params_file"] == str(stack.resolve())
+    assert parameters["controller"]["params_file"] == str(stack.resolve())
+    plain = {s.name: s.parameters for s in stack_nodes(1, "ekf", tmp_path, params_file=stack)}
+    assert plain["simulator"]["params_file"] == str(stack.resolve())
+    assert "effects" not in plain["simulator"]
+    assert car.described() == {
+        "params_file": str(truth),
+        "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
+    }

@@ -207,7 +207,7 @@ def test_moving_bad_inputs(recording: Path, tmp_path: Path):
     cases = [
         ([str(no_pose), "--fit-offset"], ValueError, r"^pose: the dataset has no motion-capture"),
         ([str(recording), "--offset", "0.5"], ValueError, r"^--offset: 0.5 s lies outside"),
-        ([str(tmp_path / "nothing")], FileNotFoundError, r"dataset folder .* does not exist"),
+        ([str(tmp_path / "nothing")], ValueError, r"^DATASET: dataset folder .* does not exist"),
     ]
     for argv, kind, message in cases:
         with pytest.raises(kind, match=message):

@@ -30,7 +30,8 @@ def test_launch_checks_track_and_parameter_files_before_starting_nodes(
     out = tmp_path / "out"
     assert main(["launch", "sim", option, str(bad), "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith(f"crs launch: error: {bad}: ") and message in err, err
+    named = f"{option}: " if option == "--params" else ""
+    assert err.startswith(f"crs launch: error: {named}{bad}: ") and message in err, err
     assert err.count("\n") == 1
     assert not out.exists()
 
