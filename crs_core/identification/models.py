@@ -9,29 +9,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from crs_core.dataset import Dataset
 from crs_core.errors import FieldError
 from crs_core.estimation.offline import dataset_model
-from crs_core.model import EFFECTS, CarModel
+from crs_core.model import CarModel
 from crs_core.model.chronos import ROUGH_PRIOR
 from crs_core.model.effects import effect_spec
 
 #: ``--params rough``: the rougher prior of the real recordings' README.
 ROUGH = "rough"
-
-
-def effects_of_yaml(path: Path) -> list[str]:
-    """Effects whose parameters a parameter YAML names (so its model can be rebuilt)."""
-    try:
-        document = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
-        return []  # updated_from_yaml reports the problem with the file
-    names = (
-        set((document or {}).get("parameters", {}) or {}) if isinstance(document, dict) else set()
-    )
-    return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
 
 
 def identification_model(

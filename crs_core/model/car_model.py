@@ -15,6 +15,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+import yaml
 
 from crs_core.codegen import SX_OPTIONS, NumericFunction, compile_functions
 from crs_core.errors import FieldError
@@ -89,6 +90,18 @@ class SensorOutput:
 
     name: str
     channels: tuple[str, ...]
+
+
+def effects_in_file(path: str | Path) -> list[str]:
+    """The effects whose parameters a parameter YAML names (so that its model can be rebuilt);
+    none for a file that cannot be read (the parameter loader says what is wrong with it)."""
+    try:
+        document = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError):
+        return []
+    entries = document.get("parameters") if isinstance(document, dict) else None
+    names = set(entries) if isinstance(entries, dict) else set()
+    return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
 
 
 class CarModel:
@@ -250,11 +263,15 @@ class CarModel:
     ) -> CarModel:
         """The model with ``effects`` and the parameter YAML ``path`` applied (None: the Chronos
         defaults; :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`, whose errors name
-        the file); an effect's own value (``steering_lag=0.05``) wins over the file."""
-        model = cls(effects, n_base_stations)
+        the file). The effects whose parameters the file names are switched on too
+        (:func:`effects_in_file`: a ``params.yaml`` of ``crs discrepancy`` carries its effect);
+        an effect's own value (``steering_lag=0.05``) wins over the file."""
         if path is None:
-            return model
-        return cls(effects, n_base_stations, model.parameters.updated_from_yaml(path))
+            return cls(effects, n_base_stations)
+        given = dict(effects) if isinstance(effects, Mapping) else dict.fromkeys(effects)
+        spec = {**dict.fromkeys(effects_in_file(path)), **given}
+        model = cls(spec, n_base_stations)
+        return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path))
 
     @cached_property
     def dynamics_function(self) -> ca.Function:

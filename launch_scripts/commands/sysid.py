@@ -10,9 +10,10 @@ import sys
 from pathlib import Path
 
 from crs_core.identification.data import FieData
-from crs_core.identification.models import effects_of_yaml, identification_model
+from crs_core.identification.models import identification_model
 from crs_core.identification.problem import DEFAULT_FIT, FieSettings
 from crs_core.model import CarModel
+from crs_core.model.car_model import effects_in_file
 from launch_scripts.arguments import (
     Command,
     add_effect,
@@ -86,7 +87,7 @@ def run_validate(args: argparse.Namespace) -> int:
 
     dataset = load_recording(args.dataset, args)
     effects = list(
-        dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_of_yaml(args.params)])
+        dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_in_file(args.params)])
     )
     model = identification_model(dataset, effects, args.params, "--params")
     prior = None

@@ -14,9 +14,10 @@ import pytest
 from crs_core.dataset import Dataset
 from crs_core.discrepancy.report import write_discrepancy_report
 from crs_core.discrepancy.workflow import DiscrepancyResult, DiscrepancySettings, find_discrepancy
-from crs_core.identification.models import effects_of_yaml, identification_model
+from crs_core.identification.models import identification_model
 from crs_core.identification.problem import FieSettings
 from crs_core.model import CarModel
+from crs_core.model.car_model import effects_in_file
 from sim.scenarios import simulate_dataset
 
 #: Every test uses the module's workflow run (about 15 s).
@@ -98,7 +99,7 @@ def test_effect_report_json_is_strict_with_required_keys(result, written):
 def test_effect_params_yaml_loads_with_the_effect(train, written):
     folder, _ = written
     path = folder / "params.yaml"
-    effects = effects_of_yaml(path)
+    effects = effects_in_file(path)
     assert effects == ["gyro_bias"]
     model = identification_model(train, effects, path)
     assert [e.name for e in model.effects] == ["gyro_bias"]
@@ -138,7 +139,7 @@ def test_none_report_without_position_reference(result, train, tmp_path):
     first = (tmp_path / "report.md").read_text().splitlines()[0]
     assert first.startswith("**No effect needed**")
     path = tmp_path / "params.yaml"
-    assert effects_of_yaml(path) == []
+    assert effects_in_file(path) == []
     identification_model(train, [], path)  # loads
 
 
@@ -183,8 +184,8 @@ def test_named_input_delay_is_written_to_params_yaml(result, train, tmp_path):
     summary = write_discrepancy_report(delayed, tmp_path, "train_run", "held_out_run")
     assert summary["parameters"]["input_delay"]["input_delay"]["value"] == 0.04
     path = tmp_path / "params.yaml"
-    assert effects_of_yaml(path) == ["input_delay"]
-    model = identification_model(train, effects_of_yaml(path), path)
+    assert effects_in_file(path) == ["input_delay"]
+    model = identification_model(train, effects_in_file(path), path)
     assert model.input_delay() == pytest.approx(0.04)
     first = (tmp_path / "report.md").read_text().splitlines()[0]
     assert first.startswith("**Finding: input_delay** — input delay = 0.04 ± 0.004 s")

@@ -9,20 +9,9 @@ import yaml
 
 from crs_core.dataset import Dataset
 from crs_core.errors import FieldError
-from crs_core.identification.models import ROUGH, effects_of_yaml, identification_model
+from crs_core.identification.models import ROUGH, identification_model
 from crs_core.model import CarModel
 from crs_core.model.chronos import ROUGH_PRIOR
-
-
-def test_effects_of_a_parameter_file_are_those_whose_parameters_it_names(tmp_path: Path):
-    path = tmp_path / "params.yaml"
-    path.write_text(yaml.safe_dump({"parameters": {"m": 0.25, "tau_steer": 0.07, "gyro_bias": 0}}))
-    assert sorted(effects_of_yaml(path)) == ["gyro_bias", "steering_lag"]
-    path.write_text(yaml.safe_dump({"parameters": {"m": 0.25}}))
-    assert effects_of_yaml(path) == []
-    path.write_text("parameters: [unclosed")
-    assert effects_of_yaml(path) == []  # the parameter loader names what is wrong
-    assert effects_of_yaml(tmp_path / "missing.yaml") == []
 
 
 def test_the_model_carries_the_rough_prior_the_effects_and_a_parameter_file(

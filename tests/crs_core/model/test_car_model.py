@@ -2,8 +2,10 @@
 
 import numpy as np
 import pytest
+import yaml
 
 from crs_core.model import CarModel
+from crs_core.model.car_model import effects_in_file
 
 
 def test_model_pickles_by_its_constructor_arguments():
@@ -56,3 +58,26 @@ def test_a_model_from_a_parameter_file_and_effects(tmp_path):
     path.write_text("parameters:\n  warp: 1.0\n")
     with pytest.raises(KeyError, match=r"car\.yaml: unknown parameter\(s\) \['warp'\]"):
         CarModel.from_file(path)
+
+
+def test_effects_of_a_parameter_file_are_those_whose_parameters_it_names(tmp_path):
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump({"parameters": {"m": 0.25, "tau_steer": 0.07, "gyro_bias": 0}}))
+    assert sorted(effects_in_file(path)) == ["gyro_bias", "steering_lag"]
+    path.write_text(yaml.safe_dump({"parameters": {"m": 0.25}}))
+    assert effects_in_file(path) == []
+    path.write_text("parameters: [unclosed")
+    assert effects_in_file(path) == []  # the parameter loader names what is wrong
+    assert effects_in_file(tmp_path / "missing.yaml") == []
+    assert effects_in_file(tmp_path / "missing.yaml") == []
+
+
+def test_a_model_from_a_file_has_the_effects_it_names(tmp_path):
+    """A discrepancy's params.yaml (with an effect's parameter) rebuilds its model."""
+    path = tmp_path / "params.yaml"
+    path.write_text("parameters:\n  m: 0.25\n  gyro_bias: 0.1\n")
+    model = CarModel.from_file(path)
+    assert [e.name for e in model.effects] == ["gyro_bias"]
+    assert model.parameters.value("gyro_bias") == 0.1
+    both = CarModel.from_file(path, ["steering_lag"])
+    assert sorted(e.name for e in both.effects) == ["gyro_bias", "steering_lag"]  # registry order
