@@ -49,6 +49,7 @@ from crs_core.estimation.factory import KINDS, make_estimator
 from crs_core.estimation.mhe import MheSettings
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
+from crs_core.model.car_model import effects_in_file
 
 #: Integer codes of the status words in ``estimates.npz``.
 STATUS_CODES = {"ok": 0, "degraded": 1, "lost": 2}
@@ -71,11 +72,14 @@ def dataset_model(
 ) -> CarModel:
     """The Chronos model with the dataset's Lighthouse geometry (stations, photodiodes).
 
-    ``effects`` (the ``CarModel`` effects mapping) are switched on; ``values`` (parameter
-    values by name) and then ``parameters_yaml`` (a parameter file,
+    ``effects`` (the ``CarModel`` effects mapping) are switched on, and those whose parameters
+    ``parameters_yaml`` names (:func:`~crs_core.model.car_model.effects_in_file`); ``values``
+    (parameter values by name) and then ``parameters_yaml`` (a parameter file,
     :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`) are applied last, so they may
     also override the geometry.
     """
+    if parameters_yaml is not None:
+        effects = {**dict.fromkeys(effects_in_file(parameters_yaml)), **effects}
     n = len(dataset.geometry.base_stations)
     geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
     parameters = CarModel(effects, n_base_stations=n).parameters.updated(geometry)
