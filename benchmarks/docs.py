@@ -27,6 +27,7 @@ from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
 from benchmarks.stack import format_markdown as stack_markdown
 from benchmarks.sysid import format_markdown as sysid_markdown
+from benchmarks.workflow import format_table as workflow_table
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
@@ -74,6 +75,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "control": _headed("control", control_table),
     "sysid": _headed("sysid", sysid_markdown),
     "stack": _headed("stack", stack_markdown),
+    "workflow": _headed("workflow", workflow_table),
 }
 
 

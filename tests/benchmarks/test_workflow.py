@@ -1,0 +1,74 @@
+"""benchmarks.workflow: the emulated car's truth, the parameter comparison and the table, from
+hand-made inputs (the day itself runs as ``crs bench workflow``, minutes long)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from benchmarks.workflow import (
+    RECOVERED_WITHIN,
+    TRUTH_FACTORS,
+    format_table,
+    parameter_recovery,
+    truth_parameters,
+)
+from crs_core.identification.problem import DEFAULT_FIT
+from crs_core.model import CarModel
+
+
+def test_the_car_differs_from_the_defaults_by_10_to_20_percent():
+    defaults = CarModel().parameters
+    for name, value in truth_parameters().items():
+        assert 0.1 <= abs(value / defaults.value(name) - 1.0) <= 0.2 + 1e-9, name
+    assert set(truth_parameters()) == set(TRUTH_FACTORS) <= set(DEFAULT_FIT)
+
+
+def _params_file(path: Path, scale: dict[str, float]) -> Path:
+    """A params.yaml as crs sysid writes it (entries with value), the truth times ``scale``."""
+    defaults, truth = CarModel().parameters, truth_parameters()
+    entries = {
+        name: {"value": truth.get(name, defaults.value(name)) * scale.get(name, 1.0)}
+        for name in DEFAULT_FIT
+    }
+    path.write_text(yaml.safe_dump({"parameters": entries}))
+    return path
+
+
+def test_parameter_recovery_compares_with_the_truth(tmp_path: Path):
+    exact = parameter_recovery(_params_file(tmp_path / "exact.yaml", {}))
+    assert exact["recovered"] and exact["worst_changed_error"] == 0.0
+    off = parameter_recovery(_params_file(tmp_path / "off.yaml", {"Dr": 1.2, "m": 2.0}))
+    assert off["parameters"]["Dr"]["error"] == pytest.approx(0.2)
+    assert off["worst_changed_error"] == pytest.approx(0.2) and RECOVERED_WITHIN < 0.2
+    assert not off["recovered"] and not off["parameters"]["m"]["changed"]
+
+
+def test_the_table_shows_before_and_after(tmp_path: Path):
+    recovery = parameter_recovery(_params_file(tmp_path / "p.yaml", {"Df": 1.05}))
+    race = {
+        "laps": 5,
+        "mean_flying_lap_s": 7.2,
+        "contouring_rms_m": 0.074,
+        "contouring_max_m": 0.17,
+        "estimation_rmse": {"x": 0.0024, "y": 0.0024, "yaw": 0.037},
+    }
+    result = {
+        "duration_s": 40.0,
+        "steps_s": {"race_default_model_s": 52.0, "sysid_s": 7.3},
+        "races": {"default_model": race, "identified_model": {**race, "mean_flying_lap_s": 7.0}},
+        "prediction_error": {
+            "horizon_s": 2.0,
+            "default_model": {"position_rmse_m": 0.29},
+            "identified_model": {"position_rmse_m": 0.064},
+        },
+        "sysid": recovery,
+        "discrepancy": {"named": ["gyro_bias"], "hidden": "gyro_bias", "parameters": recovery},
+    }
+    table = format_table(result)
+    assert "| mean flying lap | 7.2 s | 7.0 s |" in table
+    assert "| open-loop 2 s position RMSE (held out) | 0.290 m | 0.064 m |" in table
+    assert "Effect named: gyro_bias (hidden: gyro_bias)" in table and "Df +5.0 %" in table
+    assert "Steps: race default model 52 s, sysid 7 s" in table
