@@ -183,17 +183,13 @@ def calibrate_moving(
     data = Recording(stamps, obs, data.pose_t, data.pose, data.n_stations)
     n = data.n_stations
     prior = dataset.geometry
-    tilts = [
-        (prior.base_stations[s].dt1, prior.base_stations[s].dt2)
-        if s < len(prior.base_stations)
-        else (0.0, 0.0)
-        for s in range(n)
-    ]
-    if not fit_tilt and n > len(prior.base_stations):
+    known = prior.base_stations or ()
+    tilts = [(known[s].dt1, known[s].dt2) if s < len(known) else (0.0, 0.0) for s in range(n)]
+    if not fit_tilt and n > len(known):
         raise FieldError(
             "geometry.base_stations",
             f"the recording has sweeps of {n} station(s) but the "
-            f"dataset geometry gives tilt offsets for {len(prior.base_stations)}; add them or "
+            f"dataset geometry gives tilt offsets for {len(known)}; add them or "
             "fit them",
         )
     model = sweep_model or SweepModel()
