@@ -28,13 +28,17 @@ a few mm) for a station whose spin axis is near the floor normal, a station stan
 low beside the track: there the symmetric tilt trades off against the distance, as a camera's
 focal length does for a target seen face on. The reported one-sigma says so.
 
-Start: per station a closed-form pose from up to 400 plane pairs at the start offset (default
-0; the pose is off by :math:`v\tau`, a few cm, harmless) by
-:func:`~crs_core.calibration.sweep_model.start_station` (planar DLT; unknown tilts started from
-the homography), a station-only fit (unknown tilts free), then a scan of :math:`\tau` over
-``[-max_offset, max_offset]`` in 2 ms steps with those stations (picks the basin), then the
-joint fit. Sweeps whose :math:`t \pm` ``max_offset`` leaves the reference, or that fall in a
-reference gap longer than 50 ms, are dropped.
+Start: per station a closed-form pose from up to 400 plane pairs
+(:func:`~crs_core.calibration.sweep_model.start_station`: planar DLT, unknown tilts started
+from its homography). With ``fit_offset``, a coarse scan of :math:`\tau` over
+``[-max_offset, max_offset]`` in 10 ms steps, each offset with closed-form stations of its own,
+picks the basin (no station prior is needed for it: a start at 0 with the true offset 0.1 s
+puts the pose 10 cm and the station 0.5 m off, which the station fit may not recover from);
+else the given offset is used. Then a station-only fit there (unknown tilts free), a fine scan
+of :math:`\tau` in 2 ms steps with those stations, and the joint fit. A fit that ends with
+sweeps its stations cannot produce (a photodiode outside a light plane) has not converged and
+is refused (``lighthouse``). Sweeps whose :math:`t \pm` ``max_offset`` leaves the reference,
+or that fall in a reference gap longer than 50 ms, are dropped.
 """
 
 from __future__ import annotations
@@ -56,8 +60,10 @@ from crs_core.model.lighthouse import BaseStation
 MAX_REFERENCE_GAP = 0.05
 #: Plane pairs used for the closed-form start.
 START_PAIRS = 400
-#: Step of the clock-offset scan, s.
+#: Step of the clock-offset scan with the start fit's stations, s.
 OFFSET_STEP = 0.002
+#: Step of the coarse clock-offset scan with closed-form stations per offset, s.
+COARSE_OFFSET_STEP = 0.01
 #: Scale of the robust loss, rad.
 LOSS_SCALE = 5e-3
 
@@ -220,19 +226,19 @@ def calibrate_moving(
     tilts = [(known[s].dt1, known[s].dt2) if s < len(known) else None for s in range(n)]
     free = [fit_tilt or pair is None for pair in tilts]
     model = sweep_model or SweepModel()
-    start = _start_stations(data, spline, offset, tilts, np.asarray(prior.photodiodes))
+    start_at = offset
+    if fit_offset:
+        start_at = _coarse_offset(data, spline, tilts, prior.photodiodes, max_offset, model)
+    start = _start_stations(data, spline, start_at, tilts, np.asarray(prior.photodiodes))
 
     def poses_at(value: float):
         return spline(stamps + value), velocity(stamps + value)[:, :, None]
-
-    def poses_fixed(_):
-        return spline(stamps + offset), np.zeros((len(stamps), 3, 0))
 
     fixed = LighthouseFit(
         obs,
         start,
         prior.photodiodes,
-        poses_fixed,
+        _poses_fixed_at(spline, stamps, start_at),
         0,
         fit_tilt=free,
         sweep_model=model,
@@ -254,15 +260,15 @@ def calibrate_moving(
         costs = []
         for value in offsets:
             z[-1] = value
-            residual = at_first.evaluate(z, jacobian=False)
-            costs.append(float(np.sum(_soft_l1(residual / LOSS_SCALE))))
+            costs.append(_scan_cost(at_first.evaluate(z, jacobian=False)))
         scan = (offsets, np.array(costs))
         start_offset = float(offsets[int(np.argmin(costs))])
+    fixed_at_offset = _poses_fixed_at(spline, stamps, offset)
     problem = LighthouseFit(
         obs,
         first.stations,
         prior.photodiodes,
-        (lambda e: poses_at(float(e[0]))) if fit_offset else poses_fixed,
+        (lambda e: poses_at(float(e[0]))) if fit_offset else fixed_at_offset,
         1 if fit_offset else 0,
         fit_tilt=free,
         fit_photodiodes=fit_photodiodes,
@@ -275,6 +281,14 @@ def calibrate_moving(
         f_scale=LOSS_SCALE,
         bounds=bounds,
     )
+    unexplained = int(np.sum(~np.all(np.isfinite(fit.residuals), axis=1)))
+    if unexplained:
+        raise FieldError(
+            "lighthouse",
+            f"the fit did not converge: its stations cannot produce {unexplained} of "
+            f"{len(obs)} sweeps (a photodiode outside a light plane); check that the pose "
+            "reference is the car's body origin in the world frame, and the clock offset range",
+        )
     value = float(fit.extra[0]) if fit_offset else float(offset)
     spread = float(fit.extra_std[0]) if fit_offset else 0.0
     return MovingCalibration(fit, value, spread, data, tuple(start), scan, spline)
@@ -310,6 +324,48 @@ class ReferenceTrajectory:
 
 def _soft_l1(z: np.ndarray) -> np.ndarray:
     return 2.0 * (np.sqrt(1.0 + z * z) - 1.0)
+
+
+def _scan_cost(residual: np.ndarray) -> float:
+    """The robust cost of the residuals (rad) of a scan; an angle the model cannot produce
+    counts as a quarter turn off."""
+    residual = np.where(np.isfinite(residual), residual, 0.5 * math.pi)
+    return float(np.sum(_soft_l1(residual / LOSS_SCALE)))
+
+
+def _poses_fixed_at(spline: ReferenceTrajectory, stamps: np.ndarray, offset: float):
+    """The pose function of a fit at a fixed clock ``offset`` (s): no extra unknowns."""
+    poses, none = spline(stamps + offset), np.zeros((len(stamps), 3, 0))
+    return lambda _: (poses, none)
+
+
+def _coarse_offset(
+    data: Recording,
+    spline: ReferenceTrajectory,
+    tilts: list[tuple[float, float] | None],
+    photodiodes: tuple[tuple[float, float], ...],
+    max_offset: float,
+    model: SweepModel,
+) -> float:
+    """The clock offset (s) on a :data:`COARSE_OFFSET_STEP` grid over ``+-max_offset`` whose
+    closed-form stations (its own at each offset) explain the sweeps best."""
+    best, lowest = 0.0, math.inf
+    diodes = np.asarray(photodiodes)
+    step = COARSE_OFFSET_STEP
+    for value in np.arange(-max_offset, max_offset + 0.5 * step, step):
+        stations = _start_stations(data, spline, float(value), tilts, diodes)
+        fit = LighthouseFit(
+            data.observations,
+            stations,
+            photodiodes,
+            _poses_fixed_at(spline, data.stamps, float(value)),
+            0,
+            sweep_model=model,
+        )
+        cost = _scan_cost(fit.evaluate(fit.start_vector(np.zeros(0)), jacobian=False))
+        if cost < lowest:
+            best, lowest = float(value), cost
+    return best
 
 
 def _start_stations(

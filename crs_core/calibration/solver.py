@@ -10,7 +10,9 @@ is exact: CasADi derivatives of the model's sweep-angle expressions, chained thr
 ``dq/d(extra)``.
 
 Solved with ``scipy.optimize.least_squares`` (trust-region reflective, ``x_scale="jac"``),
-linear loss for averaged static angles, ``soft_l1`` for raw moving sweeps.
+linear loss for averaged static angles, ``soft_l1`` for raw moving sweeps. An angle the model
+cannot produce at an iterate counts as :data:`UNREACHABLE`; at the solution it is left NaN in
+:attr:`FitResult.residuals` (and out of the standard deviations) for the caller to refuse.
 """
 
 from __future__ import annotations
@@ -30,6 +32,11 @@ from crs_core.calibration.sweep_model import (
 )
 from crs_core.model.lighthouse import BaseStation
 
+#: The residual of an angle the model cannot produce at an iterate (a photodiode outside a light
+#: plane: the arcsine's argument beyond 1), rad; its Jacobian row is 0. Only those entries, so
+#: an iterate that pushes a few sweeps near the edge of a plane's reach out of it is not a
+#: cliff for the whole problem.
+UNREACHABLE = 0.5 * np.pi
 #: ``poses(extra) -> (poses (K, 3), d poses / d extra (K, 3, n_extra))``.
 PoseFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -185,10 +192,10 @@ class LighthouseFit:
 
         def fun(z):
             r, j = self.evaluate(z)
+            unreachable = ~np.isfinite(r)
+            j[unreachable] = 0.0
             cache["z"], cache["j"] = z.copy(), j
-            if not np.all(np.isfinite(r)):
-                return np.full_like(r, 1e3)
-            return r
+            return np.where(unreachable, UNREACHABLE, r)
 
         def jac(z):
             if "z" not in cache or not np.array_equal(cache["z"], z):
@@ -246,7 +253,11 @@ class LighthouseFit:
 
 
 def _standard_deviations(residual: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    r"""One-sigma of each unknown, :math:`\sqrt{\operatorname{diag}(\hat\sigma^2 (J^\top J)^+)}`."""
+    r"""One-sigma of each unknown, :math:`\sqrt{\operatorname{diag}(\hat\sigma^2 (J^\top J)^+)}`,
+    from the residuals the model can produce (a non-finite one, a photodiode outside a light
+    plane at an unconverged solution, is left out)."""
+    finite = np.isfinite(residual) & np.all(np.isfinite(jacobian), axis=1)
+    residual, jacobian = residual[finite], jacobian[finite]
     m, n = jacobian.shape
     dof = max(m - n, 1)
     sigma2 = float(residual @ residual) / dof

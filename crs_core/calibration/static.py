@@ -124,8 +124,9 @@ def calibrate_static(
     Raises
     ------
     ValueError
-        ``--stations`` beyond the file's stations, or a station seen at too few points (a
-        :class:`~crs_core.errors.FieldError` naming ``--stations`` or ``points``).
+        ``--stations`` beyond the file's stations, a station seen at too few points, or a fit
+        that did not converge (a :class:`~crs_core.errors.FieldError` naming ``--stations`` or
+        ``points``).
     """
     n = points.n_stations if n_stations is None else int(n_stations)
     if not 1 <= n <= points.n_stations:
@@ -193,6 +194,14 @@ def calibrate_static(
         sweep_model=model,
     )
     fit = problem.solve(yaws[unknown])
+    unexplained = int(np.sum(~np.all(np.isfinite(fit.residuals), axis=1)))
+    if unexplained:
+        raise FieldError(
+            "points",
+            f"the fit did not converge: its stations cannot produce {unexplained} of "
+            f"{len(observations)} mean sweeps (a photodiode outside a light plane); check the "
+            "points' positions and yaws",
+        )
     final = yaws.copy()
     final[unknown] = wrap_angle(fit.extra)
     return StaticCalibration(fit, observations, point_of, final, yaw_known, tuple(start))

@@ -194,16 +194,19 @@ def homography(world_xy: np.ndarray, directions: np.ndarray) -> np.ndarray:
     normalise = np.array(
         [[1 / scale, 0, -centre[0] / scale], [0, 1 / scale, -centre[1] / scale], [0, 0, 1]]
     )
-    points = np.column_stack([(world_xy - centre) / scale, np.ones(len(world_xy))])
-    rows = []
-    for (px, py, pw), (dx, dy, dz) in zip(points, directions, strict=True):
-        p = np.array([px, py, pw])
-        zero = np.zeros(3)
-        # d x (H p) = 0, with H row-major in the unknown vector h = [row0, row1, row2]
-        rows.append(np.concatenate([zero, -dz * p, dy * p]))
-        rows.append(np.concatenate([dz * p, zero, -dx * p]))
-        rows.append(np.concatenate([-dy * p, dx * p, zero]))
-    _, _, vt = np.linalg.svd(np.array(rows), full_matrices=False)
+    p = np.column_stack([(world_xy - centre) / scale, np.ones(len(world_xy))])
+    d = np.asarray(directions, dtype=float)
+    dx, dy, dz = d[:, 0:1], d[:, 1:2], d[:, 2:3]
+    zero = np.zeros_like(p)
+    # d x (H p) = 0, with H row-major in the unknown vector h = [row0, row1, row2]
+    rows = np.concatenate(
+        [
+            np.hstack([zero, -dz * p, dy * p]),
+            np.hstack([dz * p, zero, -dx * p]),
+            np.hstack([-dy * p, dx * p, zero]),
+        ]
+    )
+    _, _, vt = np.linalg.svd(rows, full_matrices=False)
     return vt[-1].reshape(3, 3) @ normalise
 
 
