@@ -192,8 +192,8 @@ def calibrate_moving(
     ------
     ValueError
         A :class:`~crs_core.errors.FieldError` naming what is missing or bad: ``lighthouse`` (no
-        sweeps, or a station without plane pairs), ``pose`` (no reference, or no overlap),
-        ``offset``, ``max_offset``.
+        sweeps, a station without plane pairs, or a fit that did not converge), ``pose`` (no
+        reference, or no overlap), ``offset``, ``max_offset``.
     """
     if not (math.isfinite(max_offset) and max_offset >= 0):
         raise FieldError("max_offset", f"must be finite and >= 0, got {max_offset!r}")
