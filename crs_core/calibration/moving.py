@@ -32,8 +32,9 @@ Start: per station a closed-form pose from up to 400 plane pairs
 (:func:`~crs_core.calibration.sweep_model.start_station`: planar DLT, unknown tilts started
 from its homography). With ``fit_offset``, a coarse scan of :math:`\tau` over
 ``[-max_offset, max_offset]`` in 10 ms steps, each offset with closed-form stations of its own,
-picks the basin (no station prior is needed for it: a start at 0 with the true offset 0.1 s
-puts the pose 10 cm and the station 0.5 m off, which the station fit may not recover from);
+picks the basin (no station prior is needed for it; a start at offset 0 when the true one is
+0.1-0.15 s puts the pose 10-15 cm and the station 0.25-0.5 m off, which the fit may not recover
+from);
 else the given offset is used. Then a station-only fit there (unknown tilts free), a fine scan
 of :math:`\tau` in 2 ms steps with those stations, and the joint fit. A fit that ends with
 sweeps its stations cannot produce (a photodiode outside a light plane) has not converged and
