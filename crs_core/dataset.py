@@ -30,7 +30,8 @@ file               shape      content
                               truth, or a recording's own on-line estimate (not ground truth).
 ``dataset.yaml``   mapping    optional metadata and the Lighthouse geometry (below). Without
                               it, or without its ``geometry`` block, the geometry of the real
-                              recordings is assumed.
+                              recordings is assumed; a block with the photodiodes alone means
+                              the stations are not known yet.
 ``stream.npz``     archive    optional full-rate measurement stream (below); when present,
                               estimators use it instead of the samples in ``y.npy``.
 =================  =========  ===================================================================
@@ -42,7 +43,8 @@ file               shape      content
   ``imu`` (k = 3: a_x, a_y in m/s^2, body; yaw rate in rad/s), ``gyro`` (k = 1, rad/s),
   ``wheel_encoders`` (k = 4: fl, fr, rl, rr in rad/s), ``pose`` (k = 3: x, y in m, yaw in rad;
   motion capture) and ``lighthouse__<station>__<plane>`` (k = 4: sweep angles of photodiodes
-  0..3 in rad, plane 1 or 2, station < the number of stations in the geometry). A row with NaN
+  0..3 in rad, plane 1 or 2, station < the number of stations in the geometry, any station
+  when the geometry gives none). A row with NaN
   is a missing sample and is skipped; inf is an error. Rows need not be sorted.
 * ``inputs:t`` (n,) and ``inputs:u`` (n, 2): commanded inputs in **model order, steering
   first** (rad, then normalised torque), each held from its stamp on. Optional.
@@ -65,6 +67,14 @@ Any other array name is an error (it catches a misspelt key). Reading and writin
           dt2: 0.0464
       photodiodes: [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
                                # photodiodes 0..3 in the car body frame (x, y), m; z = 0
+
+``photodiodes`` is required in a ``geometry`` block; ``base_stations`` is optional. A new
+set-up knows only its deck layout, ``geometry: {photodiodes: [[x, y], ...]}``: such a dataset
+loads (:attr:`Geometry.base_stations` is None) and is what ``crs calibrate-lighthouse`` fits the
+stations from (moving calibration: sweeps plus motion-capture poses); everything that needs the
+stations (estimators, identification, validation, pose fixes) refuses it with
+``geometry.base_stations: the dataset's geometry gives no base stations: calibrate them first
+(crs calibrate-lighthouse)``. Paste the ``geometry.yaml`` the calibration writes over the block.
 
 Any other keys (rates, noise settings, notes) are kept in :attr:`Dataset.meta`.
 """
@@ -104,17 +114,40 @@ Y_CHANNELS = (
 FORMAT = "chronos-dataset/1"
 
 
+#: The error of a reader that needs base stations when the geometry gives none.
+NO_STATIONS = (
+    "the dataset's geometry gives no base stations: calibrate them first (crs calibrate-lighthouse)"
+)
+
+
 @dataclass(frozen=True)
 class Geometry:
-    """Lighthouse geometry of a dataset: base stations and photodiode positions (body, m)."""
+    """Lighthouse geometry of a dataset: base stations and photodiode positions (body, m).
 
-    base_stations: tuple[BaseStation, ...] = (RECORDED_BASE_STATION,)
+    Attributes
+    ----------
+    base_stations : the base stations (world frame), or None when they are not known yet: a
+        geometry of the deck layout alone, as a new set-up has before its first calibration
+        (``crs calibrate-lighthouse`` fits them from the sweeps). Whatever needs the stations
+        (a model, an estimator, a pose fix) reads them through :meth:`known_stations`.
+    photodiodes : photodiodes 0..3 of the Lighthouse deck (x, y) in the body frame, m; z = 0.
+    """
+
+    base_stations: tuple[BaseStation, ...] | None = (RECORDED_BASE_STATION,)
     photodiodes: tuple[tuple[float, float], ...] = RECORDED_PHOTODIODES
 
+    def known_stations(self) -> tuple[BaseStation, ...]:
+        """The base stations; a :class:`~crs_core.errors.FieldError` naming
+        ``geometry.base_stations`` when the geometry gives none."""
+        if self.base_stations is None:
+            raise FieldError("geometry.base_stations", NO_STATIONS)
+        return self.base_stations
+
     def parameters(self) -> ParameterSet:
-        """The geometry as model parameters (``bs{i}_*``, ``lh_d{k}_*``)."""
+        """The geometry as model parameters (``bs{i}_*``, ``lh_d{k}_*``); needs the stations
+        (:meth:`known_stations`)."""
         return photodiode_parameters(self.photodiodes).merged(
-            base_station_parameters(self.base_stations)
+            base_station_parameters(self.known_stations())
         )
 
     @classmethod
@@ -124,8 +157,10 @@ class Geometry:
         return cls(stations, diodes)
 
     def to_dict(self) -> dict[str, Any]:
-        return {
-            "base_stations": [
+        """The ``geometry`` block of ``dataset.yaml`` (no ``base_stations`` when unknown)."""
+        out: dict[str, Any] = {}
+        if self.base_stations is not None:
+            out["base_stations"] = [
                 {
                     "rotation": station.rotation.tolist(),
                     "position": list(station.position),
@@ -133,46 +168,38 @@ class Geometry:
                     "dt2": station.dt2,
                 }
                 for station in self.base_stations
-            ],
-            "photodiodes": [list(d) for d in self.photodiodes],
-        }
+            ]
+        out["photodiodes"] = [list(d) for d in self.photodiodes]
+        return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Geometry:
         """The ``geometry`` block of ``dataset.yaml`` (module docstring); ``ValueError`` naming
-        the field when it is malformed."""
+        the field when it is malformed. ``base_stations`` may be left out (or null): the
+        stations are then unknown (``base_stations`` None)."""
+        given = [k for k in ("base_stations", "photodiodes") if data.get(k) is not None]
+        if not given:
+            raise FieldError(
+                "geometry",
+                "gives neither base_stations nor photodiodes; give at least the photodiodes "
+                "of the Lighthouse deck (body frame, m)",
+            )
         try:
-            stations = []
-            for i, entry in enumerate(data["base_stations"]):
-                name = f"geometry.base_stations[{i}]"
-                if not isinstance(entry, Mapping):
-                    raise FieldError(name, f"expected a mapping, got {entry!r}")
-                missing = [k for k in ("rotation", "position", "dt1", "dt2") if k not in entry]
-                if missing:
-                    lacks = f"malformed ({name[9:]} lacks {', '.join(missing)})"
-                    raise FieldError("geometry", lacks)
-                rotation = _finite_array(f"{name}.rotation", entry["rotation"], (3, 3))
-                position = _finite_array(f"{name}.position", entry["position"], (3,))
-                dt = [_finite_array(f"{name}.{k}", entry[k], ()) for k in ("dt1", "dt2")]
-                try:
-                    station = BaseStation.from_rotation(
-                        rotation, tuple(position), float(dt[0]), float(dt[1])
-                    )
-                except FieldError as error:  # the rotation's own check names the rotation
-                    raise error.renamed(f"{name}.rotation") from None
-                except ValueError as error:
-                    raise FieldError(f"{name}.rotation", str(error)) from None
-                stations.append(station)
+            stations = None
+            if "base_stations" in given:
+                stations = tuple(_base_stations(data["base_stations"]))
+            if "photodiodes" not in given:
+                raise FieldError(
+                    "geometry.photodiodes",
+                    "missing: photodiodes 0..3 of the Lighthouse deck, [[x, y] x 4] in the body "
+                    "frame, m",
+                )
             diodes = _finite_array("geometry.photodiodes", data["photodiodes"], (4, 2))
         except FieldError:
             raise
-        except KeyError as error:
-            raise FieldError("geometry", f"malformed (missing {error})") from None
         except (TypeError, ValueError) as error:
             raise FieldError("geometry", f"malformed ({error})") from None
-        if not stations:
-            raise FieldError("geometry.base_stations", "needs at least one base station")
-        return cls(tuple(stations), tuple((float(x), float(y)) for x, y in diodes))
+        return cls(stations, tuple((float(x), float(y)) for x, y in diodes))
 
     @classmethod
     def from_file(cls, path: str | Path) -> Geometry:
@@ -190,6 +217,39 @@ class Geometry:
         if not isinstance(document, Mapping) or not isinstance(document.get("geometry"), Mapping):
             raise FieldError(str(path), "expected a mapping with a 'geometry' block")
         return cls.from_dict(document["geometry"])
+
+
+def _base_stations(entries: Any) -> list[BaseStation]:
+    """The ``base_stations`` list of a geometry block (at least one entry)."""
+    if not isinstance(entries, list):
+        raise FieldError("geometry.base_stations", f"expected a list, got {entries!r}")
+    if not entries:
+        raise FieldError(
+            "geometry.base_stations",
+            "needs at least one base station (leave the key out while they are unknown)",
+        )
+    stations = []
+    for i, entry in enumerate(entries):
+        name = f"geometry.base_stations[{i}]"
+        if not isinstance(entry, Mapping):
+            raise FieldError(name, f"expected a mapping, got {entry!r}")
+        missing = [k for k in ("rotation", "position", "dt1", "dt2") if k not in entry]
+        if missing:
+            lacks = f"malformed ({name[9:]} lacks {', '.join(missing)})"
+            raise FieldError("geometry", lacks)
+        rotation = _finite_array(f"{name}.rotation", entry["rotation"], (3, 3))
+        position = _finite_array(f"{name}.position", entry["position"], (3,))
+        dt = [_finite_array(f"{name}.{k}", entry[k], ()) for k in ("dt1", "dt2")]
+        try:
+            station = BaseStation.from_rotation(
+                rotation, tuple(position), float(dt[0]), float(dt[1])
+            )
+        except FieldError as error:  # the rotation's own check names the rotation
+            raise error.renamed(f"{name}.rotation") from None
+        except ValueError as error:
+            raise FieldError(f"{name}.rotation", str(error)) from None
+        stations.append(station)
+    return stations
 
 
 def _finite_array(name: str, value: Any, shape: tuple[int, ...]) -> np.ndarray:
@@ -293,7 +353,8 @@ class Dataset:
                 geometry = Geometry.from_dict(meta.pop("geometry"))
         dataset = cls(t=t, u=u, y=y.T.copy(), x=x, geometry=geometry, meta=meta)
         if (folder / "stream.npz").exists():
-            stream = read_stream(folder / "stream.npz", len(geometry.base_stations))
+            stations = None if geometry.base_stations is None else len(geometry.base_stations)
+            stream = read_stream(folder / "stream.npz", stations)
             dataset.measurements, dataset.inputs = stream.measurements, stream.inputs
             dataset.truth_t, dataset.truth_x = stream.truth_t, stream.truth_x
         return dataset

@@ -59,8 +59,9 @@ def write_stream(
     np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
 
 
-def read_stream(path: Path, stations: int) -> StreamContents:
-    """Read ``stream.npz``; ``stations`` is the number of base stations of the geometry."""
+def read_stream(path: Path, stations: int | None) -> StreamContents:
+    """Read ``stream.npz``; ``stations`` is the number of base stations of the geometry (None:
+    the geometry gives none yet, so sweeps of any station are kept)."""
     try:
         archive = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as error:
@@ -123,7 +124,9 @@ def _stream_arrays(
     return stamps.astype(float), values.astype(float)
 
 
-def _stream_sensor(arrays: Mapping[str, np.ndarray], key: str, stations: int) -> list[Measurement]:
+def _stream_sensor(
+    arrays: Mapping[str, np.ndarray], key: str, stations: int | None
+) -> list[Measurement]:
     """The measurements of one sensor of ``stream.npz``; NaN rows (missing samples) skipped."""
     sensor = key.replace("__", "/")
     try:
@@ -135,7 +138,7 @@ def _stream_sensor(arrays: Mapping[str, np.ndarray], key: str, stations: int) ->
             "wheel_encoders, pose, lighthouse__<station>__<plane>)",
         ) from None
     lighthouse = parse_lighthouse(sensor)
-    if lighthouse is not None and lighthouse[0] >= stations:
+    if lighthouse is not None and stations is not None and lighthouse[0] >= stations:
         raise FieldError(
             STREAM,
             f"meas:{key} is base station {lighthouse[0]}, but the geometry has "

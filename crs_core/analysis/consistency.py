@@ -45,7 +45,7 @@ def channel_errors(dataset: Dataset, model: CarModel | None = None) -> dict[str,
 
     Units: rad for Lighthouse rows, rad/s for wheel speeds and yaw rate. NaN samples are skipped.
     """
-    model = model or CarModel(n_base_stations=len(dataset.geometry.base_stations))
+    model = model or CarModel(n_base_stations=len(dataset.geometry.known_stations()))
     residual = dataset.y - predicted_samples(dataset, model)
     out = {}
     for name, column in zip(Y_CHANNELS, residual.T, strict=True):

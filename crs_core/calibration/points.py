@@ -7,9 +7,9 @@ floor plane, z up; body x forward, y left)::
     photodiodes: [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
                         # optional: photodiodes 0..3 in the body frame (x, y), m; default: the
                         # Lighthouse deck of the real recordings
-    stations:           # one entry per base station, index = list position
+    stations:           # optional: one entry per base station, index = list position
       - dt1: -0.0508728 # factory light-plane tilt offsets, rad (from the station's data
-        dt2: 0.0464478  # stream); may be omitted with --fit-tilt (then 0 is the start value)
+        dt2: 0.0464478  # stream); optional: tilt offsets not given are fitted
     points:             # the car standing still at known poses
       - position: [0.5, -0.25]   # body origin in the world frame, m (floor, z = 0)
         yaw: 1.2                 # heading, rad; optional (omit or null: unknown, fitted)
@@ -20,9 +20,11 @@ floor plane, z up; body x forward, y left)::
           - station: 1
             ...
 
-A station may be missing at a point (out of view), and a point may have only one plane of a
-station. The sweeps of a plane are averaged per photodiode (the fit uses each photodiode's
-angle, never the mean over photodiodes); their spread estimates the angle noise.
+Without ``stations`` the file gives no station geometry at all: the stations are those the
+sweeps name (0 up to the largest index) and their tilt offsets are fitted. A station may be
+missing at a point (out of view), and a point may have only one plane of a station. The
+sweeps of a plane are averaged per photodiode (the fit uses each photodiode's angle, never the
+mean over photodiodes); their spread estimates the angle noise.
 :func:`load_points` validates everything and raises a one-line ``ValueError`` naming the field.
 """
 
@@ -76,7 +78,9 @@ class CalibrationPoints:
     Attributes
     ----------
     points : the calibration points.
-    tilts : per station ``(dt1, dt2)`` in rad; an entry is None when the file omits it.
+    tilts : per station ``(dt1, dt2)`` in rad; an entry is None when the file omits it (the
+        number of stations: the file's ``stations`` list, or 1 + the largest station its
+        sweeps name).
     photodiodes : photodiodes 0..3 in the body frame (x, y), m.
     """
 
@@ -160,10 +164,12 @@ def points_from_dict(data: Any) -> CalibrationPoints:
         diodes = _numbers("photodiodes", data["photodiodes"], (N_PHOTODIODES, 2))
         photodiodes = tuple((float(x), float(y)) for x, y in diodes)
     stations = data.get("stations")
-    if not isinstance(stations, list) or not stations:
-        raise FieldError("stations", "expected a list with one entry per base station")
+    if stations is not None and (not isinstance(stations, list) or not stations):
+        raise FieldError(
+            "stations", "expected a list with one entry per base station (or no stations key)"
+        )
     tilts = []
-    for i, entry in enumerate(stations):
+    for i, entry in enumerate(stations or []):
         if entry is None:
             entry = {}
         if not isinstance(entry, Mapping):
@@ -183,11 +189,16 @@ def points_from_dict(data: Any) -> CalibrationPoints:
     raw_points = data.get("points")
     if not isinstance(raw_points, list) or not raw_points:
         raise FieldError("points", "expected a non-empty list of points")
-    points = [_point(f"points[{i}]", item, len(tilts)) for i, item in enumerate(raw_points)]
+    listed = len(tilts) if stations is not None else None
+    points = [_point(f"points[{i}]", item, listed) for i, item in enumerate(raw_points)]
+    if listed is None:  # the stations are those the sweeps name
+        named = 1 + max(station for point in points for station, _ in point.sweeps)
+        tilts = [(None, None)] * named
     return CalibrationPoints(tuple(points), tuple(tilts), photodiodes)
 
 
-def _point(name: str, item: Any, n_stations: int) -> CalibrationPoint:
+def _point(name: str, item: Any, n_stations: int | None) -> CalibrationPoint:
+    """One entry of ``points``; station indices below ``n_stations`` (any, when None)."""
     if not isinstance(item, Mapping):
         raise FieldError(name, f"expected a mapping (position, yaw, sweeps), got {item!r}")
     extra = set(item) - {"position", "yaw", "sweeps"}
@@ -213,7 +224,9 @@ def _point(name: str, item: Any, n_stations: int) -> CalibrationPoint:
         station = entry.get("station")
         if isinstance(station, bool) or not isinstance(station, int):
             raise FieldError(f"{where}.station", f"expected a station index, got {station!r}")
-        if not 0 <= station < n_stations:
+        if station < 0:
+            raise FieldError(f"{where}.station", f"expected a station index >= 0, got {station}")
+        if n_stations is not None and station >= n_stations:
             raise FieldError(
                 f"{where}.station",
                 f"{station} is not one of the {n_stations} station(s) listed under stations",

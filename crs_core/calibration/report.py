@@ -21,6 +21,7 @@ from crs_core.analysis.statistics import summary
 from crs_core.calibration.evaluation import MovingFixes, PointReport, SweepRow
 from crs_core.calibration.moving import MovingCalibration
 from crs_core.calibration.points import CalibrationPoints
+from crs_core.calibration.solver import FitResult
 from crs_core.calibration.static import StaticCalibration
 from crs_core.dataset import Geometry, plain
 from crs_core.model.lighthouse import BaseStation
@@ -44,7 +45,11 @@ def write_geometry(
     return path
 
 
-def _station_entry(station: BaseStation, std: np.ndarray) -> dict[str, Any]:
+#: A fitted tilt offset with a larger one-sigma is reported as weakly determined, rad.
+WEAK_TILT_STD = 2e-3
+
+
+def _station_entry(station: BaseStation, std: np.ndarray, tilt_fitted: bool) -> dict[str, Any]:
     return {
         "position_m": list(station.position),
         "position_std_m": std[3:6].tolist(),
@@ -53,8 +58,42 @@ def _station_entry(station: BaseStation, std: np.ndarray) -> dict[str, Any]:
         "rotation_std_rad": std[0:3].tolist(),
         "dt1": station.dt1,
         "dt2": station.dt2,
+        "tilt_fitted": bool(tilt_fitted),
         "tilt_std_rad": std[6:8].tolist(),
     }
+
+
+def _station_entries(fit: FitResult) -> list[dict[str, Any]]:
+    return [
+        _station_entry(station, std, fitted)
+        for station, std, fitted in zip(fit.stations, fit.station_std, fit.tilt_fitted, strict=True)
+    ]
+
+
+def _tilt_phrase(summary: dict[str, Any]) -> str:
+    """How the tilt offsets were found: given, fitted (requested, or not given), or mixed."""
+    fitted = [i for i, s in enumerate(summary["stations"]) if s["tilt_fitted"]]
+    if not fitted:
+        return "tilt offsets given"
+    if len(fitted) == len(summary["stations"]):
+        return "tilt offsets fitted" + ("" if summary["fit_tilt"] else " (none given)")
+    return f"tilt offsets fitted for station(s) {', '.join(map(str, fitted))} (not given)"
+
+
+def _weak_tilt_lines(summary: dict[str, Any]) -> list[str]:
+    """A note per station whose fitted tilt offsets the data barely determine."""
+    lines = []
+    for i, s in enumerate(summary["stations"]):
+        spread = max(s["tilt_std_rad"])
+        if s["tilt_fitted"] and spread > WEAK_TILT_STD:
+            lines += [
+                f"Station {i}: its tilt offsets are weakly determined (± {1e3 * spread:.1f} "
+                "mrad), and with them its distance: its spin axis is near the floor normal, "
+                "where the symmetric tilt trades off against the distance. Give its factory "
+                "tilt offsets (from the station's data stream) if you have them.",
+                "",
+            ]
+    return lines
 
 
 def _stats(values: np.ndarray) -> dict[str, float]:
@@ -78,10 +117,7 @@ def static_summary(
     return {
         "kind": "static",
         "points": len(points.points),
-        "stations": [
-            _station_entry(s, calibration.fit.station_std[i])
-            for i, s in enumerate(calibration.stations)
-        ],
+        "stations": _station_entries(calibration.fit),
         "fit_tilt": fit_tilt,
         "yaw_fitted": int(np.sum(~calibration.yaw_known)),
         "angle_residual_rms_rad": float(np.sqrt(np.mean(residuals**2))),
@@ -132,10 +168,7 @@ def moving_summary(
     return {
         "kind": "moving",
         "sweeps": len(obs),
-        "stations": [
-            _station_entry(s, calibration.fit.station_std[i])
-            for i, s in enumerate(calibration.stations)
-        ],
+        "stations": _station_entries(calibration.fit),
         "clock_offset_s": calibration.offset,
         "clock_offset_std_s": calibration.offset_std,
         "fit_offset": fit_offset,
@@ -185,14 +218,15 @@ def static_markdown(summary: dict[str, Any], command: str) -> str:
         "",
         f"Command: `{command}`",
         "",
-        f"{summary['points']} points, {len(summary['stations'])} station(s); tilt offsets "
-        f"{'fitted' if summary['fit_tilt'] else 'given'}; {summary['yaw_fitted']} yaw(s) fitted."
+        f"{summary['points']} points, {len(summary['stations'])} station(s); "
+        f"{_tilt_phrase(summary)}; {summary['yaw_fitted']} yaw(s) fitted."
         " Geometry: `geometry.yaml` (the `geometry` block of `dataset.yaml`).",
         "",
         *_station_lines(summary),
         "",
         "± is one sigma from the fit (residual variance × (JᵀJ)⁻¹).",
         "",
+        *_weak_tilt_lines(summary),
         f"Angle residual rms: {1e3 * summary['angle_residual_rms_rad']:.3f} mrad "
         "(mean of the sweeps at a point, per photodiode)"
         + (
@@ -255,11 +289,12 @@ def moving_markdown(summary: dict[str, Any], command: str) -> str:
         f"(motion capture minus car): {1e3 * summary['clock_offset_s']:.2f} ± "
         f"{1e3 * summary['clock_offset_std_s']:.2f} ms"
         f" ({'fitted' if summary['fit_offset'] else 'fixed'}); photodiodes "
-        f"{'fitted' if summary['fit_photodiodes'] else 'given'}; tilt offsets "
-        f"{'fitted' if summary['fit_tilt'] else 'given'}. Geometry: `geometry.yaml`.",
+        f"{'fitted' if summary['fit_photodiodes'] else 'given'}; {_tilt_phrase(summary)}. "
+        "Geometry: `geometry.yaml`.",
         "",
         *_station_lines(summary),
         "",
+        *_weak_tilt_lines(summary),
         f"Angle residual rms {1e3 * summary['angle_residual_rms_rad']:.3f} mrad, median |r| "
         f"{1e3 * summary['angle_residual_median_abs_rad']:.3f} mrad.",
         "",

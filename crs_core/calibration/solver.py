@@ -2,14 +2,17 @@ r"""The least-squares engine shared by static and moving calibration.
 
 Unknowns: per base station its pose in the gimbal-free chart of
 :mod:`crs_core.calibration.sweep_model` (3 rotation increments, position; the tilt offsets
-``dt1, dt2`` too when fitted), optionally the photodiode positions (shared by all stations), and
-problem-specific extras that move the car poses (static: unknown yaws per point; moving: the
-clock offset). Residuals: every photodiode's wrapped sweep angle of every observation
-:math:`r = \operatorname{wrap}(\alpha - h(q, \theta))`, rad. The Jacobian is exact: CasADi
-derivatives of the model's sweep-angle expressions, chained through ``dq/d(extra)``.
+``dt1, dt2`` too when fitted, chosen per station), optionally the photodiode positions
+(shared by all stations), and problem-specific extras that move the car poses (static: unknown
+yaws per point; moving: the clock offset). Residuals: every photodiode's wrapped sweep angle
+of every observation :math:`r = \operatorname{wrap}(\alpha - h(q, \theta))`, rad. The Jacobian
+is exact: CasADi derivatives of the model's sweep-angle expressions, chained through
+``dq/d(extra)``.
 
 Solved with ``scipy.optimize.least_squares`` (trust-region reflective, ``x_scale="jac"``),
-linear loss for averaged static angles, ``soft_l1`` for raw moving sweeps.
+linear loss for averaged static angles, ``soft_l1`` for raw moving sweeps. An angle the model
+cannot produce at an iterate counts as :data:`UNREACHABLE`; at the solution it is left NaN in
+:attr:`FitResult.residuals` (and out of the standard deviations) for the caller to refuse.
 """
 
 from __future__ import annotations
@@ -29,6 +32,11 @@ from crs_core.calibration.sweep_model import (
 )
 from crs_core.model.lighthouse import BaseStation
 
+#: The residual of an angle the model cannot produce at an iterate (a photodiode outside a light
+#: plane: the arcsine's argument beyond 1), rad; its Jacobian row is 0. Only those entries, so
+#: an iterate that pushes a few sweeps near the edge of a plane's reach out of it is not a
+#: cliff for the whole problem.
+UNREACHABLE = 0.5 * np.pi
 #: ``poses(extra) -> (poses (K, 3), d poses / d extra (K, 3, n_extra))``.
 PoseFunction = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -67,6 +75,7 @@ class FitResult:
     extra_std : one-sigma of ``extra``.
     diode_std : (8,) one-sigma of the photodiode coordinates, m (0 if not fitted).
     iterations : function evaluations used.
+    tilt_fitted : per station, whether its tilt offsets were fitted (else held as given).
     """
 
     stations: tuple[BaseStation, ...]
@@ -77,10 +86,15 @@ class FitResult:
     extra_std: np.ndarray
     diode_std: np.ndarray
     iterations: int
+    tilt_fitted: tuple[bool, ...]
 
 
 class LighthouseFit:
-    """Builds and solves one calibration least-squares problem (module docstring)."""
+    """Builds and solves one calibration least-squares problem (module docstring).
+
+    ``fit_tilt`` frees the tilt offsets of every station (True), of none (False), or per
+    station (one bool each); tilts not fitted stay at the start stations' values.
+    """
 
     def __init__(
         self,
@@ -89,7 +103,7 @@ class LighthouseFit:
         photodiodes: Sequence[tuple[float, float]],
         poses: PoseFunction,
         n_extra: int,
-        fit_tilt: bool = False,
+        fit_tilt: bool | Sequence[bool] = False,
         fit_photodiodes: bool = False,
         sweep_model: SweepModel | None = None,
     ) -> None:
@@ -103,18 +117,23 @@ class LighthouseFit:
         self.poses = poses
         self.n_extra = n_extra
         self.fit_photodiodes = fit_photodiodes
-        self.free = list(range(N_STATION if fit_tilt else 6))
         self.n_stations = len(start)
+        if isinstance(fit_tilt, bool):
+            fit_tilt = [fit_tilt] * self.n_stations
+        self.tilt_fitted = tuple(bool(f) for f in fit_tilt)
+        if len(self.tilt_fitted) != self.n_stations:
+            raise ValueError("fit_tilt needs one flag per start station")
+        #: per station, the chart parameters it fits, and where they start in the unknowns
+        self.free = [list(range(N_STATION if f else 6)) for f in self.tilt_fitted]
+        self._first = np.concatenate([[0], np.cumsum([len(f) for f in self.free])]).astype(int)
         self._index = [np.flatnonzero(observations.station == s) for s in range(self.n_stations)]
-        n_free = len(self.free)
-        self.n_station_vars = n_free * self.n_stations
+        self.n_station_vars = int(self._first[-1])
         self.n_vars = self.n_station_vars + (N_DIODES if fit_photodiodes else 0) + n_extra
 
     def _unpack(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         theta = self.theta0.copy()
-        n_free = len(self.free)
         for s in range(self.n_stations):
-            theta[s, self.free] = z[s * n_free : (s + 1) * n_free]
+            theta[s, self.free[s]] = z[self._first[s] : self._first[s + 1]]
         offset = self.n_station_vars
         diodes = self.diodes0.copy()
         if self.fit_photodiodes:
@@ -123,7 +142,7 @@ class LighthouseFit:
         return theta, diodes, z[offset:]
 
     def start_vector(self, extra0: np.ndarray) -> np.ndarray:
-        parts = [self.theta0[s, self.free] for s in range(self.n_stations)]
+        parts = [self.theta0[s, self.free[s]] for s in range(self.n_stations)]
         if self.fit_photodiodes:
             parts.append(self.diodes0)
         parts.append(np.asarray(extra0, dtype=float).reshape(-1))
@@ -136,7 +155,6 @@ class LighthouseFit:
         k_total = len(self.obs)
         residuals = np.zeros((k_total, 4))
         jac = np.zeros((k_total, 4, self.n_vars)) if jacobian else None
-        n_free = len(self.free)
         for s, rows in enumerate(self._index):
             if rows.size == 0:
                 continue
@@ -149,7 +167,7 @@ class LighthouseFit:
                 continue
             y, jq, jt, jd = self.model.evaluate(poses[rows], theta[s], self.rotations0[s], diodes)
             residuals[rows] = wrap_angle(self.obs.angles[rows] - y[sel, pick])
-            jac[rows, :, s * n_free : (s + 1) * n_free] = -jt[sel, pick][:, :, self.free]
+            jac[rows, :, self._first[s] : self._first[s + 1]] = -jt[sel, pick][:, :, self.free[s]]
             offset = self.n_station_vars
             if self.fit_photodiodes:
                 jac[rows, :, offset : offset + N_DIODES] = -jd[sel, pick]
@@ -174,10 +192,10 @@ class LighthouseFit:
 
         def fun(z):
             r, j = self.evaluate(z)
+            unreachable = ~np.isfinite(r)
+            j[unreachable] = 0.0
             cache["z"], cache["j"] = z.copy(), j
-            if not np.all(np.isfinite(r)):
-                return np.full_like(r, 1e3)
-            return r
+            return np.where(unreachable, UNREACHABLE, r)
 
         def jac(z):
             if "z" not in cache or not np.array_equal(cache["z"], z):
@@ -213,10 +231,9 @@ class LighthouseFit:
             station_from_chart(theta[s], self.rotations0[s]) for s in range(self.n_stations)
         )
         std = _standard_deviations(residual, jacobian)
-        n_free = len(self.free)
         station_std = np.zeros((self.n_stations, N_STATION))
         for s in range(self.n_stations):
-            station_std[s, self.free] = std[s * n_free : (s + 1) * n_free]
+            station_std[s, self.free[s]] = std[self._first[s] : self._first[s + 1]]
         offset = self.n_station_vars
         diode_std = np.zeros(N_DIODES)
         if self.fit_photodiodes:
@@ -231,11 +248,16 @@ class LighthouseFit:
             extra_std=std[offset:],
             diode_std=diode_std,
             iterations=int(solution.nfev),
+            tilt_fitted=self.tilt_fitted,
         )
 
 
 def _standard_deviations(residual: np.ndarray, jacobian: np.ndarray) -> np.ndarray:
-    r"""One-sigma of each unknown, :math:`\sqrt{\operatorname{diag}(\hat\sigma^2 (J^\top J)^+)}`."""
+    r"""One-sigma of each unknown, :math:`\sqrt{\operatorname{diag}(\hat\sigma^2 (J^\top J)^+)}`,
+    from the residuals the model can produce (a non-finite one, a photodiode outside a light
+    plane at an unconverged solution, is left out)."""
+    finite = np.isfinite(residual) & np.all(np.isfinite(jacobian), axis=1)
+    residual, jacobian = residual[finite], jacobian[finite]
     m, n = jacobian.shape
     dof = max(m - n, 1)
     sigma2 = float(residual @ residual) / dof

@@ -32,6 +32,11 @@ CHUNK = 128
 N_STATION = 8
 #: Number of photodiode parameters (x, y of each diode).
 N_DIODES = 2 * N_PHOTODIODES
+#: Largest symmetric tilt offset :func:`symmetric_tilt` hands to a start, rad (factory offsets
+#: are a few degrees; beyond this the estimate is noise and the start uses 0).
+MAX_START_TILT = 0.15
+#: Smallest lever of the tilt in the homography :func:`symmetric_tilt` trusts (its docstring).
+MIN_TILT_LEVER = 0.03
 
 
 class SweepModel:
@@ -150,10 +155,9 @@ def station_from_bearings(
 
     A floor point :math:`P = (X, Y, 0)` is seen along :math:`d \propto M (P - p)` with
     :math:`M = R_{bs}^\top`, i.e. :math:`d \propto H (X, Y, 1)^\top` with
-    :math:`H = [m_1\; m_2\; -M p]`. Each correspondence gives two rows of
-    :math:`d \times H P = 0`; :math:`H` is the null vector (SVD, world points centred and
-    scaled first), scaled so :math:`\|h_1\| + \|h_2\| = 2` and signed so the points lie ahead of
-    the rays; :math:`M` is :math:`[h_1\; h_2\; h_1 \times h_2]` projected onto SO(3).
+    :math:`H = [m_1\; m_2\; -M p]` (:func:`homography`), scaled so
+    :math:`\|h_1\| + \|h_2\| = 2` and signed so the points lie ahead of the rays; :math:`M` is
+    :math:`[h_1\; h_2\; h_1 \times h_2]` projected onto SO(3).
 
     Parameters
     ----------
@@ -165,22 +169,7 @@ def station_from_bearings(
     rotation, position : world-from-station rotation (3, 3) and station position (3,), m.
     """
     world_xy = np.asarray(world_xy, dtype=float)
-    centre = world_xy.mean(axis=0)
-    scale = float(np.sqrt(np.mean(np.sum((world_xy - centre) ** 2, axis=1)))) or 1.0
-    normalise = np.array(
-        [[1 / scale, 0, -centre[0] / scale], [0, 1 / scale, -centre[1] / scale], [0, 0, 1]]
-    )
-    points = np.column_stack([(world_xy - centre) / scale, np.ones(len(world_xy))])
-    rows = []
-    for (px, py, pw), (dx, dy, dz) in zip(points, directions, strict=True):
-        p = np.array([px, py, pw])
-        zero = np.zeros(3)
-        # d x (H p) = 0, with H row-major in the unknown vector h = [row0, row1, row2]
-        rows.append(np.concatenate([zero, -dz * p, dy * p]))
-        rows.append(np.concatenate([dz * p, zero, -dx * p]))
-        rows.append(np.concatenate([-dy * p, dx * p, zero]))
-    _, _, vt = np.linalg.svd(np.array(rows), full_matrices=False)
-    h = vt[-1].reshape(3, 3) @ normalise
+    h = homography(world_xy, directions)
     h /= 0.5 * (np.linalg.norm(h[:, 0]) + np.linalg.norm(h[:, 1]))
     homogeneous = np.column_stack([world_xy, np.ones(len(world_xy))])
     if np.sum(np.einsum("ij,ij->i", (h @ homogeneous.T).T, directions)) < 0:
@@ -190,6 +179,98 @@ def station_from_bearings(
     m = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     position = -m.T @ h[:, 2]
     return m.T, position
+
+
+def homography(world_xy: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    r"""The floor-to-bearing homography :math:`H` (3, 3), up to scale and sign.
+
+    :math:`d \propto H (X, Y, 1)^\top`: each correspondence gives the rows of
+    :math:`d \times H P = 0`; :math:`H` is their null vector (SVD, world points centred and
+    scaled first). ``world_xy`` (N, 2) floor points, m; ``directions`` (N, 3) station frame.
+    """
+    world_xy = np.asarray(world_xy, dtype=float)
+    centre = world_xy.mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((world_xy - centre) ** 2, axis=1)))) or 1.0
+    normalise = np.array(
+        [[1 / scale, 0, -centre[0] / scale], [0, 1 / scale, -centre[1] / scale], [0, 0, 1]]
+    )
+    p = np.column_stack([(world_xy - centre) / scale, np.ones(len(world_xy))])
+    d = np.asarray(directions, dtype=float)
+    dx, dy, dz = d[:, 0:1], d[:, 1:2], d[:, 2:3]
+    zero = np.zeros_like(p)
+    # d x (H p) = 0, with H row-major in the unknown vector h = [row0, row1, row2]
+    rows = np.concatenate(
+        [
+            np.hstack([zero, -dz * p, dy * p]),
+            np.hstack([dz * p, zero, -dx * p]),
+            np.hstack([-dy * p, dx * p, zero]),
+        ]
+    )
+    _, _, vt = np.linalg.svd(rows, full_matrices=False)
+    return vt[-1].reshape(3, 3) @ normalise
+
+
+def symmetric_tilt(h: np.ndarray) -> float:
+    r"""The symmetric tilt offset :math:`\delta` (``dt1 = delta``, ``dt2 = -delta``), rad, that
+    makes the homography ``h`` of bearings computed with zero tilts a rigid one; 0 where the
+    data cannot tell (or the value is implausible).
+
+    Both planes tilted by :math:`\pi/6 + \delta` instead of :math:`\pi/6` leave the azimuth
+    :math:`\theta` of a bearing unchanged and scale :math:`\zeta` by
+    :math:`k = \tan(\pi/6 + \delta) / \tan(\pi/6)`: bearings computed with zero tilts are
+    :math:`\operatorname{diag}(1, 1, k)` times the true ones, so their homography is
+    :math:`H = \operatorname{diag}(1, 1, k) [m_1\; m_2\; -Mp]` with orthonormal :math:`m_1, m_2`.
+    As in Zhang's camera calibration (the tilt plays the focal length), with
+    :math:`w = 1/k^2`, :math:`h_{1x} h_{2x} + h_{1y} h_{2y} + w\, h_{1z} h_{2z} = 0` and
+    :math:`|h_{1,xy}|^2 - |h_{2,xy}|^2 + w\,(h_{1z}^2 - h_{2z}^2) = 0`, solved for :math:`w`
+    in least squares. Degenerate when the station's spin axis is normal to the floor
+    (:math:`h_{1z} = h_{2z} = 0`): :math:`|b| / (|h_1|^2 + |h_2|^2)`, with
+    :math:`b = (h_{1z} h_{2z}, h_{1z}^2 - h_{2z}^2)`, is about :math:`\sin^2(\lambda)/2` for a
+    spin axis leaning :math:`\lambda` from the floor normal, and below
+    :data:`MIN_TILT_LEVER` (:math:`\lambda` < 14 degrees) the estimate is noise (a station
+    upright at 0.5 m, 3 m from the track: 0.15 rad off). The asymmetric part of the tilts
+    (:math:`\theta` shifted in proportion to :math:`\zeta`) is not a homography and is left to
+    the fit.
+    """
+    h1, h2 = h[:, 0], h[:, 1]
+    a = np.array([h1[0] * h2[0] + h1[1] * h2[1], h1[:2] @ h1[:2] - h2[:2] @ h2[:2]])
+    b = np.array([h1[2] * h2[2], h1[2] ** 2 - h2[2] ** 2])
+    if not float(np.linalg.norm(b)) > MIN_TILT_LEVER * float(h1 @ h1 + h2 @ h2):
+        return 0.0
+    w = -float(a @ b) / float(b @ b)
+    if not w > 0:
+        return 0.0
+    delta = math.atan(math.tan(math.pi / 6) / math.sqrt(w)) - math.pi / 6
+    return delta if abs(delta) <= MAX_START_TILT else 0.0
+
+
+def start_station(
+    world_xy: np.ndarray,
+    alpha1: np.ndarray,
+    alpha2: np.ndarray,
+    tilts: tuple[float, float] | None = None,
+) -> BaseStation:
+    """Closed-form start station from floor points and the two sweep angles seen there.
+
+    Parameters
+    ----------
+    world_xy : (N, 2) floor points (photodiodes, or a point's centre), world frame, m.
+    alpha1, alpha2 : (N,) their plane 1 and plane 2 sweep angles, rad.
+    tilts : the station's ``(dt1, dt2)``, rad, or None when unknown: then
+        :func:`symmetric_tilt` of the zero-tilt homography starts them (the start no prior
+        geometry needs).
+
+    Returns
+    -------
+    BaseStation
+        Rotation and position from :func:`station_from_bearings` with those tilts.
+    """
+    world_xy = np.asarray(world_xy, dtype=float)
+    if tilts is None:
+        delta = symmetric_tilt(homography(world_xy, bearings(alpha1, alpha2, 0.0, 0.0)))
+        tilts = (delta, -delta)
+    rotation, position = station_from_bearings(world_xy, bearings(alpha1, alpha2, *tilts))
+    return BaseStation.from_rotation(rotation, tuple(position), *tilts)
 
 
 def _chunks(poses: np.ndarray):

@@ -76,11 +76,12 @@ def dataset_model(
     ``parameters_yaml`` names (:func:`~crs_core.model.car_model.effects_in_file`); ``values``
     (parameter values by name) and then ``parameters_yaml`` (a parameter file,
     :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`) are applied last, so they may
-    also override the geometry.
+    also override the geometry. A geometry without base stations (the deck layout alone) is
+    refused with a :class:`~crs_core.errors.FieldError` naming ``geometry.base_stations``.
     """
     if parameters_yaml is not None:
         effects = {**dict.fromkeys(effects_in_file(parameters_yaml)), **effects}
-    n = len(dataset.geometry.base_stations)
+    n = len(dataset.geometry.known_stations())
     geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
     parameters = CarModel(effects, n_base_stations=n).parameters.updated(geometry)
     parameters = parameters.updated(dict(values))

@@ -34,6 +34,7 @@ def identification_model(
         effect_spec(parsed) if parsed else {name: None for name in effects if isinstance(name, str)}
     )
     rough = params is not None and str(params) == ROUGH
+    dataset.geometry.known_stations()  # its own field, not ``field``, names a missing geometry
     try:
         return dataset_model(dataset, None if rough else params, spec, ROUGH_PRIOR if rough else {})
     except (ValueError, KeyError) as error:

@@ -489,3 +489,118 @@ def test_a_geometry_from_a_file(tmp_path: Path):
         Geometry.from_file(tmp_path / "bad.yaml")
     with pytest.raises(FieldError, match=r"nowhere\.yaml: cannot read it"):
         Geometry.from_file(tmp_path / "nowhere.yaml")
+
+
+# --- a geometry of the deck layout alone (stations not calibrated yet) ----------------------------
+DECK = [[-0.045, 0.015], [-0.06, 0.015], [-0.045, -0.015], [-0.06, -0.015]]
+STATION = {"rotation": np.eye(3).tolist(), "position": [0.0, 0.0, 2.0], "dt1": 0.0, "dt2": 0.0}
+NO_STATIONS = (
+    "geometry.base_stations: the dataset's geometry gives no base stations: calibrate them "
+    "first (crs calibrate-lighthouse)"
+)
+
+
+@pytest.fixture
+def deck_only(tmp_path: Path) -> Path:
+    """The user recording of the conftest with ``geometry: {photodiodes: ...}`` only."""
+    folder = tmp_path / "deck_only"
+    write_user_recording(folder)
+    meta = yaml.safe_load((folder / "dataset.yaml").read_text())
+    meta["geometry"] = {"photodiodes": DECK}
+    (folder / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    return folder
+
+
+def test_a_deck_only_geometry_loads_without_stations(deck_only: Path, tmp_path: Path):
+    """Stations unknown (None), sweeps of any station kept; saving keeps the block as it was."""
+    data = Dataset.load(deck_only)
+    assert data.geometry.base_stations is None
+    assert data.geometry.photodiodes == tuple(map(tuple, DECK))
+    assert data.measurements is not None
+    assert {m.sensor for m in data.measurements} >= {"lighthouse/1/2"}
+    again = Dataset.load(data.save(tmp_path / "copy"))
+    assert again.geometry == data.geometry
+    saved = yaml.safe_load((tmp_path / "copy" / "dataset.yaml").read_text())
+    assert saved["geometry"] == {"photodiodes": DECK}
+
+
+def test_a_deck_only_geometry_with_null_stations_loads():
+    """``base_stations: null`` (an empty YAML key) is the same as leaving it out."""
+    geometry = Geometry.from_dict({"base_stations": None, "photodiodes": DECK})
+    assert geometry.base_stations is None
+
+
+def _estimate(data: Dataset):
+    from crs_core.estimation.offline import estimate_dataset
+
+    return estimate_dataset(data, "ekf", "auto")
+
+
+def _model(data: Dataset):
+    from crs_core.estimation.offline import dataset_model
+
+    return dataset_model(data)
+
+
+def _identification(data: Dataset):
+    from crs_core.identification.models import identification_model
+
+    return identification_model(data, [], None, "--params")
+
+
+def _fixes(data: Dataset):
+    from crs_core.identification.reference import position_reference
+
+    return position_reference(replace(data, x=None))
+
+
+def _replay(data: Dataset):
+    from crs_core.analysis.consistency import channel_errors
+
+    return channel_errors(data)
+
+
+@pytest.mark.parametrize(
+    "reader",
+    [_model, _estimate, _identification, _fixes, _replay, lambda d: d.geometry.parameters()],
+    ids=["dataset_model", "estimate", "identification", "lighthouse fixes", "replay", "params"],
+)
+def test_readers_that_need_stations_refuse_a_deck_only_geometry(deck_only: Path, reader):
+    """Estimators, identification, validation's Lighthouse fixes and the sensor replay stop
+    with one line naming geometry.base_stations instead of crashing."""
+    data = Dataset.load(deck_only)
+    data.x = np.zeros((len(data.t), 6))
+    data.u = np.zeros((len(data.t), 2))
+    with pytest.raises(FieldError) as caught:
+        reader(data)
+    assert caught.value.field == "geometry.base_stations"
+    assert str(caught.value) == NO_STATIONS
+
+
+@pytest.mark.parametrize(
+    ("block", "field", "message"),
+    [
+        ({}, "geometry", "gives neither base_stations nor photodiodes"),
+        ({"notes": "x"}, "geometry", "gives neither base_stations nor photodiodes"),
+        ({"base_stations": None, "photodiodes": None}, "geometry", "gives neither"),
+        ({"base_stations": [STATION]}, "geometry.photodiodes", "missing: photodiodes 0..3"),
+        ({"base_stations": [], "photodiodes": DECK}, "geometry.base_stations", "needs at least"),
+        ({"base_stations": {"a": 1}, "photodiodes": DECK}, "geometry.base_stations", "a list"),
+        ({"photodiodes": DECK[:3]}, "geometry.photodiodes", "expected shape (4, 2)"),
+    ],
+)
+def test_a_geometry_without_stations_or_photodiodes_names_the_field(block, field, message):
+    with pytest.raises(FieldError) as caught:
+        Geometry.from_dict(block)
+    assert caught.value.field == field
+    assert message in caught.value.reason
+    assert "\n" not in str(caught.value)
+
+
+def test_a_deck_only_dataset_yaml_without_photodiodes_is_refused(deck_only: Path):
+    """On disk too: a geometry block with neither key names ``geometry``."""
+    meta = yaml.safe_load((deck_only / "dataset.yaml").read_text())
+    meta["geometry"] = {}
+    (deck_only / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    with pytest.raises(FieldError, match=r"^geometry: gives neither base_stations nor photo"):
+        Dataset.load(deck_only)

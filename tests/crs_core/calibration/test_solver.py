@@ -67,10 +67,11 @@ def _fit(
     )
 
 
-def test_the_jacobian_matches_central_differences(sweep_model: SweepModel):
-    """With the tilts, the photodiodes and the pose unknown free, every column of the exact
-    Jacobian equals the central difference of the residuals."""
-    fit = _fit(sweep_model, 0.02, 0.03, 0.02, fit_tilt=True, fit_photodiodes=True)
+@pytest.mark.parametrize("fit_tilt", [True, [False, True]], ids=["all tilts", "station 1's"])
+def test_the_jacobian_matches_central_differences(sweep_model: SweepModel, fit_tilt):
+    """With the tilts (of every station, or of one), the photodiodes and the pose unknown free,
+    every column of the exact Jacobian equals the central difference of the residuals."""
+    fit = _fit(sweep_model, 0.02, 0.03, 0.02, fit_tilt=fit_tilt, fit_photodiodes=True)
     z = fit.start_vector(np.array([0.01])) + np.random.default_rng(0).normal(0, 1e-3, fit.n_vars)
     _, jacobian = fit.evaluate(z)
     assert np.all(np.isfinite(jacobian))
@@ -93,3 +94,29 @@ def test_noise_free_sweeps_give_the_stations_and_the_unknown_back(sweep_model: S
         position, angle = _errors(fitted, truth)
         assert position < 1e-8 and angle < 1e-8
     assert result.photodiodes == tuple(RECORDED_PHOTODIODES)
+
+
+def test_tilts_fitted_per_station(sweep_model: SweepModel):
+    """Station 1's tilts start 0.03 rad off and are fitted; station 0's stay as given (no
+    sigma), and both stations come back."""
+    start = [STATIONS[0], BaseStation(STATIONS[1].angles, STATIONS[1].position, 0.0, 0.0)]
+    truth = STATIONS[1]
+    assert abs(truth.dt1) > 0.03 and abs(truth.dt2) > 0.03
+    fit = LighthouseFit(
+        _observations(0.0),
+        start,
+        RECORDED_PHOTODIODES,
+        _poses,
+        n_extra=1,
+        fit_tilt=[False, True],
+        sweep_model=sweep_model,
+    )
+    result = fit.solve(np.array([0.0]))
+    assert result.tilt_fitted == (False, True)
+    assert np.all(result.station_std[0, 6:] == 0.0)
+    assert (result.stations[0].dt1, result.stations[0].dt2) == (STATIONS[0].dt1, STATIONS[0].dt2)
+    assert result.stations[1].dt1 == pytest.approx(truth.dt1, abs=1e-8)
+    assert result.stations[1].dt2 == pytest.approx(truth.dt2, abs=1e-8)
+    for fitted, want in zip(result.stations, STATIONS, strict=True):
+        position, angle = _errors(fitted, want)
+        assert position < 1e-8 and angle < 1e-8
