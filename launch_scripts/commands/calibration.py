@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from crs_core.dataset import Geometry
 from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
@@ -30,7 +31,10 @@ NAME = "calibrate-lighthouse"
 def _add_fit_tilt(parser: argparse.ArgumentParser) -> None:
     """``--fit-tilt`` (static and moving)."""
     parser.add_argument(
-        "--fit-tilt", action="store_true", help="also fit the light-plane tilt offsets dt1, dt2"
+        "--fit-tilt",
+        action="store_true",
+        help="also fit the tilt offsets dt1, dt2 that the geometry / POINTS_FILE gives (those it "
+        "does not give are always fitted)",
     )
 
 
@@ -58,7 +62,8 @@ def _static_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument(
         "--stations",
         type=bounded_number("stations", "", 1, 16, int, include_low=True),
-        help="calibrate stations 0..N-1 (default: every station in the file)",
+        help="calibrate stations 0..N-1 (default: every station in the file, or every station "
+        "its sweeps name)",
     )
     _add_fit_tilt(sub)
     sub.add_argument(
@@ -150,10 +155,14 @@ def _write_calibration(
     from crs_core.calibration.report import write_geometry, write_json
 
     write_geometry(out / "geometry.yaml", stations, photodiodes)
+    Geometry(tuple(stations), tuple(photodiodes)).parameters().to_yaml(out / "params.yaml")
     write_json(out / "report.json", summary)
     (out / "report.md").write_text(markdown(summary, command_line()))
     print(headline)
-    print(f"geometry: {out / 'geometry.yaml'}  report: {out / 'report.md'}")
+    print(
+        f"geometry: {out / 'geometry.yaml'} (--geometry), as parameters {out / 'params.yaml'} "
+        f"(--params)  report: {out / 'report.md'}"
+    )
     return out
 
 
@@ -284,20 +293,26 @@ COMMAND = Command(
         Command(
             "static",
             help="base stations from sweeps at known static poses",
-            description="Fit every base station (rotation, position; tilt offsets with "
-            "--fit-tilt) to the sweeps recorded at known car poses, using every photodiode "
-            "angle. Writes DIR/geometry.yaml, report.md, report.json, angle_residuals.png, "
-            "position_residuals.png, residual_vs_n.png.",
+            description="Fit every base station (rotation, position; the tilt offsets dt1, dt2 "
+            "the file does not give, all of them with --fit-tilt) to the sweeps recorded at "
+            "known car poses, using every photodiode angle. The file need give no station "
+            "geometry: without its stations list the stations are those its sweeps name. Writes "
+            "DIR/geometry.yaml (for --geometry), params.yaml (the same as parameters, for "
+            "--params), report.md, report.json, angle_residuals.png, position_residuals.png, "
+            "residual_vs_n.png.",
             arguments=_static_arguments,
             handler=run_static,
         ),
         Command(
             "moving",
             help="base stations (and clock offset, photodiodes) from a recording with mocap poses",
-            description="Fit the base stations to every sweep of a dataset folder whose "
-            "stream.npz holds motion-capture poses (sensor 'pose'); inputs, IMU and encoders may "
-            "be absent. Writes DIR/geometry.yaml, report.md, report.json, moving_residuals.png "
-            "and, with --fit-offset, offset_scan.png.",
+            description="Fit the base stations to every sweep of a recording (dataset folder or "
+            "bag) that holds motion-capture poses (sensor 'pose'); inputs, IMU and encoders may "
+            "be absent. Its geometry may give the photodiodes alone (geometry: {photodiodes: "
+            "[[x, y] x 4]}, a bag's through --geometry): no prior station geometry is needed; "
+            "tilt offsets it does not give are fitted. Writes DIR/geometry.yaml (for "
+            "--geometry), params.yaml (the same as parameters, for --params), report.md, "
+            "report.json, moving_residuals.png and, with --fit-offset, offset_scan.png.",
             arguments=_moving_arguments,
             handler=run_moving,
         ),

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 import yaml
 
 from crs_core.dataset import Dataset, Geometry
+from crs_core.model import CarModel
 from launch_scripts.commands.calibration import COMMAND
 from launch_scripts.output_folder import MARKER
 
@@ -57,6 +59,7 @@ def test_static_writes_geometry_report_and_figures(points_file: Path, tmp_path: 
     _run("calibrate-lighthouse", "static", str(points_file), "--out", str(out))
     expected = {
         "geometry.yaml",
+        "params.yaml",
         "report.md",
         "report.json",
         "angle_residuals.png",
@@ -71,6 +74,11 @@ def test_static_writes_geometry_report_and_figures(points_file: Path, tmp_path: 
     )
     offset = np.subtract(geometry.base_stations[0].position, truth.base_stations[0].position)
     assert np.linalg.norm(offset) < 3e-3
+    # the same geometry as parameters, for --params of every command and node
+    model = CarModel.from_file(out / "params.yaml")
+    np.testing.assert_allclose(
+        model.parameters.value("bs0_x"), geometry.base_stations[0].position[0]
+    )
     summary = json.loads((out / "report.json").read_text())
     assert summary["position_error_m"]["mean"] < 3e-3
     assert [row["n"] for row in summary["versus_n"]["rows"]] == [4, 5, 6, 7, 8]
@@ -85,6 +93,28 @@ def test_moving_recovers_the_clock_offset(recording: Path, tmp_path: Path):
     assert (out / "offset_scan.png").exists() and (out / "moving_residuals.png").exists()
     truth = Dataset.load(recording).geometry.base_stations[0].position
     assert np.linalg.norm(np.subtract(summary["stations"][0]["position_m"], truth)) < 5e-3
+
+
+def test_moving_from_the_deck_layout_alone(recording: Path, tmp_path: Path, crs, crs_refuses):
+    """A recording whose geometry gives the photodiodes only: the stations and their tilt
+    offsets are calibrated; an estimator on it is refused until then, naming the stations."""
+    deck = tmp_path / "deck"
+    shutil.copytree(recording, deck)
+    meta = yaml.safe_load((deck / "dataset.yaml").read_text())
+    meta["geometry"] = {"photodiodes": meta["geometry"]["photodiodes"]}
+    (deck / "dataset.yaml").write_text(yaml.safe_dump(meta))
+    refused = crs_refuses(
+        ["estimate", str(deck), "--estimator", "ekf", "--out", str(tmp_path / "e")]
+    )
+    assert "geometry.base_stations: the dataset's geometry gives no base stations" in refused
+    out = tmp_path / "moving"
+    argv = ["calibrate-lighthouse", "moving", str(deck), "--fit-offset", "--out", str(out)]
+    code, printed, errors = crs(argv)
+    assert code == 0, errors
+    summary = json.loads((out / "report.json").read_text())
+    truth = Dataset.load(recording).geometry.base_stations[0].position
+    assert np.linalg.norm(np.subtract(summary["stations"][0]["position_m"], truth)) < 5e-3
+    assert "(--params)" in printed and (out / "params.yaml").exists()
 
 
 def _edit(points_file: Path, tmp_path: Path, change) -> Path:
@@ -119,8 +149,11 @@ def _drop(path: tuple):
 STATIC_CASES = [
     ("format", _set(("format",), "other/1"), r"^format: 'other/1', expected"),
     ("unknown key", _set(("colour",), 1), r"^POINTS_FILE: unknown key\(s\) colour"),
-    ("no stations", _drop(("stations",)), r"^stations: expected a list"),
-    ("tilt missing", _drop(("stations", 0, "dt1")), r"^stations\[0\]\.dt1: missing"),
+    (
+        "stations not a list",
+        _set(("stations",), {}),
+        r"^stations: expected a list with one entry per base station \(or no stations key\)",
+    ),
     ("tilt text", _set(("stations", 0, "dt2"), "x"), r"^stations\[0\]\.dt2: expected numbers"),
     ("photodiodes", _set(("photodiodes",), [[0, 0]]), r"^photodiodes: expected shape \(4, 2\)"),
     ("no points", _set(("points",), []), r"^points: expected a non-empty list"),
