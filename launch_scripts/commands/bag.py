@@ -30,14 +30,17 @@ def bag_tool(args: argparse.Namespace) -> int:
 def add_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs bag``'s arguments."""
     sub.add_argument("tool", choices=["check", "repair"])
-    sub.add_argument("bag", type=Path, help="bag folder (holding metadata.yaml and/or *.mcap)")
+    sub.add_argument(
+        "bag", type=Path, help="bag folder (holding metadata.yaml and/or *.mcap), or an .mcap file"
+    )
     sub.add_argument("--out", type=Path, help="repair: the new bag folder (must not exist)")
 
 
 COMMAND = Command(
     "bag",
     help="check a bag, or repair one whose recording was cut off",
-    description="check: what a ROS 2 bag folder holds (topics, messages, duration) and, for "
+    description="check: what a ROS 2 bag (folder or .mcap file) holds (topics, messages, "
+    "duration) and, for "
     "an MCAP file cut off by a killed recorder or a full disk, what is still readable and how "
     "much was lost; exit code 0 complete, 1 damaged. repair: write every complete message "
     "of a bag into a new, complete bag at --out (the original is only read).",

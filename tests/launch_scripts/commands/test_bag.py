@@ -104,3 +104,17 @@ def test_bad_bag_arguments_are_one_line_errors_and_change_nothing(
     assert message.format(tmp=tmp_path) in err, err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+
+
+def test_an_mcap_file_is_checked_and_repaired(cut_bag: Path, tmp_path: Path, capsys):
+    """The .mcap file alone, as ros2 bag and Foxglove take it: complete it exits 0; cut off, 1,
+    and the repair is a complete bag folder."""
+    whole = tmp_path / "whole"
+    _write_bag(whole)
+    assert main(["bag", "check", str(next(whole.glob("*.mcap")))]) == 0
+    assert f"/car1/note: {MESSAGES}" in capsys.readouterr().out
+    (cut,) = cut_bag.glob("*.mcap")
+    assert main(["bag", "check", str(cut)]) == 1
+    assert main(["bag", "repair", str(cut), "--out", str(tmp_path / "repaired")]) == 0
+    with Reader(tmp_path / "repaired") as reader:
+        assert 0 < reader.message_count < MESSAGES
