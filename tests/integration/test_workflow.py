@@ -1,0 +1,54 @@
+"""The day, end to end, on a car that is not the model: an emulated car whose motor and front
+tyres are off and whose gyro has a bias the stack's model does not have is raced by the stack
+(``crs launch car --emulate --car-params --car-effect``, the default model) and recorded;
+``crs sysid`` and ``crs discrepancy`` read that bag and name the effect with its value, and the
+final model closes most of the gap. (``crs bench workflow`` runs the whole day, with a second
+race on the result, and measures it.)"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from crs_core.model import CarModel
+from crs_core.model.effects import parse_effect
+from launch_scripts.car_stack import run_car_stack
+from launch_scripts.cli import main
+from launch_scripts.sim_stack import CarTruth
+
+pytestmark = pytest.mark.integration
+
+DOMAIN_WORKFLOW = 126
+#: Not the benchmark's car: other parameters, another sign and size of the bias.
+TRUTH_FACTORS = {"Df": 1.12, "Cm1": 0.85}
+GYRO_BIAS = -0.12
+
+
+def test_a_recorded_bag_names_the_hidden_effect_and_closes_the_gap(tmp_path, warm_codegen):
+    defaults = CarModel().parameters
+    truth = tmp_path / "truth.yaml"
+    changed = {name: defaults.value(name) * f for name, f in TRUTH_FACTORS.items()}
+    truth.write_text(yaml.safe_dump({"parameters": changed}))
+    car = CarTruth(truth, (parse_effect(f"gyro_bias={GYRO_BIAS}"),))
+    report = run_car_stack(
+        1, "mhe", 20.0, tmp_path / "race", True, domain_id=DOMAIN_WORKFLOW, ports=(21231, 21331),
+        car=car,
+    )
+    assert report["node_deaths"] == [] and report["cars"]["car1"]["laps_completed"] >= 1
+    assert report["car_truth"]["effects"] == [f"gyro_bias.gyro_bias={GYRO_BIAS!r}"]
+    bag = tmp_path / "race" / "bag"
+
+    assert main(["sysid", str(bag), "--out", str(tmp_path / "sysid")]) == 0
+    assert (tmp_path / "sysid" / "params.yaml").is_file()
+    candidates = "gyro_bias,input_delay,steering_offset,motor_lag"
+    argv = ["discrepancy", str(bag), "--candidates", candidates, "--out", str(tmp_path / "found")]
+    assert main(argv) == 0
+    found = json.loads((tmp_path / "found" / "report.json").read_text())
+    assert found["effects"] == ["gyro_bias"], found["headline"]
+    bias = found["parameters"]["gyro_bias"]["gyro_bias"]["value"]
+    assert bias == pytest.approx(GYRO_BIAS, rel=0.3), bias
+    assert found["gap_after"] < 0.7 * found["gap_before"], (found["gap_before"], found["gap_after"])
+    final = CarModel.from_file(tmp_path / "found" / "params.yaml")
+    assert [e.name for e in final.effects] == ["gyro_bias"]  # loadable by every --params
