@@ -326,7 +326,8 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "10-20 %, a hidden gyro bias): race it with the default model and record, crs sysid "
         "and crs discrepancy on the bag, race again with the result; laps, flying lap, "
         "contouring error, estimation RMSE and the held-out 2 s prediction error before and "
-        "after, the parameters and the effect against the truth, each step's time; ~6 min",
+        "after, the parameters and the effect against the truth, each step's time; ~5 min with "
+        "40 s races",
     ),
     "sysid": (
         sysid,

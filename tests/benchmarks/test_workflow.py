@@ -65,10 +65,20 @@ def test_the_table_shows_before_and_after(tmp_path: Path):
             "identified_model": {"position_rmse_m": 0.064},
         },
         "sysid": recovery,
-        "discrepancy": {"named": ["gyro_bias"], "hidden": "gyro_bias", "parameters": recovery},
+        "discrepancy": {
+            "named": ["gyro_bias"],
+            "hidden": "gyro_bias",
+            "parameters": recovery,
+            "gap_before_m": 0.13,
+            "gap_after_m": 0.056,
+        },
     }
     table = format_table(result)
     assert "| mean flying lap | 7.2 s | 7.0 s |" in table
     assert "| open-loop 2 s position RMSE (held out) | 0.290 m | 0.064 m |" in table
-    assert "Effect named: gyro_bias (hidden: gyro_bias)" in table and "Df +5.0 %" in table
+    assert (
+        "Effect named: gyro_bias (hidden: gyro_bias; gap on its held-out part 0.130 -> 0.056"
+        in table
+    )
+    assert "crs sysid (no effect) Df +5.0 %" in table
     assert "Steps: race default model 52 s, sysid 7 s" in table
