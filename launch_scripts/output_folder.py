@@ -61,7 +61,9 @@ def prepare_output(
 
 def prepare_output_file(path: Path, overwrite: bool = False, option: str = "--out") -> Path:
     """Check, before any work, that the file ``path`` can be written: its folder is created;
-    an existing file is replaced only with ``overwrite``; ``ValueError`` naming ``option``."""
+    an existing file is replaced only with ``overwrite``; ``ValueError`` naming ``option``. A
+    new file is not left behind (a run that fails later leaves no empty file that the next run
+    would then refuse)."""
     path = Path(path)
     if str(path).strip() == "":
         raise ValueError(f"{option}: must name a file, got an empty string")
@@ -69,10 +71,13 @@ def prepare_output_file(path: Path, overwrite: bool = False, option: str = "--ou
         raise ValueError(f"{option}: {path} is a folder; name a file, e.g. {path / 'out.json'}")
     if path.exists() and not overwrite:
         raise ValueError(f"{option}: {path} exists; pass --overwrite to replace it")
+    existed = path.exists()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         with path.open("a"):
             pass
+        if not existed:
+            path.unlink()
     except OSError as error:
         raise ValueError(f"{option}: cannot write to {path} ({error.strerror or error})") from None
     return path

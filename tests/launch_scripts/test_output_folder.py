@@ -129,3 +129,14 @@ def test_json_outputs_are_checked_before_any_work(
     assert err.count("\n") == 1
     if setup == "exists":
         assert target.read_text() == "my numbers"
+
+
+def test_a_checked_json_output_leaves_no_file_behind(tmp_path: Path):
+    """The check writes nothing: a run that fails after it leaves no empty file (which the next
+    run would refuse without --overwrite)."""
+    from launch_scripts.output_folder import prepare_output_file
+
+    target = tmp_path / "new" / "out.json"
+    assert prepare_output_file(target) == target
+    assert target.parent.is_dir() and not target.exists()
+    prepare_output_file(target)  # and again: nothing there to refuse

@@ -155,3 +155,18 @@ def test_a_recording_is_a_dataset_folder_or_a_bag(bag: Path, tmp_path: Path):
         load_recording(folder, "car1")
     with pytest.raises(FileNotFoundError, match="does not exist"):
         load_recording(tmp_path / "nowhere")
+
+
+def test_a_cut_off_bag_gives_what_it_holds_with_a_warning(bag: Path, tmp_path: Path):
+    """A recorder killed mid-run: the bag is read up to its last complete message (a
+    BagDamagedWarning says what was lost) and the dataset holds the samples of that part."""
+    from ros4crs.bag_repair import BagDamagedWarning
+
+    whole = dataset_from_bag(bag, "car1")
+    (mcap,) = bag.glob("*.mcap")
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(mcap.read_bytes()[: int(0.6 * mcap.stat().st_size)])
+    with pytest.warns(BagDamagedWarning):
+        part = dataset_from_bag(cut, "car1", reference="none")
+    assert 10 < part.t.size < whole.t.size
+    np.testing.assert_array_equal(part.t, whole.t[: part.t.size])
