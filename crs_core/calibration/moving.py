@@ -282,14 +282,12 @@ def calibrate_moving(
         f_scale=LOSS_SCALE,
         bounds=bounds,
     )
-    unexplained = int(np.sum(~np.all(np.isfinite(fit.residuals), axis=1)))
-    if unexplained:
-        raise FieldError(
-            "lighthouse",
-            f"the fit did not converge: its stations cannot produce {unexplained} of "
-            f"{len(obs)} sweeps (a photodiode outside a light plane); check that the pose "
-            "reference is the car's body origin in the world frame, and the clock offset range",
-        )
+    fit.require_converged(
+        "lighthouse",
+        "sweeps",
+        "check that the pose reference is the car's body origin in the world frame, and the "
+        "clock offset range",
+    )
     value = float(fit.extra[0]) if fit_offset else float(offset)
     spread = float(fit.extra_std[0]) if fit_offset else 0.0
     return MovingCalibration(fit, value, spread, data, tuple(start), scan, spline)

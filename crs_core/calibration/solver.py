@@ -30,6 +30,7 @@ from crs_core.calibration.sweep_model import (
     SweepModel,
     station_from_chart,
 )
+from crs_core.errors import FieldError
 from crs_core.model.lighthouse import BaseStation
 
 #: The residual of an angle the model cannot produce at an iterate (a photodiode outside a light
@@ -87,6 +88,18 @@ class FitResult:
     diode_std: np.ndarray
     iterations: int
     tilt_fitted: tuple[bool, ...]
+
+    def require_converged(self, field: str, sweeps: str, advice: str) -> None:
+        """Refuse a fit whose stations cannot produce some of the sweeps (non-finite residuals:
+        a photodiode outside a light plane at the solution): :class:`FieldError` naming
+        ``field``, counting the ``sweeps`` (what they are) and ending with ``advice``."""
+        unexplained = int(np.sum(~np.all(np.isfinite(self.residuals), axis=1)))
+        if unexplained:
+            raise FieldError(
+                field,
+                f"the fit did not converge: its stations cannot produce {unexplained} of "
+                f"{len(self.residuals)} {sweeps} (a photodiode outside a light plane); {advice}",
+            )
 
 
 class LighthouseFit:

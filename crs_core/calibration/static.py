@@ -194,14 +194,7 @@ def calibrate_static(
         sweep_model=model,
     )
     fit = problem.solve(yaws[unknown])
-    unexplained = int(np.sum(~np.all(np.isfinite(fit.residuals), axis=1)))
-    if unexplained:
-        raise FieldError(
-            "points",
-            f"the fit did not converge: its stations cannot produce {unexplained} of "
-            f"{len(observations)} mean sweeps (a photodiode outside a light plane); check the "
-            "points' positions and yaws",
-        )
+    fit.require_converged("points", "mean sweeps", "check the points' positions and yaws")
     final = yaws.copy()
     final[unknown] = wrap_angle(fit.extra)
     return StaticCalibration(fit, observations, point_of, final, yaw_known, tuple(start))
