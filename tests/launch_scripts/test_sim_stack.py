@@ -1,4 +1,5 @@
-"""``stack_nodes(..., output=...)``: what the velocity-reference stack sets on each node."""
+"""``stack_nodes(cars, StackOptions(..., output=...), bag)``: what the velocity-reference stack
+sets on each node."""
 
 from __future__ import annotations
 
@@ -6,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from launch_scripts.sim_stack import stack_nodes
+from launch_scripts.sim_stack import StackOptions, stack_nodes
 
 
 def _parameters(output: str, cars: int = 2) -> dict[str, dict]:
-    nodes = stack_nodes(cars, "ekf", Path("/tmp/unused-bag"), output=output)
+    nodes = stack_nodes(cars, StackOptions("ekf", output=output), Path("/tmp/unused-bag"))
     return {f"{spec.namespace}/{spec.name}": spec.parameters for spec in nodes}
 
 
@@ -38,7 +39,7 @@ def test_velocity_stack_runs_the_onboard_loop_and_commands_velocities_on_every_c
 )
 def test_bad_output_is_refused(arguments: dict, message: str):
     with pytest.raises(ValueError, match=message):
-        stack_nodes(1, "ekf", Path("/tmp/unused-bag"), **arguments)
+        stack_nodes(1, StackOptions("ekf", **arguments), Path("/tmp/unused-bag"))
 
 
 def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_path: Path):
@@ -50,10 +51,11 @@ def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_pa
     def controllers(nodes) -> list[dict]:
         return [spec.parameters for spec in nodes if spec.name == "controller"]
 
-    car = controllers(car_nodes(2, "mhe", tmp_path / "bag", tmp_path, True))
+    mhe = StackOptions("mhe")
+    car = controllers(car_nodes(2, mhe, tmp_path / "bag", tmp_path, True))
     assert [p["hold_safe"] for p in car] == ["always", "always"]
-    assert "hold_safe" not in controllers(stack_nodes(1, "mhe", tmp_path / "bag"))[0]
-    told = stack_nodes(1, "mhe", tmp_path / "bag", hold_safe="never")
+    assert "hold_safe" not in controllers(stack_nodes(1, mhe, tmp_path / "bag"))[0]
+    told = stack_nodes(1, StackOptions("mhe", hold_safe="never"), tmp_path / "bag")
     assert controllers(told)[0]["hold_safe"] == "never"
 
 
@@ -67,13 +69,14 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
     stack, truth = tmp_path / "model.yaml", tmp_path / "truth.yaml"
     effects = (parse_effect("steering_lag=0.06"), parse_effect("gyro_bias"))
     car = CarTruth(truth, effects)
-    nodes = stack_nodes(1, "ekf", tmp_path / "bag", params_file=stack, car=car)
+    nodes = stack_nodes(1, StackOptions("ekf", params_file=stack, car=car), tmp_path / "bag")
     parameters = {spec.name: spec.parameters for spec in nodes}
     assert parameters["simulator"]["params_file"] == str(truth.resolve())
     assert parse_effects(parameters["simulator"]["effects"]) == effect_spec(effects)
     assert parameters["estimator"]["params_file"] == str(stack.resolve())
     assert parameters["controller"]["params_file"] == str(stack.resolve())
-    plain = {s.name: s.parameters for s in stack_nodes(1, "ekf", tmp_path, params_file=stack)}
+    plain_nodes = stack_nodes(1, StackOptions("ekf", params_file=stack), tmp_path)
+    plain = {s.name: s.parameters for s in plain_nodes}
     assert plain["simulator"]["params_file"] == str(stack.resolve())
     assert "effects" not in plain["simulator"]
     assert car.described() == {
