@@ -83,3 +83,32 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
         "params_file": str(truth),
         "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
     }
+
+
+@pytest.mark.parametrize(
+    ("fields", "message"),
+    [
+        ({"estimator": "ukf"}, "estimator: must be ekf or mhe, got 'ukf'"),
+        ({"estimator": "ekf", "record": "some"}, "record: must be one of all, estimates, sensors"),
+    ],
+)
+def test_stack_options_are_checked_when_made(fields: dict, message: str):
+    with pytest.raises(ValueError, match=message):
+        StackOptions(**fields)
+
+
+def test_the_car_stack_takes_the_shared_options_as_it_runs_them(tmp_path: Path):
+    """``hold_safe`` given reaches the car stack's controllers (else ``always``); ``onboard``
+    (the emulated and real cars run their onboard loop anyway) changes nothing; a track is
+    refused (the emulator starts on DEMO_TRACK)."""
+    from launch_scripts.car_stack import car_nodes
+
+    def specs(options: StackOptions) -> list[tuple]:
+        nodes = car_nodes(1, options, tmp_path / "bag", tmp_path, True)
+        return [(n.name, n.namespace, n.parameters, n.arguments) for n in nodes]
+
+    told = {n[0]: n[2] for n in specs(StackOptions("mhe", hold_safe="after_outage"))}
+    assert told["controller"]["hold_safe"] == "after_outage"
+    assert specs(StackOptions("mhe", onboard=True)) == specs(StackOptions("mhe"))
+    with pytest.raises(ValueError, match=r"^track_file: the car stack races DEMO_TRACK"):
+        car_nodes(1, StackOptions("mhe", track_file=tmp_path / "t.yaml"), tmp_path, tmp_path, True)
