@@ -51,17 +51,12 @@ def launch(args: argparse.Namespace) -> None:
 def _stack_options(args: argparse.Namespace) -> StackOptions:
     """What ``run_stack`` and ``run_car_stack`` both take, from their options (no
     ``--hold-safe``: the stack's default; ``crs launch car`` refuses ``--track``)."""
+    same_name = ("estimator", "controller", "output", "record", "blind_start", "hold_safe", "seed")
     return StackOptions(
-        estimator=args.estimator,
-        controller=args.controller,
-        output=args.output,
-        record=args.record,
-        blind_start=args.blind_start,
+        **{field: getattr(args, field) for field in same_name},
         params_file=args.params,
         track_file=args.track,
-        hold_safe=args.hold_safe,
         car=CarTruth(args.car_params, tuple(args.car_effect or ())),
-        seed=args.seed,
     )
 
 

@@ -30,17 +30,13 @@ pytestmark = pytest.mark.integration
 DOMAIN_EMULATED_LAP = 123
 DOMAIN_CUTOFF = 124
 DOMAIN_TWO_EMULATED = 125
+#: The car stack's default options with the MHE.
+MHE = StackOptions("mhe")
 
 
 def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
     report = run_car_stack(
-        1,
-        StackOptions("mhe"),
-        20.0,
-        tmp_path / "run",
-        True,
-        domain_id=DOMAIN_EMULATED_LAP,
-        ports=(21211, 21311),
+        1, MHE, 20.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
     )
     assert report["node_deaths"] == []
     car = report["cars"]["car1"]

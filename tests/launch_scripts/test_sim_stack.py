@@ -35,11 +35,14 @@ def test_velocity_stack_runs_the_onboard_loop_and_commands_velocities_on_every_c
     [
         ({"output": "speed"}, "output: must be one of torque, velocity, got 'speed'"),
         ({"output": "velocity", "controller": "path"}, "output: velocity needs the mpcc"),
+        ({"estimator": "ukf"}, "estimator: must be ekf or mhe, got 'ukf'"),
+        ({"record": "some"}, "record: must be one of all, estimates, sensors, got 'some'"),
     ],
 )
-def test_bad_output_is_refused(arguments: dict, message: str):
+def test_bad_options_are_refused(arguments: dict, message: str):
+    """The options' own checks when they are made, the simulated stack's when it is built."""
     with pytest.raises(ValueError, match=message):
-        stack_nodes(1, StackOptions("ekf", **arguments), Path("/tmp/unused-bag"))
+        stack_nodes(1, StackOptions(**{"estimator": "ekf", **arguments}), Path("/tmp/unused-bag"))
 
 
 def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_path: Path):
@@ -83,18 +86,6 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
         "params_file": str(truth),
         "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
     }
-
-
-@pytest.mark.parametrize(
-    ("fields", "message"),
-    [
-        ({"estimator": "ukf"}, "estimator: must be ekf or mhe, got 'ukf'"),
-        ({"estimator": "ekf", "record": "some"}, "record: must be one of all, estimates, sensors"),
-    ],
-)
-def test_stack_options_are_checked_when_made(fields: dict, message: str):
-    with pytest.raises(ValueError, match=message):
-        StackOptions(**fields)
 
 
 def test_the_car_stack_takes_the_shared_options_as_it_runs_them(tmp_path: Path):
