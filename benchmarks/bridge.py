@@ -18,7 +18,7 @@ from typing import Any
 
 from crs_core.analysis.latency import input_chain_latency
 from launch_scripts.car_stack import run_car_stack
-from launch_scripts.sim_stack import run_stack
+from launch_scripts.sim_stack import StackOptions, run_stack
 
 #: The report keys kept per run.
 KEPT = ("cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
@@ -32,16 +32,18 @@ def bridge_benchmark(
     domain_id: int | None = None,
 ) -> dict[str, Any]:
     """Both runs (``work_dir/sim``, ``work_dir/emulated``); a JSON-ready dict."""
+    # the same car as the emulator's: the simulator runs the onboard loop (steering servo),
+    # which the emulator always runs
+    options = StackOptions(estimator, onboard=True, seed=seed)
     print("[bench] direct simulator (crs launch sim)", flush=True)
-    # the same car as the emulator's: the simulator runs the onboard loop (steering servo)
-    sim = run_stack(1, estimator, duration, work_dir / "sim", domain_id, seed, onboard=True)
+    sim = run_stack(1, options, duration, work_dir / "sim", domain_id)
     from ros4crs.bag_replay import read_receive_times
 
     sim["cars"]["car1"].setdefault("latency_ms", {})["sensor_to_input_chain"] = input_chain_latency(
         read_receive_times(work_dir / "sim" / "bag", "/car1")
     )
     print("[bench] emulated car over UDP (crs launch car --emulate)", flush=True)
-    car = run_car_stack(1, estimator, duration, work_dir / "emulated", True, None, domain_id, seed)
+    car = run_car_stack(1, options, duration, work_dir / "emulated", True, None, domain_id)
     runs = {}
     for name, report in (("sim", sim), ("emulated", car)):
         runs[name] = {"car": report["cars"]["car1"], **{k: report[k] for k in KEPT if k in report}}

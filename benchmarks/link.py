@@ -53,6 +53,7 @@ from benchmarks.stack import busy_loops
 from chronos_bridge.impairment import PRESET_NAMES
 from crs_core.track import Track, load_demo_track
 from launch_scripts.car_stack import EMULATOR_PORT, HOST_PORT, EmulatedLink, run_car_stack
+from launch_scripts.sim_stack import StackOptions
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH, footprint_outside
 
 #: True speed above which a car counts as racing, m/s.
@@ -462,12 +463,11 @@ def link_benchmark(
                 with busy_loops(load):
                     report = run_car_stack(
                         cars,
-                        "mhe",
+                        StackOptions("mhe", seed=seed),
                         duration,
                         run_dir,
                         True,
                         domain_id=domain_id,
-                        seed=seed,
                         link=EmulatedLink(both=preset, seed=seed),
                         ports=ports,
                     )

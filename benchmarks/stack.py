@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from launch_scripts.sim_stack import rmse_text, run_stack
+from launch_scripts.sim_stack import StackOptions, rmse_text, run_stack
 
 #: A car's pipeline: the nodes whose CPU the docs add up per car.
 PIPELINE = ("simulator", "estimator", "controller")
@@ -70,9 +70,8 @@ def stack_benchmark(
     with busy_loops(load):
         for repeat in range(1, repeats + 1):
             print(f"[bench] repeat {repeat} of {repeats}", flush=True)
-            report = run_stack(
-                cars, estimator, duration, work_dir / f"run{repeat}", domain_id, seed=repeat
-            )
+            options = StackOptions(estimator, seed=repeat)
+            report = run_stack(cars, options, duration, work_dir / f"run{repeat}", domain_id)
             keys = ("cars", "cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
             runs.append({key: report[key] for key in keys if key in report})
     return {

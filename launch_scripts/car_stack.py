@@ -59,10 +59,11 @@ from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
-    CarTruth,
+    RECORD_SETS,
+    StackOptions,
     analyse,
     car_control_nodes,
-    checked_record_set,
+    check_cars,
     launch_and_report,
     recorder_node,
     run_folder,
@@ -76,6 +77,9 @@ HOST_PORT = CarLinkSettings.port
 EMULATOR_PORT = 20311
 #: The bridge's own topic the recorder adds to the car's record set.
 DIAGNOSTICS_TOPIC = "bridge/diagnostics"
+#: The controllers' ``hold_safe`` over UDP unless the :class:`StackOptions` give one: over
+#: Wi-Fi the first outage can come at any time (:mod:`crs_core.control.contingency`).
+HOLD_SAFE = "always"
 
 
 @dataclass(frozen=True)
@@ -127,40 +131,34 @@ def parse_car_ips(text: str) -> list[str]:
 
 def car_nodes(
     cars: int,
-    estimator: str,
+    options: StackOptions,
     bag: Path,
     out: Path,
     emulate: bool,
     car_ips: list[str] | None = None,
-    seed: int = 0,
-    record: str = "all",
-    controller: str = "mpcc",
-    output: str = "torque",
-    blind_start: bool = False,
-    params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
-    hold_safe: str = "always",
-    car: CarTruth | None = None,
 ) -> list[NodeSpec]:
-    """Process specs: per car (``/car1``...) bridge, estimator, controller (and the emulator
-    when ``emulate``, started last: its car waits for references anyway), and one recorder.
+    """Process specs: per car (``/car1``...) bridge, estimator, controller as ``options`` say
+    (:class:`StackOptions`; ``hold_safe`` by default :data:`HOLD_SAFE`; the emulated cars'
+    truth ``options.car``), the emulator when ``emulate`` (started last: its car waits for
+    references anyway; its truth log in ``out``), and one recorder into the bag ``bag``.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
-    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
-    ``hold_safe``: the controllers' parameter (``always`` by default: over Wi-Fi the first
-    outage can come at any time, :mod:`crs_core.control.contingency`). ``car``: the emulated
-    cars' own truth where it is not ``params_file``."""
+    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
     if link.given and not emulate:
         raise ValueError("--link: only for emulated cars (a real car's link is the real one)")
-    car = car or CarTruth()
+    car = options.car
     if (car.params_file or car.effects) and not emulate:
         raise ValueError("--car-params: only for emulated cars (a real car is what it is)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
-    per_car, global_topics = checked_record_set(cars, estimator, output, record)
-    files = {"params_file": str(Path(params_file).resolve())} if params_file else {}
+    options = _over_udp(options)
+    check_cars(cars)
+    per_car, global_topics = RECORD_SETS[options.record]
+    files = options.files()
+    params_file = options.params_file
     # the emulated cars are the stack's params_file unless they have their own
     truth = car if car.params_file or params_file is None else replace(car, params_file=params_file)
     nodes, emulators, topics = [], [], list(global_topics)
@@ -170,7 +168,7 @@ def car_nodes(
             car_port = ports[1] + i - 1
             bridge = {"port": host_port, "car_ip": "127.0.0.1", "car_port": car_port}
             arguments = ["--host", "127.0.0.1", "--host-port", str(host_port)]
-            arguments += ["--port", str(car_port), "--seed", str(seed + i)]
+            arguments += ["--port", str(car_port), "--seed", str(options.seed + i)]
             arguments += ["--truth-out", str(Path(out).resolve() / f"truth_car{i}.npz")]
             arguments += link.arguments(i)
             arguments += truth.emulator_arguments()
@@ -187,64 +185,46 @@ def car_nodes(
             bridge = {"port": host_port, "bind": "0.0.0.0", "car_ip": car_ips[i - 1]}
         nodes += [
             NodeSpec("bridge", "ros4crs.bridge_node", ns, bridge),
-            *car_control_nodes(
-                ns,
-                estimator,
-                blind_start,
-                controller,
-                output,
-                files,
-                hold_safe,
-                # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
-                input_topic="input/applied",
-            ),
+            # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
+            *car_control_nodes(ns, options, files, input_topic="input/applied"),
         ]
         topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
     return [*nodes, recorder_node(bag, topics), *emulators]
 
 
+def _over_udp(options: StackOptions) -> StackOptions:
+    """``options`` as the car stack runs them: ``hold_safe`` :data:`HOLD_SAFE` unless given;
+    a ``track_file`` refused (the cars race DEMO_TRACK, where the emulator starts)."""
+    if options.track_file is not None:
+        raise ValueError("track_file: the car stack races DEMO_TRACK (where the emulator starts)")
+    return options if options.hold_safe is not None else replace(options, hold_safe=HOLD_SAFE)
+
+
 def run_car_stack(
     cars: int,
-    estimator: str,
+    options: StackOptions,
     duration: float,
     out: Path,
     emulate: bool,
     car_ips: list[str] | None = None,
     domain_id: int | None = None,
-    seed: int = 0,
-    record: str = "all",
-    controller: str = "mpcc",
-    output: str = "torque",
-    blind_start: bool = False,
-    params_file: Path | None = None,
     ports: tuple[int, int] = (HOST_PORT, EMULATOR_PORT),
     link: EmulatedLink = EmulatedLink(),
-    hold_safe: str = "always",
-    car: CarTruth | None = None,
 ) -> dict[str, Any]:
-    """Run the stack against the cars for ``duration`` s, then write ``out/report.json``
+    """Run the stack against the cars (:func:`car_nodes`) for ``duration`` s in ROS domain
+    ``domain_id`` (:func:`launch_scripts.sim_stack.run_folder`), then write ``out/report.json``
     (``link``: the emulators' link impairment, recorded in it)."""
     out, bag, domain = run_folder(out, domain_id)
-    car = car or CarTruth()
-    nodes = car_nodes(
-        cars,
+    nodes = car_nodes(cars, options, bag, out, emulate, car_ips, ports, link)
+    options = _over_udp(options)
+    estimator = options.estimator
+    warm_compile_cache(
         estimator,
-        bag,
-        out,
-        emulate,
-        car_ips,
-        seed,
-        record=record,
-        controller=controller,
-        output=output,
-        blind_start=blind_start,
-        params_file=params_file,
-        ports=ports,
-        link=link,
-        hold_safe=hold_safe,
-        car=car,
+        options.controller,
+        options.output,
+        options.params_file,
+        car_effects=options.car.effects,
     )
-    warm_compile_cache(estimator, controller, output, params_file, car_effects=car.effects)
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
     report = launch_and_report(
         nodes,
@@ -257,14 +237,14 @@ def run_car_stack(
             "mode": "emulated" if emulate else "real",
             "car_ips": car_ips or [],
             "estimator": estimator,
-            "controller": controller,
-            "output": output,
-            "hold_safe": hold_safe,
+            "controller": options.controller,
+            "output": options.output,
+            "hold_safe": options.hold_safe,
             "duration_s": duration,
-            "recorded": record,
-            "seed": seed,
+            "recorded": options.record,
+            "seed": options.seed,
             "link": asdict(link),
-            "car_truth": car.described(),
+            "car_truth": options.car.described(),
         },
     )
     if emulate:

@@ -83,51 +83,103 @@ class CarTruth:
         return out
 
 
-def stack_nodes(
-    cars: int,
-    estimator: str,
-    bag: Path,
-    seed: int = 0,
-    record: str = "all",
-    blind_start: bool = False,
-    track_file: Path | None = None,
-    params_file: Path | None = None,
-    controller: str = "mpcc",
-    output: str = "torque",
-    onboard: bool = False,
-    hold_safe: str | None = None,
-    car: CarTruth = CarTruth(),
-) -> list[NodeSpec]:
-    """Node specs for ``cars`` cars in namespaces ``/car1``..., and one recorder.
+@dataclass(frozen=True)
+class StackOptions:
+    """What a stack runs on every car, the same for simulated, emulated and real cars: the
+    options :func:`stack_nodes`, :func:`run_stack`, :func:`launch_scripts.car_stack.car_nodes`
+    and :func:`launch_scripts.car_stack.run_car_stack` share (``crs launch``'s). The number of
+    cars, the bag, the output folder, the duration, the ROS domain and the car stack's
+    addresses, ports and link are each run's own arguments.
 
-    ``record``: a key of :data:`RECORD_SETS`. ``blind_start``: the estimators ignore the known
-    start pose and initialise themselves from the Lighthouse (the car waits, its controller
-    seeing no estimate, until they have). ``track_file`` (default DEMO_TRACK) and
-    ``params_file`` (the car's parameters: the simulated truth and the model of the estimator
-    and the controller) go to every car's nodes. ``controller``: ``mpcc`` (racing, 30 Hz) or
-    ``path`` (the centreline follower, 50 Hz). ``output``: ``torque`` (the controller commands
-    steering and torque) or ``velocity`` (the MPCC commands steering and a velocity reference,
-    ``output: velocity``, to the car's onboard loop, which the simulators then run,
-    ``onboard: true``; the estimators ignore such commands and estimate the inputs).
-    ``onboard``: the simulators run the car's onboard loop also for torque commands (its
-    steering servo then moves the wheels, as on the emulator and a real car). ``hold_safe``:
-    the controllers' parameter (default: the node's, ``after_outage``). ``car``: the simulated
-    cars' own truth where it is not ``params_file`` (:class:`CarTruth`).
+    Made checked (``ValueError`` naming the field): ``estimator``, ``output``, ``record``.
+
+    Attributes
+    ----------
+    estimator : {"ekf", "mhe"}
+        Each car's estimator node.
+    controller : {"mpcc", "path"}
+        ``mpcc``: racing, 30 Hz; ``path``: the centreline follower at 1 m/s, 50 Hz.
+    output : {"torque", "velocity"}
+        What the controllers command (:data:`OUTPUTS`): ``torque`` (``[delta, T]``; the
+        default stack passes the controller no ``output``, the node's default) or ``velocity``
+        (``[delta, v_x]``: a steering angle and a velocity reference, m/s, for the car's onboard
+        velocity PID, which the simulators then run, ``onboard: true``; the estimators ignore
+        such commands and estimate the inputs). The simulated stack refuses it with the path
+        controller (which commands torque).
+    record : {"all", "estimates", "sensors"}
+        What the bag records, a key of :data:`RECORD_SETS`.
+    blind_start : bool
+        The estimators ignore the known start pose and initialise themselves from the
+        Lighthouse (the car waits, its controller seeing no estimate, until they have).
+    params_file : Path or None
+        The cars' parameter YAML, for every car's nodes: the model of the estimator and the
+        controller, and the simulated or emulated truth unless ``car`` has its own (None: the
+        Chronos parameters).
+    track_file : Path or None
+        Track YAML (CRS format) for every car's nodes (None: DEMO_TRACK). Simulated cars only:
+        the car stack races DEMO_TRACK (where the emulator starts) and refuses it.
+    hold_safe : {"after_outage", "always", "never"} or None
+        The controllers' ``hold_safe`` (:data:`crs_core.control.supervisor.HOLD_SAFE_MODES`).
+        None: the stack's default, the node's own (``after_outage``) for simulated cars and
+        ``always`` over UDP (the first outage can come at any time there).
+    onboard : bool
+        Simulated cars only: the simulators run the car's onboard loop also for torque commands
+        (its steering servo then moves the wheels, as on the emulator and a real car, which
+        always run it: the car stack ignores the option).
+    car : CarTruth
+        The simulated or emulated cars' own truth where it is not ``params_file`` (a real car
+        takes none: the car stack refuses it without ``emulate``).
+    seed : int
+        Noise seed: car N's simulator or emulator uses ``seed + N``.
     """
-    per_car, global_topics = checked_record_set(cars, estimator, output, record)
-    if output == "velocity" and controller != "mpcc":
+
+    estimator: str
+    controller: str = "mpcc"
+    output: str = "torque"
+    record: str = "all"
+    blind_start: bool = False
+    params_file: Path | None = None
+    track_file: Path | None = None
+    hold_safe: str | None = None
+    onboard: bool = False
+    car: CarTruth = CarTruth()
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.estimator not in ("ekf", "mhe"):
+            raise ValueError(f"estimator: must be ekf or mhe, got {self.estimator!r}")
+        if self.output not in OUTPUTS:
+            raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {self.output!r}")
+        if self.record not in RECORD_SETS:
+            raise ValueError(
+                f"record: must be one of {', '.join(RECORD_SETS)}, got {self.record!r}"
+            )
+
+    def files(self) -> dict[str, str]:
+        """The ``track_file`` and ``params_file`` parameters of every car's nodes (absolute;
+        none given: the nodes' defaults)."""
+        return {
+            name: str(Path(path).resolve())
+            for name, path in (("track_file", self.track_file), ("params_file", self.params_file))
+            if path is not None
+        }
+
+
+def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
+    """Node specs for ``cars`` cars in namespaces ``/car1``..., each a simulator, an estimator
+    and a controller as ``options`` say (:class:`StackOptions`), and one recorder into the bag
+    ``bag``."""
+    check_cars(cars)
+    if options.output == "velocity" and options.controller != "mpcc":
         raise ValueError(
-            f"output: velocity needs the mpcc controller (the {controller} controller commands "
-            "torque)"
+            f"output: velocity needs the mpcc controller (the {options.controller} controller "
+            "commands torque)"
         )
+    per_car, global_topics = RECORD_SETS[options.record]
     nodes, topics = [], list(global_topics)
-    files = {
-        name: str(Path(path).resolve())
-        for name, path in (("track_file", track_file), ("params_file", params_file))
-        if path is not None
-    }
+    files = options.files()
     # the default torque stack passes no extra parameters (the nodes' defaults)
-    onboard_loop = {"onboard": True} if onboard or output == "velocity" else {}
+    onboard_loop = {"onboard": True} if options.onboard or options.output == "velocity" else {}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
         nodes += [
@@ -137,64 +189,48 @@ def stack_nodes(
                 "ros4crs.simulator_node",
                 ns,
                 {
-                    "seed": seed + i,
+                    "seed": options.seed + i,
                     "wait_for_subscribers": 2,
                     "wait_for_commands": True,
                     **onboard_loop,
                     **files,
-                    **car.simulator_parameters(),
+                    **options.car.simulator_parameters(),
                 },
             ),
-            *car_control_nodes(ns, estimator, blind_start, controller, output, files, hold_safe),
+            *car_control_nodes(ns, options, files),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
     return [*nodes, recorder_node(bag, topics)]
 
 
-def checked_record_set(
-    cars: int, estimator: str, output: str, record: str
-) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """The checks every stack (simulated or over UDP) makes of its arguments; the per-car and
-    global topics of ``record`` (:data:`RECORD_SETS`)."""
+def check_cars(cars: int) -> None:
+    """Every stack's check of its number of cars."""
     if cars < 1:
         raise ValueError("cars: must be >= 1")
-    if estimator not in ("ekf", "mhe"):
-        raise ValueError(f"estimator: must be ekf or mhe, got {estimator!r}")
-    if output not in OUTPUTS:
-        raise ValueError(f"output: must be one of {', '.join(OUTPUTS)}, got {output!r}")
-    if record not in RECORD_SETS:
-        raise ValueError(f"record: must be one of {', '.join(RECORD_SETS)}, got {record!r}")
-    return RECORD_SETS[record]
 
 
 def car_control_nodes(
-    ns: str,
-    estimator: str,
-    blind_start: bool,
-    controller: str,
-    output: str,
-    files: dict[str, str],
-    hold_safe: str | None = None,
-    **estimator_parameters: Any,
+    ns: str, options: StackOptions, files: dict[str, str], **estimator_parameters: Any
 ) -> list[NodeSpec]:
-    """A car's estimator (with ``estimator_parameters``) and controller, in every stack; the
-    default torque stack passes the controller no ``output`` (the node's default), and no
-    ``hold_safe`` unless given."""
-    commands: dict[str, Any] = {"output": output} if output == "velocity" else {}
-    if hold_safe is not None:
-        commands["hold_safe"] = hold_safe
+    """A car's estimator (with ``estimator_parameters``) and controller, in every stack, with
+    the parameter ``files``; the default torque stack passes the controller no ``output`` (the
+    node's default), and no ``hold_safe`` unless ``options`` give it."""
+    commands: dict[str, Any] = {"output": options.output} if options.output == "velocity" else {}
+    if options.hold_safe is not None:
+        commands["hold_safe"] = options.hold_safe
+    estimator = {"estimator": options.estimator, "blind_start": options.blind_start}
     return [
         NodeSpec(
             "estimator",
             "ros4crs.estimator_node",
             ns,
-            {"estimator": estimator, "blind_start": blind_start, **estimator_parameters, **files},
+            {**estimator, **estimator_parameters, **files},
         ),
         NodeSpec(
             "controller",
             "ros4crs.controller_node",
             ns,
-            {"controller": controller, **commands, **files},
+            {"controller": options.controller, **commands, **files},
         ),
     ]
 
@@ -208,40 +244,23 @@ def recorder_node(bag: Path, topics: list[str]) -> NodeSpec:
 
 def run_stack(
     cars: int,
-    estimator: str,
+    options: StackOptions,
     duration: float,
     out: Path,
     domain_id: int | None = None,
-    seed: int = 0,
-    blind_start: bool = False,
-    record: str = "all",
-    track_file: Path | None = None,
-    params_file: Path | None = None,
-    controller: str = "mpcc",
-    output: str = "torque",
-    onboard: bool = False,
-    hold_safe: str | None = None,
-    car: CarTruth = CarTruth(),
 ) -> dict[str, Any]:
-    """Run the stack for ``duration`` s, then analyse its bag into ``out/report.json``."""
+    """Run the stack (:func:`stack_nodes`) for ``duration`` s in ROS domain ``domain_id``
+    (:func:`run_folder`), then analyse its bag into ``out/report.json``."""
     out, bag, domain = run_folder(out, domain_id)
-    nodes = stack_nodes(
-        cars,
-        estimator,
-        bag,
-        seed,
-        record=record,
-        blind_start=blind_start,
-        track_file=track_file,
-        params_file=params_file,
-        controller=controller,
-        output=output,
-        onboard=onboard,
-        hold_safe=hold_safe,
-        car=car,
+    nodes = stack_nodes(cars, options, bag)
+    track = read_track(options.track_file) if options.track_file else load_demo_track()
+    warm_compile_cache(
+        options.estimator,
+        options.controller,
+        options.output,
+        options.params_file,
+        car_effects=options.car.effects,
     )
-    track = read_track(track_file) if track_file else load_demo_track()
-    warm_compile_cache(estimator, controller, output, params_file, car_effects=car.effects)
     report = launch_and_report(
         nodes,
         domain,
@@ -250,15 +269,15 @@ def run_stack(
         f"{len(nodes)} nodes, {cars} car(s)",
         lambda: analyse(bag, cars, track),
         {
-            "estimator": estimator,
-            "controller": controller,
-            "output": output,
+            "estimator": options.estimator,
+            "controller": options.controller,
+            "output": options.output,
             "duration_s": duration,
-            "recorded": record,
-            "car_truth": car.described(),
+            "recorded": options.record,
+            "car_truth": options.car.described(),
         },
     )
-    plot(bag, cars, out, estimator, track)
+    plot(bag, cars, out, options.estimator, track)
     return report
 
 

@@ -20,7 +20,7 @@ from launch_scripts.arguments import (
 )
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
-from launch_scripts.sim_stack import RECORD_SETS
+from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
 
 
 def launch(args: argparse.Namespace) -> None:
@@ -43,38 +43,21 @@ def launch(args: argparse.Namespace) -> None:
     if args.track is not None:
         read_track(args.track)
     _check_and_prepare(args)
-    report = run_stack(
-        args.cars,
-        args.estimator,
-        args.duration,
-        args.out,
-        args.domain,
-        args.seed,
-        track_file=args.track,
-        **_stack_options(args),
-        **_sim_options(args),
-    )
+    report = run_stack(args.cars, _stack_options(args), args.duration, args.out, args.domain)
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
 
 
-def _stack_options(args: argparse.Namespace) -> dict[str, object]:
-    """The keywords ``run_stack`` and ``run_car_stack`` both take, from their options."""
-    from launch_scripts.sim_stack import CarTruth
-
-    return {
-        "blind_start": args.blind_start,
-        "record": args.record,
-        "params_file": args.params,
-        "controller": args.controller,
-        "output": args.output,
-        "car": CarTruth(args.car_params, tuple(args.car_effect or ())),
-    }
-
-
-def _sim_options(args: argparse.Namespace) -> dict[str, object]:
-    """``crs launch sim``'s own keywords: ``hold_safe`` when given."""
-    return {} if args.hold_safe is None else {"hold_safe": args.hold_safe}
+def _stack_options(args: argparse.Namespace) -> StackOptions:
+    """What ``run_stack`` and ``run_car_stack`` both take, from their options (no
+    ``--hold-safe``: the stack's default; ``crs launch car`` refuses ``--track``)."""
+    same_name = ("estimator", "controller", "output", "record", "blind_start", "hold_safe", "seed")
+    return StackOptions(
+        **{field: getattr(args, field) for field in same_name},
+        params_file=args.params,
+        track_file=args.track,
+        car=CarTruth(args.car_params, tuple(args.car_effect or ())),
+    )
 
 
 def _check_and_prepare(args: argparse.Namespace) -> None:
@@ -154,16 +137,13 @@ def launch_car(args: argparse.Namespace) -> None:
     _check_and_prepare(args)
     report = run_car_stack(
         args.cars,
-        args.estimator,
+        _stack_options(args),
         args.duration,
         Path(args.out),
         args.emulate,
         car_ips,
         args.domain,
-        args.seed,
         link=link,
-        hold_safe=args.hold_safe or "always",
-        **_stack_options(args),
     )
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)

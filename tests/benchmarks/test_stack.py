@@ -11,6 +11,7 @@ import pytest
 
 from benchmarks import stack
 from benchmarks.stack import busy_loops, format_markdown, format_table, stack_benchmark
+from launch_scripts.sim_stack import StackOptions
 
 #: What two repeats of a two-car stack reported (the fields the benchmark keeps, and one more).
 REPORTS = [
@@ -60,15 +61,15 @@ def test_busy_loops_start_and_always_stop_their_children():
 def result(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
     calls = []
 
-    def fake_run_stack(cars, estimator, duration, out, domain_id, seed):
-        calls.append((cars, estimator, duration, out, domain_id, seed))
-        return REPORTS[seed - 1]
+    def fake_run_stack(cars, options, duration, out, domain_id):
+        calls.append((cars, options, duration, out, domain_id))
+        return REPORTS[options.seed - 1]
 
     monkeypatch.setattr(stack, "run_stack", fake_run_stack)
     out = stack_benchmark(2, "mhe", 30.0, 2, 0, tmp_path, domain_id=5)
     assert calls == [
-        (2, "mhe", 30.0, tmp_path / "run1", 5, 1),
-        (2, "mhe", 30.0, tmp_path / "run2", 5, 2),
+        (2, StackOptions("mhe", seed=1), 30.0, tmp_path / "run1", 5),
+        (2, StackOptions("mhe", seed=2), 30.0, tmp_path / "run2", 5),
     ]
     return out
 

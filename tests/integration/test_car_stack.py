@@ -22,6 +22,7 @@ from benchmarks.link import off_track
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import car_nodes, run_car_stack
 from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.sim_stack import StackOptions
 from tests.integration.stack_probe import Probe, log_text, wait_for
 
 pytestmark = pytest.mark.integration
@@ -29,11 +30,13 @@ pytestmark = pytest.mark.integration
 DOMAIN_EMULATED_LAP = 123
 DOMAIN_CUTOFF = 124
 DOMAIN_TWO_EMULATED = 125
+#: The car stack's default options with the MHE.
+MHE = StackOptions("mhe")
 
 
 def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
     report = run_car_stack(
-        1, "mhe", 20.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
+        1, MHE, 20.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
     )
     assert report["node_deaths"] == []
     car = report["cars"]["car1"]
@@ -57,7 +60,8 @@ def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) ->
 def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm_codegen) -> None:
     out = tmp_path / "run"
     out.mkdir()
-    nodes = car_nodes(1, "mhe", out / "bag", out, True, ports=(21221, 21321), record="estimates")
+    options = StackOptions("mhe", record="estimates")
+    nodes = car_nodes(1, options, out / "bag", out, True, ports=(21221, 21321))
     launcher = Launcher(nodes, DOMAIN_CUTOFF, out / "logs")
     controller = next(n for n in nodes if n.name == "controller")
     again = Launcher(
@@ -125,13 +129,12 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     estimate, and the two links stay apart."""
     report = run_car_stack(
         2,
-        "mhe",
+        StackOptions("mhe", record="estimates"),
         18.0,
         tmp_path / "run",
         True,
         domain_id=DOMAIN_TWO_EMULATED,
         ports=(21231, 21331),
-        record="estimates",
     )
     assert report["node_deaths"] == []
     track = load_demo_track()

@@ -14,6 +14,7 @@ import pytest
 from benchmarks.link import car_figures
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import EmulatedLink, run_car_stack
+from launch_scripts.sim_stack import StackOptions
 
 pytestmark = pytest.mark.integration
 
@@ -25,13 +26,12 @@ def _race(tmp_path, preset: str, duration: float) -> tuple[dict, dict]:
     out = tmp_path / preset
     report = run_car_stack(
         1,
-        "mhe",
+        StackOptions("mhe", record="estimates"),
         duration,
         out,
         True,
         domain_id=DOMAINS[preset],
         ports=PORTS[preset],
-        record="estimates",
         link=EmulatedLink(both=preset, seed=7),
     )
     assert report["node_deaths"] == []
@@ -63,7 +63,7 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
     out = tmp_path / "bad"
     report = run_car_stack(
         1,
-        "mhe",
+        StackOptions("mhe"),
         12.0,
         out,
         True,

@@ -24,7 +24,7 @@ from rosbags.rosbag2 import Reader
 from crs_core.estimation import MheSettings, make_estimator
 from crs_core.model import CarModel
 from launch_scripts.launcher import Launcher, NodeSpec
-from launch_scripts.sim_stack import recorder_node, stack_nodes
+from launch_scripts.sim_stack import StackOptions, recorder_node, stack_nodes
 from ros4crs.bag_replay import BagContents, read_car, replay_estimator
 from ros4crs.interfaces import typestore
 from tests.integration.stack_probe import Probe, launched, log_text, message_stamp, wait_for
@@ -100,7 +100,7 @@ def recording(tmp_path_factory, warm_codegen) -> Recording:
 
     folder = tmp_path_factory.mktemp("recording")
     bag = folder / "bag"
-    nodes = stack_nodes(1, "mhe", bag, seed=3)
+    nodes = stack_nodes(1, StackOptions("mhe", seed=3), bag)
     with launched(nodes, DOMAIN_RECORD, folder / "logs") as (launcher, probe):
         truth = probe.collect(CarState, "/car1/ground_truth")
 

@@ -14,7 +14,7 @@ import pytest
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
-from launch_scripts.sim_stack import analyse, stack_nodes
+from launch_scripts.sim_stack import StackOptions, analyse, stack_nodes
 from tests.integration.stack_probe import (
     LapWatch,
     assert_clean_run,
@@ -67,7 +67,8 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
 
     track = load_demo_track()
     bag = tmp_path / "bag"
-    with launched(stack_nodes(1, "mhe", bag), DOMAIN_LAP, tmp_path / "logs") as (launcher, probe):
+    nodes = stack_nodes(1, StackOptions("mhe"), bag)
+    with launched(nodes, DOMAIN_LAP, tmp_path / "logs") as (launcher, probe):
         # counted as in the report (``analyse``): from when the car starts moving, on the line
         lap_done = LapWatch(track, probe.collect(CarState, "/car1/ground_truth"))
         deaths = launcher.run(LAP_TIMEOUT_S, until=lap_done)

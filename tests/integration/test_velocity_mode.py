@@ -12,7 +12,7 @@ import pytest
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
-from launch_scripts.sim_stack import analyse, stack_nodes
+from launch_scripts.sim_stack import StackOptions, analyse, stack_nodes
 from ros4crs import conversions
 from ros4crs.bag_replay import read_car
 from tests.integration.stack_probe import (
@@ -34,7 +34,7 @@ LAP_TIMEOUT_S = 120.0
 
 
 def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
-    """``stack_nodes(..., output="velocity")``: simulator (``onboard: true``), MHE estimator,
+    """``StackOptions("mhe", output="velocity")``: simulator (``onboard: true``), MHE estimator,
     controller (MPCC, ``output: velocity``) and recorder as processes; the car completes a lap
     of DEMO_TRACK (counted on the simulator's truth from when it starts moving, as the
     ``crs launch sim`` report does), no node dies, every command on ``input`` is a
@@ -48,7 +48,7 @@ def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
 
     track = load_demo_track()
     bag = tmp_path / "bag"
-    nodes = stack_nodes(1, "mhe", bag, output="velocity")
+    nodes = stack_nodes(1, StackOptions("mhe", output="velocity"), bag)
     parameters = {spec.name: spec.parameters for spec in nodes}
     assert parameters["simulator"]["onboard"] is True
     assert parameters["controller"]["output"] == "velocity"

@@ -16,7 +16,7 @@ from crs_core.model import CarModel
 from crs_core.model.effects import parse_effect
 from launch_scripts.car_stack import run_car_stack
 from launch_scripts.cli import main
-from launch_scripts.sim_stack import CarTruth
+from launch_scripts.sim_stack import CarTruth, StackOptions
 
 pytestmark = pytest.mark.integration
 
@@ -37,13 +37,12 @@ def test_a_recorded_bag_names_the_hidden_effect_and_closes_the_gap(tmp_path, war
     car = CarTruth(truth, (parse_effect(f"gyro_bias={GYRO_BIAS}"),))
     report = run_car_stack(
         1,
-        "mhe",
+        StackOptions("mhe", car=car),
         RACE_S,
         tmp_path / "race",
         True,
         domain_id=DOMAIN_WORKFLOW,
         ports=(21231, 21331),
-        car=car,
     )
     assert report["node_deaths"] == [] and report["cars"]["car1"]["laps_completed"] >= 1
     assert report["car_truth"]["effects"] == [f"gyro_bias.gyro_bias={GYRO_BIAS!r}"]

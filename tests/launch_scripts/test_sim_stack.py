@@ -1,4 +1,5 @@
-"""``stack_nodes(..., output=...)``: what the velocity-reference stack sets on each node."""
+"""``stack_nodes(cars, StackOptions(..., output=...), bag)``: what the velocity-reference stack
+sets on each node."""
 
 from __future__ import annotations
 
@@ -6,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from launch_scripts.sim_stack import stack_nodes
+from launch_scripts.sim_stack import StackOptions, stack_nodes
 
 
 def _parameters(output: str, cars: int = 2) -> dict[str, dict]:
-    nodes = stack_nodes(cars, "ekf", Path("/tmp/unused-bag"), output=output)
+    nodes = stack_nodes(cars, StackOptions("ekf", output=output), Path("/tmp/unused-bag"))
     return {f"{spec.namespace}/{spec.name}": spec.parameters for spec in nodes}
 
 
@@ -34,11 +35,14 @@ def test_velocity_stack_runs_the_onboard_loop_and_commands_velocities_on_every_c
     [
         ({"output": "speed"}, "output: must be one of torque, velocity, got 'speed'"),
         ({"output": "velocity", "controller": "path"}, "output: velocity needs the mpcc"),
+        ({"estimator": "ukf"}, "estimator: must be ekf or mhe, got 'ukf'"),
+        ({"record": "some"}, "record: must be one of all, estimates, sensors, got 'some'"),
     ],
 )
-def test_bad_output_is_refused(arguments: dict, message: str):
+def test_bad_options_are_refused(arguments: dict, message: str):
+    """The options' own checks when they are made, the simulated stack's when it is built."""
     with pytest.raises(ValueError, match=message):
-        stack_nodes(1, "ekf", Path("/tmp/unused-bag"), **arguments)
+        stack_nodes(1, StackOptions(**{"estimator": "ekf", **arguments}), Path("/tmp/unused-bag"))
 
 
 def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_path: Path):
@@ -50,10 +54,11 @@ def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_pa
     def controllers(nodes) -> list[dict]:
         return [spec.parameters for spec in nodes if spec.name == "controller"]
 
-    car = controllers(car_nodes(2, "mhe", tmp_path / "bag", tmp_path, True))
+    mhe = StackOptions("mhe")
+    car = controllers(car_nodes(2, mhe, tmp_path / "bag", tmp_path, True))
     assert [p["hold_safe"] for p in car] == ["always", "always"]
-    assert "hold_safe" not in controllers(stack_nodes(1, "mhe", tmp_path / "bag"))[0]
-    told = stack_nodes(1, "mhe", tmp_path / "bag", hold_safe="never")
+    assert "hold_safe" not in controllers(stack_nodes(1, mhe, tmp_path / "bag"))[0]
+    told = stack_nodes(1, StackOptions("mhe", hold_safe="never"), tmp_path / "bag")
     assert controllers(told)[0]["hold_safe"] == "never"
 
 
@@ -67,16 +72,34 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
     stack, truth = tmp_path / "model.yaml", tmp_path / "truth.yaml"
     effects = (parse_effect("steering_lag=0.06"), parse_effect("gyro_bias"))
     car = CarTruth(truth, effects)
-    nodes = stack_nodes(1, "ekf", tmp_path / "bag", params_file=stack, car=car)
+    nodes = stack_nodes(1, StackOptions("ekf", params_file=stack, car=car), tmp_path / "bag")
     parameters = {spec.name: spec.parameters for spec in nodes}
     assert parameters["simulator"]["params_file"] == str(truth.resolve())
     assert parse_effects(parameters["simulator"]["effects"]) == effect_spec(effects)
     assert parameters["estimator"]["params_file"] == str(stack.resolve())
     assert parameters["controller"]["params_file"] == str(stack.resolve())
-    plain = {s.name: s.parameters for s in stack_nodes(1, "ekf", tmp_path, params_file=stack)}
+    plain_nodes = stack_nodes(1, StackOptions("ekf", params_file=stack), tmp_path)
+    plain = {s.name: s.parameters for s in plain_nodes}
     assert plain["simulator"]["params_file"] == str(stack.resolve())
     assert "effects" not in plain["simulator"]
     assert car.described() == {
         "params_file": str(truth),
         "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
     }
+
+
+def test_the_car_stack_takes_the_shared_options_as_it_runs_them(tmp_path: Path):
+    """``hold_safe`` given reaches the car stack's controllers (else ``always``); ``onboard``
+    (the emulated and real cars run their onboard loop anyway) changes nothing; a track is
+    refused (the emulator starts on DEMO_TRACK)."""
+    from launch_scripts.car_stack import car_nodes
+
+    def specs(options: StackOptions) -> list[tuple]:
+        nodes = car_nodes(1, options, tmp_path / "bag", tmp_path, True)
+        return [(n.name, n.namespace, n.parameters, n.arguments) for n in nodes]
+
+    told = {n[0]: n[2] for n in specs(StackOptions("mhe", hold_safe="after_outage"))}
+    assert told["controller"]["hold_safe"] == "after_outage"
+    assert specs(StackOptions("mhe", onboard=True)) == specs(StackOptions("mhe"))
+    with pytest.raises(ValueError, match=r"^track_file: the car stack races DEMO_TRACK"):
+        car_nodes(1, StackOptions("mhe", track_file=tmp_path / "t.yaml"), tmp_path, tmp_path, True)
