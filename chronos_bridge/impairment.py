@@ -48,6 +48,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 
 from crs_core.errors import FieldError, parse_finite
+from crs_core.settings import Settings, within
 
 #: The preset names of :data:`PRESETS`, in order of severity (a benchmark iterates over them).
 PRESET_NAMES = ("clean", "typical", "bad", "outages")
@@ -55,8 +56,18 @@ PRESET_NAMES = ("clean", "typical", "bad", "outages")
 MAX_TIME_S = 3600.0
 
 
+def _probability(default: float) -> float:
+    """A field that is a probability, [0, 1]."""
+    return within(default, low=0.0, high=1.0)
+
+
+def _time(default: float) -> float:
+    """A field that is a time, [0, :data:`MAX_TIME_S`] s."""
+    return within(default, low=0.0, high=MAX_TIME_S, unit="s")
+
+
 @dataclass(frozen=True)
-class ImpairmentSettings:
+class ImpairmentSettings(Settings):
     """One direction's impairment (see the module docstring for the order they act in).
 
     Attributes
@@ -93,31 +104,20 @@ class ImpairmentSettings:
         Random outages instead: rate of the exponential gaps between outages, 1/s (0: none).
     """
 
-    loss: float = 0.0
-    burst_enter: float = 0.0
-    burst_exit: float = 1.0
-    burst_loss: float = 1.0
-    delay_s: float = 0.0
-    jitter_s: float = 0.0
+    loss: float = _probability(0.0)
+    burst_enter: float = _probability(0.0)
+    burst_exit: float = _probability(1.0)
+    burst_loss: float = _probability(1.0)
+    delay_s: float = _time(0.0)
+    jitter_s: float = _time(0.0)
     in_order: bool = False
-    dup: float = 0.0
-    outage_s: float = 0.0
-    outage_period_s: float = 0.0
-    outage_phase_s: float = 0.0
-    outage_rate_hz: float = 0.0
+    dup: float = _probability(0.0)
+    outage_s: float = _time(0.0)
+    outage_period_s: float = _time(0.0)
+    outage_phase_s: float = _time(0.0)
+    outage_rate_hz: float = within(0.0, low=0.0, high=1e3)
 
-    def validate(self) -> ImpairmentSettings:
-        """``self`` if consistent, else :class:`~crs_core.errors.FieldError` naming the field."""
-        for name in ("loss", "burst_enter", "burst_exit", "burst_loss", "dup"):
-            value = getattr(self, name)
-            if not 0.0 <= value <= 1.0:  # also rejects NaN
-                raise FieldError(name, f"{value!r} is not a probability in [0, 1]")
-        for name in ("delay_s", "jitter_s", "outage_s", "outage_period_s", "outage_phase_s"):
-            value = getattr(self, name)
-            if not 0.0 <= value <= MAX_TIME_S:
-                raise FieldError(name, f"{value!r} must be within [0, {MAX_TIME_S:g}] s")
-        if not 0.0 <= self.outage_rate_hz <= 1e3:
-            raise FieldError("outage_rate_hz", f"{self.outage_rate_hz!r} must be within [0, 1000]")
+    def _check_relations(self) -> None:
         if self.burst_enter > 0 and self.burst_exit == 0:
             raise FieldError(
                 "burst_exit", "must be > 0 when burst_enter > 0 (else bursts never end)"
@@ -132,7 +132,6 @@ class ImpairmentSettings:
                 "outage_period_s",
                 f"{self.outage_period_s:g} s must exceed outage_s {self.outage_s:g} s",
             )
-        return self
 
     @property
     def clean(self) -> bool:
@@ -264,9 +263,8 @@ def parse_spec(text: str) -> ImpairmentSettings:
             raise FieldError(key, "given twice")
         field_name, kind = SPEC_KEYS[key]
         changes[field_name] = _value(key, kind, value)
-    settings = replace(settings, **changes)
     try:
-        return settings.validate()
+        return replace(settings, **changes)  # checked when built
     except FieldError as error:  # name the spec's keys, not the fields
         keys = {f: k for k, (f, _) in SPEC_KEYS.items()}
         reason = re.sub(r"\b\w+\b", lambda m: keys.get(m.group(), m.group()), error.reason)
@@ -295,7 +293,7 @@ class OutageSchedule:
     def __init__(
         self, settings: ImpairmentSettings, rng: np.random.Generator, start: float = 0.0
     ) -> None:
-        self.settings = settings.validate()
+        self.settings = settings  # checked when built (frozen)
         self._rng = rng
         self._next = start + (settings.outage_phase_s if settings.outage_period_s > 0 else 0.0)
         self.starts: list[float] = []
@@ -365,7 +363,7 @@ class ImpairedChannel:
         start: float = 0.0,
         outages: OutageSchedule | None = None,
     ) -> None:
-        self.settings = settings.validate()
+        self.settings = settings  # checked when built (frozen)
         self._rng = rng
         self.outages = outages or OutageSchedule(settings, rng.spawn(1)[0], start)
         self._bad = False

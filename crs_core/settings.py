@@ -18,7 +18,8 @@ checks each bounded field of a dataclass instance with the shared checks of
 (``empty_voltage < full_voltage``) or on a field that is not a plain number goes in
 :meth:`Settings._check_relations`, which runs after the bounds. Nested settings that name their
 fields with a dotted path (``health.window_s``) say so once: ``class
-HealthSettings(Settings, prefix="health")``.
+HealthSettings(Settings, prefix="health")``; settings that store their bounded fields as
+``float`` (an ``int`` or numpy number given is converted once checked) say ``floats=True``.
 """
 
 from __future__ import annotations
@@ -179,21 +180,32 @@ class Settings:
     :meth:`validate`: :func:`check_bounds` over every field of the class and its bases, then
     :meth:`_check_relations`. Works with frozen and mutable dataclasses; a subclass that also
     needs ``__post_init__`` (to normalise a value) calls ``super().__post_init__()`` in it.
-    The class keyword ``prefix`` names the fields ``prefix.name`` in the errors (inherited).
+    The class keyword ``prefix`` names the fields ``prefix.name`` in the errors; ``floats=True``
+    stores every bounded field as ``float`` once it passed its check (both inherited).
     """
 
     __slots__ = ()
 
     #: Prefix of the field names in the errors (``"health"``: ``health.window_s``).
     field_prefix: ClassVar[str] = ""
+    #: Whether the bounded fields are stored as ``float`` once checked (``floats=True``).
+    bounded_floats: ClassVar[bool] = False
 
-    def __init_subclass__(cls, *, prefix: str | None = None, **kwargs: Any) -> None:
+    def __init_subclass__(
+        cls, *, prefix: str | None = None, floats: bool | None = None, **kwargs: Any
+    ) -> None:
         super().__init_subclass__(**kwargs)
         if prefix is not None:
             cls.field_prefix = prefix
+        if floats is not None:
+            cls.bounded_floats = floats
 
     def __post_init__(self) -> None:
         self.validate()
+        if self.bounded_floats:
+            for item in dataclasses.fields(self):  # type: ignore[arg-type]  # a dataclass
+                if bound_of(item) is not None:  # checked: a finite real number
+                    object.__setattr__(self, item.name, float(getattr(self, item.name)))
 
     def validate(self) -> None:
         """Check the declared bounds, then the rules between fields.

@@ -26,25 +26,17 @@ is a potentiometer whose map differs from the controller's.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from crs_core.control.low_level import PotentiometerMap
-from crs_core.errors import FieldError, finite_number
-
-
-def _positive(name: str, value: float, allow_zero: bool = False) -> float:
-    number = finite_number(name, value)
-    if not (number >= 0 if allow_zero else number > 0):
-        raise FieldError(
-            name, f"must be finite and {'>= 0' if allow_zero else '> 0'}, got {value!r}"
-        )
-    return number
+from crs_core.errors import FieldError, require_within
+from crs_core.settings import Settings, non_negative, positive, within
 
 
 @dataclass(frozen=True)
-class SteeringActuatorSettings:
+class SteeringActuatorSettings(Settings, floats=True):
     """Physical parameters of the steering motor, gear and linkage (reflected to the angle).
 
     The defaults give a servo of a 1:28 car: 7 rad/s no-load (full voltage swings 0.3 rad in
@@ -65,17 +57,10 @@ class SteeringActuatorSettings:
         :math:`\\theta_{max}`, mechanical end stop, rad (> 0).
     """
 
-    no_load_speed: float = 7.0
-    time_constant: float = 0.025
-    deadband: float = 0.02
-    limit: float = 0.35
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = _positive(f.name, getattr(self, f.name), allow_zero=f.name == "deadband")
-            object.__setattr__(self, f.name, value)
-        if self.deadband >= 1:
-            raise FieldError("deadband", f"must be < 1, got {self.deadband!r}")
+    no_load_speed: float = positive(7.0)
+    time_constant: float = positive(0.025)
+    deadband: float = within(0.02, low=0, high=1, high_open=True)
+    limit: float = positive(0.35)
 
 
 class SteeringActuator:
@@ -113,7 +98,7 @@ class SteeringActuator:
 
 
 @dataclass(frozen=True)
-class PotentiometerSettings:
+class PotentiometerSettings(Settings, floats=True):
     """The steering potentiometer as the ADC sees it.
 
     Attributes
@@ -130,19 +115,16 @@ class PotentiometerSettings:
     """
 
     calibration: PotentiometerMap = field(default_factory=PotentiometerMap)
-    noise_std: float = 0.002
-    adc_bits: int = 12
-    adc_reference: float = 3.3
+    noise_std: float = non_negative(0.002)
+    adc_bits: int = 12  # an integer: checked (and kept as given) in _check_relations
+    adc_reference: float = positive(3.3)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         if not isinstance(self.calibration, PotentiometerMap):
             raise FieldError("calibration", f"must be a PotentiometerMap, got {self.calibration!r}")
-        object.__setattr__(self, "noise_std", _positive("noise_std", self.noise_std, True))
-        object.__setattr__(self, "adc_reference", _positive("adc_reference", self.adc_reference))
         if isinstance(self.adc_bits, bool) or not isinstance(self.adc_bits, int | np.integer):
             raise FieldError("adc_bits", f"must be an integer, got {self.adc_bits!r}")
-        if not 0 <= self.adc_bits <= 24:
-            raise FieldError("adc_bits", f"must be within 0..24, got {self.adc_bits!r}")
+        require_within(self, "adc_bits", 0, 24)
 
     def ideal(self) -> PotentiometerSettings:
         """The same potentiometer without noise or quantisation."""

@@ -23,12 +23,13 @@ The default gains were tuned on the Chronos model with the steering actuator of
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from crs_core.errors import FieldError, finite_number
+from crs_core.errors import FieldError, require_positive
+from crs_core.settings import Settings, finite, non_negative, positive, within
 
 #: Rate of every onboard controller, Hz (paper Sec. VI-B).
 DEFAULT_RATE_HZ = 250.0
@@ -39,11 +40,8 @@ def _check(name: str, ok: bool, requirement: str, value: Any) -> None:
         raise FieldError(name, f"must be {requirement}, got {value!r}")
 
 
-_finite = finite_number
-
-
 @dataclass(frozen=True)
-class PIDSettings:
+class PIDSettings(Settings, floats=True):
     r"""Gains and limits of a discrete PID (units follow the controlled quantity).
 
     Attributes
@@ -71,25 +69,23 @@ class PIDSettings:
         Loop rate (Hz, > 0); the sample time is ``1 / rate_hz``.
     """
 
-    kp: float
-    ki: float = 0.0
-    kd: float = 0.0
-    output_min: float = -1.0
-    output_max: float = 1.0
-    derivative_time_constant: float = 0.0
+    kp: float = non_negative()
+    ki: float = non_negative(0.0)
+    kd: float = non_negative(0.0)
+    output_min: float = finite(-1.0)
+    output_max: float = finite(1.0)
+    derivative_time_constant: float = non_negative(0.0)
     integral_limit: float | None = None
     integration_band: float | None = None
-    rate_hz: float = DEFAULT_RATE_HZ
+    rate_hz: float = positive(DEFAULT_RATE_HZ)
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name in ("integral_limit", "integration_band") and value is None:
-                continue
-            object.__setattr__(self, f.name, _finite(f.name, value))
-        for name in ("kp", "ki", "kd", "derivative_time_constant"):
-            _check(name, getattr(self, name) >= 0, ">= 0", getattr(self, name))
-        _check("rate_hz", self.rate_hz > 0, "> 0", self.rate_hz)
+        super().__post_init__()
+        for name in ("integral_limit", "integration_band"):  # checked: None or a number > 0
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, float(getattr(self, name)))
+
+    def _check_relations(self) -> None:
         _check(
             "output_max",
             self.output_max > self.output_min,
@@ -97,8 +93,8 @@ class PIDSettings:
             self.output_max,
         )
         for name in ("integral_limit", "integration_band"):
-            value = getattr(self, name)
-            _check(name, value is None or value > 0, "> 0 or None", value)
+            if getattr(self, name) is not None:
+                require_positive(self, name)
 
     @property
     def dt(self) -> float:
@@ -244,7 +240,7 @@ def _interp_extrapolate(x: Any, xp: tuple[float, ...], fp: tuple[float, ...]) ->
 
 
 @dataclass(frozen=True)
-class SteeringSettings:
+class SteeringSettings(Settings, floats=True):
     """Settings of the steering angle loop.
 
     Attributes
@@ -271,9 +267,9 @@ class SteeringSettings:
         )
     )
     potentiometer: PotentiometerMap = field(default_factory=PotentiometerMap)
-    angle_limit: float = 0.34
+    angle_limit: float = positive(0.34)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         _check("pid", isinstance(self.pid, PIDSettings), "a PIDSettings", self.pid)
         _check(
             "potentiometer",
@@ -281,8 +277,6 @@ class SteeringSettings:
             "a PotentiometerMap",
             self.potentiometer,
         )
-        object.__setattr__(self, "angle_limit", _finite("angle_limit", self.angle_limit))
-        _check("angle_limit", self.angle_limit > 0, "> 0", self.angle_limit)
 
 
 class SteeringController:
@@ -319,7 +313,7 @@ class SteeringController:
 
 
 @dataclass(frozen=True)
-class MotorFeedforward:
+class MotorFeedforward(Settings, floats=True):
     r"""Steady-state torque command of the drive model for a velocity :math:`v`.
 
     From the longitudinal balance of the model (paper Sec. III-A) at constant speed,
@@ -345,20 +339,12 @@ class MotorFeedforward:
         Fraction of the model feedforward applied (0..1; 0 switches it off).
     """
 
-    cm1: float = 0.9751147
-    cm2: float = 0.02578073
-    cd0: float = 0.02477582
-    cd1: float = 0.03031928
-    cd2: float = 0.08473512
-    scale: float = 1.0
-
-    def __post_init__(self) -> None:
-        for f in fields(self):
-            value = _finite(f.name, getattr(self, f.name))
-            _check(f.name, value >= 0, ">= 0", value)
-            object.__setattr__(self, f.name, value)
-        _check("cm1", self.cm1 > 0, "> 0", self.cm1)
-        _check("scale", self.scale <= 1, "<= 1", self.scale)
+    cm1: float = positive(0.9751147)
+    cm2: float = non_negative(0.02578073)
+    cd0: float = non_negative(0.02477582)
+    cd1: float = non_negative(0.03031928)
+    cd2: float = non_negative(0.08473512)
+    scale: float = within(1.0, low=0, high=1)
 
     @classmethod
     def from_parameters(cls, parameters: Any, scale: float = 1.0) -> MotorFeedforward:
@@ -376,7 +362,7 @@ class MotorFeedforward:
 
 
 @dataclass(frozen=True)
-class VelocitySettings:
+class VelocitySettings(Settings, floats=True):
     """Settings of the longitudinal velocity loop.
 
     Attributes
@@ -396,13 +382,11 @@ class VelocitySettings:
             kp=2.5, ki=8.0, integral_limit=0.5, integration_band=0.1
         )
     )
-    wheel_radius: float = 0.0175
+    wheel_radius: float = positive(0.0175)
     feedforward: MotorFeedforward | None = field(default_factory=MotorFeedforward)
 
-    def __post_init__(self) -> None:
+    def _check_relations(self) -> None:
         _check("pid", isinstance(self.pid, PIDSettings), "a PIDSettings", self.pid)
-        object.__setattr__(self, "wheel_radius", _finite("wheel_radius", self.wheel_radius))
-        _check("wheel_radius", self.wheel_radius > 0, "> 0", self.wheel_radius)
         _check(
             "feedforward",
             self.feedforward is None or isinstance(self.feedforward, MotorFeedforward),

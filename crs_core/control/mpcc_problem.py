@@ -36,14 +36,16 @@ problem has the hard one's solution whenever that is feasible). One Gauss-Newton
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from crs_core.codegen import SX_OPTIONS, external_functions
 from crs_core.control.ocp_qp import QP_SOLVERS, SparseAssembly, qp_solver
+from crs_core.errors import FieldError
 from crs_core.model import MAX_SUBSTEP, CarModel
+from crs_core.settings import Settings, finite, non_negative, positive
 
 __all__ = ["EXTRA_STATES", "INPUTS", "QP_ARGUMENTS", "MpccProblem", "MpccSettings", "RtiFunctions"]
 
@@ -55,8 +57,12 @@ INPUTS = ("steer", "torque", "progress_speed", "slack")
 FREE = 1e4
 
 
+#: The integer fields of :class:`MpccSettings` (each >= 1).
+_COUNTS = ("horizon", "max_failures", "qp_max_iter", "cold_start_iterations")
+
+
 @dataclass
-class MpccSettings:
+class MpccSettings(Settings):
     r"""Tuning of the MPCC; defaults race a Chronos car on the DEMO_TRACK.
 
     Attributes
@@ -125,71 +131,50 @@ class MpccSettings:
     """
 
     horizon: int = 40
-    rate_hz: float = 30.0
-    q_contour: float = 5.0
-    q_lag: float = 1000.0
-    q_progress: float = 10.0
-    r_steer_rate: float = 2.0
-    r_torque_rate: float = 0.5
-    r_progress_rate: float = 0.05
-    r_steer: float = 0.01
-    r_torque: float = 0.01
-    slack_linear: float = 500.0
-    slack_quadratic: float = 5000.0
-    terminal_scale: float = 2.0
-    q_sideslip: float = 10.0
-    track_margin: float = 0.06
-    steer_max: float = 0.34
-    torque_min: float = -1.0
-    torque_max: float = 1.0
-    progress_speed_max: float = 4.0
+    rate_hz: float = positive(30.0)
+    q_contour: float = non_negative(5.0)
+    q_lag: float = positive(1000.0)
+    q_progress: float = non_negative(10.0)
+    r_steer_rate: float = non_negative(2.0)
+    r_torque_rate: float = non_negative(0.5)
+    r_progress_rate: float = non_negative(0.05)
+    r_steer: float = non_negative(0.01)
+    r_torque: float = non_negative(0.01)
+    slack_linear: float = non_negative(500.0)
+    slack_quadratic: float = positive(5000.0)
+    terminal_scale: float = non_negative(2.0)
+    q_sideslip: float = non_negative(10.0)
+    track_margin: float = non_negative(0.06)
+    steer_max: float = positive(0.34)
+    torque_min: float = finite(-1.0)
+    torque_max: float = non_negative(1.0)
+    progress_speed_max: float = positive(4.0)
     max_failures: int = 5
-    brake_gain: float = 1.0
+    brake_gain: float = non_negative(1.0)
     solver: str = "hpipm"
     qp_max_iter: int = 50
     cold_start_iterations: int = 10
-    feasibility_tolerance: float = 1e-6
-    velocity_lead_s: float = 0.15
-    velocity_max: float = 5.0
-    kinematic_speed: float = 0.3
-    solve_time_budget: float = 0.0
+    feasibility_tolerance: float = non_negative(1e-6)
+    velocity_lead_s: float = non_negative(0.15)
+    velocity_max: float = non_negative(5.0)
+    kinematic_speed: float = non_negative(0.3)
+    solve_time_budget: float = non_negative(0.0)
 
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> None:
-        """Check every field.
-
-        Raises
-        ------
-        ValueError
-            Naming the first field that is not a finite number in its range.
-        """
-        for item in fields(self):
-            value = getattr(self, item.name)
-            if item.type == "str":
-                continue
-            if isinstance(value, bool) or not isinstance(value, int | float):
-                raise ValueError(f"{item.name}: must be a number, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"{item.name}: must be finite, got {value!r}")
-            if value < 0 and item.name != "torque_min":
-                raise ValueError(f"{item.name}: must not be negative, got {value!r}")
-        for name in ("horizon", "max_failures", "qp_max_iter", "cold_start_iterations"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"{name}: must be a positive integer, got {getattr(self, name)!r}")
-        for name in ("rate_hz", "steer_max", "progress_speed_max", "q_lag", "slack_quadratic"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name}: must be positive, got {getattr(self, name)!r}")
+    def _check_relations(self) -> None:
+        for name in _COUNTS:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise FieldError(name, f"must be a positive integer, got {value!r}")
         if self.steer_max >= 0.5 * math.pi:
-            raise ValueError(f"steer_max: must be below pi/2 rad, got {self.steer_max!r}")
+            raise FieldError("steer_max", f"must be below pi/2 rad, got {self.steer_max!r}")
         if self.torque_min > 0 or not self.torque_min < self.torque_max:
-            raise ValueError(
-                f"torque_max: must exceed torque_min ({self.torque_min!r}, itself <= 0), "
-                f"got {self.torque_max!r}"
+            raise FieldError(
+                "torque_max",
+                f"must exceed torque_min ({self.torque_min!r}, itself <= 0), "
+                f"got {self.torque_max!r}",
             )
         if self.solver not in QP_SOLVERS:
-            raise ValueError(f"solver: one of {', '.join(QP_SOLVERS)}, got {self.solver!r}")
+            raise FieldError("solver", f"one of {', '.join(QP_SOLVERS)}, got {self.solver!r}")
 
     @property
     def dt(self) -> float:

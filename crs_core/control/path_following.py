@@ -19,7 +19,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.errors import FieldError, require_finite, require_non_negative, require_positive
+from crs_core.errors import FieldError
+from crs_core.settings import Settings, finite, non_negative, positive
 from crs_core.track import Track
 
 __all__ = ["PathFollower", "PathFollowerSettings", "PathFollowerStatus"]
@@ -28,7 +29,7 @@ _STATE_SIZE = 6
 
 
 @dataclass
-class PathFollowerSettings:
+class PathFollowerSettings(Settings):
     """Tuning of :class:`PathFollower`; defaults suit a 1:28 Chronos car (wheelbase ~0.093 m).
 
     The default lookahead (0.25 m at 1 m/s, about 2.7 wheelbases) keeps a kinematic bicycle within
@@ -71,43 +72,21 @@ class PathFollowerSettings:
         Half-width of the arc-length window searched around the previous projection, m.
     """
 
-    lookahead_min: float = 0.10
-    lookahead_time: float = 0.15
-    v_ref: float = 1.0
-    a_lat_max: float = 3.0
-    preview_distance: float = 0.5
-    steer_max: float = 0.34
-    torque_min: float = 0.0
-    torque_max: float = 1.0
-    torque_feedforward_per_speed: float = 0.15
-    kp_speed: float = 1.0
-    ki_speed: float = 0.3
-    integral_limit: float = 0.1
-    projection_window: float = 0.5
+    lookahead_min: float = positive(0.10)
+    lookahead_time: float = non_negative(0.15)
+    v_ref: float = non_negative(1.0)
+    a_lat_max: float = positive(3.0)
+    preview_distance: float = non_negative(0.5)
+    steer_max: float = positive(0.34)
+    torque_min: float = finite(0.0)
+    torque_max: float = finite(1.0)
+    torque_feedforward_per_speed: float = non_negative(0.15)
+    kp_speed: float = non_negative(1.0)
+    ki_speed: float = non_negative(0.3)
+    integral_limit: float = non_negative(0.1)
+    projection_window: float = positive(0.5)
 
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> None:
-        """Check the settings.
-
-        Raises
-        ------
-        FieldError
-            Naming the first field that is not finite or out of range.
-        """
-        require_finite(self, *self.__dataclass_fields__)
-        require_positive(self, "lookahead_min", "a_lat_max", "steer_max", "projection_window")
-        require_non_negative(
-            self,
-            "lookahead_time",
-            "v_ref",
-            "preview_distance",
-            "torque_feedforward_per_speed",
-            "kp_speed",
-            "ki_speed",
-            "integral_limit",
-        )
+    def _check_relations(self) -> None:
         if self.steer_max >= 0.5 * math.pi:
             raise FieldError("steer_max", f"must be below pi/2 rad, got {self.steer_max!r}")
         if not self.torque_min < self.torque_max:

@@ -240,8 +240,9 @@ def test_spec_parser() -> None:
     ("spec", "message"),
     [
         ("delay=3", "delay: '3' needs a unit (ms or s)"),
-        ("jitter=-1ms", "jitter: -0.001 must be within [0, 3600] s"),
-        ("loss=1.5", "loss: 1.5 is not a probability in [0, 1]"),
+        ("jitter=-1ms", "jitter: must be within [0, 3600] s, got -0.001"),
+        ("loss=1.5", "loss: must be within [0, 1], got 1.5"),
+        ("outage=1s,outage_rate=2000", "outage_rate: must be within [0, 1000], got 2000.0"),
         ("dup=x", "dup: 'x' is not a number"),
         ("in_order=maybe", "in_order: 'maybe' is not 0/1/true/false"),
         ("wifi=1", "wifi: not a key (keys: loss, "),
@@ -263,13 +264,17 @@ def test_spec_errors_name_the_key(spec: str, message: str) -> None:
     assert error.value.field == "--link-down"
 
 
-def test_validate_names_the_field() -> None:
-    with pytest.raises(FieldError, match=r"^jitter_s: nan must be within") as error:
-        ImpairmentSettings(jitter_s=math.nan).validate()
+def test_settings_are_checked_when_built_naming_the_field() -> None:
+    with pytest.raises(
+        FieldError, match=r"^jitter_s: must be within \[0, 3600\] s, got nan$"
+    ) as error:
+        ImpairmentSettings(jitter_s=math.nan)
     assert error.value.field == "jitter_s"
     with pytest.raises(FieldError, match=r"^outage_rate_hz: ") as error:
-        ImpairmentSettings(outage_s=0.1, outage_rate_hz=-1.0).validate()
+        ImpairmentSettings(outage_s=0.1, outage_rate_hz=-1.0)
     assert error.value.field == "outage_rate_hz"
     with pytest.raises(FieldError, match=r"^outage_s: must be > 0 with") as error:
-        ImpairmentSettings(outage_period_s=5.0).validate()
+        ImpairmentSettings(outage_period_s=5.0)
     assert error.value.field == "outage_s"
+    with pytest.raises(FieldError, match=r"^dup: must be within \[0, 1\], got 2$"):
+        replace(CLEAN, dup=2)

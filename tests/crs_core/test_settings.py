@@ -204,6 +204,30 @@ def test_mutable_settings_are_checked_again_by_validate() -> None:
     assert _refused(lambda: tuning.validate()) == "gain: must be a finite number >= 0, got -2.0"
 
 
+def test_floats_stores_the_checked_bounded_fields_as_float_and_is_inherited() -> None:
+    @dataclass(frozen=True)
+    class Gains(Settings, floats=True):
+        kp: float = non_negative(1)
+        rate_hz: float = positive(250)
+        steps: int = 3  # no bound: kept as given
+
+    @dataclass(frozen=True)
+    class MoreGains(Gains):
+        kd: float = finite(0)
+
+    gains = MoreGains(kp=2, rate_hz=np.float32(100.0))
+    assert [type(v) for v in (gains.kp, gains.rate_hz, gains.kd, gains.steps)] == [
+        float,
+        float,
+        float,
+        int,
+    ]
+    assert (gains.kp, gains.rate_hz) == (2.0, 100.0)
+    assert type(dataclasses.replace(gains, kd=1).kd) is float
+    assert _refused(lambda: Gains(kp=True)) == "kp: must be a finite number >= 0, got True"
+    assert type(_Timing(lag=1).lag) is int  # without floats=True: stored as given
+
+
 def test_check_bounds_takes_any_dataclass_and_a_prefix() -> None:
     @dataclass
     class Plain:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from crs_core.control.low_level import PotentiometerMap
+from crs_core.errors import FieldError
 from sim.actuators import PotentiometerSettings, SteeringActuator, SteeringActuatorSettings
 
 
@@ -42,3 +43,19 @@ def test_potentiometer_reads_the_map_and_quantises():
     rng = np.random.default_rng(3)
     reads = np.array([noisy.read(0.0, rng) for _ in range(4000)])
     assert np.std(reads) == pytest.approx(0.002, rel=0.05)
+
+
+def test_settings_word_their_errors_as_every_settings_class_and_store_floats():
+    with pytest.raises(FieldError, match=r"^no_load_speed: must be a finite number > 0, got -1$"):
+        SteeringActuatorSettings(no_load_speed=-1)
+    with pytest.raises(FieldError, match=r"^deadband: must be within \[0, 1\), got 1$"):
+        SteeringActuatorSettings(deadband=1)
+    with pytest.raises(FieldError, match=r"^adc_bits: must be within \[0, 24\], got 25$"):
+        PotentiometerSettings(adc_bits=25)
+    with pytest.raises(FieldError, match=r"^adc_bits: must be an integer, got True$"):
+        PotentiometerSettings(adc_bits=True)
+    actuator = SteeringActuatorSettings(no_load_speed=7, deadband=0, limit=np.float32(0.25))
+    assert {type(value) for value in vars(actuator).values()} == {float}
+    potentiometer = PotentiometerSettings(noise_std=0, adc_bits=np.int64(10), adc_reference=5)
+    assert (type(potentiometer.noise_std), type(potentiometer.adc_reference)) == (float, float)
+    assert potentiometer.adc_bits == 10 and not isinstance(potentiometer.adc_bits, float)

@@ -164,3 +164,18 @@ def test_invalid_settings_raise_value_error_naming_the_field(make, field: str):
     with pytest.raises(FieldError, match=rf"^{field}: ") as error:
         make()
     assert error.value.field == field
+
+
+def test_settings_word_their_errors_as_every_settings_class_and_store_floats():
+    with pytest.raises(FieldError, match=r"^kp: must be a finite number >= 0, got -1$"):
+        PIDSettings(kp=-1)
+    with pytest.raises(FieldError, match=r"^integral_limit: must be a finite number > 0, got 0$"):
+        PIDSettings(kp=1, integral_limit=0)
+    with pytest.raises(FieldError, match=r"^scale: must be within \[0, 1\], got 1.5$"):
+        MotorFeedforward(scale=1.5)
+    pid = PIDSettings(kp=5, ki=np.float32(2.0), integral_limit=1, rate_hz=100)
+    values = (pid.kp, pid.ki, pid.integral_limit, pid.rate_hz, pid.integration_band)
+    assert [type(value) for value in values] == [float, float, float, float, type(None)]
+    assert type(VelocitySettings(wheel_radius=1).wheel_radius) is float
+    assert type(SteeringSettings(angle_limit=1).angle_limit) is float
+    assert type(MotorFeedforward(cm1=1).cm1) is float

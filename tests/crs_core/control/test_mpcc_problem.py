@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from crs_core.control.mpcc_problem import MpccProblem, MpccSettings
+from crs_core.errors import FieldError
 from crs_core.model import CarModel
 
 
@@ -29,6 +30,25 @@ from crs_core.model import CarModel
 def test_bad_settings_name_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):
         MpccSettings(**{field: value})
+
+
+@pytest.mark.parametrize(
+    ("values", "message"),
+    [
+        ({"q_contour": -1}, "q_contour: must be a finite number >= 0, got -1"),
+        ({"rate_hz": 0.0}, "rate_hz: must be a finite number > 0, got 0.0"),
+        ({"torque_min": math.inf}, "torque_min: must be a finite number, got inf"),
+        ({"q_lag": True}, "q_lag: must be a finite number > 0, got True"),
+        ({"horizon": True}, "horizon: must be a positive integer, got True"),
+        ({"horizon": 40.0}, "horizon: must be a positive integer, got 40.0"),
+    ],
+)
+def test_settings_errors_are_field_errors_in_the_shared_wording(
+    values: dict[str, object], message: str
+) -> None:
+    with pytest.raises(FieldError) as error:
+        MpccSettings(**values)  # type: ignore[arg-type]
+    assert str(error.value) == message
 
 
 # --- the problem ------------------------------------------------------------------------------
