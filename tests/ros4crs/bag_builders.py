@@ -60,7 +60,8 @@ def stack_messages(
     a velocity reference, which is no input), the truth and, optionally, estimates."""
     measurements, inputs, states = _shifted(run)
     out: list[tuple[str, Any, float]] = []
-    edges = np.arange(T0, T0 + DURATION + 0.01, 0.01)
+    last = max(m.stamp for m in measurements)
+    edges = np.arange(T0, last + 0.02, 0.01)
     for start, end in itertools.pairwise(edges):
         batch = [m for m in measurements if start <= m.stamp < end]
         if batch:

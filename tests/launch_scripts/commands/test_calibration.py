@@ -267,3 +267,26 @@ def test_argument_types_name_the_option(argv, message, capsys):
     with pytest.raises(SystemExit):
         _parser().parse_args(["calibrate-lighthouse", *argv])
     assert message in capsys.readouterr().err
+
+
+def test_moving_from_a_mocap_bag_and_the_deck_layout(recording: Path, tmp_path: Path, crs):
+    """The 8 s motion-capture recording as a bag (its readings in the stack's sensor batches)
+    and a --geometry that gives the photodiodes only: the station comes back."""
+    from types import SimpleNamespace
+
+    from tests.ros4crs.bag_builders import stack_messages, write_bag
+
+    dataset = Dataset.load(recording)
+    run = SimpleNamespace(measurements=dataset.measurements, inputs=[], truth_t=[], truth_x=[])
+    messages = stack_messages(run, truth=False)  # type: ignore[arg-type]
+    bag = write_bag(tmp_path / "bag", sorted(messages, key=lambda m: m[2]))
+    deck = tmp_path / "deck.yaml"
+    diodes = [list(p) for p in dataset.geometry.photodiodes]
+    deck.write_text(yaml.safe_dump({"geometry": {"photodiodes": diodes}}))
+    out = tmp_path / "cal"
+    argv = ["calibrate-lighthouse", "moving", str(bag), "--geometry", str(deck), "--fit-offset"]
+    code, _, errors = crs([*argv, "--out", str(out)])
+    assert code == 0, errors
+    station = Geometry.from_file(out / "geometry.yaml").base_stations[0]
+    truth = dataset.geometry.base_stations[0].position
+    assert np.linalg.norm(np.subtract(station.position, truth)) < 5e-3
