@@ -6,7 +6,8 @@ A generated block in a docs page sits between two markers::
     ...
     <!-- end of generated block -->
 
-and holds what :data:`RENDERERS` makes of that JSON file (the command that produced the JSON is
+and holds what :data:`RENDERERS` makes of that JSON file (``FILE.json#NAME``: a second block
+of the same file, the renderer ``STEM#NAME``) (the command that produced the JSON is
 in the file, ``"command"``). ``python -m benchmarks.docs`` rewrites every block of every page in
 ``docs/`` from its file; ``--check`` only reports the blocks that differ (exit 1), which the test
 suite runs, so a figure in the docs cannot drift from its saved run.
@@ -25,6 +26,7 @@ from benchmarks.contingency import format_table as contingency_table
 from benchmarks.control import format_table as control_table
 from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
+from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.stack import format_markdown as stack_markdown
 from benchmarks.sysid import format_markdown as sysid_markdown
 from benchmarks.workflow import format_table as workflow_table
@@ -76,15 +78,20 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "sysid": _headed("sysid", sysid_markdown),
     "stack": _headed("stack", stack_markdown),
     "workflow": _headed("workflow", workflow_table),
+    # a second block of the same JSON: FILE.json#NAME
+    "estimation#robust": _headed("estimation", lambda result: robust_markdown(result["rows"])),
 }
 
 
 def render(source: str) -> str:
-    """The block of the JSON file ``source`` (relative to the repository root)."""
-    path = ROOT / source
-    if path.stem not in RENDERERS:
-        raise ValueError(f"{source}: no renderer for {path.stem!r} (known: {', '.join(RENDERERS)})")
-    return RENDERERS[path.stem](json.loads(path.read_text()))
+    """The block of the JSON file ``source`` (relative to the repository root; ``FILE#NAME``:
+    the renderer ``STEM#NAME`` of a second block from the same file)."""
+    file, _, name = source.partition("#")
+    path = ROOT / file
+    key = f"{path.stem}#{name}" if name else path.stem
+    if key not in RENDERERS:
+        raise ValueError(f"{source}: no renderer for {key!r} (known: {', '.join(RENDERERS)})")
+    return RENDERERS[key](json.loads(path.read_text()))
 
 
 def updated(text: str) -> str:

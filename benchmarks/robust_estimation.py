@@ -471,3 +471,40 @@ def format_rows(rows: list[dict]) -> list[str]:
                 f"query median/max {row['time_ms']['median']:.2f}/{row['time_ms']['max']:.1f} ms"
             )
     return lines
+
+
+#: The docs' words for the :data:`INPUT_VARIANTS`.
+VARIANT_LABELS = {
+    "estimated_blind": "no inputs, blind",
+    "estimated_x0": "no inputs, from x0",
+    "commanded_no_inputs": "u = 0 (old behaviour)",
+    "inputs_given": "with inputs",
+}
+
+
+def format_markdown(rows: list[dict]) -> str:
+    """The docs' table of the inputs-withheld rows (Markdown; mm, mrad, mm/s, s): RMSE after
+    2 s (mean over seeds) and, worst over seeds, the first estimate, the first query in bounds,
+    the share out of bounds after 2 s and the largest position error after 1 s."""
+    withheld = [r for r in rows if r["benchmark"] == "inputs_withheld"]
+    lines = [
+        "| est | sensors | variant | x mm | y mm | yaw mrad | v_x mm/s | v_y mm/s | ω mrad/s "
+        "| first estimate s | in bounds from s | out of bounds after 2 s "
+        "| max pos. error after 1 s mm |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for row in withheld:
+        r, w = row["rmse"], row["worst"]
+        first, within = (
+            "never" if w[key] is None else f"{w[key]:.{digits}f}"
+            for key, digits in (("first_estimate_s", 3), ("first_in_bounds_s", 2))
+        )
+        lines.append(
+            f"| {row['estimator'].upper()} | {row['sensors']} "
+            f"| {VARIANT_LABELS.get(row['variant'], row['variant'])} "
+            f"| {r['x'] * 1e3:.1f} | {r['y'] * 1e3:.1f} | {r['yaw'] * 1e3:.1f} "
+            f"| {r['vx'] * 1e3:.1f} | {r['vy'] * 1e3:.1f} | {r['omega'] * 1e3:.0f} "
+            f"| {first} | {within} | {100 * w['out_of_bounds_after_2s']:.1f} % "
+            f"| {w['max_position_error_after_1s_m'] * 1e3:.1f} |"
+        )
+    return "\n".join(lines)

@@ -64,3 +64,14 @@ def test_a_block_names_the_command_and_the_machine_of_its_run() -> None:
         "`crs bench sysid --seeds 10 --out x.json` (Some CPU, 2 cores, Python 3.11.7):\n\n"
         "| | figure |\n|---|---|\n"
     )
+
+
+def test_a_second_block_of_the_same_file_names_its_renderer() -> None:
+    """``FILE.json#NAME``: the renderer ``STEM#NAME``; an unknown name is refused naming it."""
+    robust = docs.render("docs/benchmarks/estimation.json#robust")
+    assert "| est | sensors | variant |" in robust and "| no inputs, blind |" in robust
+    assert robust != docs.render("docs/benchmarks/estimation.json")
+    with pytest.raises(
+        ValueError, match=r"estimation\.json#other: no renderer for 'estimation#other'"
+    ):
+        docs.render("docs/benchmarks/estimation.json#other")

@@ -8,6 +8,8 @@ import math
 from benchmarks.robust_estimation import (
     INPUT_VARIANTS,
     TIMING_PATTERNS,
+    VARIANT_LABELS,
+    format_markdown,
     inputs_withheld_rows,
     pose_solver_rows,
 )
@@ -66,3 +68,33 @@ def test_timing_robustness_rows(timing_rows):
         assert all(_finite(row["time_ms"][q]) for q in ("median", "p95", "max"))
     past = [r for r in timing_rows if r["pattern"] == "past_queries"]
     assert all(_finite(r["runs"][0]["max_position_error_past_queries_m"]) for r in past)
+
+
+def test_the_docs_table_of_the_inputs_withheld_rows():
+    """One Markdown row per inputs-withheld row, in the docs' units and words."""
+    row = {
+        "benchmark": "inputs_withheld",
+        "estimator": "mhe",
+        "sensors": "lh",
+        "variant": "estimated_x0",
+        "rmse": {
+            "x": 0.0023,
+            "y": 0.0022,
+            "yaw": 0.0381,
+            "vx": 0.0416,
+            "vy": 0.0302,
+            "omega": 0.662,
+        },
+        "worst": {
+            "first_estimate_s": 0.0167,
+            "first_in_bounds_s": None,
+            "out_of_bounds_after_2s": 0.016,
+            "max_position_error_after_1s_m": 0.0136,
+        },
+    }
+    table = format_markdown([row, {"benchmark": "pose_solver"}])
+    assert table.splitlines()[2] == (
+        "| MHE | lh | no inputs, from x0 | 2.3 | 2.2 | 38.1 | 41.6 | 30.2 | 662 | 0.017 | never "
+        "| 1.6 % | 13.6 |"
+    )
+    assert len(table.splitlines()) == 3 and set(VARIANT_LABELS) == set(INPUT_VARIANTS)
