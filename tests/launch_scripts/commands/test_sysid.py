@@ -166,3 +166,18 @@ def test_validate_a_bag_without_reference_states(tmp_path: Path, crs):
     assert summary["reference"].startswith("each sample's Lighthouse fix")
     assert 0 < summary["position_rmse_m"]["identified"] < 0.5
     assert "open-loop position RMSE" in printed
+
+
+def test_sysid_on_a_bag(tmp_path: Path, crs):
+    """``crs sysid BAG --car car1``: the bag's samples identified, params.yaml written."""
+    from tests.ros4crs.bag_builders import simulated_run, two_car_bag
+
+    bag = two_car_bag(simulated_run(), tmp_path / "bag")
+    out = tmp_path / "sysid"
+    code, printed, warned = crs(
+        ["sysid", str(bag), "--car", "car1", "--fit", "Cm1", "--out", str(out)]
+    )
+    assert code == 0, warned
+    assert (out / "params.yaml").is_file() and "sysid: " in printed
+    result = json.loads((out / "result.json").read_text())
+    assert result["parameters"]["Cm1"]["value"] > 0
