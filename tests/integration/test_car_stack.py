@@ -77,8 +77,10 @@ def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm
     speeds = probe.collect(TwistStamped, "/car1/telemetry/velocity")
     try:
         launcher.start()
+        # driving: most of the last 50 readings (0.2 s) above 1 m/s (one fresh-clone run passed
+        # this wait 1.1 s after the start on a single reading)
         wait_for(
-            lambda: any(m.twist.linear.x > 1.0 for _, m in speeds[-50:]),
+            lambda: sum(m.twist.linear.x > 1.0 for _, m in speeds[-50:]) >= 40,
             60.0,
             lambda: f"the car driving; bridge log: {log_text(out / 'logs', '/car1/bridge')[-400:]}",
         )
