@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from crs_core.analysis.metrics import lap_statistics
+from crs_core.analysis.metrics import interpolate_states, lap_statistics
 from crs_core.dataset import Dataset
 from crs_core.identification.models import identification_model
 from crs_core.identification.problem import DEFAULT_FIT
@@ -91,11 +91,10 @@ def held_out(run: Path) -> Dataset:
     """The recording of a race with the emulator's truth as its reference states."""
     dataset = dataset_from_bag(run / "bag", reference="none")
     truth = np.load(run / "truth_car1.npz")
-    t, x = truth["t"], truth["x"].copy()
-    x[:, 2] = np.unwrap(x[:, 2])
+    t = truth["t"]
     keep = (dataset.t >= t[0]) & (dataset.t <= t[-1])
     dataset = dataset.samples(int(np.argmax(keep)), int(len(keep) - np.argmax(keep[::-1])))
-    states = np.stack([np.interp(dataset.t, t, x[:, i]) for i in range(6)], axis=1)
+    states = interpolate_states(dataset.t, t, truth["x"])
     meta = {**dataset.meta, "reference": "the emulator's truth"}
     return replace(dataset, x=states, meta=meta)
 

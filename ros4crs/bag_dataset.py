@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag2 import Reader
 
+from crs_core.analysis.metrics import interpolate_states
 from crs_core.dataset import Dataset, Geometry
 from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement
@@ -217,7 +218,7 @@ def dataset_from_bag(
     truth_t = truth_x = None
     if series:
         stamps, states = _states(series)
-        x = np.stack([np.interp(t, stamps, states[:, i]) for i in range(6)], axis=1)
+        x = interpolate_states(t, stamps, states)
         if label == "truth":
             truth_t, truth_x = stamps, states
     stream = [m for m in measurements if t[0] <= m.stamp <= t[-1]]

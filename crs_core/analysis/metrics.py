@@ -58,8 +58,8 @@ def pose_errors(estimate: ArrayLike, reference: ArrayLike) -> np.ndarray:
     return state_errors(estimate[:, :3], reference[:, :3])
 
 
-def interpolate_pose(t: ArrayLike, stamps: ArrayLike, states: ArrayLike) -> np.ndarray:
-    """The pose ``x, y, yaw`` of a trajectory at other times, by linear interpolation.
+def interpolate_states(t: ArrayLike, stamps: ArrayLike, states: ArrayLike) -> np.ndarray:
+    """A trajectory's states ``[x, y, yaw, ...]`` at other times, by linear interpolation.
 
     The yaw is unwrapped before interpolating, so that a wrap by 2 pi between two samples is
     not smeared into a half turn back.
@@ -71,18 +71,23 @@ def interpolate_pose(t: ArrayLike, stamps: ArrayLike, states: ArrayLike) -> np.n
     stamps : array_like
         (n,) increasing times of ``states``, s.
     states : array_like
-        (n, >= 3) states ``[x, y, yaw, ...]`` (m, m, rad).
+        (n, k >= 3) states ``[x, y, yaw, ...]`` (m, m, rad, ...).
 
     Returns
     -------
     numpy.ndarray
-        (m, 3) ``x, y, yaw`` (m, m, rad); the yaw continuous (not wrapped).
+        (m, k) states; the yaw continuous (not wrapped).
     """
     t, stamps = np.asarray(t, dtype=float), np.asarray(stamps, dtype=float)
-    states = np.asarray(states, dtype=float)
-    yaw = np.unwrap(states[:, 2])
-    columns = (states[:, 0], states[:, 1], yaw)
-    return np.stack([np.interp(t, stamps, c) for c in columns], axis=1)
+    states = np.array(states, dtype=float)
+    states[:, 2] = np.unwrap(states[:, 2])
+    return np.stack([np.interp(t, stamps, c) for c in states.T], axis=1)
+
+
+def interpolate_pose(t: ArrayLike, stamps: ArrayLike, states: ArrayLike) -> np.ndarray:
+    """The pose ``x, y, yaw`` (m, m, rad) of a trajectory at other times:
+    :func:`interpolate_states` of its first three states."""
+    return interpolate_states(t, stamps, np.asarray(states, dtype=float)[:, :3])
 
 
 def pose_error_bands(

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import time
 from collections import Counter
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from crs_core.analysis.metrics import STATE_NAMES, state_rmse
+from crs_core.analysis.metrics import STATE_NAMES, interpolate_states, state_rmse
 from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
 from crs_core.errors import FieldError
@@ -277,7 +277,7 @@ def estimate_dataset(
     )
 
     events = in_stamp_order(measurements, delivered_inputs)
-    t_start, t_end = data_span(dataset, with_inputs=bool(delivered_inputs))
+    t_start, t_end = _span(dataset, events)
     stamps = np.array(dataset.t, dtype=float) if at is None else query_stamps(at, t_start, t_end)
     estimator.reset(t_start, start_x, start_cov)
     n = len(stamps)
@@ -337,10 +337,12 @@ def data_span(dataset: Dataset, with_inputs: bool = True) -> tuple[float, float]
     """The first and the last stamp of a dataset's data (its samples, its stream and, unless
     they are withheld, its inputs), s: where an offline run starts and may be asked."""
     measurements, inputs, _ = dataset_stream(dataset)
-    stamps = [float(dataset.t[0]), float(dataset.t[-1])]
-    for items in (measurements, inputs if with_inputs else []):
-        if items:
-            stamps += [min(i.stamp for i in items), max(i.stamp for i in items)]
+    return _span(dataset, [*measurements, *(inputs if with_inputs else [])])
+
+
+def _span(dataset: Dataset, items: Sequence[Measurement | InputSample]) -> tuple[float, float]:
+    """The first and last stamp of the dataset's samples and of ``items``, s."""
+    stamps = [float(dataset.t[0]), float(dataset.t[-1]), *(i.stamp for i in items)]
     return min(stamps), max(stamps)
 
 
@@ -418,8 +420,6 @@ def reference_states_at(dataset: Dataset, t: np.ndarray) -> np.ndarray | None:
         return None
     if np.array_equal(t, dataset.t):
         return dataset.x
-    x = dataset.x.copy()
-    x[:, 2] = np.unwrap(x[:, 2])
-    return np.stack(
-        [np.interp(t, dataset.t, x[:, i], left=np.nan, right=np.nan) for i in range(6)], axis=1
-    )
+    states = interpolate_states(t, dataset.t, dataset.x)
+    states[(t < dataset.t[0]) | (t > dataset.t[-1])] = np.nan
+    return states

@@ -104,3 +104,16 @@ def test_lap_statistics_along_the_centreline():
     assert laps["lap_times_s"] == [pytest.approx(track.length / 2.0, abs=0.01)]
     assert laps["distance_m"] == pytest.approx(1.25 * track.length, rel=1e-3)
     assert laps["max_lateral_error_m"] < 1e-3
+
+
+def test_states_interpolate_with_the_yaw_unwrapped():
+    """Every column linearly; the yaw across a wrap goes the short way; the pose is its first
+    three columns."""
+    from crs_core.analysis.metrics import interpolate_pose, interpolate_states
+
+    stamps = np.array([0.0, 1.0])
+    states = np.array([[0.0, 0.0, 3.1, 1.0, 0.0, 0.0], [1.0, 2.0, -3.1, 3.0, 1.0, 2.0]])
+    out = interpolate_states([0.5, 2.0], stamps, states)
+    np.testing.assert_allclose(out[0], [0.5, 1.0, np.pi, 2.0, 0.5, 1.0])
+    np.testing.assert_allclose(out[1], [1.0, 2.0, 2 * np.pi - 3.1, 3.0, 1.0, 2.0])  # held
+    np.testing.assert_array_equal(interpolate_pose([0.5], stamps, states), out[:1, :3])
