@@ -22,7 +22,14 @@ from crs_core.dataset import Y_CHANNELS
 from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 
-__all__ = ["StreamSamples", "held_at", "interpolated_at", "nominal_period", "sample_stream"]
+__all__ = [
+    "StreamSamples",
+    "held_at",
+    "interpolated_at",
+    "nominal_period",
+    "readings",
+    "sample_stream",
+]
 
 #: A first-plane sweep pairs with a second-plane sweep less than this many rotations earlier.
 PAIR_WITHIN_ROTATIONS = 0.75
@@ -54,7 +61,7 @@ def nominal_period(stamps: np.ndarray) -> float:
     return float(np.median(steps)) if steps.size else float("nan")
 
 
-def _readings(measurements: Sequence[Measurement], sensor: str) -> tuple[np.ndarray, np.ndarray]:
+def readings(measurements: Sequence[Measurement], sensor: str) -> tuple[np.ndarray, np.ndarray]:
     """Stamps ``(n,)`` (sorted) and values ``(n, size)`` of one sensor."""
     items = sorted((m for m in measurements if m.sensor == sensor), key=lambda m: m.stamp)
     if not items:
@@ -107,8 +114,8 @@ def sample_stream(
         of the sensor's stamps.
     """
     periods = periods or {}
-    t1, a1 = _readings(measurements, lighthouse_sensor(0, 1))
-    t2, a2 = _readings(measurements, lighthouse_sensor(0, 2))
+    t1, a1 = readings(measurements, lighthouse_sensor(0, 1))
+    t2, a2 = readings(measurements, lighthouse_sensor(0, 2))
     stamps: list[float] = []
     rows: list[np.ndarray] = []
     if t1.size and t2.size:
@@ -122,11 +129,11 @@ def sample_stream(
     y = np.full((t.size, len(Y_CHANNELS)), np.nan)
     if t.size:
         y[:, :8] = np.stack(rows)
-        ts, values = _readings(measurements, "wheel_encoders")
+        ts, values = readings(measurements, "wheel_encoders")
         if ts.size:
             y[:, 8:12] = interpolated_at(t, ts, values, periods.get("wheel_encoders"))
         for sensor, column in (("imu", 2), ("gyro", 0)):  # the IMU's yaw rate, else the gyro's
-            ts, values = _readings(measurements, sensor)
+            ts, values = readings(measurements, sensor)
             if ts.size:
                 rate = values[:, column : column + 1]
                 y[:, 12:13] = interpolated_at(t, ts, rate, periods.get(sensor))

@@ -46,7 +46,6 @@ def load_recording(
     has them; ``bag_options``: ``inputs`` and ``reference`` of
     :func:`~ros4crs.bag_dataset.dataset_from_bag`); errors name the option (``DATASET: ...``,
     ``--car: ...``), and what a bag's conversion left out is printed as warnings."""
-    from ros4crs.bag_dataset import is_bag
     from ros4crs.bag_dataset import load_recording as load
 
     car, geometry_file = getattr(args, "car", None), getattr(args, "geometry", None)
@@ -54,9 +53,6 @@ def load_recording(
         geometry = Geometry.from_file(geometry_file) if geometry_file is not None else None
     except FieldError as error:
         raise FieldError("--geometry", str(error)) from None
-    notes = []
-    if is_bag(path) and geometry is None:
-        notes.append("a bag without --geometry: the real recordings' Lighthouse geometry")
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
@@ -72,6 +68,9 @@ def load_recording(
             "reference": "--reference",
         }
         raise error.renamed(names.get(error.field, error.field)) from None
-    for note in [*notes, *(str(w.message) for w in caught)]:
+    notes = [str(w.message) for w in caught]
+    if geometry is None and "bag" in dataset.meta:  # a bag's conversion records the bag
+        notes.insert(0, "a bag without --geometry: the real recordings' Lighthouse geometry")
+    for note in notes:
         print(f"warning: {option}: {note}", file=sys.stderr)
     return dataset

@@ -9,7 +9,7 @@ import numpy as np
 from crs_core.dataset import Dataset, Geometry
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
-from crs_core.stream_samples import held_at, sample_stream
+from crs_core.stream_samples import held_at, readings, sample_stream
 from sim.onboard import dataset_inputs
 from sim.sensors import SensorSuite
 
@@ -37,10 +37,7 @@ class SimulationResult:
 
     def measurements_of(self, sensor: str) -> tuple[np.ndarray, np.ndarray]:
         """Stamps ``(n,)`` and values ``(n, size)`` of one sensor."""
-        items = [m for m in self.measurements if m.sensor == sensor]
-        if not items:
-            return np.zeros(0), np.zeros((0, 0))
-        return np.array([m.stamp for m in items]), np.stack([m.values for m in items])
+        return readings(self.measurements, sensor)
 
     def input_at(self, t: np.ndarray) -> np.ndarray:
         """Commanded input (zero-order hold) at times ``t``, shape ``(len(t), 2)``."""
