@@ -46,6 +46,7 @@ import collections
 import json
 import os
 import queue
+import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -103,26 +104,30 @@ class Counts:
 
 class EchoFilter:
     """The payloads this node published locally on one topic, recently (the last ``size``):
-    the export of the same topic drops them, once each, instead of sending them back."""
+    the export of the same topic drops them, once each, instead of sending them back. Added to
+    from Zenoh's threads, taken from the executor's."""
 
     def __init__(self, size: int) -> None:
         self._order: collections.deque[bytes] = collections.deque()
         self._count: collections.Counter[bytes] = collections.Counter()
         self._size = size
+        self._lock = threading.Lock()
 
     def add(self, data: bytes) -> None:
-        self._order.append(data)
-        self._count[data] += 1
-        if len(self._order) > self._size:
-            self._forget(self._order.popleft())
+        with self._lock:
+            self._order.append(data)
+            self._count[data] += 1
+            if len(self._order) > self._size:
+                self._forget(self._order.popleft())
 
     def take(self, data: bytes) -> bool:
         """Whether ``data`` is one of them (and forget it)."""
-        if not self._count.get(data):
-            return False
-        self._forget(data)
-        self._order.remove(data)
-        return True
+        with self._lock:
+            if not self._count.get(data):
+                return False
+            self._forget(data)
+            self._order.remove(data)
+            return True
 
     def _forget(self, data: bytes) -> None:
         self._count[data] -= 1
@@ -469,8 +474,13 @@ class _Import:
         self._subscriber.undeclare()
 
 
+def zenoh_link() -> ZenohLinkNode:
+    """The node (named as :func:`~ros4crs.node_support.run` names it in a start-up error)."""
+    return ZenohLinkNode()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    return run(ZenohLinkNode, argv)
+    return run(zenoh_link, argv)
 
 
 if __name__ == "__main__":

@@ -200,19 +200,6 @@ def test_a_restarted_far_link_is_found_again(machines: dict) -> None:
     assert received[-1][1].header.stamp.sec >= 2100
 
 
-def test_bad_parameters_fail_at_start() -> None:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_A))
-    result = subprocess.run(
-        [sys.executable, "-m", "ros4crs.zenoh_link_node", "--ros-args", "-p", "mode:=hub"],
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=30,
-    )
-    assert result.returncode == 2
-    assert "error: mode: must be one of router, peer, client" in result.stderr
-
-
 def test_echo_filter_drops_each_own_payload_once() -> None:
     echo = EchoFilter(size=2)
     echo.add(b"a")
