@@ -23,6 +23,7 @@ import pytest
 
 from ros4crs.node_support import STREAM_OUT_QOS, STREAM_QOS
 from ros4crs.zenoh import wire
+from ros4crs.zenoh.session import ZenohSettings, open_session
 from ros4crs.zenoh_link_node import EchoFilter
 from tests.integration.stack_probe import Probe, wait_for
 
@@ -152,8 +153,6 @@ def test_transient_local_history_reaches_a_late_machine(machines: dict) -> None:
 
 
 def test_malformed_samples_are_dropped_and_counted(machines: dict) -> None:
-    from ros4crs.zenoh.session import ZenohSettings, open_session
-
     _send_until_received(machines["imu"], _imu, machines["imu_b"], IMU_TOPIC)
     count = len(machines["imu_b"])
     key = wire.topic_key(LINK_DOMAIN, IMU_TOPIC, "sensor_msgs/msg/Imu")
@@ -181,6 +180,57 @@ def test_malformed_samples_are_dropped_and_counted(machines: dict) -> None:
     assert report["import"][IMU_TOPIC]["samples"] >= 20
     assert any("/link_a" in names for names in report["far_sessions"].values())
     assert machines["links"]["b"].poll() is None  # still running
+
+
+def test_a_foreign_rmw_zenoh_publisher_is_imported(machines: dict) -> None:
+    """A session announcing a node and publishers as rmw_zenoh does: its samples are published
+    on B; those on a key whose type hash is not the local type's are dropped."""
+    from rclpy.serialization import serialize_message
+
+    from chronos_msgs.msg import CarInput
+
+    msgtype = "chronos_msgs/msg/CarInput"
+    received = machines["b"].collect(CarInput, "/car1/foreign")
+    settings = ZenohSettings("peer", connect=(f"tcp/127.0.0.1:{PORT_B}",))
+    with open_session(settings) as session:
+        zid = str(session.zid())
+        tokens = [
+            wire.node_token(LINK_DOMAIN, zid, 0, "/car1", "foreign"),
+            wire.endpoint_token(
+                "MP", LINK_DOMAIN, zid, 0, 1, "/car1", "foreign", "/car1/foreign", msgtype,
+                wire.Qos(depth=10),
+            ),
+            wire.endpoint_token(
+                "MP", LINK_DOMAIN, zid, 0, 2, "/car1", "foreign", "/car1/other_version", msgtype,
+                wire.Qos(depth=10), hash_="RIHS01_" + "0" * 64,
+            ),
+        ]  # fmt: skip
+        declared = [session.liveliness().declare_token(t) for t in tokens]
+        good = wire.topic_key(LINK_DOMAIN, "/car1/foreign", msgtype)
+        stale = wire.topic_key(LINK_DOMAIN, "/car1/other_version", msgtype, "RIHS01_" + "0" * 64)
+        gid = wire.gid(tokens[1])
+        deadline = time.monotonic() + 10.0
+        sequence = 0
+        while not received:
+            sequence += 1
+            attachment = wire.Attachment(sequence, time.time_ns(), gid).encode()
+            data = serialize_message(_car_input(sequence))
+            session.put(good, data, attachment=attachment)
+            session.put(stale, data, attachment=attachment)
+            time.sleep(0.05)
+            assert time.monotonic() < deadline, "nothing of the foreign publisher on B"
+        assert received[0][1] in [_car_input(k) for k in range(1, sequence + 1)]
+
+        def drops() -> dict:
+            report = json.loads(machines["diagnostics_b"][-1][1].data)
+            return report["import"].get("/car1/other_version", {}).get("dropped", {})
+
+        wait_for(lambda: drops().get("type_hash"), 3.0, lambda: f"type_hash drops, saw {drops()}")
+        report = json.loads(machines["diagnostics_b"][-1][1].data)
+        assert report["far_sessions"][zid] == ["/car1/foreign"]
+        assert report["import"]["/car1/other_version"]["samples"] == 0
+        for token in declared:
+            token.undeclare()
 
 
 def test_a_restarted_far_link_is_found_again(machines: dict) -> None:
