@@ -24,10 +24,10 @@ What it does like the firmware:
   older ``SingleControlInput`` (torque mode; steering from ``steer_input`` when present, else
   ``steer_ref``). Malformed datagrams are counted by reason (:attr:`CarEmulator.rejected`) and
   change nothing; :meth:`~CarEmulator.receive` never raises.
-- **Timeout**: when no valid reference arrived for :data:`DISCONNECT_THRESHOLD_S` (200 ms,
-  ``CONFIG_DISCONNECT_THRESHOLD_MS``) the car cuts the drive motor (torque 0; the steering
-  keeps its last reference, as if the linkage stood still) and pauses (:attr:`~CarEmulator.paused`)
-  until the next valid reference. It starts paused (no reference yet).
+- **Timeout**: the firmware's watchdog (:class:`sim.cutoff.MotorCutoff`): when no valid
+  reference arrived for 200 ms the car cuts the drive motor (torque 0; the steering keeps its
+  last reference, as if the linkage stood still) and pauses (:attr:`~CarEmulator.paused`) until
+  the next valid reference. It starts paused (no reference yet).
 - **Timestamps**: ``Packet.timestamp`` = ``unix_offset + now`` in µs, as an SNTP-synchronised
   car stamps; ``timestamps=False`` leaves it out (the host then stamps on receipt).
 
@@ -67,14 +67,13 @@ from crs_core.control.low_level import rear_axle_speed
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
 from crs_core.settings import Settings, non_negative
+from sim.cutoff import MotorCutoff
 from sim.onboard import OnboardSettings
 from sim.sensors import SensorSuite
 from sim.simulator import SimulationSession, Simulator
 
 #: Firmware loop period, s (250 Hz).
 TICK_S = 0.004
-#: No reference for this long cuts the motors (``CONFIG_DISCONNECT_THRESHOLD_MS``), s.
-DISCONNECT_THRESHOLD_S = 0.2
 #: Period of the discovery ping, s.
 PING_PERIOD_S = 5.0
 #: Unix time (s) of the emulator clock's zero unless given: 2025-06-15T16:53:20Z (reproducible
@@ -205,12 +204,11 @@ class CarEmulator:
         self._steer_ref = 0.0
         self._throttle_ref = 0.0  # torque (torque mode) or v_x (velocity mode)
         self._mode = "torque"
-        self._last_reference: float | None = None
         self._next_ping: float | None = None
         self._reply_pending = False
         self._now: float | None = None
         self._wheels = np.zeros(4)
-        self.paused = True
+        self._cutoff = MotorCutoff()
         self.last_measurements: tuple[Measurement, ...] = ()
         self.last_battery: Battery | None = None
         self.steps = 0
@@ -218,7 +216,6 @@ class CarEmulator:
         self.pings_sent = 0
         self.ping_replies = 0
         self.commands = 0
-        self.pauses = 0
         self.encode_failures = 0
         self.rejected: Counter[str] = Counter()
 
@@ -237,6 +234,16 @@ class CarEmulator:
     def reference(self) -> tuple[str, float, float]:
         """The reference executed: ``(mode, steer (rad), torque (-) or v_x (m/s))``."""
         return self._mode, self._steer_ref, self._throttle_ref
+
+    @property
+    def paused(self) -> bool:
+        """The motors are cut: no valid reference yet, or none for 200 ms."""
+        return self._cutoff.cut
+
+    @property
+    def pauses(self) -> int:
+        """Times the timeout cut the motors."""
+        return self._cutoff.cuts
 
     @property
     def drive_power(self) -> float:
@@ -274,10 +281,8 @@ class CarEmulator:
             self.rejected["internal"] += 1
             return False
         self._apply(mode, steer, value)
-        self._last_reference = now
+        self._cutoff.commanded(now)
         self.commands += 1
-        if self.paused:
-            self.paused = False
         return True
 
     def _command(self, contents: object) -> tuple[str, float, float]:
@@ -338,13 +343,7 @@ class CarEmulator:
         answer to a host ping if one came.
         """
         self._clock(now)
-        if (
-            not self.paused
-            and self._last_reference is not None
-            and now - self._last_reference >= DISCONNECT_THRESHOLD_S - 1e-9
-        ):
-            self.paused = True
-            self.pauses += 1
+        if self._cutoff.expired(now):
             self._apply("torque", self._steer_ref, 0.0)
         t_next = (self.steps + 1) * TICK_S
         measurements = self.session.advance(t_next)

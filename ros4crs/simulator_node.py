@@ -23,7 +23,9 @@ the controller came 7 s after the simulator had started, and the estimator ran t
 its compiler), ``onboard``
 (bool, default false: run the onboard loop; with ``noise_free`` its potentiometer is ideal),
 ``sensor_messages`` and ``batch_period`` (:mod:`ros4crs.sensor_output`; the period in simulated
-time).
+time), ``command_timeout`` (s of simulated time without a command that cut the drive motor, as
+the car's firmware does after 200 ms (:mod:`sim.cutoff`): torque 0, the steering held, until the
+next command; 0 = hold the last command for ever).
 """
 
 from __future__ import annotations
@@ -51,6 +53,7 @@ from ros4crs.node_support import (
     throttled_warning,
 )
 from ros4crs.sensor_output import declare_sensor_output
+from sim.cutoff import DISCONNECT_THRESHOLD_S, MotorCutoff
 from sim.onboard import OnboardSettings
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
@@ -115,6 +118,17 @@ class SimulatorNode(Node):
         self.onboard = declare(
             self, "onboard", False, "run the car's 250 Hz onboard loop (steering and velocity PIDs)"
         )
+        timeout = declare(
+            self,
+            "command_timeout",
+            DISCONNECT_THRESHOLD_S,
+            "s without a command that cut the drive motor, as the firmware; 0 = never",
+            non_negative,
+        )
+        self._cutoff = MotorCutoff(timeout) if timeout > 0 else None
+        self._now = 0.0
+        self._steer = 0.0
+        self._cut_log = throttled_warning(self)
         sensors = SensorSuite(blackouts=blackouts)
         model = declare_model(self, effects, n_base_stations=stations)
         onboard = OnboardSettings() if self.onboard else None
@@ -163,8 +177,14 @@ class SimulatorNode(Node):
                 f"{listeners} subscribers to the sensors, {controllers} publisher(s) of "
                 "commands: starting"
             )
+        t = self._now = (time.monotonic() - self._wall_start) * self.rate_factor
         self._inputs.take_pending()  # commands that arrived apply before time advances
-        t = (time.monotonic() - self._wall_start) * self.rate_factor
+        if self._cutoff is not None and self._cutoff.expired(t):
+            self.session.command(np.array([self._steer, 0.0]), "torque")
+            self._cut_log(
+                f"no command for {self._cutoff.threshold * 1e3:.0f} ms: motors cut "
+                f"({self._cutoff.cuts} so far)"
+            )
         if self.duration and t >= self.duration:
             self.get_logger().info(f"simulated {self.duration:g} s; stopping")
             rclpy.try_shutdown()
@@ -196,6 +216,10 @@ class SimulatorNode(Node):
         except ValueError as error:  # validated at the boundary already; never crash on it
             self.refused_commands += 1
             self._warn_mode(f"dropped input on {conversions.TOPICS['input']}: {error}")
+            return
+        self._steer = float(command.u[0])
+        if self._cutoff is not None and self._cutoff.commanded(self._now) and self._cutoff.cuts:
+            self.get_logger().info("commands again: drives")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

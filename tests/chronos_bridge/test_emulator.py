@@ -18,7 +18,6 @@ from chronos_bridge.codec import (
 )
 from chronos_bridge.emulator import (
     DEFAULT_UNIX_OFFSET,
-    DISCONNECT_THRESHOLD_S,
     TICK_S,
     BatteryModel,
     CarEmulator,
@@ -26,6 +25,7 @@ from chronos_bridge.emulator import (
 from chronos_bridge.packets import CarState, ControlInput, Ping
 from chronos_bridge.proto import chronos_pb2 as pb
 from crs_core.errors import FieldError
+from sim.cutoff import DISCONNECT_THRESHOLD_S
 from sim.sensors import SensorSuite
 from tests.chronos_bridge.bridge_builders import HOST_STAMP_US as STAMP_US
 

@@ -20,6 +20,7 @@ from tests.integration.stack_probe import (
     assert_clean_run,
     assert_tracked_lap,
     launched,
+    log_text,
     message_stamp,
     wait_for,
 )
@@ -168,7 +169,8 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
         ]
         assert not stray, stray
 
-        # drive car 2 straight ahead for 1.5 s, then let it coast
+        # drive car 2 straight ahead for 1.5 s, then fall silent: its simulator cuts the motor
+        # 200 ms after the last command, as the car's firmware does, and the car coasts
         command = probe.publisher(CarInput, "/car2/input", subscribers=2)
         car1_before = _state(truth["car1"][-1][1])
         car2_before = _state(truth["car2"][-1][1])
@@ -176,9 +178,10 @@ def test_two_cars_in_one_domain_see_only_their_own_topics(tmp_path, warm_codegen
         while time.monotonic() < end:
             command.publish(conversions.car_input_msg(np.array([0.0, 0.2]), time.time()))
             time.sleep(0.02)
-        command.publish(conversions.car_input_msg(np.zeros(2), time.time()))
         time.sleep(1.5)
         assert launcher.poll() == []
+        assert "motors cut (1 so far)" in log_text(tmp_path / "logs", "/car2/simulator")
+        assert "motors cut" not in log_text(tmp_path / "logs", "/car1/simulator")  # never drove
 
     car1_after = _state(truth["car1"][-1][1])
     car2_after = _state(truth["car2"][-1][1])
