@@ -166,15 +166,11 @@ def zenoh_settings(
     connect: Sequence[str] | None,
     config_file: Path | None,
 ) -> ZenohSettings | None:
-    """``crs launch``'s Zenoh options as settings (endpoints repeated or comma-separated;
-    ``mode`` default ``peer``); None when none is given. Errors name the option."""
+    """``crs launch``'s Zenoh options as settings (``mode`` default ``peer``); None when none
+    is given. Errors name the option."""
     if mode is None and not listen and not connect and config_file is None:
         return None
-
-    def endpoints(given: Sequence[str] | None) -> tuple[str, ...]:
-        return tuple(e.strip() for text in given or () for e in text.split(",") if e.strip())
-
     try:
-        return ZenohSettings(mode or "peer", endpoints(listen), endpoints(connect), config_file)
+        return ZenohSettings(mode or "peer", tuple(listen or ()), tuple(connect or ()), config_file)
     except FieldError as error:
         raise error.renamed(ZENOH_FLAGS[error.field]) from None

@@ -18,6 +18,7 @@ from launch_scripts.arguments import (
     add_out,
     argument_type,
     bounded_number,
+    endpoints,
 )
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
@@ -294,14 +295,16 @@ def add_part(sub: argparse.ArgumentParser) -> None:
     )
     sub.add_argument(
         "--zenoh-listen",
-        action="append",
+        action="extend",
+        type=endpoints,
         metavar="ENDPOINT",
         help="join the other machines through a zenoh_link node that listens on ENDPOINT, "
         "e.g. tcp/0.0.0.0:7447 (repeatable or comma-separated)",
     )
     sub.add_argument(
         "--zenoh-connect",
-        action="append",
+        action="extend",
+        type=endpoints,
         metavar="ENDPOINT",
         help="... that connects to ENDPOINT, e.g. tcp/10.0.0.1:7447 (a peer or a router; "
         "repeatable or comma-separated)",

@@ -109,11 +109,29 @@ def test_the_link_node_gets_the_zenoh_settings(tmp_path: Path):
     assert "zenoh_link" not in [spec.name for spec in no_link]
 
 
-def test_zenoh_options_are_repeatable_or_comma_separated_and_peer_by_default():
+def _launched_options(argv: list[str], out: Path, monkeypatch: pytest.MonkeyPatch) -> StackOptions:
+    """The options ``crs launch ARGV --out OUT`` runs its stack with (nothing runs)."""
+    seen: list[StackOptions] = []
+
+    def fake_run(cars: int, options: StackOptions, *args: Any) -> dict[str, Any]:
+        seen.append(options)
+        return {"cars": {}, "nodes": [], "node_deaths": []}
+
+    monkeypatch.setattr(sim_stack, "run_stack", fake_run)
+    monkeypatch.setattr(sim_stack, "summary", lambda report, out: "done")
+    assert main(["launch", *argv, "--out", str(out)]) == 0
+    return seen[0]
+
+
+def test_zenoh_options_are_repeatable_or_comma_separated_and_peer_by_default(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
     assert zenoh_settings(None, None, None, None) is None
-    settings = zenoh_settings(None, ["tcp/0.0.0.0:17600,tcp/[::]:17601"], ["tcp/h:17602"], None)
-    assert settings == ZenohSettings(
-        "peer", ("tcp/0.0.0.0:17600", "tcp/[::]:17601"), ("tcp/h:17602",)
+    argv = ["sim", "--zenoh-listen", "tcp/0.0.0.0:17600, tcp/[::]:17601"]
+    argv += ["--zenoh-listen", "tcp/0.0.0.0:17603", "--zenoh-connect", "tcp/h:17602"]
+    options = _launched_options(argv, tmp_path / "out", monkeypatch)
+    assert options.part.zenoh == ZenohSettings(
+        "peer", ("tcp/0.0.0.0:17600", "tcp/[::]:17601", "tcp/0.0.0.0:17603"), ("tcp/h:17602",)
     )
 
 
@@ -166,18 +184,9 @@ def test_crs_launch_refuses_a_bad_part_in_one_line_before_anything_starts(
 
 
 def test_crs_launch_passes_the_part(tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
-    seen: dict[str, Any] = {}
-
-    def fake_run(cars: int, options: StackOptions, *args: Any) -> dict[str, Any]:
-        seen["options"] = options
-        return {"cars": {}, "nodes": [], "node_deaths": []}
-
-    monkeypatch.setattr(sim_stack, "run_stack", fake_run)
-    monkeypatch.setattr(sim_stack, "summary", lambda report, out: "done")
-    argv = ["launch", "sim", "--nodes", "estimator,controller"]
+    argv = ["sim", "--nodes", "estimator,controller"]
     argv += ["--zenoh-connect", "tcp/10.0.0.1:17600", "--zenoh-mode", "client"]
-    assert main([*argv, "--out", str(tmp_path / "out")]) == 0
-    assert seen["options"].part == StackPart(
+    assert _launched_options(argv, tmp_path / "out", monkeypatch).part == StackPart(
         ("estimator", "controller"), ZenohSettings("client", connect=("tcp/10.0.0.1:17600",))
     )
 
