@@ -2,10 +2,13 @@
 password dictionary) carries the samples of sessions with credentials of ``member.json5``, and
 nothing of a session without them or with a wrong password: a machine that is not ours can
 neither command a car (put on its ``input``) nor read the suite's keys. The ``viewer`` of its
-access-control rules reads every key, and its commands to a car are dropped."""
+access-control rules reads every key, and its commands to a car are dropped. With mutual TLS
+(``mtls-listener.json5``, ``mtls-member.json5``) only a certificate of the lab's CA joins."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -114,3 +117,61 @@ def test_a_viewer_reads_the_cars_but_cannot_command_them(router: None, tmp_path:
         time.sleep(0.3)
     assert b"viewer state" in received.payloads
     assert b"viewer command" not in received.payloads
+
+
+def _certificates(folder: Path) -> None:
+    """The lab's CA, the listener's and a member's certificates signed by it (for localhost and
+    127.0.0.1), and a stranger's signed by another CA, as docs/several-machines.md makes them."""
+    extensions = folder / "leaf.ext"
+    extensions.write_text(
+        "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
+        "extendedKeyUsage=serverAuth,clientAuth\n"
+    )
+
+    def openssl(*arguments: str) -> None:
+        subprocess.run(["openssl", *arguments], cwd=folder, check=True, capture_output=True)
+
+    new_key = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes"]
+    for ca in ("lab-ca", "other-ca"):
+        openssl("req", "-x509", *new_key, "-keyout", f"{ca}-key.pem", "-out", f"{ca}.pem",
+                "-days", "2", "-subj", f"/CN={ca}")  # fmt: skip
+    for name, ca in (("listener", "lab-ca"), ("member", "lab-ca"), ("stranger", "other-ca")):
+        openssl("req", *new_key, "-keyout", f"{name}-key.pem", "-out", f"{name}.csr",
+                "-subj", f"/CN={name}")  # fmt: skip
+        openssl(
+            "x509", "-req", "-in", f"{name}.csr", "-CA", f"{ca}.pem", "-CAkey", f"{ca}-key.pem",
+            "-CAcreateserial", "-out", f"{name}.pem", "-days", "2", "-extfile", "leaf.ext",
+        )  # fmt: skip
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="no openssl to make certificates")
+def test_mutual_tls_admits_the_labs_certificates_only(tmp_path: Path):
+    _certificates(tmp_path)
+
+    def config(example: str, name: str = "member") -> Path:
+        """The example configuration with the certificates of ``tmp_path`` (``name``'s)."""
+        path = tmp_path / f"{name}-{example}"
+        text = (EXAMPLES / example).read_text().replace("/etc/crs/zenoh/", f"{tmp_path}/")
+        path.write_text(text.replace("member", name))
+        return path
+
+    endpoint = "tls/localhost:17632"
+    listener = ZenohSettings(
+        "router", listen=(endpoint,), config_file=config("mtls-listener.json5")
+    )
+
+    def joined(config_file: Path | None):
+        return open_session(ZenohSettings("client", connect=(endpoint,), config_file=config_file))
+
+    received = Received()
+    with open_session(listener) as router:
+        router.declare_subscriber(INPUT_KEYS, received)
+        with joined(config("mtls-member.json5")) as member_session:
+            for _ in range(50):
+                member_session.put(INPUT, b"member")
+                if received.first.wait(0.1):
+                    break
+        assert received.payloads
+        for stranger in (config("mtls-member.json5", "stranger"), None):
+            with pytest.raises(ValueError, match="Unable to connect"):
+                joined(stranger)
