@@ -67,7 +67,6 @@ from launch_scripts.sim_stack import (
     launch_and_report,
     recorder_node,
     run_folder,
-    unrecorded,
 )
 from launch_scripts.warm_cache import warm_compile_cache
 
@@ -216,7 +215,7 @@ def run_car_stack(
     """Run the stack against the cars (:func:`car_nodes`) for ``duration`` s in ROS domain
     ``domain_id`` (:func:`launch_scripts.sim_stack.run_folder`), then write ``out/report.json``
     (``link``: the emulators' link impairment, recorded in it; a part without the recorder:
-    no bag analysis, :func:`launch_scripts.sim_stack.unrecorded`)."""
+    no bag analysis, :func:`launch_scripts.sim_stack.launch_and_report`)."""
     out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(cars, options, bag, out, emulate, car_ips, ports, link)
     options = _over_udp(options)
@@ -236,7 +235,7 @@ def run_car_stack(
         out,
         duration,
         f"{len(nodes)} processes, {cars} {what}",
-        (lambda: analyse_car_run(bag, cars, out, emulate)) if recorded else unrecorded,
+        (lambda: analyse_car_run(bag, cars, out, emulate)) if recorded else None,
         {
             "mode": "emulated" if emulate else "real",
             "car_ips": car_ips or [],

@@ -275,7 +275,7 @@ def run_stack(
         out,
         duration,
         f"{len(nodes)} nodes, {cars} car(s)",
-        (lambda: analyse(bag, cars, track)) if recorded else unrecorded,
+        (lambda: analyse(bag, cars, track)) if recorded else None,
         {
             "estimator": options.estimator,
             "controller": options.controller,
@@ -291,26 +291,21 @@ def run_stack(
     return report
 
 
-def unrecorded() -> dict[str, Any]:
-    """The analysis of a part of a stack without the recorder (``--nodes``): no bag here, so
-    no cars, and ``bag_analysis`` says why (:data:`NO_BAG`)."""
-    return {"cars": {}, "bag_analysis": NO_BAG}
-
-
 def launch_and_report(
     nodes: list[NodeSpec],
     domain: int,
     out: Path,
     duration: float,
     what: str,
-    analyse_run: Callable[[], dict[str, Any]],
+    analyse_run: Callable[[], dict[str, Any]] | None,
     settings: dict[str, Any],
 ) -> dict[str, Any]:
     """Launch ``nodes`` (ROS domain ``domain``, logs in OUT/logs) for ``duration`` s, announced
     as ``what`` and the ``settings`` estimator, controller and output; then OUT/report.json:
-    ``analyse_run()``, the ``settings``, the nodes that died and CPU and memory per process
-    (the launched runs of ``crs launch sim`` and ``crs launch car``) and ``nodes``, the full
-    names of the processes launched. Returns the report."""
+    ``analyse_run()`` (None: a part of the stack without the recorder, no bag here: no cars,
+    and ``bag_analysis`` :data:`NO_BAG`), the ``settings``, the nodes that died and CPU and
+    memory per process (the launched runs of ``crs launch sim`` and ``crs launch car``) and
+    ``nodes``, the full names of the processes launched. Returns the report."""
     launcher = Launcher(nodes, domain, out / "logs")
     print(
         f"[launch] {what}, {settings['estimator']}, {settings['controller']} "
@@ -318,7 +313,11 @@ def launch_and_report(
         flush=True,
     )
     deaths = run_watched(launcher, duration)
-    report = analyse_run()
+    if analyse_run is None:
+        report: dict[str, Any] = {"cars": {}, "bag_analysis": NO_BAG}
+    else:
+        print("[launch] analysing the bag", flush=True)
+        report = analyse_run()
     report.update(settings)
     report["nodes"] = [spec.full_name for spec in nodes]
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
@@ -356,7 +355,7 @@ def run_watched(launcher: Launcher, duration: float) -> list:
         until=_progress(launcher, duration),
         settle_s=min(SETTLE_S, duration / 4),
     )
-    print("[launch] stopped; analysing the bag", flush=True)
+    print("[launch] stopped", flush=True)
     return deaths
 
 
