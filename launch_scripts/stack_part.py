@@ -52,12 +52,17 @@ def parse_nodes(text: str) -> tuple[str, ...]:
     """``NAME[,NAME...]`` -> the names, each a node of some stack, none twice (``ValueError``
     naming the name)."""
     names = tuple(part.strip() for part in text.split(","))
+    _check_names(names)
+    return names
+
+
+def _check_names(names: Sequence[str]) -> None:
+    """``ValueError`` unless ``names`` are nodes of some stack, none twice."""
     for name in names:
         if name not in _ALL_NODES:
             raise ValueError(f"{name!r} is not a node (one of {', '.join(_ALL_NODES)})")
     if len(set(names)) != len(names):
-        raise ValueError(f"{text!r} names a node twice")
-    return names
+        raise ValueError(f"{','.join(names)!r} names a node twice")
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,7 @@ class StackPart:
             if not self.nodes:
                 raise FieldError("nodes", "name at least one node")
             try:
-                parse_nodes(",".join(self.nodes))
+                _check_names(self.nodes)
             except ValueError as error:
                 raise FieldError("nodes", str(error)) from None
 
