@@ -186,3 +186,9 @@ def add_process_scale(parser: argparse.ArgumentParser, help_text: str) -> None:
         default=1.0,
         help=help_text,
     )
+
+
+def endpoints(text: str) -> list[str]:
+    """An argparse type for ``action="extend"``: ``ENDPOINT[,ENDPOINT...]`` -> the Zenoh
+    endpoints (a repeated option collects them all; checked where the settings are made)."""
+    return [endpoint.strip() for endpoint in text.split(",") if endpoint.strip()]

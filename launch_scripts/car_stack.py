@@ -144,7 +144,8 @@ def car_nodes(
     truth ``options.car``), the emulator when ``emulate`` (started last: its car waits for
     references anyway; its truth log in ``out``), and one recorder into the bag ``bag``.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
-    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment."""
+    the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
+    Only the nodes of ``options.part`` (an emulator with its bridge), and its Zenoh link."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
     if link.given and not emulate:
@@ -189,7 +190,7 @@ def car_nodes(
             *car_control_nodes(ns, options, files, input_topic="input/applied"),
         ]
         topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
-    return [*nodes, recorder_node(bag, topics), *emulators]
+    return options.part.launched([*nodes, recorder_node(bag, topics), *emulators], "car")
 
 
 def _over_udp(options: StackOptions) -> StackOptions:
@@ -213,7 +214,8 @@ def run_car_stack(
 ) -> dict[str, Any]:
     """Run the stack against the cars (:func:`car_nodes`) for ``duration`` s in ROS domain
     ``domain_id`` (:func:`launch_scripts.sim_stack.run_folder`), then write ``out/report.json``
-    (``link``: the emulators' link impairment, recorded in it)."""
+    (``link``: the emulators' link impairment, recorded in it; a part without the recorder:
+    no bag analysis, :func:`launch_scripts.sim_stack.launch_and_report`)."""
     out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(cars, options, bag, out, emulate, car_ips, ports, link)
     options = _over_udp(options)
@@ -225,6 +227,7 @@ def run_car_stack(
         options.params_file,
         car_effects=options.car.effects,
     )
+    recorded = options.part.runs("recorder")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
     report = launch_and_report(
         nodes,
@@ -232,7 +235,7 @@ def run_car_stack(
         out,
         duration,
         f"{len(nodes)} processes, {cars} {what}",
-        lambda: analyse_car_run(bag, cars, out, emulate),
+        (lambda: analyse_car_run(bag, cars, out, emulate)) if recorded else None,
         {
             "mode": "emulated" if emulate else "real",
             "car_ips": car_ips or [],
@@ -245,9 +248,10 @@ def run_car_stack(
             "seed": options.seed,
             "link": asdict(link),
             "car_truth": options.car.described(),
+            "part": options.part.described(),
         },
     )
-    if emulate:
+    if emulate and recorded:
         from launch_scripts.stack_plot import StateTrack, plot
 
         truths = {}

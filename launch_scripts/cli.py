@@ -27,6 +27,7 @@ from launch_scripts.commands import (
     ros,
     simulate,
     sysid,
+    zenoh_router,
 )
 
 #: The commands in the order ``crs --help`` lists them; each adds itself to the ``crs`` parser's
@@ -43,6 +44,7 @@ REGISTRY: tuple[Callable[[argparse._SubParsersAction], object], ...] = (
     discrepancy.COMMAND,
     calibration.COMMAND,
     launch.COMMAND,
+    zenoh_router.COMMAND,
     add_car_emulator,
     bag.COMMAND,
     ros.COMMAND,

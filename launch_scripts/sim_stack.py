@@ -11,7 +11,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +22,7 @@ from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rm
 from crs_core.model.effects import effect_text
 from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.stack_part import StackPart
 from launch_scripts.stack_plot import plot
 from launch_scripts.warm_cache import warm_compile_cache
 
@@ -40,6 +41,8 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: start (at most a quarter of the run), s: before, the nodes import, discover each other and
 #: wait for the simulator's clock, which makes a short run's average look cheaper.
 SETTLE_S = 10.0
+#: ``report.json``'s ``bag_analysis`` of a part of a stack without the recorder.
+NO_BAG = "none on this machine: the recorder runs on another one (its report analyses the run)"
 #: What the controllers command: ``torque`` (``[delta, T]``) or ``velocity`` (``[delta, v_x]``
 #: references for the car's onboard velocity PID; MPCC only).
 OUTPUTS = ("torque", "velocity")
@@ -131,6 +134,8 @@ class StackOptions:
         takes none: the car stack refuses it without ``emulate``).
     seed : int
         Noise seed: car N's simulator or emulator uses ``seed + N``.
+    part : StackPart
+        The nodes that run on this machine and its Zenoh link (default: all, no link).
     """
 
     estimator: str
@@ -144,6 +149,7 @@ class StackOptions:
     onboard: bool = False
     car: CarTruth = CarTruth()
     seed: int = 0
+    part: StackPart = field(default_factory=StackPart)
 
     def __post_init__(self) -> None:
         if self.estimator not in ("ekf", "mhe"):
@@ -168,7 +174,7 @@ class StackOptions:
 def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., each a simulator, an estimator
     and a controller as ``options`` say (:class:`StackOptions`), and one recorder into the bag
-    ``bag``."""
+    ``bag``: those of ``options.part`` (:meth:`StackPart.launched`)."""
     check_cars(cars)
     if options.output == "velocity" and options.controller != "mpcc":
         raise ValueError(
@@ -184,13 +190,14 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
         ns = f"/car{i}"
         nodes += [
             # waits for the estimator, the recorder and the controller before its clock starts
+            # (far ones: through the Zenoh link; StackPart.sensor_subscribers)
             NodeSpec(
                 "simulator",
                 "ros4crs.simulator_node",
                 ns,
                 {
                     "seed": options.seed + i,
-                    "wait_for_subscribers": 2,
+                    "wait_for_subscribers": options.part.sensor_subscribers(),
                     "wait_for_commands": True,
                     **onboard_loop,
                     **files,
@@ -200,7 +207,7 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
             *car_control_nodes(ns, options, files),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
-    return [*nodes, recorder_node(bag, topics)]
+    return options.part.launched([*nodes, recorder_node(bag, topics)], "sim")
 
 
 def check_cars(cars: int) -> None:
@@ -261,13 +268,14 @@ def run_stack(
         options.params_file,
         car_effects=options.car.effects,
     )
+    recorded = options.part.runs("recorder")
     report = launch_and_report(
         nodes,
         domain,
         out,
         duration,
         f"{len(nodes)} nodes, {cars} car(s)",
-        lambda: analyse(bag, cars, track),
+        (lambda: analyse(bag, cars, track)) if recorded else None,
         {
             "estimator": options.estimator,
             "controller": options.controller,
@@ -275,9 +283,11 @@ def run_stack(
             "duration_s": duration,
             "recorded": options.record,
             "car_truth": options.car.described(),
+            "part": options.part.described(),
         },
     )
-    plot(bag, cars, out, options.estimator, track)
+    if recorded:
+        plot(bag, cars, out, options.estimator, track)
     return report
 
 
@@ -287,13 +297,15 @@ def launch_and_report(
     out: Path,
     duration: float,
     what: str,
-    analyse_run: Callable[[], dict[str, Any]],
+    analyse_run: Callable[[], dict[str, Any]] | None,
     settings: dict[str, Any],
 ) -> dict[str, Any]:
     """Launch ``nodes`` (ROS domain ``domain``, logs in OUT/logs) for ``duration`` s, announced
     as ``what`` and the ``settings`` estimator, controller and output; then OUT/report.json:
-    ``analyse_run()``, the ``settings``, the nodes that died and CPU and memory per process
-    (the launched runs of ``crs launch sim`` and ``crs launch car``). Returns the report."""
+    ``analyse_run()`` (None: a part of the stack without the recorder, no bag here: no cars,
+    and ``bag_analysis`` :data:`NO_BAG`), the ``settings``, the nodes that died and CPU and
+    memory per process (the launched runs of ``crs launch sim`` and ``crs launch car``) and
+    ``nodes``, the full names of the processes launched. Returns the report."""
     launcher = Launcher(nodes, domain, out / "logs")
     print(
         f"[launch] {what}, {settings['estimator']}, {settings['controller']} "
@@ -301,8 +313,13 @@ def launch_and_report(
         flush=True,
     )
     deaths = run_watched(launcher, duration)
-    report = analyse_run()
+    if analyse_run is None:
+        report: dict[str, Any] = {"cars": {}, "bag_analysis": NO_BAG}
+    else:
+        print("[launch] analysing the bag", flush=True)
+        report = analyse_run()
     report.update(settings)
+    report["nodes"] = [spec.full_name for spec in nodes]
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     report.update(process_figures(launcher))
     (out / "report.json").write_text(json.dumps(report, indent=2))
@@ -338,7 +355,7 @@ def run_watched(launcher: Launcher, duration: float) -> list:
         until=_progress(launcher, duration),
         settle_s=min(SETTLE_S, duration / 4),
     )
-    print("[launch] stopped; analysing the bag", flush=True)
+    print("[launch] stopped", flush=True)
     return deaths
 
 
@@ -390,8 +407,13 @@ def rmse_text(rmse: dict[str, float] | None) -> str:
 
 
 def summary(report: dict[str, Any], out: Path) -> str:
-    """A few lines for a person: laps, errors, deadline misses, deaths, where the report is."""
-    lines = []
+    """A few lines for a person: laps, errors, deadline misses, deaths, where the report is
+    (a part without the recorder: that it analysed no bag, and the processes it ran)."""
+    unanalysed = report.get("bag_analysis")
+    if unanalysed:
+        lines = [f"no bag analysis: {unanalysed}; ran {', '.join(report['nodes'])}"]
+    else:
+        lines = []
     for car, c in report["cars"].items():
         times = ", ".join(f"{t:.1f}" for t in c.get("lap_times_s", []))
         laps = f"{c.get('laps_completed', 0)} laps" + (f" ({times} s)" if times else "")
@@ -409,7 +431,10 @@ def summary(report: dict[str, Any], out: Path) -> str:
     running = report.get("cpu_percent_running")
     if running:
         lines.append("  after the start-up: " + ", ".join(f"{n} {v:g}" for n, v in running.items()))
-    lines.append(f"report: {out / 'report.json'}, {out / 'path.png'}, bag {out / 'bag'}")
+    if unanalysed:
+        lines.append(f"report: {out / 'report.json'}")
+    else:
+        lines.append(f"report: {out / 'report.json'}, {out / 'path.png'}, bag {out / 'bag'}")
     return "\n".join(lines)
 
 

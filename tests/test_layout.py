@@ -77,6 +77,9 @@ STRAY: dict[str, str] = {
     # Checks the .proto files and the generated chronos_pb2 / vector3_pb2 (not mirrored) against
     # the wire-format spec, the output of regenerate.py.
     "tests/chronos_bridge/proto/test_bridge_wire_format.py": "the generated protobuf modules",
+    # Checks who may join a Zenoh link: Zenoh's own authentication and access control, set up by
+    # the example configurations of docs/zenoh/ through ros4crs.zenoh.session's config_file.
+    "tests/ros4crs/zenoh/test_access.py": "the docs/zenoh/ configurations, Zenoh's own checks",
 }
 
 

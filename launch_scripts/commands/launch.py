@@ -16,11 +16,15 @@ from launch_scripts.arguments import (
     add_effect,
     add_estimator,
     add_out,
+    argument_type,
     bounded_number,
+    endpoints,
 )
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
+from launch_scripts.stack_part import STACK_NODES, StackPart, parse_nodes, zenoh_settings
+from ros4crs.zenoh.session import MODES
 
 
 def launch(args: argparse.Namespace) -> None:
@@ -42,8 +46,9 @@ def launch(args: argparse.Namespace) -> None:
 
     if args.track is not None:
         read_track(args.track)
+    options = _stack_options(args)
     _check_and_prepare(args)
-    report = run_stack(args.cars, _stack_options(args), args.duration, args.out, args.domain)
+    report = run_stack(args.cars, options, args.duration, args.out, args.domain)
     print(summary(report, Path(args.out)))
     return verdict(report, args.require_laps)
 
@@ -57,7 +62,23 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
         params_file=args.params,
         track_file=args.track,
         car=CarTruth(args.car_params, tuple(args.car_effect or ())),
+        part=_stack_part(args),
     )
+
+
+def _stack_part(args: argparse.Namespace) -> StackPart:
+    """This machine's part of the stack: ``--nodes`` (of the scenario's stack) and the Zenoh
+    options; errors name the option."""
+    zenoh = zenoh_settings(
+        args.zenoh_mode, args.zenoh_listen, args.zenoh_connect, args.zenoh_config
+    )
+    part = StackPart(args.nodes, zenoh)
+    part.check(args.scenario, "--nodes")
+    if args.require_laps and not part.runs("recorder"):
+        raise ValueError(
+            "--require-laps: laps are counted from the bag, and --nodes runs no recorder here"
+        )
+    return part
 
 
 def _check_and_prepare(args: argparse.Namespace) -> None:
@@ -134,10 +155,11 @@ def launch_car(args: argparse.Namespace) -> None:
         args.cars = len(car_ips)
     if args.track is not None:
         raise ValueError("--track: crs launch car races DEMO_TRACK (where the emulator starts)")
+    options = _stack_options(args)
     _check_and_prepare(args)
     report = run_car_stack(
         args.cars,
-        _stack_options(args),
+        options,
         args.duration,
         Path(args.out),
         args.emulate,
@@ -184,6 +206,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "each emulator's own seed)",
     )
     add_cars(sub)
+    add_part(sub)
     add_estimator(sub)
     sub.add_argument(
         "--controller",
@@ -259,6 +282,48 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     )
 
 
+def add_part(sub: argparse.ArgumentParser) -> None:
+    """``--nodes`` and the Zenoh link's options (a stack split across machines)."""
+    sub.add_argument(
+        "--nodes",
+        type=argument_type(parse_nodes),
+        metavar="NAME[,NAME...]",
+        help="run only these nodes of the stack here, for every car (sim: "
+        f"{', '.join(STACK_NODES['sim'])}; car: {', '.join(STACK_NODES['car'])}, the emulated "
+        "car going with its bridge; default: all); the others run on other machines, joined "
+        "by the Zenoh link (docs/several-machines.md)",
+    )
+    sub.add_argument(
+        "--zenoh-listen",
+        action="extend",
+        type=endpoints,
+        metavar="ENDPOINT",
+        help="join the other machines through a zenoh_link node that listens on ENDPOINT, "
+        "e.g. tcp/0.0.0.0:7447 (repeatable or comma-separated)",
+    )
+    sub.add_argument(
+        "--zenoh-connect",
+        action="extend",
+        type=endpoints,
+        metavar="ENDPOINT",
+        help="... that connects to ENDPOINT, e.g. tcp/10.0.0.1:7447 (a peer or a router; "
+        "repeatable or comma-separated)",
+    )
+    sub.add_argument(
+        "--zenoh-mode",
+        choices=MODES,
+        help="the link's Zenoh role (default peer; client to join a router only, as a stock "
+        "rmw_zenohd needs)",
+    )
+    sub.add_argument(
+        "--zenoh-config",
+        type=Path,
+        metavar="FILE",
+        help="a Zenoh JSON5 configuration the link reads first: TLS, user / password, access "
+        "control (the options above are set over it)",
+    )
+
+
 COMMAND = Command(
     "launch",
     help="run the ROS 2 node suite",
@@ -270,7 +335,9 @@ COMMAND = Command(
     "(--emulate: one crs car-emulator per car on port 20311, 20312, ...; truth and link "
     "timing in OUT/truth_carN.npz) or real cars (--car-ip IP[,IP...]: the bridge binds "
     "0.0.0.0 and pairs only with that address); the report adds the latency sensor packet "
-    "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs.",
+    "-> estimate -> command packet, the bridge's counts and the emulator's motor cut-offs. "
+    "Several machines: each runs its --nodes, joined by --zenoh-listen / --zenoh-connect; a "
+    "part without the recorder reports its processes only.",
     arguments=add_arguments,
     handler=launch,
 )
