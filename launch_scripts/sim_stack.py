@@ -8,6 +8,7 @@ latencies) and plots, from the recorded bag.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from collections.abc import Callable
@@ -474,20 +475,9 @@ def analyse(
             laps = lap_statistics(stamps[moving:], states[moving:], track, line_tolerance=0.05)
             car["laps_completed"] = laps["laps_completed"]
             car["lap_times_s"] = laps["lap_times_s"]
-            if contents.estimates:
-                est_t = np.array([t for t, _ in contents.estimates[1:]])
-                est_x = np.array([x for _, x in contents.estimates[1:]])
-                truth = np.column_stack(
-                    [
-                        interpolate_pose(est_t, stamps, states),
-                        *(np.interp(est_t, stamps, states[:, k]) for k in range(3, 6)),
-                    ]
-                )
-                inside = (est_t >= stamps[0] + 2.0) & (est_t <= stamps[-1])
-                rmse = state_rmse(est_x, truth, inside)
-                if rmse is not None:
-                    names = ("x", "y", "yaw", "vx", "vy")
-                    car["estimation_rmse"] = {n: round(rmse[n], 5) for n in names}
+            rmse = estimation_rmse(contents.estimates, stamps, states)
+            if rmse is not None:
+                car["estimation_rmse"] = rmse
         car["estimator_deadline_misses"] = contents.deadline_misses
         car["estimator_updates"] = contents.updates
         car["estimator_reinitializations"] = contents.reinitializations
@@ -495,3 +485,30 @@ def analyse(
         car["latency_ms"] = latencies(read_receive_times(bag, ns))
         report["cars"][ns.strip("/")] = car
     return report
+
+
+def estimation_rmse(
+    estimates: list[tuple[float, np.ndarray]],
+    stamps: np.ndarray,
+    states: np.ndarray,
+    until: float = math.inf,
+) -> dict[str, float] | None:
+    """RMSE of a car's ``estimates`` (``(stamp, state)``, the first left out) against its truth
+    (``stamps`` (n,), ``states`` (n, 6)), from 2 s after the truth's start to its end or
+    ``until`` (s, the same clock), rounded to 0.01 mm / 0.01 mrad; None without estimates there.
+    Keys ``x``, ``y``, ``yaw``, ``vx``, ``vy``."""
+    if len(estimates) < 2:
+        return None
+    est_t = np.array([t for t, _ in estimates[1:]])
+    est_x = np.array([x for _, x in estimates[1:]])
+    truth = np.column_stack(
+        [
+            interpolate_pose(est_t, stamps, states),
+            *(np.interp(est_t, stamps, states[:, k]) for k in range(3, 6)),
+        ]
+    )
+    inside = (est_t >= stamps[0] + 2.0) & (est_t <= min(stamps[-1], until))
+    rmse = state_rmse(est_x, truth, inside)
+    if rmse is None:
+        return None
+    return {name: round(rmse[name], 5) for name in ("x", "y", "yaw", "vx", "vy")}

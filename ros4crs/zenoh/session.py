@@ -95,10 +95,12 @@ def zenoh_config(settings: ZenohSettings):
 
 def open_session(settings: ZenohSettings):
     """A Zenoh session for ``settings`` (``zenoh.Session``; close it, or use it as a context
-    manager). Raises ``FieldError`` naming ``listen`` when an endpoint cannot be bound."""
+    manager). Raises ``FieldError`` naming ``listen`` when an endpoint cannot be bound, and
+    ``connect`` when a client cannot reach its router."""
     import zenoh
 
     try:
         return zenoh.open(zenoh_config(settings))
     except zenoh.ZError as error:
-        raise FieldError("listen", f"cannot open the Zenoh session: {error}") from None
+        field = "connect" if "connect" in str(error).lower() and settings.connect else "listen"
+        raise FieldError(field, f"cannot open the Zenoh session: {error}") from None

@@ -42,3 +42,8 @@ def test_an_endpoint_in_use_is_refused_naming_listen() -> None:
         assert str(session.zid())
         with pytest.raises(FieldError, match=r"^listen: cannot open the Zenoh session"):
             open_session(settings)
+
+
+def test_a_client_without_its_router_is_refused_naming_connect() -> None:
+    with pytest.raises(FieldError, match=r"^connect: cannot open the Zenoh session"):
+        open_session(ZenohSettings("client", connect=("tcp/127.0.0.1:17598",)))
