@@ -27,6 +27,7 @@ from benchmarks.control import format_table as control_table
 from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
 from benchmarks.robust_estimation import format_markdown as robust_markdown
+from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
 from benchmarks.sysid import format_markdown as sysid_markdown
 from benchmarks.workflow import format_table as workflow_table
@@ -77,6 +78,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "control": _headed("control", control_table),
     "sysid": _headed("sysid", sysid_markdown),
     "stack": _headed("stack", stack_markdown),
+    "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     # a second block of the same JSON: FILE.json#NAME
     "estimation#robust": _headed("estimation", lambda result: robust_markdown(result["rows"])),

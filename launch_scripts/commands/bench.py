@@ -68,6 +68,14 @@ def stack(args: argparse.Namespace) -> Outcome:
     return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
 
 
+def machines(args: argparse.Namespace) -> Outcome:
+    from benchmarks.several_machines import format_table, machines_benchmark
+
+    work = _runs(args, "machines")
+    result = machines_benchmark(args.duration, work)
+    return _with_machine(result), f"{format_table(result)}\nruns (reports, logs, bags): {work}"
+
+
 def bridge(args: argparse.Namespace) -> Outcome:
     from benchmarks.bridge import bridge_benchmark, format_table
 
@@ -299,6 +307,13 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, deadline "
         "misses, re-initialisations, latencies, and CPU and peak memory per node; --load K busy "
         "processes beside it; the runs go to <out without .json>_runs/",
+    ),
+    "machines": (
+        machines,
+        partial(add_duration, default=40.0, what="each run"),
+        "the stack split across two machines (network namespaces joined by a veth pair; needs "
+        "root) over the Zenoh link next to the same stack on one machine: laps, RMSE, sensor -> "
+        "input latency, CPU per node, the link's bytes per second and CPU; ~2 x duration + 40 s",
     ),
     "bridge": (
         bridge,

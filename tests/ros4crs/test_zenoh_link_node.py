@@ -32,6 +32,7 @@ DOMAIN_A, DOMAIN_B = 152, 153
 LINK_DOMAIN = 154
 PORT_A, PORT_B = 17531, 17532
 IMU_TOPIC, INPUT_TOPIC, HISTORY_TOPIC = "/car1/sensors/imu", "/car1/input", "/car1/estimate/log"
+RESTART_TOPIC = "/car1/sensors/restarted"
 
 
 def _start_link(domain: int, name: str, log: Path, *params: str) -> subprocess.Popen:
@@ -248,6 +249,30 @@ def test_a_restarted_far_link_is_found_again(machines: dict) -> None:
         time.sleep(0.05)
         assert time.monotonic() < deadline, "no samples on B after A's link restarted"
     assert received[-1][1].header.stamp.sec >= 2100
+
+
+def test_a_far_node_that_restarts_is_found_again(machines: dict) -> None:
+    """A far publisher gone (its node stopped): A's link withdraws the export; a new one on the
+    same topic (the node restarted): B receives again, nothing else restarted."""
+    from sensor_msgs.msg import Imu
+
+    node = machines["a"].node
+    received = machines["b"].collect(Imu, RESTART_TOPIC)
+    publisher = node.create_publisher(Imu, RESTART_TOPIC, STREAM_QOS)
+    _send_until_received(publisher, _imu, received, RESTART_TOPIC)
+    node.destroy_publisher(publisher)
+    withdrawn = f"export of {RESTART_TOPIC} withdrawn"
+    wait_for(lambda: withdrawn in machines["log"].read_text(errors="replace"), 10.0, withdrawn)
+    publisher = node.create_publisher(Imu, RESTART_TOPIC, STREAM_QOS)
+    before = len(received)
+    deadline = time.monotonic() + 20.0
+    i = 0
+    while len(received) == before:
+        i += 1
+        publisher.publish(_imu(3000 + i))
+        time.sleep(0.05)
+        assert time.monotonic() < deadline, "no samples on B after the far node came back"
+    assert received[-1][1].header.stamp.sec > 3000
 
 
 def test_echo_filter_drops_each_own_payload_once() -> None:
