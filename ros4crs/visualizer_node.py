@@ -25,9 +25,10 @@ Channels (the JSON ones with a JSON schema), each built and sent only while a vi
   (``docs/live-view.md``);
 - every other topic of the graph as raw CDR with its ``ros2msg`` schema, at most ``rate_hz``
   messages a second per topic, except ``/rosout``, ``/parameter_events``, ``/tf`` (shown as
-  ``/viz/tf``) and the cars' ``sensors/`` streams: 250 Hz readings a viewer cannot follow,
-  whose subscription would cost ~0.4 ms of CPU per message, and which the simulator counts
-  when it waits for its listeners before its clock starts.
+  ``/viz/tf``), the cars' ``sensors/`` streams (250 Hz readings a viewer cannot follow, whose
+  subscription would cost ~0.4 ms of CPU per message, and which the simulator counts when it
+  waits for its listeners before its clock starts) and ``estimate/query`` (the estimator's log
+  for an exact replay, at the estimator's rate).
 
 The Lighthouse pose fixes are not drawn: no topic carries them (the estimator uses the sweeps
 inside its update and publishes only the estimate).
@@ -74,8 +75,9 @@ VIEW_QOS = QoSProfile(
 )
 #: Topics never passed through (``/tf``: ``/viz/tf`` shows it).
 NOT_PASSED = ("/rosout", "/parameter_events", "/tf")
-#: Parts of a topic name that keep it from being passed through (the 250 Hz sensor streams).
-NOT_PASSED_PARTS = ("/sensors/",)
+#: Parts of a topic name that keep it from being passed through: the 250 Hz sensor streams and
+#: the estimator's query log (what a replay needs, nothing to look at).
+NOT_PASSED_PARTS = ("/sensors/", "/estimate/query")
 #: How often the track is sent again, s (for viewers that join late).
 TRACK_PERIOD = 2.0
 #: How often the graph is polled for new cars and topics, s.
