@@ -115,7 +115,7 @@ class _Topic:
     channel: foxglove.Channel | None
     read: Callable[[Any], None] | None
     what: str
-    forwarded_at: float = -1e9
+    due: float = 0.0
 
 
 class VisualizerNode(Node):
@@ -256,8 +256,9 @@ class VisualizerNode(Node):
     def _on_message(self, topic: str, entry: _Topic, data: bytes) -> None:
         now = time.monotonic()
         channel = entry.channel
-        if channel is not None and now - entry.forwarded_at >= self.period and channel.has_sinks():
-            entry.forwarded_at = now
+        if channel is not None and now >= entry.due and channel.has_sinks():
+            # at most rate_hz on average: a 30 Hz topic's jitter does not halve it
+            entry.due = max(entry.due, now - self.period) + self.period
             channel.log(bytes(data), log_time=time.time_ns())
         if entry.read is None:
             return
@@ -295,7 +296,7 @@ class VisualizerNode(Node):
         super().destroy_node()
 
 
-def _estimate_from_msg(msg: Any) -> tuple[float, np.ndarray, str, np.ndarray]:
+def _estimate_from_msg(msg: Any) -> tuple[float, np.ndarray, str, np.ndarray | None]:
     """``chronos_msgs/CarState`` -> stamp, state, status and the position covariance (2 x 2,
     None: unknown), each checked."""
     stamp, x, status = conversions.status_from_msg(msg)
