@@ -26,6 +26,8 @@ pytestmark = pytest.mark.integration
 
 DOMAIN = 172
 PORT, PAGE_PORT = 18711, 18712
+#: Where ``crs viz`` serves, next to the stack's own visualizer.
+ALONE_PORT, ALONE_PAGE_PORT = 18713, 18714
 #: Give up after this long (the nodes start in ~5 s, the car then moves at once).
 TIMEOUT_S = 60.0
 #: How far the drawn car must have moved along the track, m.
@@ -80,13 +82,13 @@ class Viewer:
         return (end - start + TRACK.length / 2) % TRACK.length - TRACK.length / 2
 
 
-async def _connect(deadline: float) -> Any:
+async def _connect(deadline: float, port: int) -> Any:
     import websockets
 
     while True:
         try:
             return await websockets.connect(
-                f"ws://127.0.0.1:{PORT}", subprotocols=["foxglove.sdk.v1"], max_size=None
+                f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None
             )
         except OSError:
             if time.monotonic() > deadline:
@@ -94,10 +96,10 @@ async def _connect(deadline: float) -> Any:
             await asyncio.sleep(0.3)
 
 
-async def _watch(viewer: Viewer, deadline: float, until: Any, topics: set[str] | None = None):
-    """Read ``viewer``'s connection until ``until()`` or ``deadline``, subscribing to every
-    channel advertised (of ``topics``, if given)."""
-    ws = await _connect(deadline)
+async def _watch(viewer: Viewer, deadline: float, until: Any, port: int = PORT) -> None:
+    """Read ``viewer``'s connection to ``port`` until ``until()`` or ``deadline``, subscribing
+    to every channel advertised."""
+    ws = await _connect(deadline, port)
     decoders: dict[int, Any] = {}
     by_subscription: dict[int, str] = {}
     try:
@@ -118,7 +120,7 @@ async def _watch(viewer: Viewer, deadline: float, until: Any, topics: set[str] |
                     subscription = [{"id": channel_id, "channelId": channel_id}]
                     await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscription}))
                 elif message["op"] == "advertise":
-                    new = [c for c in message["channels"] if topics is None or c["topic"] in topics]
+                    new = message["channels"]
                     for channel in new:
                         viewer.channels[channel["topic"]] = channel
                         by_subscription[channel["id"]] = channel["topic"]
@@ -159,11 +161,24 @@ async def _two_viewers(deadline: float) -> tuple[Viewer, Viewer]:
     return first, second
 
 
-def test_a_foxglove_client_watches_the_race_and_a_second_one_comes_and_goes(tmp_path, warm_codegen):
+def _seen_car1(viewer: Viewer) -> bool:
+    return any(
+        c["name"] == "car1" and c["estimate"] is not None
+        for m in viewer.messages["/viz/page/cars"]
+        for c in m["cars"]
+    )
+
+
+def test_a_foxglove_client_watches_the_race_and_others_come_and_go(tmp_path, warm_codegen):
     """``crs launch sim --viz``'s nodes: the client sees the track, car1 moving along it, car1's
     status ``ok``, the page's JSON and the suite's topics passed through (not the sensor
     streams); the server lets it do nothing but subscribe. A second client that connects and
-    closes mid-stream disturbs nothing: no node dies, and the estimates keep coming."""
+    closes mid-stream disturbs nothing, nor does ``crs viz`` started alone (it finds car1 in the
+    graph) and stopped with Ctrl-C: no node dies, and the estimates keep coming."""
+    import signal
+    import subprocess
+    import sys
+
     from rclpy.serialization import deserialize_message
 
     from chronos_msgs.msg import CarState
@@ -174,6 +189,20 @@ def test_a_foxglove_client_watches_the_race_and_a_second_one_comes_and_goes(tmp_
         estimates = probe.collect(CarState, "/car1/estimate/state")
         launcher.start()
         first, second = asyncio.run(_two_viewers(time.monotonic() + TIMEOUT_S))
+        command = ["viz", "--port", str(ALONE_PORT), "--page-port", str(ALONE_PAGE_PORT)]
+        alone = subprocess.Popen(
+            [sys.executable, "-m", "launch_scripts.cli", *command, "--domain", str(DOMAIN)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        third = Viewer()
+        deadline = time.monotonic() + 20.0
+        asyncio.run(_watch(third, deadline, lambda: _seen_car1(third), ALONE_PORT))
+        alone.send_signal(signal.SIGINT)
+        output = alone.communicate(timeout=10)[0]
+        assert alone.returncode == 0, output
+        assert _seen_car1(third), f"crs viz did not find car1:\n{output}"
         before = len(estimates)
         time.sleep(1.0)
         assert len(estimates) > before + 10, "the estimates stopped after the second client"
