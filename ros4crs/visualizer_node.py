@@ -53,6 +53,7 @@ import numpy as np
 from foxglove.channels import FrameTransformsChannel, SceneUpdateChannel
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosbags.typesys import TypesysError
 
 from ros4crs import conversions, viz_scene
 from ros4crs.interfaces import typestore
@@ -198,7 +199,8 @@ class VisualizerNode(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self.topics:
                 continue
-            car = topic.split("/")[1]
+            parts = topic.split("/", 2)
+            car = parts[1] if len(parts) == 3 else ""  # a namespace, not a global topic
             if not self.cars and car not in self.watches and _CAR_NAMESPACE.fullmatch(car):
                 self._watch(car)
             self.topics[topic] = self._subscribe(topic, types[0], self.watches.get(car))
@@ -214,7 +216,7 @@ class VisualizerNode(Node):
         try:
             msg_type = message_class(msgtype)
             definition, _ = typestore().generate_msgdef(msgtype, ros_version=2)
-        except (ImportError, AttributeError, KeyError, ValueError) as error:
+        except (ImportError, AttributeError, KeyError, ValueError, TypesysError) as error:
             self.get_logger().warning(f"cannot show {topic} ({msgtype}): {error}")
             return None
         channel = None
