@@ -145,6 +145,7 @@ def car_nodes(
     references anyway; its truth log in ``out``), and one recorder into the bag ``bag``.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
     the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
+    The visualizer with ``options.viz``.
     Only the nodes of ``options.part`` (an emulator with its bridge), and its Zenoh link."""
     if emulate == bool(car_ips):
         raise ValueError("car: either emulate or car_ips (one real car per address)")
@@ -190,7 +191,8 @@ def car_nodes(
             *car_control_nodes(ns, options, files, input_topic="input/applied"),
         ]
         topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
-    return options.part.launched([*nodes, recorder_node(bag, topics), *emulators], "car")
+    nodes += [recorder_node(bag, topics), *options.visualizer(cars)]
+    return options.part.launched([*nodes, *emulators], "car")
 
 
 def _over_udp(options: StackOptions) -> StackOptions:

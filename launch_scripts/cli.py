@@ -27,6 +27,7 @@ from launch_scripts.commands import (
     ros,
     simulate,
     sysid,
+    viz,
     zenoh_router,
 )
 
@@ -44,6 +45,7 @@ REGISTRY: tuple[Callable[[argparse._SubParsersAction], object], ...] = (
     discrepancy.COMMAND,
     calibration.COMMAND,
     launch.COMMAND,
+    viz.COMMAND,
     zenoh_router.COMMAND,
     add_car_emulator,
     bag.COMMAND,

@@ -25,6 +25,7 @@ from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.stack_part import StackPart
 from launch_scripts.stack_plot import plot
+from launch_scripts.visualizer import VizSettings, visualizer_node
 from launch_scripts.warm_cache import warm_compile_cache
 
 #: What ``crs launch --record`` records, per car (relative topics) and globally. ``all``:
@@ -137,6 +138,8 @@ class StackOptions:
         Noise seed: car N's simulator or emulator uses ``seed + N``.
     part : StackPart
         The nodes that run on this machine and its Zenoh link (default: all, no link).
+    viz : VizSettings or None
+        Add the ``visualizer`` node serving as these settings say (None: no visualizer).
     """
 
     estimator: str
@@ -151,6 +154,7 @@ class StackOptions:
     car: CarTruth = CarTruth()
     seed: int = 0
     part: StackPart = field(default_factory=StackPart)
+    viz: VizSettings | None = None
 
     def __post_init__(self) -> None:
         if self.estimator not in ("ekf", "mhe"):
@@ -161,6 +165,10 @@ class StackOptions:
             raise ValueError(
                 f"record: must be one of {', '.join(RECORD_SETS)}, got {self.record!r}"
             )
+
+    def visualizer(self, cars: int) -> list[NodeSpec]:
+        """The stack's visualizer node (none without ``viz``)."""
+        return [] if self.viz is None else [visualizer_node(self.viz, cars, self.files())]
 
     def files(self) -> dict[str, str]:
         """The ``track_file`` and ``params_file`` parameters of every car's nodes (absolute;
@@ -174,8 +182,9 @@ class StackOptions:
 
 def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
     """Node specs for ``cars`` cars in namespaces ``/car1``..., each a simulator, an estimator
-    and a controller as ``options`` say (:class:`StackOptions`), and one recorder into the bag
-    ``bag``: those of ``options.part`` (:meth:`StackPart.launched`)."""
+    and a controller as ``options`` say (:class:`StackOptions`), one recorder into the bag
+    ``bag`` and the visualizer with ``options.viz``: those of ``options.part``
+    (:meth:`StackPart.launched`)."""
     check_cars(cars)
     if options.output == "velocity" and options.controller != "mpcc":
         raise ValueError(
@@ -208,7 +217,9 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
             *car_control_nodes(ns, options, files),
         ]
         topics += [f"{ns}/{topic}" for topic in per_car]
-    return options.part.launched([*nodes, recorder_node(bag, topics)], "sim")
+    return options.part.launched(
+        [*nodes, recorder_node(bag, topics), *options.visualizer(cars)], "sim"
+    )
 
 
 def check_cars(cars: int) -> None:

@@ -32,10 +32,11 @@ from ros4crs.zenoh.session import ZenohSettings
 
 __all__ = ["LINK_NODE", "STACK_NODES", "StackPart", "link_node", "parse_nodes"]
 
-#: The nodes of each stack, by the names ``--nodes`` takes (per car, and one recorder).
+#: The nodes of each stack, by the names ``--nodes`` takes (per car, and one recorder and, with
+#: ``--viz``, one visualizer).
 STACK_NODES: dict[str, tuple[str, ...]] = {
-    "sim": ("simulator", "estimator", "controller", "recorder"),
-    "car": ("bridge", "estimator", "controller", "recorder"),
+    "sim": ("simulator", "estimator", "controller", "recorder", "visualizer"),
+    "car": ("bridge", "estimator", "controller", "recorder", "visualizer"),
 }
 #: Processes that run with another node: an emulated car (``crs launch car --emulate``) with
 #: its bridge.

@@ -32,6 +32,11 @@ a car that tracks its speed on board (the MPCC's planned speed a short lead ahea
 needs ``onboard:=true``); the prediction then uses the torque of the MPCC's plan, and a stop is a
 zero velocity reference.
 
+For a viewer (:mod:`ros4crs.visualizer_node`) it publishes, only while someone subscribes,
+``controller/plan`` (``nav_msgs/Path`` in ``world``: the MPCC's planned positions over its
+horizon, at each tick with a plan) and ``controller/solve_time`` (``std_msgs/Float64``: each
+controller call's wall time, s).
+
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
 ``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``hold_safe``
@@ -189,8 +194,13 @@ class ControllerNode(Node):
             "failed": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
             "rejected": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
         }
+        from nav_msgs.msg import Path
+        from std_msgs.msg import Float64
+
         from chronos_msgs.msg import CarInput, CarState
 
+        self._plan_publisher = self.create_publisher(Path, conversions.TOPICS["plan"], 1)
+        self._solve_publisher = self.create_publisher(Float64, conversions.TOPICS["solve_time"], 1)
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_OUT_QOS
         )
@@ -232,6 +242,19 @@ class ControllerNode(Node):
             self._log[event.kind](event.message)
         if step.solve_time is not None:
             self._record_solve_time(step.solve_time)
+        self._publish_for_viewers(now, step.solve_time)
+
+    def _publish_for_viewers(self, now: float, solve_time: float | None) -> None:
+        """The MPCC's plan and the call time, when someone listens (a viewer)."""
+        from std_msgs.msg import Float64
+
+        if solve_time is not None and self._solve_publisher.get_subscription_count():
+            self._solve_publisher.publish(Float64(data=solve_time))
+        controller = self.supervisor.controller
+        if isinstance(controller, Mpcc) and self._plan_publisher.get_subscription_count():
+            plan = controller.plan
+            if plan is not None:
+                self._plan_publisher.publish(conversions.plan_msg(plan[0][:, :2], now))
 
     def _record_solve_time(self, seconds: float) -> None:
         self.solve_times.append(seconds)

@@ -23,6 +23,8 @@ estimate/state        chronos_msgs/CarState            estimate with covariance
 estimate/odometry     nav_msgs/Odometry                the same for any ROS tool
 estimate/diagnostics  chronos_msgs/EstimatorDiagnostics
 estimate/query        chronos_msgs/EstimatorQuery      each query and the newest data it had
+controller/plan       nav_msgs/Path                    the MPCC's planned positions (world)
+controller/solve_time std_msgs/Float64                 the controller's call time, s
 /tf (absolute)        tf2_msgs/TFMessage               ``world`` -> ``<car>/base_link``
 ====================  ===============================  =====================================
 
@@ -64,6 +66,8 @@ TOPICS = {
     "odometry": "estimate/odometry",
     "diagnostics": "estimate/diagnostics",
     "query": "estimate/query",
+    "plan": "controller/plan",
+    "solve_time": "controller/solve_time",
 }
 
 
@@ -431,6 +435,49 @@ def query_from_msg(msg: Any) -> tuple[float, bool, dict[str, float], dict[str, f
     newest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.newest, strict=True)}
     oldest = {s: seconds_from_stamp(t) for s, t in zip(msg.streams, msg.oldest, strict=True)}
     return seconds_from_stamp(msg.header.stamp), bool(msg.start), newest, oldest
+
+
+def estimator_health_from_msg(msg: Any) -> tuple[str, int]:
+    """``chronos_msgs/EstimatorDiagnostics`` -> (status text, deadline misses).
+
+    The status is ``ok``, ``degraded: <why>`` or ``lost: <why>``."""
+    status = str(msg.status)
+    if status.partition(":")[0] not in STATUS_CODES:
+        raise FieldError("status", f"must start with ok, degraded or lost, got {status!r}")
+    return status, int(msg.deadline_misses)
+
+
+# --- the controller's plan -------------------------------------------------------------------
+def plan_msg(points: np.ndarray, seconds: float) -> Any:
+    """``nav_msgs/Path`` in ``world`` through the planned positions ``(n, 2)`` (m), each pose
+    and the path stamped ``seconds`` (the control tick that planned them)."""
+    from geometry_msgs.msg import PoseStamped
+    from nav_msgs.msg import Path
+
+    msg = Path()
+    msg.header.frame_id = "world"
+    fill_stamp(msg.header.stamp, seconds)
+    for x, y in np.asarray(points, dtype=float).reshape(-1, 2):
+        pose = PoseStamped()
+        pose.header = msg.header
+        pose.pose.position.x, pose.pose.position.y = float(x), float(y)
+        pose.pose.orientation.w = 1.0
+        msg.poses.append(pose)
+    return msg
+
+
+def plan_from_msg(msg: Any) -> np.ndarray:
+    """``nav_msgs/Path`` -> its positions ``(n, 2)``, m."""
+    xy = [(p.pose.position.x, p.pose.position.y) for p in msg.poses]
+    return _finite("poses", xy).reshape(-1, 2)
+
+
+def solve_time_from_msg(msg: Any) -> float:
+    """``std_msgs/Float64`` (a call time, s) -> the time, finite and >= 0."""
+    seconds = _finite("data", [msg.data], 1)[0]
+    if seconds < 0:
+        raise FieldError("data", f"must be >= 0, got {seconds}")
+    return float(seconds)
 
 
 def sensor_message_types() -> dict[str, type]:

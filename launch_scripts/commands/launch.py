@@ -9,6 +9,7 @@ from pathlib import Path
 
 from chronos_bridge.impairment import SPEC_HELP
 from crs_core.control.supervisor import HOLD_SAFE_MODES
+from crs_core.errors import FieldError
 from launch_scripts.arguments import (
     Command,
     add_cars,
@@ -24,6 +25,7 @@ from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
 from launch_scripts.stack_part import STACK_NODES, StackPart, parse_nodes, zenoh_settings
+from launch_scripts.visualizer import DEFAULT_PAGE_PORT, DEFAULT_PORT, VizSettings
 from ros4crs.zenoh.session import MODES
 
 
@@ -63,7 +65,27 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
         track_file=args.track,
         car=CarTruth(args.car_params, tuple(args.car_effect or ())),
         part=_stack_part(args),
+        viz=_viz_settings(args),
     )
+
+
+#: ``crs launch``'s visualizer options, by the :class:`VizSettings` field they set.
+VIZ_FLAGS = {"host": "--viz-host", "port": "--viz-port", "page_port": "--viz-page-port"}
+
+
+def _viz_settings(args: argparse.Namespace) -> VizSettings | None:
+    """The visualizer's settings with ``--viz`` (None without; its options refused then);
+    errors name the option."""
+    given = {field: getattr(args, f"viz_{field}") for field in VIZ_FLAGS}
+    if not args.viz:
+        for field, value in given.items():
+            if value is not None:
+                raise ValueError(f"{VIZ_FLAGS[field]}: only with --viz")
+        return None
+    try:
+        return VizSettings(**{field: value for field, value in given.items() if value is not None})
+    except FieldError as error:
+        raise error.renamed(VIZ_FLAGS[error.field]) from None
 
 
 def _stack_part(args: argparse.Namespace) -> StackPart:
@@ -74,6 +96,8 @@ def _stack_part(args: argparse.Namespace) -> StackPart:
     )
     part = StackPart(args.nodes, zenoh)
     part.check(args.scenario, "--nodes")
+    if not args.viz and part.nodes is not None and "visualizer" in part.nodes:
+        raise ValueError("--nodes: the visualizer runs with --viz")
     if args.require_laps and not part.runs("recorder"):
         raise ValueError(
             "--require-laps: laps are counted from the bag, and --nodes runs no recorder here"
@@ -208,6 +232,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     add_cars(sub)
     add_part(sub)
     add_estimator(sub)
+    add_viz(sub)
     sub.add_argument(
         "--controller",
         choices=["mpcc", "path"],
@@ -279,6 +304,34 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         help="what the bag (OUT/bag, MCAP) holds: all (default: sensors, inputs, truth, "
         "estimates, odometry, /tf; replays the estimator offline exactly), estimates (no 250 Hz "
         "sensor streams) or sensors (no estimates)",
+    )
+
+
+def add_viz(sub: argparse.ArgumentParser) -> None:
+    """``--viz`` and where the visualizer serves."""
+    sub.add_argument(
+        "--viz",
+        action="store_true",
+        help="watch the race live: add the visualizer node (a Foxglove WebSocket and the "
+        "built-in page; docs/live-view.md)",
+    )
+    sub.add_argument(
+        "--viz-port",
+        type=bounded_number("viz-port", "", 1, 65535, int, include_low=True),
+        metavar="N",
+        help=f"--viz: the Foxglove WebSocket's port (default {DEFAULT_PORT})",
+    )
+    sub.add_argument(
+        "--viz-page-port",
+        type=bounded_number("viz-page-port", "", 1, 65535, int, include_low=True),
+        metavar="N",
+        help=f"--viz: the built-in page's port (default {DEFAULT_PAGE_PORT})",
+    )
+    sub.add_argument(
+        "--viz-host",
+        metavar="HOST",
+        help="--viz: the address both serve on (default 127.0.0.1, this machine only; "
+        "0.0.0.0: every interface, for the lab network)",
     )
 
 

@@ -23,3 +23,50 @@ def test_the_controller_node_logs_every_kind_of_supervisor_event() -> None:
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_the_plan_and_the_solve_time_go_out_only_to_a_listener(monkeypatch) -> None:
+    """An MPCC tick with an estimate publishes ``controller/plan`` (the horizon's positions, on
+    the track near the car) and ``controller/solve_time`` once someone subscribes."""
+    import time
+
+    import numpy as np
+    import rclpy
+    from nav_msgs.msg import Path
+    from rclpy.executors import SingleThreadedExecutor
+    from std_msgs.msg import Float64
+
+    from crs_core.track import load_demo_track
+    from ros4crs import conversions
+    from ros4crs.controller_node import ControllerNode
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "171")  # its own (the suite's tests use others)
+    rclpy.init(args=["--ros-args", "-p", "controller:=mpcc"])
+    try:
+        node = ControllerNode()
+        listener = rclpy.create_node("listener")
+        executor = SingleThreadedExecutor()
+        executor.add_node(listener)
+        track = load_demo_track()
+        x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.5, 0.0, 0.0])
+        try:
+            node.supervisor.observe(node.get_clock().now().nanoseconds * 1e-9, x0, "ok")
+            node._control()  # nobody listens: nothing is serialised
+            got: dict[str, list] = {"plan": [], "solve": []}
+            listener.create_subscription(Path, "controller/plan", got["plan"].append, 10)
+            listener.create_subscription(Float64, "controller/solve_time", got["solve"].append, 10)
+            deadline = time.monotonic() + 10.0
+            while not (got["plan"] and got["solve"]) and time.monotonic() < deadline:
+                node.supervisor.observe(node.get_clock().now().nanoseconds * 1e-9, x0, "ok")
+                node._control()
+                executor.spin_once(timeout_sec=0.05)
+            assert got["plan"] and got["solve"]
+            points = conversions.plan_from_msg(got["plan"][-1])
+            assert len(points) > 5
+            assert np.hypot(*(points[0] - x0[:2])) < 0.2
+            assert 0 < conversions.solve_time_from_msg(got["solve"][-1]) < 5.0
+        finally:
+            listener.destroy_node()
+            node.destroy_node()
+    finally:
+        rclpy.shutdown()

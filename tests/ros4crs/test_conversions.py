@@ -318,3 +318,36 @@ def test_a_bad_reading_is_dropped_alone() -> None:
     assert readings.rejected[0].startswith("readings[1] (wheel_encoders): ")
     assert "NaN" in readings.rejected[0]
     assert readings.rejected[1].startswith("readings[3] (gyro): stamps_ns: must be >= 0")
+
+
+def test_the_plan_round_trips_and_a_nan_is_refused_naming_the_poses() -> None:
+    points = np.array([[0.0, 1.0], [0.5, 1.25], [1.0, 1.5]])
+    msg = deserialize_message(
+        serialize_message(conversions.plan_msg(points, 12.5)),
+        type(conversions.plan_msg(points, 0.0)),
+    )
+    assert msg.header.frame_id == "world"
+    assert conversions.seconds_from_stamp(msg.poses[1].header.stamp) == 12.5
+    np.testing.assert_array_equal(conversions.plan_from_msg(msg), points)
+    assert conversions.plan_from_msg(conversions.plan_msg(np.zeros((0, 2)), 0.0)).shape == (0, 2)
+    msg.poses[2].pose.position.y = math.nan
+    with pytest.raises(FieldError, match="poses"):
+        conversions.plan_from_msg(msg)
+
+
+def test_the_solve_time_must_be_finite_and_not_negative() -> None:
+    from std_msgs.msg import Float64
+
+    assert conversions.solve_time_from_msg(Float64(data=0.004)) == 0.004
+    for bad in (-0.001, math.inf):
+        with pytest.raises(FieldError, match="data"):
+            conversions.solve_time_from_msg(Float64(data=bad))
+
+
+def test_the_estimator_health_is_its_status_text_and_deadline_misses() -> None:
+    from chronos_msgs.msg import EstimatorDiagnostics
+
+    msg = EstimatorDiagnostics(status="degraded: no Lighthouse for 0.6 s", deadline_misses=3)
+    assert conversions.estimator_health_from_msg(msg) == ("degraded: no Lighthouse for 0.6 s", 3)
+    with pytest.raises(FieldError, match="status: must start with ok, degraded or lost"):
+        conversions.estimator_health_from_msg(EstimatorDiagnostics(status="fine"))

@@ -98,3 +98,41 @@ def test_launch_car_emulate_passes_the_link(
     assert seen["link"] == EmulatedLink("bad", "typical,dup=1%", None, 7)
     assert main(["launch", "car", "--emulate", "--out", str(tmp_path / "plain")]) == 0
     assert seen["link"] == EmulatedLink() and not seen["link"].given
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--viz-port", "18700"], "--viz-port: only with --viz"),
+        (["--viz-host", "0.0.0.0"], "--viz-host: only with --viz"),
+        (["--nodes", "simulator,visualizer"], "--nodes: the visualizer runs with --viz"),
+        (["--viz", "--viz-host", "lab"], "--viz-host: must be an IP address, got 'lab'"),
+        (["--viz", "--viz-page-port", "8765"], "--viz-page-port: must differ from port"),
+        (["--viz", "--viz-port", "0"], "--viz-port: '0': viz-port must be >= 1"),
+    ],
+)
+def test_the_visualizer_options_are_refused_with_one_line(
+    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+):
+    out = tmp_path / "out"
+    assert main(["launch", "sim", *argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_launch_viz_passes_where_the_visualizer_serves(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+):
+    from launch_scripts import sim_stack
+    from launch_scripts.visualizer import VizSettings
+
+    seen: list[Any] = []
+    monkeypatch.setattr(sim_stack, "run_stack", lambda cars, options, *a: seen.append(options))
+    monkeypatch.setattr(sim_stack, "summary", lambda report, out: "done")
+    monkeypatch.setattr("launch_scripts.commands.launch.verdict", lambda report, laps: 0)
+    argv = ["launch", "sim", "--viz", "--viz-host", "0.0.0.0", "--viz-port", "18701"]
+    assert main([*argv, "--out", str(tmp_path / "a")]) == 0
+    assert seen[-1].viz == VizSettings("0.0.0.0", 18701)
+    assert main(["launch", "sim", "--out", str(tmp_path / "b")]) == 0
+    assert seen[-1].viz is None

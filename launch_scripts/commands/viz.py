@@ -1,0 +1,101 @@
+"""``crs viz``: the visualizer node alone, against a stack that runs already (this machine's
+DDS, or a far one through a ``crs launch --nodes ... --zenoh-*`` part): it joins and leaves
+without disturbing it (its subscriptions are best effort, and it publishes nothing to ROS)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+from crs_core.errors import FieldError
+from launch_scripts.arguments import Command, bounded_number
+from launch_scripts.visualizer import DEFAULT_PAGE_PORT, DEFAULT_PORT, VIZ_NODE, VizSettings
+
+#: ``crs viz``'s options, by the :class:`VizSettings` field they set.
+FLAGS = {"host": "--host", "port": "--port", "page_port": "--page-port"}
+
+
+def node_arguments(args: argparse.Namespace) -> list[str]:
+    """The visualizer node's command line (``--ros-args``) for ``crs viz``'s options; errors
+    name the option."""
+    from ros4crs.visualizer_node import parse_cars
+
+    try:
+        settings = VizSettings(args.host, args.port, args.page_port)
+    except FieldError as error:
+        raise error.renamed(FLAGS[error.field]) from None
+    parameters = settings.parameters()
+    if args.cars is not None:
+        try:
+            parameters["cars"] = ",".join(parse_cars(args.cars))
+        except ValueError as error:
+            raise FieldError("--cars", str(error)) from None
+    if args.track is not None:
+        if not args.track.is_file():
+            raise FieldError("--track", f"{args.track}: no such file")
+        parameters["track_file"] = str(args.track.resolve())
+    command = ["crs-viz", "--ros-args", "-r", f"__node:={VIZ_NODE[0]}"]
+    for name, value in parameters.items():
+        command += ["-p", f"{name}:={value}"]
+    return command
+
+
+def viz(args: argparse.Namespace) -> int:
+    """Run the visualizer until Ctrl-C or SIGTERM (exit code 0; 2 when it cannot start)."""
+    command = node_arguments(args)
+    if args.domain is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain)
+    from ros4crs.visualizer_node import main
+
+    return main(command)
+
+
+def add_arguments(sub: argparse.ArgumentParser) -> None:
+    """``crs viz``'s arguments."""
+    sub.add_argument(
+        "--port",
+        type=bounded_number("port", "", 1, 65535, int, include_low=True),
+        default=DEFAULT_PORT,
+        metavar="N",
+        help=f"the Foxglove WebSocket's port (default {DEFAULT_PORT})",
+    )
+    sub.add_argument(
+        "--page-port",
+        type=bounded_number("page-port", "", 1, 65535, int, include_low=True),
+        default=DEFAULT_PAGE_PORT,
+        metavar="N",
+        help=f"the built-in page's port (default {DEFAULT_PAGE_PORT})",
+    )
+    sub.add_argument(
+        "--host",
+        default="127.0.0.1",
+        metavar="HOST",
+        help="the address both serve on (default 127.0.0.1, this machine only; 0.0.0.0: every "
+        "interface, for the lab network)",
+    )
+    sub.add_argument(
+        "--cars",
+        metavar="NS[,NS...]",
+        help="the cars' namespaces, e.g. car1,car2 (default: every /carN in the graph)",
+    )
+    sub.add_argument(
+        "--track", type=Path, help="track YAML (CRS format) the cars race (default: DEMO_TRACK)"
+    )
+    sub.add_argument(
+        "--domain",
+        type=bounded_number("domain", "", -1, 232, int),
+        help="ROS_DOMAIN_ID of the running stack, 0..232 (default: $ROS_DOMAIN_ID)",
+    )
+
+
+COMMAND = Command(
+    "viz",
+    help="watch a running stack live (Foxglove WebSocket and the built-in page)",
+    description="The visualizer node alone, against a running stack: a Foxglove WebSocket "
+    "(ws://HOST:PORT, subprotocol foxglove.sdk.v1; open it in the Foxglove app with "
+    "docs/foxglove/chronos-layout.json) and the built-in page (http://HOST:PAGE_PORT/). Viewers "
+    "can only watch: nothing they do reaches a car. Runs until Ctrl-C (docs/live-view.md).",
+    arguments=add_arguments,
+    handler=viz,
+)

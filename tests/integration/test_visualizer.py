@@ -1,0 +1,233 @@
+"""The visualizer node in a running 1-car simulated stack, watched by a plain ``websockets``
+client speaking the Foxglove protocol (subprotocol ``foxglove.sdk.v1``), as the Foxglove app
+does: it reads ``serverInfo`` and the ``advertise`` messages, subscribes to every channel and
+decodes what arrives (the protobuf channels with the schema the server advertises, the JSON
+channels with ``json.loads``, a passthrough channel's CDR with rclpy)."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import struct
+import time
+from collections import defaultdict
+from typing import Any
+
+import numpy as np
+import pytest
+
+from crs_core.track import load_demo_track
+from launch_scripts.sim_stack import StackOptions, stack_nodes
+from launch_scripts.visualizer import VizSettings
+from tests.integration.stack_probe import launched
+
+pytestmark = pytest.mark.integration
+
+DOMAIN = 172
+PORT, PAGE_PORT = 18711, 18712
+#: Where ``crs viz`` serves, next to the stack's own visualizer.
+ALONE_PORT, ALONE_PAGE_PORT = 18713, 18714
+#: Give up after this long (the nodes start in ~5 s, the car then moves at once).
+TIMEOUT_S = 60.0
+#: How far the drawn car must have moved along the track, m.
+MOVED_M = 0.5
+TRACK = load_demo_track()
+#: Topics whose passthrough the client must see.
+PASSED = ("/car1/input", "/car1/ground_truth", "/car1/controller/plan")
+
+
+def _decoder(channel: dict[str, Any]) -> Any:
+    """The protobuf message class of an advertised protobuf channel (from its schema)."""
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for file in files.file:
+        pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+class Viewer:
+    """What one client saw: the channels by topic, each channel's decoded messages."""
+
+    def __init__(self) -> None:
+        self.info: dict[str, Any] = {}
+        self.channels: dict[str, dict[str, Any]] = {}
+        self.messages: dict[str, list[Any]] = defaultdict(list)
+
+    def done(self) -> bool:
+        """Whether it saw everything the test asserts (car1 moving, its plan, its status ok,
+        the page's track, the passthrough of its input, truth and plan)."""
+        return (
+            self.moved() > MOVED_M
+            and "/viz/page/track" in self.messages
+            and any(len(c["plan"]) > 5 for m in self.messages["/viz/page/cars"] for c in m["cars"])
+            and any(m["status"] == "ok" for m in self.messages["/viz/car1/status"])
+            and all(self.messages[topic] for topic in PASSED)
+        )
+
+    def moved(self) -> float:
+        """How far car1's footprint on ``/viz/scene`` moved along the track, m."""
+        poses = [
+            (cube.pose.position.x, cube.pose.position.y)
+            for scene in self.messages["/viz/scene"]
+            for entity in scene.entities
+            if entity.id == "car1" and entity.cubes
+            for cube in entity.cubes[:1]
+        ]
+        if len(poses) < 2:
+            return 0.0
+        start, end = (TRACK.project(*poses[i]).s for i in (0, -1))
+        return (end - start + TRACK.length / 2) % TRACK.length - TRACK.length / 2
+
+
+async def _connect(deadline: float, port: int) -> Any:
+    import websockets
+
+    while True:
+        try:
+            return await websockets.connect(
+                f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None
+            )
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.3)
+
+
+async def _watch(viewer: Viewer, deadline: float, until: Any, port: int = PORT) -> None:
+    """Read ``viewer``'s connection to ``port`` until ``until()`` or ``deadline``, subscribing
+    to every channel advertised."""
+    ws = await _connect(deadline, port)
+    decoders: dict[int, Any] = {}
+    by_subscription: dict[int, str] = {}
+    try:
+        while not until() and time.monotonic() < deadline:
+            try:
+                frame = await asyncio.wait_for(ws.recv(), max(deadline - time.monotonic(), 0.1))
+            except TimeoutError:
+                break
+            if isinstance(frame, str):
+                message = json.loads(frame)
+                if message["op"] == "serverInfo":
+                    viewer.info = message
+                elif message["op"] == "status" and "Unknown channel ID" in message["message"]:
+                    # foxglove-sdk 0.30.3 may refuse a subscription sent the instant a channel
+                    # is advertised (before its server has registered it): subscribe again
+                    await asyncio.sleep(0.1)
+                    channel_id = int(message["message"].rsplit(":", 1)[1])
+                    subscription = [{"id": channel_id, "channelId": channel_id}]
+                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscription}))
+                elif message["op"] == "advertise":
+                    new = message["channels"]
+                    for channel in new:
+                        viewer.channels[channel["topic"]] = channel
+                        by_subscription[channel["id"]] = channel["topic"]
+                        if channel["encoding"] == "protobuf":
+                            decoders[channel["id"]] = _decoder(channel)
+                    subscriptions = [{"id": c["id"], "channelId": c["id"]} for c in new]
+                    if subscriptions:
+                        await ws.send(
+                            json.dumps({"op": "subscribe", "subscriptions": subscriptions})
+                        )
+                continue
+            assert frame[0] == 1, frame[:1]  # message data
+            (subscription,) = struct.unpack_from("<I", frame, 1)
+            payload = frame[13:]
+            topic = by_subscription[subscription]
+            encoding = viewer.channels[topic]["encoding"]
+            if encoding == "protobuf":
+                viewer.messages[topic].append(decoders[subscription].FromString(payload))
+            elif encoding == "json":
+                viewer.messages[topic].append(json.loads(payload))
+            else:
+                viewer.messages[topic].append(payload)
+    finally:
+        await ws.close()
+
+
+async def _two_viewers(deadline: float) -> tuple[Viewer, Viewer]:
+    """The first viewer watches until the car has moved; a second one connects once the first
+    has a car on the scene, subscribes to the scene and every passthrough channel for a second,
+    and closes mid-stream."""
+    first, second = Viewer(), Viewer()
+    watching = asyncio.create_task(_watch(first, deadline, first.done))
+    while not first.messages["/viz/scene"] and time.monotonic() < deadline:
+        await asyncio.sleep(0.2)
+    stop = time.monotonic() + 1.0
+    await _watch(second, min(stop, deadline), lambda: False)
+    await watching
+    return first, second
+
+
+def _seen_car1(viewer: Viewer) -> bool:
+    return any(
+        c["name"] == "car1" and c["estimate"] is not None
+        for m in viewer.messages["/viz/page/cars"]
+        for c in m["cars"]
+    )
+
+
+def test_a_foxglove_client_watches_the_race_and_others_come_and_go(tmp_path, warm_codegen):
+    """``crs launch sim --viz``'s nodes: the client sees the track, car1 moving along it, car1's
+    status ``ok``, the page's JSON and the suite's topics passed through (not the sensor
+    streams); the server lets it do nothing but subscribe. A second client that connects and
+    closes mid-stream disturbs nothing, nor does ``crs viz`` started alone (it finds car1 in the
+    graph) and stopped with Ctrl-C: no node dies, and the estimates keep coming."""
+    import signal
+    import subprocess
+    import sys
+
+    from rclpy.serialization import deserialize_message
+
+    from chronos_msgs.msg import CarState
+
+    viz = VizSettings(port=PORT, page_port=PAGE_PORT)
+    nodes = stack_nodes(1, StackOptions("ekf", viz=viz), tmp_path / "bag")
+    with launched(nodes, DOMAIN, tmp_path / "logs") as (launcher, probe):
+        estimates = probe.collect(CarState, "/car1/estimate/state")
+        launcher.start()
+        first, second = asyncio.run(_two_viewers(time.monotonic() + TIMEOUT_S))
+        command = ["viz", "--port", str(ALONE_PORT), "--page-port", str(ALONE_PAGE_PORT)]
+        alone = subprocess.Popen(
+            [sys.executable, "-m", "launch_scripts.cli", *command, "--domain", str(DOMAIN)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+        )
+        third = Viewer()
+        deadline = time.monotonic() + 20.0
+        asyncio.run(_watch(third, deadline, lambda: _seen_car1(third), ALONE_PORT))
+        alone.send_signal(signal.SIGINT)
+        output = alone.communicate(timeout=10)[0]
+        assert alone.returncode == 0, output
+        assert _seen_car1(third), f"crs viz did not find car1:\n{output}"
+        before = len(estimates)
+        time.sleep(1.0)
+        assert len(estimates) > before + 10, "the estimates stopped after the second client"
+        assert launcher.poll() == []
+
+    assert first.info["capabilities"] == []  # no publishing, services or parameters
+    assert first.moved() > MOVED_M, f"car1 did not move {MOVED_M} m on /viz/scene"
+    track = [e for s in first.messages["/viz/scene"] for e in s.entities if e.id == "track"]
+    assert track and len(track[0].lines) == 3
+    statuses = [m["status"] for m in first.messages["/viz/car1/status"]]
+    assert "ok" in statuses, statuses[-5:]
+    page_track = first.messages["/viz/page/track"][-1]
+    assert len(page_track["centre"]) > 10 and len(page_track["left"]) == len(page_track["centre"])
+    cars = [c for m in first.messages["/viz/page/cars"] for c in m["cars"]]
+    assert any(c["name"] == "car1" and c["estimate"] is not None for c in cars)
+    assert any(len(c["plan"]) > 5 for c in cars), "no MPCC plan on the page's JSON"
+    transforms = [t for m in first.messages["/viz/tf"] for t in m.transforms]
+    assert any(t.child_frame_id == "car1/base_link" for t in transforms)
+    passed = first.channels["/car1/estimate/state"]
+    assert (passed["encoding"], passed["schemaEncoding"]) == ("cdr", "ros2msg")
+    assert passed["schemaName"] == "chronos_msgs/msg/CarState"
+    state = deserialize_message(first.messages["/car1/estimate/state"][-1], CarState)
+    assert np.isfinite(state.x) and state.header.frame_id == "world"
+    for topic in PASSED:
+        assert first.messages[topic], f"nothing passed through on {topic}"
+    assert "/car1/estimate/diagnostics" in first.channels
+    assert not [t for t in first.channels if "/sensors/" in t or t in ("/rosout", "/tf")]
+    assert second.messages["/viz/scene"], "the second client got nothing"

@@ -1,0 +1,61 @@
+"""``crs viz``: the visualizer node's command line from the options, and one-line errors. The
+node itself is driven by tests/integration/test_visualizer.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from launch_scripts.cli import main, make_parser
+from launch_scripts.commands.viz import node_arguments
+
+
+def _args(*argv: str):
+    return make_parser().parse_args(["viz", *argv])
+
+
+def test_the_options_become_the_nodes_parameters(tmp_path: Path):
+    assert node_arguments(_args()) == [
+        "crs-viz",
+        "--ros-args",
+        "-r",
+        "__node:=visualizer",
+        "-p",
+        "host:=127.0.0.1",
+        "-p",
+        "port:=8765",
+        "-p",
+        "page_port:=8766",
+    ]
+    track = tmp_path / "track.yaml"
+    track.write_text("")
+    argv = ["--host", "0.0.0.0", "--port", "18705", "--cars", "/car2, car1", "--track", str(track)]
+    command = node_arguments(_args(*argv))
+    assert command[5:] == [
+        "host:=0.0.0.0",
+        "-p",
+        "port:=18705",
+        "-p",
+        "page_port:=8766",
+        "-p",
+        "cars:=car2,car1",
+        "-p",
+        f"track_file:={track.resolve()}",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--host", "lab-pc"], "--host: must be an IP address, got 'lab-pc'"),
+        (["--page-port", "8765"], "--page-port: must differ from port"),
+        (["--cars", "car1,car1"], "--cars: 'car1,car1' names a car twice"),
+        (["--cars", "car-1"], "--cars: 'car-1' is not a car namespace"),
+        (["--track", "missing.yaml"], "--track: missing.yaml: no such file"),
+    ],
+)
+def test_bad_options_are_refused_with_one_line(argv, message, capsys):
+    assert main(["viz", *argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
