@@ -81,6 +81,9 @@ STRAY: dict[str, str] = {
     # Checks who may join a Zenoh link: Zenoh's own authentication and access control, set up by
     # the example configurations of docs/zenoh/ through ros4crs.zenoh.session's config_file.
     "tests/ros4crs/zenoh/test_access.py": "the docs/zenoh/ configurations, Zenoh's own checks",
+    # The tests of the package ros4crs/viz_page/ (its __init__.py: the page server) and of the
+    # page's static files beside it.
+    "tests/ros4crs/test_viz_page.py": "the ros4crs.viz_page package: page server and files",
 }
 
 

@@ -1,38 +1,163 @@
-"""PLACEHOLDER for the built-in page (written by another engineer; replaced at merge): an HTTP
-server on ``host:port`` answering GET with a one-line index."""
+"""The built-in live page (issue 29): a small web page for people without Foxglove.
+
+``start_page_server(host, port)`` serves the page's three static files (``index.html``,
+``page.js``, ``page.css``, installed as package data) over HTTP from a daemon thread. The page
+itself connects to the visualizer node's foxglove-sdk WebSocket server (subprotocol
+``foxglove.sdk.v1``, port from the page's ``?ws=`` query, 8765 by default), subscribes to
+``/viz/page/track`` and ``/viz/page/cars`` and draws them; see docs/live-view.md.
+"""
 
 from __future__ import annotations
 
+import errno
+import logging
 import threading
+from collections.abc import Callable
+from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from urllib.parse import urlsplit
+
+log = logging.getLogger(__name__)
+
+#: The served files: URL path -> (file of this package, content type).
+FILES: dict[str, tuple[str, str]] = {
+    "/": ("index.html", "text/html; charset=utf-8"),
+    "/index.html": ("index.html", "text/html; charset=utf-8"),
+    "/page.js": ("page.js", "text/javascript; charset=utf-8"),
+    "/page.css": ("page.css", "text/css; charset=utf-8"),
+}
 
 
-class _Index(BaseHTTPRequestHandler):
-    def do_GET(self) -> None:
-        body = b"Chronos/CRS live view: placeholder page\n"
-        self.send_response(200)
-        self.send_header("Content-Type", "text/plain; charset=utf-8")
-        self.send_header("Content-Length", str(len(body)))
+class PageServerError(OSError):
+    """The page server could not start (its port is taken, its host cannot be bound, ...)."""
+
+
+def _read_files() -> dict[str, bytes]:
+    """The static files' contents by file name; a clear error when one is not installed."""
+    package = resources.files(__name__)
+    contents = {}
+    for name, _ in FILES.values():
+        try:
+            contents[name] = (package / name).read_bytes()
+        except OSError as e:
+            raise PageServerError(
+                f"ros4crs.viz_page: the page file {name} is not installed ({e}); reinstall the "
+                "project (./run.sh setup) so its package data is present"
+            ) from e
+    return contents
+
+
+class _Handler(BaseHTTPRequestHandler):
+    """Serves the files of ``FILES`` (GET and HEAD); 404 for any other path, 405 for other
+    methods. Paths are looked up exactly, so nothing outside the package can be reached."""
+
+    server: _HTTPServer
+
+    def _send(self, body: bool) -> None:
+        entry = FILES.get(urlsplit(self.path).path)
+        if entry is None:
+            self.send_error(HTTPStatus.NOT_FOUND)
+            return
+        name, content_type = entry
+        data = self.server.contents[name]
+        self.send_response(HTTPStatus.OK)
+        self.send_header("Content-Type", content_type)
+        self.send_header("Content-Length", str(len(data)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
         self.end_headers()
-        self.wfile.write(body)
+        if body:
+            self.wfile.write(data)
+
+    def do_GET(self) -> None:
+        self._send(body=True)
+
+    def do_HEAD(self) -> None:
+        self._send(body=False)
+
+    def _not_allowed(self) -> None:
+        self.send_response(HTTPStatus.METHOD_NOT_ALLOWED)
+        self.send_header("Allow", "GET, HEAD")
+        self.send_header("Content-Length", "0")
+        self.end_headers()
+
+    def __getattr__(self, name: str) -> Callable[[], None]:
+        """``do_<METHOD>`` of any other method (POST, PUT, ...): 405, not the base class's 501."""
+        if name.startswith("do_"):
+            return self._not_allowed
+        raise AttributeError(name)
 
     def log_message(self, format: str, *args: object) -> None:
-        pass
+        log.debug("%s: " + format, self.address_string(), *args)
+
+
+class _HTTPServer(ThreadingHTTPServer):
+    """Holds the file contents, read once at start."""
+
+    def __init__(self, address: tuple[str, int], contents: dict[str, bytes]) -> None:
+        self.contents = contents
+        super().__init__(address, _Handler)
 
 
 class PageServer:
-    """The running server (a thread of its own); :meth:`close` stops it."""
+    """The running page server; ``close()`` stops it and frees its port."""
 
-    def __init__(self, host: str, port: int) -> None:
-        self._server = ThreadingHTTPServer((host, port), _Index)
-        self._thread = threading.Thread(target=self._server.serve_forever, daemon=True)
+    def __init__(self, httpd: _HTTPServer) -> None:
+        self._httpd = httpd
+        self.host: str = httpd.server_address[0]
+        #: The bound port (the chosen one when started with port 0).
+        self.port: int = httpd.server_address[1]
+        self._thread = threading.Thread(
+            target=httpd.serve_forever,
+            kwargs={"poll_interval": 0.05},  # how long close() may wait
+            name="viz-page-server",
+            daemon=True,
+        )
+        self._closed = False
         self._thread.start()
 
+    @property
+    def url(self) -> str:
+        """The page's address, e.g. ``http://127.0.0.1:8766/``."""
+        return f"http://{self.host}:{self.port}/"
+
     def close(self) -> None:
-        self._server.shutdown()
-        self._server.server_close()
+        """Stop serving and free the port (a second call does nothing)."""
+        if self._closed:
+            return
+        self._closed = True
+        self._httpd.shutdown()
+        self._httpd.server_close()
+        self._thread.join()
+
+    def __enter__(self) -> PageServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def start_page_server(host: str, port: int) -> PageServer:
-    """Serve the page on ``host:port`` (``OSError`` when the port is taken)."""
-    return PageServer(host, port)
+    """Serve the live page on ``host``:``port`` (0: any free port) from a daemon thread.
+
+    Raises
+    ------
+    PageServerError
+        A page file is not installed, or the address cannot be bound (the message names
+        ``page_port``; a port in use says so).
+    """
+    contents = _read_files()
+    try:
+        httpd = _HTTPServer((host, port), contents)
+    except OSError as e:
+        if e.errno == errno.EADDRINUSE:
+            raise PageServerError(
+                e.errno,
+                f"page_port {port} is already in use on {host}: choose another page_port "
+                "(0 picks a free one) or stop what is listening there",
+            ) from e
+        raise PageServerError(
+            e.errno, f"cannot serve the page on {host}:{port} (host, page_port): {e.strerror}"
+        ) from e
+    return PageServer(httpd)
