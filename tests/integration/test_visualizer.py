@@ -12,6 +12,7 @@ import json
 import struct
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,7 @@ import pytest
 from crs_core.track import load_demo_track
 from launch_scripts.sim_stack import StackOptions, stack_nodes
 from launch_scripts.visualizer import VizSettings
+from tests.integration.browser import check_track_and_moving_car, needs_chromium, two_screenshots
 from tests.integration.stack_probe import launched
 
 pytestmark = pytest.mark.integration
@@ -169,7 +171,22 @@ def _seen_car1(viewer: Viewer) -> bool:
     )
 
 
-def test_a_foxglove_client_watches_the_race_and_others_come_and_go(tmp_path, warm_codegen):
+@pytest.fixture(scope="module")
+def race(tmp_path_factory: pytest.TempPathFactory, warm_codegen: None) -> Iterator[tuple]:
+    """The 1-car stack with the visualizer, racing (``launcher``, ``probe``, the estimates the
+    probe collects), for both tests of this module."""
+    from chronos_msgs.msg import CarState
+
+    out = tmp_path_factory.mktemp("visualizer")
+    viz = VizSettings(port=PORT, page_port=PAGE_PORT)
+    nodes = stack_nodes(1, StackOptions("ekf", viz=viz), out / "bag")
+    with launched(nodes, DOMAIN, out / "logs") as (launcher, probe):
+        estimates = probe.collect(CarState, "/car1/estimate/state")
+        launcher.start()
+        yield launcher, probe, estimates
+
+
+def test_a_foxglove_client_watches_the_race_and_others_come_and_go(race) -> None:
     """``crs launch sim --viz``'s nodes: the client sees the track, car1 moving along it, car1's
     status ``ok``, the page's JSON and the suite's topics passed through (not the sensor
     streams); the server lets it do nothing but subscribe. A second client that connects and
@@ -183,30 +200,26 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(tmp_path, war
 
     from chronos_msgs.msg import CarState
 
-    viz = VizSettings(port=PORT, page_port=PAGE_PORT)
-    nodes = stack_nodes(1, StackOptions("ekf", viz=viz), tmp_path / "bag")
-    with launched(nodes, DOMAIN, tmp_path / "logs") as (launcher, probe):
-        estimates = probe.collect(CarState, "/car1/estimate/state")
-        launcher.start()
-        first, second = asyncio.run(_two_viewers(time.monotonic() + TIMEOUT_S))
-        command = ["viz", "--port", str(ALONE_PORT), "--page-port", str(ALONE_PAGE_PORT)]
-        alone = subprocess.Popen(
-            [sys.executable, "-m", "launch_scripts.cli", *command, "--domain", str(DOMAIN)],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        third = Viewer()
-        deadline = time.monotonic() + 20.0
-        asyncio.run(_watch(third, deadline, lambda: _seen_car1(third), ALONE_PORT))
-        alone.send_signal(signal.SIGINT)
-        output = alone.communicate(timeout=10)[0]
-        assert alone.returncode == 0, output
-        assert _seen_car1(third), f"crs viz did not find car1:\n{output}"
-        before = len(estimates)
-        time.sleep(1.0)
-        assert len(estimates) > before + 10, "the estimates stopped after the second client"
-        assert launcher.poll() == []
+    launcher, _, estimates = race
+    first, second = asyncio.run(_two_viewers(time.monotonic() + TIMEOUT_S))
+    command = ["viz", "--port", str(ALONE_PORT), "--page-port", str(ALONE_PAGE_PORT)]
+    alone = subprocess.Popen(
+        [sys.executable, "-m", "launch_scripts.cli", *command, "--domain", str(DOMAIN)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    third = Viewer()
+    deadline = time.monotonic() + 20.0
+    asyncio.run(_watch(third, deadline, lambda: _seen_car1(third), ALONE_PORT))
+    alone.send_signal(signal.SIGINT)
+    output = alone.communicate(timeout=10)[0]
+    assert alone.returncode == 0, output
+    assert _seen_car1(third), f"crs viz did not find car1:\n{output}"
+    before = len(estimates)
+    time.sleep(1.0)
+    assert len(estimates) > before + 10, "the estimates stopped after the second client"
+    assert launcher.poll() == []
 
     assert first.info["capabilities"] == []  # no publishing, services or parameters
     assert first.moved() > MOVED_M, f"car1 did not move {MOVED_M} m on /viz/scene"
@@ -231,3 +244,17 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(tmp_path, war
     assert "/car1/estimate/diagnostics" in first.channels
     assert not [t for t in first.channels if "/sensors/" in t or t in ("/rosout", "/tf")]
     assert second.messages["/viz/scene"], "the second client got nothing"
+
+
+@needs_chromium
+def test_the_built_in_page_shows_the_race_in_a_browser(race, tmp_path) -> None:
+    """Headless Chromium on the visualizer's page (``http://127.0.0.1:PAGE_PORT/?ws=PORT``):
+    the screenshots show the demo track and car1, moving."""
+    launcher, _, _ = race
+    first, second = two_screenshots(
+        f"http://127.0.0.1:{PAGE_PORT}/?ws={PORT}", tmp_path / "profile"
+    )
+    (tmp_path / "first.png").write_bytes(first)
+    (tmp_path / "second.png").write_bytes(second)
+    check_track_and_moving_car(first, second, TRACK)
+    assert launcher.poll() == []
