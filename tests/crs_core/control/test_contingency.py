@@ -3,6 +3,7 @@ and what the filter puts in place of one that is not (the model rolled out indep
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -29,13 +30,19 @@ def safety(track) -> HoldSafetyFilter:
 STEP = 0.005
 
 
+@functools.cache
+def _model() -> CarModel:
+    """The model stepped here, built once (building it takes far longer than a step)."""
+    return CarModel()
+
+
 def _lagged(
     x: np.ndarray, angle: float, u: np.ndarray, duration: float
 ) -> tuple[np.ndarray, float]:
     """State and steering angle after ``duration`` s of ``u`` from state ``x`` with the car
     steering at ``angle``: the angle follows ``u[0]`` with the settings' time constant,
     stepped here in 5 ms steps with the model's own integrator (not the filter's rollout)."""
-    model = CarModel()
+    model = _model()
     p = model.parameters.vector()
     decay = math.exp(-STEP / ContingencySettings().steering_time_constant)
     for _ in range(round(duration / STEP)):

@@ -20,7 +20,8 @@ from crs_core.model import CarModel
 from crs_core.model.car_model import effects_in_file
 from sim.scenarios import simulate_dataset
 
-#: Every test uses the module's workflow run (about 15 s).
+#: Every test uses the module's workflow run (on 12 s of training and 8 s of held-out data:
+#: the bias is named, 0.0813 +- 0.0032 rad/s, gap 0.058 -> 0.036 m).
 pytestmark = pytest.mark.slow
 
 #: The hidden truth of the training and held-out runs: a gyro bias, rad/s.
@@ -40,12 +41,12 @@ REQUIRED = (
 
 @pytest.fixture(scope="module")
 def train() -> Dataset:
-    return simulate_dataset(20, 1, model=CarModel({"gyro_bias": {"gyro_bias": GYRO_BIAS}}))
+    return simulate_dataset(12, 1, model=CarModel({"gyro_bias": {"gyro_bias": GYRO_BIAS}}))
 
 
 @pytest.fixture(scope="module")
 def result(train) -> DiscrepancyResult:
-    validation = simulate_dataset(10, 2, model=CarModel({"gyro_bias": {"gyro_bias": GYRO_BIAS}}))
+    validation = simulate_dataset(8, 2, model=CarModel({"gyro_bias": {"gyro_bias": GYRO_BIAS}}))
     settings = DiscrepancySettings(
         identification=FieSettings(fit=("Cm1", "Df", "Dr", "Iz"), process_scale=0.1),
         candidates=("gyro_bias", "steering_offset"),

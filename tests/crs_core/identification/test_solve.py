@@ -63,9 +63,10 @@ def test_result_is_consistent(results, drives):
 
 
 def test_exact_and_gauss_newton_hessians_reach_the_same_optimum(drives):
-    """On a short window both IPOPT variants find the same parameters."""
+    """On a short window (1.2 s) both IPOPT variants find the same parameters (measured: they
+    agree to 1e-8, as on 2 s), and two starts keep the better one."""
     dataset = drives[0]
-    k = 100
+    k = 60
     short = Dataset(
         t=dataset.t[:k], u=dataset.u[:k], y=dataset.y[:k], x=dataset.x[:k], meta=dataset.meta
     )

@@ -17,10 +17,13 @@ STEERING_OFFSET = 0.03
 
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """12 s to train on, 8 s held out: the offset is named and fitted as well as from 20 s and
+    12 s (measured: 0.03019 +- 0.0011 rad, gap 0.22 -> 0.021 m; from 20 s and 12 s 0.03018
+    +- 0.0009 rad, gap 0.24 -> 0.022 m) in about half the time."""
     truth = CarModel({"steering_offset": {"steering_offset": STEERING_OFFSET}})
     root = tmp_path_factory.mktemp("discrepancy")
-    train = simulate_dataset(20.0, 31, truth, driver="joystick")
-    held_out = simulate_dataset(12.0, 32, truth, driver="joystick")
+    train = simulate_dataset(12.0, 31, truth, driver="joystick")
+    held_out = simulate_dataset(8.0, 32, truth, driver="joystick")
     return (
         train.save(root / "train", metadata=False),
         held_out.save(root / "held_out", metadata=False),
