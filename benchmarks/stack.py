@@ -4,7 +4,10 @@ Each repeat runs :func:`launch_scripts.sim_stack.run_stack` (``crs launch sim``)
 its own and keeps, per car, laps, lap times, estimation RMSE (x, y, yaw, vx, vy) against the
 simulator's truth, deadline misses, re-initialisations and latencies (median, p95), and per node
 CPU (% of one core) and peak memory (MiB). ``load`` busy-looping processes run beside the stack
-for the whole measurement (a machine that is busy with something else).
+for the whole measurement (a machine that is busy with something else). With ``viz`` each repeat
+runs a second time with the visualizer (``crs launch sim --viz``) and a Foxglove viewer
+subscribed to every channel it advertises (:mod:`benchmarks.foxglove_viewer`), so the node does
+what a watching person makes it do: its CPU, and the stack's figures with it beside them.
 """
 
 from __future__ import annotations
@@ -14,16 +17,49 @@ import os
 import signal
 import subprocess
 import sys
+from collections import Counter
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from launch_scripts.sim_stack import StackOptions, rmse_text, run_stack
+from launch_scripts.visualizer import VizSettings
 
 #: A car's pipeline: the nodes whose CPU the docs add up per car.
 PIPELINE = ("simulator", "estimator", "controller")
 #: A process that keeps one core busy until it is killed.
 BUSY_LOOP = "while True:\n    pass\n"
+#: Where the benchmark's visualizer serves (not the defaults: a viewer of the user's may be open).
+VIZ = VizSettings(port=18765, page_port=18766)
+
+
+@contextlib.contextmanager
+def foxglove_viewer(port: int, seconds: float) -> Iterator[Counter[str]]:
+    """A viewer of the Foxglove server on ``port`` for ``seconds`` (in a thread of its own,
+    waiting for the server to come up); yields the count of messages it got per topic, final
+    once the block ends."""
+    import asyncio
+    import threading
+    import time
+
+    from benchmarks.foxglove_viewer import watch
+
+    counts: Counter[str] = Counter()
+    deadline = time.monotonic() + seconds
+
+    def count(channel: dict[str, Any], payload: bytes) -> None:
+        counts[channel["topic"]] += 1
+
+    thread = threading.Thread(
+        target=lambda: asyncio.run(watch(f"ws://127.0.0.1:{port}", deadline, count)),
+        name="foxglove-viewer",
+        daemon=True,
+    )
+    thread.start()
+    try:
+        yield counts
+    finally:
+        thread.join(timeout=max(deadline - time.monotonic(), 0.0) + 10.0)
 
 
 @contextlib.contextmanager
@@ -58,22 +94,36 @@ def stack_benchmark(
     load: int,
     work_dir: Path,
     domain_id: int | None = None,
+    viz: bool = False,
 ) -> dict[str, Any]:
-    """Run the stack ``repeats`` times with ``load`` busy processes beside it.
+    """Run the stack ``repeats`` times with ``load`` busy processes beside it (with ``viz``, each
+    repeat a second time with the visualizer and a viewer).
 
     Returns a JSON-ready dict: the settings, ``runs`` (per repeat: ``cars`` as in
     ``report.json``, ``cpu_percent``, ``cpu_percent_running``, ``peak_memory_mib``,
-    ``node_deaths``) and ``worst`` (per car over the repeats: fewest laps, largest position
-    RMSE, most deadline misses).
+    ``node_deaths``; with ``viz`` also ``runs_viz``, the same and ``viewer_messages``, the
+    messages the viewer got per topic) and ``worst`` (per car over the repeats without the
+    visualizer: fewest laps, largest position RMSE, most deadline misses).
     """
-    runs = []
+    keys = ("cars", "cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
+    runs, runs_viz = [], []
     with busy_loops(load):
         for repeat in range(1, repeats + 1):
             print(f"[bench] repeat {repeat} of {repeats}", flush=True)
             options = StackOptions(estimator, seed=repeat)
             report = run_stack(cars, options, duration, work_dir / f"run{repeat}", domain_id)
-            keys = ("cars", "cpu_percent", "cpu_percent_running", "peak_memory_mib", "node_deaths")
             runs.append({key: report[key] for key in keys if key in report})
+            if not viz:
+                continue
+            print(f"[bench] repeat {repeat} of {repeats} with the visualizer", flush=True)
+            options = StackOptions(estimator, seed=repeat, viz=VIZ)
+            with foxglove_viewer(VIZ.port, duration + 30.0) as seen:
+                report = run_stack(
+                    cars, options, duration, work_dir / f"run{repeat}_viz", domain_id
+                )
+            runs_viz.append(
+                {**{key: report[key] for key in keys if key in report}, "viewer_messages": seen}
+            )
     return {
         "cars": cars,
         "estimator": estimator,
@@ -81,6 +131,7 @@ def stack_benchmark(
         "repeats": repeats,
         "load_processes": load,
         "runs": runs,
+        **({"runs_viz": runs_viz} if viz else {}),
         "worst": _worst(runs),
     }
 
@@ -137,8 +188,36 @@ def format_markdown(result: dict[str, Any]) -> str:
     """The docs' row of the run (Markdown): per car over all repeats, the smallest and largest
     laps, lap time, position RMSE x / y (mm), deadline misses, sensor -> input latency (median /
     p95, ms), CPU of the car's simulator + estimator + controller and of the recorder (% of one
-    core once running); then node deaths, re-initialisations, yaw RMSE and peak memory."""
-    cars = [(run, car, c) for run in result["runs"] for car, c in run["cars"].items()]
+    core once running); then node deaths, re-initialisations, yaw RMSE and peak memory. With the
+    visualizer runs, a second row for them and the visualizer's CPU."""
+    rows, notes = [_row(result, result["runs"], "")], [_note(result, result["runs"])]
+    if "runs_viz" in result:
+        rows.append(_row(result, result["runs_viz"], " with the visualizer and a viewer"))
+        cpu = [
+            (run.get("cpu_percent_running") or run.get("cpu_percent") or {}).get("/visualizer", 0)
+            for run in result["runs_viz"]
+        ]
+        messages = [sum(run.get("viewer_messages", {}).values()) for run in result["runs_viz"]]
+        notes.append(
+            f"The visualizer: {_span(cpu, '.1f')} % of one core for {result['cars']} car(s) "
+            f"({_span([c / result['cars'] for c in cpu], '.1f')} % per car), its viewer "
+            f"subscribed to every channel ({_span(messages, 'd')} messages in the run)."
+        )
+    return "\n".join(
+        [
+            "| command | car | laps (lap time) | RMSE x / y | misses | sensor → input | "
+            "pipeline CPU | recorder CPU |",
+            "|---|---|---|---|---|---|---|---|",
+            *rows,
+            "",
+            " ".join(notes),
+        ]
+    )
+
+
+def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
+    """One table row of ``runs`` (see :func:`format_markdown`); ``label`` follows the command."""
+    cars = [(run, car, c) for run in runs for car, c in run["cars"].items()]
     laps = [c.get("laps_completed", 0) for _, _, c in cars]
     lap_times = [t for _, _, c in cars for t in c.get("lap_times_s", [])]
     rmse = [c["estimation_rmse"] for _, _, c in cars if c.get("estimation_rmse")]
@@ -166,7 +245,7 @@ def format_markdown(result: dict[str, Any]) -> str:
     misses = [c.get("estimator_deadline_misses", 0) for _, _, c in cars]
     updates = [c.get("estimator_updates", 0) for _, _, c in cars]
     row = [
-        f"`{result.get('command', 'crs bench stack')}`",
+        f"`{result.get('command', 'crs bench stack')}`{label}",
         who,
         laps_text,
         f"{_spans(rmse, ('x', 'y'), '.2f', 1e3)} mm",
@@ -175,19 +254,20 @@ def format_markdown(result: dict[str, Any]) -> str:
         pipeline,
         f"{_span(recorder, '.0f')} %",
     ]
-    deaths = sum(len(run.get("node_deaths", [])) for run in result["runs"])
-    reinit = [c.get("estimator_reinitializations", 0) for _, _, c in cars]
-    memory = [m for run in result["runs"] for m in (run.get("peak_memory_mib") or {}).values()]
-    return "\n".join(
-        [
-            "| command | car | laps (lap time) | RMSE x / y | misses | sensor → input | "
-            "pipeline CPU | recorder CPU |",
-            "|---|---|---|---|---|---|---|---|",
-            "| " + " | ".join(row) + " |",
-            "",
-            f"{result['duration_s']:g} s per run, {result['estimator'].upper()}; node deaths: "
-            f"{deaths}; re-initialisations: {_span(reinit, 'd')}; yaw RMSE "
-            f"{_span([1e3 * r['yaw'] for r in rmse], '.1f')} mrad; peak memory per node "
-            f"{_span(memory, '.0f')} MiB.",
-        ]
+    return "| " + " | ".join(row) + " |"
+
+
+def _note(result: dict[str, Any], runs: list[dict[str, Any]]) -> str:
+    """The line under the table: run length, estimator, node deaths, re-initialisations, yaw
+    RMSE and peak memory of ``runs``."""
+    cars = [c for run in runs for c in run["cars"].values()]
+    rmse = [c["estimation_rmse"] for c in cars if c.get("estimation_rmse")]
+    deaths = sum(len(run.get("node_deaths", [])) for run in runs)
+    reinit = [c.get("estimator_reinitializations", 0) for c in cars]
+    memory = [m for run in runs for m in (run.get("peak_memory_mib") or {}).values()]
+    return (
+        f"{result['duration_s']:g} s per run, {result['estimator'].upper()}; node deaths: "
+        f"{deaths}; re-initialisations: {_span(reinit, 'd')}; yaw RMSE "
+        f"{_span([1e3 * r['yaw'] for r in rmse], '.1f')} mrad; peak memory per node "
+        f"{_span(memory, '.0f')} MiB."
     )

@@ -63,7 +63,7 @@ def stack(args: argparse.Namespace) -> Outcome:
 
     work = _runs(args, "stack")
     result = stack_benchmark(
-        args.cars, args.estimator, args.duration, args.repeats, args.load, work
+        args.cars, args.estimator, args.duration, args.repeats, args.load, work, viz=args.viz
     )
     return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
 
@@ -215,6 +215,12 @@ def _stack_options(parser: argparse.ArgumentParser) -> None:
         type=bounded_number("load", "", -1, 16, int),
         default=0,
         help="busy-looping processes beside the stack, 0..16 (default 0)",
+    )
+    parser.add_argument(
+        "--viz",
+        action="store_true",
+        help="each repeat again with the visualizer (crs launch sim --viz) and a Foxglove "
+        "viewer subscribed to every channel: its CPU, and the stack's figures beside it",
     )
 
 

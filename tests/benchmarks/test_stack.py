@@ -4,6 +4,8 @@ stack itself is replaced by recorded reports; nothing is launched).
 
 from __future__ import annotations
 
+import contextlib
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -179,3 +181,28 @@ def test_one_car_once_shows_its_pipeline_node_by_node() -> None:
         "1", "1 (11.80 s)", "0.83 / 1.00 mm", "0 in 2100", "34 / 42 ms",
         "50.4 % (17.9 + 25.9 + 6.6)", "20 %",
     ]  # fmt: skip
+
+
+def test_with_the_visualizer_each_repeat_runs_again_watched_and_gets_a_row(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls = []
+
+    def fake_run_stack(cars, options, duration, out, domain_id):
+        calls.append((options.viz, out.name))
+        return {**REPORTS[0], "cpu_percent": {"/visualizer": 12.0}}
+
+    @contextlib.contextmanager
+    def fake_viewer(port: int, seconds: float):
+        assert port == stack.VIZ.port and seconds > 30.0
+        yield Counter({"/viz/scene": 900})
+
+    monkeypatch.setattr(stack, "run_stack", fake_run_stack)
+    monkeypatch.setattr(stack, "foxglove_viewer", fake_viewer)
+    result = stack_benchmark(2, "mhe", 30.0, 1, 0, tmp_path, viz=True)
+    assert calls == [(None, "run1"), (stack.VIZ, "run1_viz")]
+    assert result["runs_viz"][0]["viewer_messages"] == {"/viz/scene": 900}
+    text = format_markdown({**result, "command": "crs bench stack --viz"})
+    assert "`crs bench stack --viz` with the visualizer and a viewer |" in text
+    assert "The visualizer: 12.0 % of one core for 2 car(s) (6.0 % per car)" in text
+    assert "(900 messages in the run)" in text

@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
-import struct
 import time
 from collections import defaultdict
 from collections.abc import Iterator
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.foxglove_viewer import watch
 from crs_core.track import load_demo_track
 from launch_scripts.sim_stack import StackOptions, stack_nodes
 from launch_scripts.visualizer import VizSettings
@@ -84,69 +84,29 @@ class Viewer:
         return (end - start + TRACK.length / 2) % TRACK.length - TRACK.length / 2
 
 
-async def _connect(deadline: float, port: int) -> Any:
-    import websockets
-
-    while True:
-        try:
-            return await websockets.connect(
-                f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"], max_size=None
-            )
-        except OSError:
-            if time.monotonic() > deadline:
-                raise
-            await asyncio.sleep(0.3)
-
-
 async def _watch(viewer: Viewer, deadline: float, until: Any, port: int = PORT) -> None:
-    """Read ``viewer``'s connection to ``port`` until ``until()`` or ``deadline``, subscribing
-    to every channel advertised."""
-    ws = await _connect(deadline, port)
-    decoders: dict[int, Any] = {}
-    by_subscription: dict[int, str] = {}
-    try:
-        while not until() and time.monotonic() < deadline:
-            try:
-                frame = await asyncio.wait_for(ws.recv(), max(deadline - time.monotonic(), 0.1))
-            except TimeoutError:
-                break
-            if isinstance(frame, str):
-                message = json.loads(frame)
-                if message["op"] == "serverInfo":
-                    viewer.info = message
-                elif message["op"] == "status" and "Unknown channel ID" in message["message"]:
-                    # foxglove-sdk 0.30.3 may refuse a subscription sent the instant a channel
-                    # is advertised (before its server has registered it): subscribe again
-                    await asyncio.sleep(0.1)
-                    channel_id = int(message["message"].rsplit(":", 1)[1])
-                    subscription = [{"id": channel_id, "channelId": channel_id}]
-                    await ws.send(json.dumps({"op": "subscribe", "subscriptions": subscription}))
-                elif message["op"] == "advertise":
-                    new = message["channels"]
-                    for channel in new:
-                        viewer.channels[channel["topic"]] = channel
-                        by_subscription[channel["id"]] = channel["topic"]
-                        if channel["encoding"] == "protobuf":
-                            decoders[channel["id"]] = _decoder(channel)
-                    subscriptions = [{"id": c["id"], "channelId": c["id"]} for c in new]
-                    if subscriptions:
-                        await ws.send(
-                            json.dumps({"op": "subscribe", "subscriptions": subscriptions})
-                        )
-                continue
-            assert frame[0] == 1, frame[:1]  # message data
-            (subscription,) = struct.unpack_from("<I", frame, 1)
-            payload = frame[13:]
-            topic = by_subscription[subscription]
-            encoding = viewer.channels[topic]["encoding"]
-            if encoding == "protobuf":
-                viewer.messages[topic].append(decoders[subscription].FromString(payload))
-            elif encoding == "json":
-                viewer.messages[topic].append(json.loads(payload))
-            else:
-                viewer.messages[topic].append(payload)
-    finally:
-        await ws.close()
+    """Read ``viewer``'s connection to ``port`` until ``until()`` or ``deadline``, subscribed to
+    every channel advertised, decoding what arrives (protobuf with the advertised schema, JSON,
+    passthrough CDR kept as bytes)."""
+    decoders: dict[str, Any] = {}
+
+    def take(channel: dict[str, Any], payload: bytes) -> None:
+        topic = channel["topic"]
+        if channel["encoding"] == "protobuf":
+            decoder = decoders.get(topic) or decoders.setdefault(topic, _decoder(channel))
+            viewer.messages[topic].append(decoder.FromString(payload))
+        elif channel["encoding"] == "json":
+            viewer.messages[topic].append(json.loads(payload))
+        else:
+            viewer.messages[topic].append(payload)
+
+    def info(message: dict[str, Any]) -> None:
+        viewer.info = message
+
+    def advertised(channel: dict[str, Any]) -> None:
+        viewer.channels[channel["topic"]] = channel
+
+    await watch(f"ws://127.0.0.1:{port}", deadline, take, until, info, advertised)
 
 
 async def _two_viewers(deadline: float) -> tuple[Viewer, Viewer]:
