@@ -34,8 +34,9 @@ zero velocity reference.
 
 For a viewer (:mod:`ros4crs.visualizer_node`) it publishes, only while someone subscribes,
 ``controller/plan`` (``nav_msgs/Path`` in ``world``: the MPCC's planned positions over its
-horizon, at each tick with a plan) and ``controller/solve_time`` (``std_msgs/Float64``: each
-controller call's wall time, s).
+horizon, at each tick with a plan), ``controller/reference`` (the same for the centreline
+points at the plan's progress, where the contouring cost pulls each stage) and
+``controller/solve_time`` (``std_msgs/Float64``: each controller call's wall time, s).
 
 Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``velocity``; the
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
@@ -200,6 +201,7 @@ class ControllerNode(Node):
         from chronos_msgs.msg import CarInput, CarState
 
         self._plan_publisher = self.create_publisher(Path, conversions.TOPICS["plan"], 1)
+        self._reference_publisher = self.create_publisher(Path, conversions.TOPICS["reference"], 1)
         self._solve_publisher = self.create_publisher(Float64, conversions.TOPICS["solve_time"], 1)
         self._input_publisher = self.create_publisher(
             CarInput, conversions.TOPICS["input"], STREAM_OUT_QOS
@@ -245,16 +247,23 @@ class ControllerNode(Node):
         self._publish_for_viewers(now, step.solve_time)
 
     def _publish_for_viewers(self, now: float, solve_time: float | None) -> None:
-        """The MPCC's plan and the call time, when someone listens (a viewer)."""
+        """The MPCC's plan, its progress reference and the call time, when someone listens (a
+        viewer)."""
         from std_msgs.msg import Float64
 
         if solve_time is not None and self._solve_publisher.get_subscription_count():
             self._solve_publisher.publish(Float64(data=solve_time))
         controller = self.supervisor.controller
-        if isinstance(controller, Mpcc) and self._plan_publisher.get_subscription_count():
+        if not isinstance(controller, Mpcc):
+            return
+        if self._plan_publisher.get_subscription_count():
             plan = controller.plan
             if plan is not None:
                 self._plan_publisher.publish(conversions.plan_msg(plan[0][:, :2], now))
+        if self._reference_publisher.get_subscription_count():
+            reference = controller.progress_reference
+            if reference is not None:
+                self._reference_publisher.publish(conversions.plan_msg(reference, now))
 
     def _record_solve_time(self, seconds: float) -> None:
         self.solve_times.append(seconds)

@@ -67,6 +67,7 @@ TOPICS = {
     "diagnostics": "estimate/diagnostics",
     "query": "estimate/query",
     "plan": "controller/plan",
+    "reference": "controller/reference",
     "solve_time": "controller/solve_time",
 }
 

@@ -88,6 +88,7 @@ _TRUTH_COLOUR = Color(r=0.3, g=0.3, b=0.9, a=0.3)
 _BORDER_COLOUR = Color(r=0.2, g=0.2, b=0.2, a=1.0)
 _CENTRE_COLOUR = Color(r=0.6, g=0.6, b=0.6, a=1.0)
 _PLAN_COLOUR = Color(r=0.1, g=0.5, b=1.0, a=1.0)
+_REFERENCE_COLOUR = Color(r=1.0, g=0.8, b=0.1, a=0.9)
 _ELLIPSE_COLOUR = Color(r=0.9, g=0.1, b=0.6, a=1.0)
 
 
@@ -112,6 +113,8 @@ class CarView:
         ``[x, y, yaw]`` of the simulator's ground truth (None: no simulator).
     plan : numpy.ndarray
         The controller's planned positions ``(n, 2)``, m (empty: no plan).
+    reference : numpy.ndarray
+        The centreline points at the plan's progress ``(n, 2)``, m (empty: none).
     laps : int
         Laps completed (by the estimate).
     last_lap_s : float or None
@@ -131,6 +134,7 @@ class CarView:
     covariance: np.ndarray | None = None
     truth: np.ndarray | None = None
     plan: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     laps: int = 0
     last_lap_s: float | None = None
     solve_ms: float | None = None
@@ -192,6 +196,7 @@ class CarWatch:
         self._deadline_misses = 0
         self._truth: np.ndarray | None = None
         self._plan = np.zeros((0, 2))
+        self._reference = np.zeros((0, 2))
         self._solve_ms: float | None = None
 
     def estimate(
@@ -226,6 +231,10 @@ class CarWatch:
         """The controller's planned positions ``(n, 2)``, m."""
         self._plan = np.asarray(points, dtype=float).reshape(-1, 2)
 
+    def reference(self, points: np.ndarray) -> None:
+        """The centreline points at the plan's progress ``(n, 2)``, m."""
+        self._reference = np.asarray(points, dtype=float).reshape(-1, 2)
+
     def solve_time(self, seconds: float) -> None:
         """The controller's last call time, s."""
         self._solve_ms = 1e3 * float(seconds)
@@ -244,6 +253,7 @@ class CarWatch:
             covariance=self._covariance if shown else None,
             truth=self._truth,
             plan=self._plan if shown else np.zeros((0, 2)),
+            reference=self._reference if shown else np.zeros((0, 2)),
             laps=self.laps.laps_completed,
             last_lap_s=times[-1] if times else None,
             solve_ms=self._solve_ms,
@@ -343,7 +353,8 @@ def _footprint(pose: np.ndarray, colour: Color) -> CubePrimitive:
 def cars_scene(cars: list[CarView], stamp: float) -> SceneUpdate:
     """One entity per car (id its name, frame ``world``; each update replaces the last): the
     estimate's footprint coloured by status, the truth's fainter one, the 2-sigma position
-    ellipse and the planned horizon (whichever exist)."""
+    ellipse, the planned horizon and its progress reference on the centreline (whichever
+    exist)."""
     entities = []
     for car in cars:
         cubes, lines = [], []
@@ -359,6 +370,12 @@ def cars_scene(cars: list[CarView], stamp: float) -> SceneUpdate:
         if len(car.plan) >= 2:
             lines.append(
                 _line(car.plan, LinePrimitiveLineType.LineStrip, _PLAN_COLOUR, 0.008, 0.01)
+            )
+        if len(car.reference) >= 2:
+            lines.append(
+                _line(
+                    car.reference, LinePrimitiveLineType.LineStrip, _REFERENCE_COLOUR, 0.004, 0.01
+                )
             )
         entities.append(
             SceneEntity(

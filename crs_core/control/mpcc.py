@@ -200,6 +200,15 @@ class Mpcc:
         return self._Z.copy(), self._V.copy()
 
     @property
+    def progress_reference(self) -> np.ndarray | None:
+        """The centreline points ``(N+1, 2)`` (m, world) at the plan's progress states: where
+        the contouring cost pulls each stage, or None without a plan."""
+        if self._Z is None:
+            return None
+        x, y, _, _ = self._track.interpolate(self._Z[:, self._nxc])
+        return np.column_stack([x, y])
+
+    @property
     def last_command(self) -> np.ndarray:
         """The last command ``[delta, T]`` returned (zeros after a reset)."""
         return self._command.copy()

@@ -104,6 +104,7 @@ def _view(**fields) -> CarView:
         covariance=np.diag([1e-4, 1e-4]),
         truth=np.array([1.01, 2.0, 0.5]),
         plan=np.array([[1.0, 2.0], [1.2, 2.1], [1.4, 2.3]]),
+        reference=np.array([[1.0, 1.9], [1.2, 2.0], [1.4, 2.2], [1.6, 2.4]]),
         laps=3,
         last_lap_s=6.4321,
         solve_ms=4.56789,
@@ -136,9 +137,11 @@ def test_the_scene_draws_each_car_with_what_it_has():
     assert estimate.pose.orientation.z == pytest.approx(math.sin(0.25))
     assert (estimate.size.x, estimate.size.y) == pytest.approx(viz_scene.CAR_SIZE)
     assert truth.color.a < estimate.color.a
-    ellipse, plan = car1.lines
+    ellipse, plan, reference = car1.lines
     assert len(ellipse.points) == viz_scene.ELLIPSE_POINTS and len(plan.points) == 3
-    assert (car2.id, len(car2.cubes), len(car2.lines)) == ("car2", 0, 1)  # the plan only
+    assert len(reference.points) == 4 and reference.color != plan.color
+    # the plan and its reference only
+    assert (car2.id, len(car2.cubes), len(car2.lines)) == ("car2", 0, 2)
 
 
 def test_the_track_scene_holds_both_borders_and_the_centreline():

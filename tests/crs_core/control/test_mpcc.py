@@ -147,6 +147,20 @@ def test_velocity_output_gives_the_planned_speed(track) -> None:
         Mpcc(track, output="position")
 
 
+def test_the_progress_reference_is_the_centreline_at_the_plans_progress(track) -> None:
+    controller = Mpcc(track)
+    assert controller.progress_reference is None  # no plan yet
+    controller(_start(track, 1.0))
+    Z, _ = controller.plan
+    reference = controller.progress_reference
+    assert reference.shape == (len(Z), 2)
+    for (x, y), s in zip(reference, Z[:, controller.model.nx], strict=True):
+        on = track.project(x, y)  # on the centreline, at the stage's progress
+        assert abs(on.lateral_error) < 1e-6 and on.s == pytest.approx(s % track.length, abs=1e-6)
+    # the plan's positions follow it within the track
+    assert np.max(np.hypot(*(Z[:, :2] - reference).T)) < track.width / 2
+
+
 def test_a_short_stop_keeps_the_plan_shifted_in_time_and_a_long_one_forgets_it(track) -> None:
     """Stops with ``keep_plan`` (a late estimate) shift the plan a stage per call, as the calls
     would have; the next call starts from it (no cold start); once the stops have used up half
