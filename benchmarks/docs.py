@@ -78,6 +78,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "control": _headed("control", control_table),
     "sysid": _headed("sysid", sysid_markdown),
     "stack": _headed("stack", stack_markdown),
+    "stack_viz": _headed("stack", stack_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     # a second block of the same JSON: FILE.json#NAME

@@ -36,7 +36,12 @@ TIMEOUT_S = 60.0
 MOVED_M = 0.5
 TRACK = load_demo_track()
 #: Topics whose passthrough the client must see.
-PASSED = ("/car1/input", "/car1/ground_truth", "/car1/controller/plan")
+PASSED = (
+    "/car1/input",
+    "/car1/ground_truth",
+    "/car1/controller/plan",
+    "/car1/controller/reference",
+)
 
 
 def _decoder(channel: dict[str, Any]) -> Any:
@@ -185,6 +190,9 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(race) -> None
     assert first.moved() > MOVED_M, f"car1 did not move {MOVED_M} m on /viz/scene"
     track = [e for s in first.messages["/viz/scene"] for e in s.entities if e.id == "track"]
     assert track and len(track[0].lines) == 3
+    # car1: its ellipse, the MPCC's plan and the plan's progress reference on the centreline
+    car1 = [e for s in first.messages["/viz/scene"] for e in s.entities if e.id == "car1"]
+    assert any(len(e.lines) == 3 for e in car1), [len(e.lines) for e in car1[-5:]]
     statuses = [m["status"] for m in first.messages["/viz/car1/status"]]
     assert "ok" in statuses, statuses[-5:]
     page_track = first.messages["/viz/page/track"][-1]
