@@ -4,8 +4,9 @@
 death, the latency chain measured; (b) the controller killed: the emulated car cuts its motors
 200 ms after the last reference, and drives again when a new controller sends (backing out
 first if it coasted to a stand off the track); (c) two emulated cars at once in /car1 and /car2
-on their own ports, racing with the MPCC and the MHE: each completes a lap on the track, each
-bridge paired with its own emulator only, every reference of a car's controller reaches that car.
+on their own ports, racing with the MPCC and the MHE: each completes a lap on the track with its
+estimate within a few mm of its emulator's truth, each bridge paired with its own emulator only,
+every reference of a car's controller reaches that car.
 
 Ports of their own (not the defaults), so a ``crs launch car`` running beside does not collide.
 """
@@ -37,7 +38,7 @@ MHE = StackOptions("mhe")
 
 def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
     report = run_car_stack(
-        1, MHE, 20.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
+        1, MHE, 14.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
     )
     assert report["node_deaths"] == []
     car = report["cars"]["car1"]
@@ -144,7 +145,8 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     """Two cars racing with the MPCC and the MHE: nine processes on two cores (about 145 % of
     them since the sensor readings travel in batches; 160-190 % before). Each car completes a
     lap without leaving the track (its footprint, from the emulator's truth) or losing its
-    estimate, and the two links stay apart."""
+    estimate, its estimate within a few mm of the truth and its bridge decoding every datagram;
+    the two links stay apart."""
     report = run_car_stack(
         2,
         StackOptions("mhe", record="estimates"),
@@ -155,6 +157,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
         ports=(21231, 21331),
     )
     assert report["node_deaths"] == []
+    assert (tmp_path / "run" / "path.png").is_file()
     track = load_demo_track()
     for i in (1, 2):
         car = report["cars"][f"car{i}"]
@@ -166,6 +169,11 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
         assert car["laps_completed"] >= 1, (i, car["lap_times_s"])
         assert outside["seconds"] == 0.0, (i, outside)
         assert car["estimator_reinitializations"] == 0, i
+        rmse = car["estimation_rmse"]
+        assert rmse["x"] < 0.008 and rmse["y"] < 0.008 and rmse["yaw"] < 0.03, (i, rmse)
+        counts = diagnostics["counts"]
+        assert counts["car_state"] > 2000 and counts["invalid"] == counts["undecodable"] == 0
+        assert " 0 rejected" in car["emulator_summary"], (i, car["emulator_summary"])
         # the references this car's bridge sent (the commands and their repeats) this car's
         # emulator read (and no other's), but for the last ones: the cars stop first
         sent_log = car["bridge_final_log"].split("sent: commands ")[1]
