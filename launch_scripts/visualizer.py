@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 import ipaddress
 from dataclasses import dataclass
 from typing import Any
@@ -10,7 +11,14 @@ from typing import Any
 from crs_core.errors import FieldError
 from launch_scripts.launcher import NodeSpec
 
-__all__ = ["DEFAULT_PAGE_PORT", "DEFAULT_PORT", "VIZ_NODE", "VizSettings", "visualizer_node"]
+__all__ = [
+    "DEFAULT_PAGE_PORT",
+    "DEFAULT_PORT",
+    "VIZ_NODE",
+    "VizSettings",
+    "add_serving_options",
+    "visualizer_node",
+]
 
 #: The node's name (global namespace) and module.
 VIZ_NODE = ("visualizer", "ros4crs.visualizer_node")
@@ -63,3 +71,27 @@ def visualizer_node(settings: VizSettings, cars: int, files: dict[str, str]) -> 
     name, module = VIZ_NODE
     cars_text = ",".join(f"car{i}" for i in range(1, cars + 1))
     return NodeSpec(name, module, "", {**settings.parameters(), "cars": cars_text, **track})
+
+
+def add_serving_options(parser: argparse.ArgumentParser, prefix: str, what: str = "") -> None:
+    """``--PREFIXport``, ``--PREFIXpage-port`` and ``--PREFIXhost`` (``crs viz``: no prefix;
+    ``crs launch --viz``: ``viz-``), each the :class:`VizSettings` field of its name, none
+    given by default (the settings' defaults apply); ``what`` starts each help text."""
+    from launch_scripts.arguments import bounded_number
+
+    for name, default, text in (
+        ("port", DEFAULT_PORT, "the Foxglove WebSocket's port"),
+        ("page-port", DEFAULT_PAGE_PORT, "the built-in page's port"),
+    ):
+        parser.add_argument(
+            f"--{prefix}{name}",
+            type=bounded_number(f"{prefix}{name}", "", 1, 65535, int, include_low=True),
+            metavar="N",
+            help=f"{what}{text} (default {default})",
+        )
+    parser.add_argument(
+        f"--{prefix}host",
+        metavar="HOST",
+        help=f"{what}the address both serve on (default 127.0.0.1, this machine only; "
+        "0.0.0.0: every interface, for the lab network)",
+    )

@@ -25,7 +25,7 @@ from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
 from launch_scripts.stack_part import STACK_NODES, StackPart, parse_nodes, zenoh_settings
-from launch_scripts.visualizer import DEFAULT_PAGE_PORT, DEFAULT_PORT, VizSettings
+from launch_scripts.visualizer import VizSettings, add_serving_options
 from ros4crs.zenoh.session import MODES
 
 
@@ -315,24 +315,7 @@ def add_viz(sub: argparse.ArgumentParser) -> None:
         help="watch the race live: add the visualizer node (a Foxglove WebSocket and the "
         "built-in page; docs/live-view.md)",
     )
-    sub.add_argument(
-        "--viz-port",
-        type=bounded_number("viz-port", "", 1, 65535, int, include_low=True),
-        metavar="N",
-        help=f"--viz: the Foxglove WebSocket's port (default {DEFAULT_PORT})",
-    )
-    sub.add_argument(
-        "--viz-page-port",
-        type=bounded_number("viz-page-port", "", 1, 65535, int, include_low=True),
-        metavar="N",
-        help=f"--viz: the built-in page's port (default {DEFAULT_PAGE_PORT})",
-    )
-    sub.add_argument(
-        "--viz-host",
-        metavar="HOST",
-        help="--viz: the address both serve on (default 127.0.0.1, this machine only; "
-        "0.0.0.0: every interface, for the lab network)",
-    )
+    add_serving_options(sub, "viz-", "--viz: ")
 
 
 def add_part(sub: argparse.ArgumentParser) -> None:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from crs_core.errors import FieldError
 from launch_scripts.arguments import Command, bounded_number
-from launch_scripts.visualizer import DEFAULT_PAGE_PORT, DEFAULT_PORT, VIZ_NODE, VizSettings
+from launch_scripts.visualizer import VIZ_NODE, VizSettings, add_serving_options
 
 #: ``crs viz``'s options, by the :class:`VizSettings` field they set.
 FLAGS = {"host": "--host", "port": "--port", "page_port": "--page-port"}
@@ -22,7 +22,8 @@ def node_arguments(args: argparse.Namespace) -> list[str]:
     from ros4crs.visualizer_node import parse_cars
 
     try:
-        settings = VizSettings(args.host, args.port, args.page_port)
+        given = {field: getattr(args, field) for field in FLAGS}
+        settings = VizSettings(**{k: v for k, v in given.items() if v is not None})
     except FieldError as error:
         raise error.renamed(FLAGS[error.field]) from None
     parameters = settings.parameters()
@@ -53,27 +54,7 @@ def viz(args: argparse.Namespace) -> int:
 
 def add_arguments(sub: argparse.ArgumentParser) -> None:
     """``crs viz``'s arguments."""
-    sub.add_argument(
-        "--port",
-        type=bounded_number("port", "", 1, 65535, int, include_low=True),
-        default=DEFAULT_PORT,
-        metavar="N",
-        help=f"the Foxglove WebSocket's port (default {DEFAULT_PORT})",
-    )
-    sub.add_argument(
-        "--page-port",
-        type=bounded_number("page-port", "", 1, 65535, int, include_low=True),
-        default=DEFAULT_PAGE_PORT,
-        metavar="N",
-        help=f"the built-in page's port (default {DEFAULT_PAGE_PORT})",
-    )
-    sub.add_argument(
-        "--host",
-        default="127.0.0.1",
-        metavar="HOST",
-        help="the address both serve on (default 127.0.0.1, this machine only; 0.0.0.0: every "
-        "interface, for the lab network)",
-    )
+    add_serving_options(sub, "")
     sub.add_argument(
         "--cars",
         metavar="NS[,NS...]",
