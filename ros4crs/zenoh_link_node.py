@@ -10,10 +10,11 @@ machine sees theirs; discovery is dynamic on both sides, like rmw_zenoh's.
   publisher other than this node; each gets a raw subscription (CDR bytes, never deserialized),
   with the publishers' reliability and durability, and its samples are put on Zenoh at the
   topic's key with rmw_zenoh's attachment (sequence number, source time, GID). The node declares
-  its ``NN`` token and an ``MP`` token per exported topic. Transient-local topics go through a
-  Zenoh advanced publisher with a cache (the last ``LOG_DEPTH`` samples; ROS does not report a
-  remote publisher's depth) so that a far subscriber joining late gets the history; volatile ones
-  through a plain publisher of ``STREAM_QOS.depth``. Congestion control: drop (block only for
+  its ``NN`` token and an ``MP`` token per exported topic (an ``MS`` token per imported one).
+  Transient-local topics go through a Zenoh advanced publisher with a cache (the last
+  ``LOG_DEPTH`` samples; ROS does not report a remote publisher's depth) so that a far
+  subscriber joining late gets the history; volatile ones through a plain publisher of
+  ``STREAM_QOS.depth``. Congestion control: drop (block only for
   keep-all, as rmw_zenoh). A topic whose publishers are all gone is withdrawn.
 * Import: the node follows the liveliness tokens of ``domain`` (with history); for each
   publisher token (``MP``) of another Zenoh session whose topic matches ``topics`` it publishes
@@ -443,6 +444,13 @@ class _Import:
             self._subscriber = node.session.declare_subscriber(
                 key, self._on_sample, allowed_origin=zenoh.Locality.REMOTE
             )
+        # a subscription token (MS), as rmw_zenoh declares one: far graphs see this machine's
+        # subscription of the topic
+        token = wire.endpoint_token(
+            "MS", node.domain, node.zid, 0, next(node._entity_ids), node.get_namespace(),
+            node.get_name(), entity.topic, entity.msgtype, entity.qos, hash_=entity.type_hash,
+        )  # fmt: skip
+        self._token = node.session.liveliness().declare_token(token)
 
     def _drop(self, reason: str, detail: str = "") -> None:
         self.counts.dropped[reason] += 1
@@ -471,6 +479,7 @@ class _Import:
         return None
 
     def close(self) -> None:
+        self._token.undeclare()
         self._subscriber.undeclare()
 
 

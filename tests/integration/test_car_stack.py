@@ -150,7 +150,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     report = run_car_stack(
         2,
         StackOptions("mhe", record="estimates"),
-        18.0,
+        16.0,
         tmp_path / "run",
         True,
         domain_id=DOMAIN_TWO_EMULATED,

@@ -34,9 +34,9 @@ pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
 PORT = 17745
 DOMAIN = 127
-DURATION_S = 36.0
+DURATION_S = 32.0
 #: When the cable is pulled (s after both parts started) and for how long.
-CUT_AT_S, CUT_FOR_S = 17.0, 2.0
+CUT_AT_S, CUT_FOR_S = 13.0, 2.0
 
 
 def _one_machine_worst_rmse() -> float:
@@ -60,7 +60,7 @@ def test_two_machines_race_over_the_zenoh_link_and_survive_a_pulled_cable(tmp_pa
     report = json.loads((tmp_path / "A" / "report.json").read_text())
     assert report["node_deaths"] == [], report["node_deaths"]
     car = report["cars"]["car1"]
-    assert car["laps_completed"] >= 3, car  # two before the cut, one after it at least
+    assert car["laps_completed"] >= 2, car  # one before the cut, one after it at least
     far = json.loads((tmp_path / "B" / "report.json").read_text())
     assert far["node_deaths"] == [] and "car1" not in far.get("cars", {}), far
     contents = read_car(tmp_path / "A" / "bag", "/car1")
@@ -78,6 +78,6 @@ def test_two_machines_race_over_the_zenoh_link_and_survive_a_pulled_cable(tmp_pa
     assert "link outage" in controller, controller
     speed = x[:, 3]
     during = speed[(t > cut_wall + 1.5) & (t < restored_wall)]
-    after = speed[t > restored_wall + 6.0]
+    after = speed[t > restored_wall + 5.0]
     assert during.size and during.max() < 0.5 * speed[t < cut_wall].max(), during
     assert after.size and after.max() > 1.5, after

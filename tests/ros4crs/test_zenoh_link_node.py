@@ -245,6 +245,14 @@ def test_a_foreign_rmw_zenoh_publisher_is_imported(machines: dict) -> None:
         wait_for(dropped_after_another, 10.0, lambda: f"type_hash drops, saw {drops()}")
         report = json.loads(machines["diagnostics_b"][-1][1].data)
         assert report["far_sessions"][zid] == ["/car1/foreign"]
+        # B announces its subscription of the topic as rmw_zenoh does (an MS token)
+        replies = session.liveliness().get(wire.liveliness_prefix(LINK_DOMAIN), timeout=2.0)
+        tokens = [wire.parse_token(str(reply.ok.key_expr)) for reply in replies if reply.ok]
+        subscriptions = [t for t in tokens if isinstance(t, wire.EndpointInfo) and t.kind == "MS"]
+        assert any(
+            t.topic == "/car1/foreign" and t.node == "link_b" and t.msgtype == msgtype
+            for t in subscriptions
+        ), subscriptions
         assert report["import"]["/car1/other_version"]["samples"] == 0
         for token in declared:
             token.undeclare()
