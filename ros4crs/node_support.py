@@ -187,6 +187,19 @@ def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> Ca
         raise ParameterError("params_file", str(message)) from None
 
 
+#: Topics every node has, which describe one machine's processes: never recorded, carried to
+#: another machine or passed to a viewer.
+INTERNAL_TOPICS = ("/rosout", "/parameter_events")
+
+
+def topic_selected(topic: str, prefixes: Sequence[str]) -> bool:
+    """Whether ``topic`` is one of the suite's (not :data:`INTERNAL_TOPICS`) and starts with one
+    of ``prefixes`` (empty: every topic)."""
+    if topic in INTERNAL_TOPICS:
+        return False
+    return not prefixes or any(topic.startswith(p) for p in prefixes)
+
+
 def message_class(msgtype: str) -> type:
     """The rclpy message class of ``"pkg/msg/Type"``."""
     import importlib

@@ -25,7 +25,16 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.rosbag2.storage_mcap import McapWriter
 
 from ros4crs.interfaces import typestore
-from ros4crs.node_support import LOG_QOS, STREAM_QOS, declare, message_class, one_of, positive, run
+from ros4crs.node_support import (
+    LOG_QOS,
+    STREAM_QOS,
+    declare,
+    message_class,
+    one_of,
+    positive,
+    run,
+    topic_selected,
+)
 
 
 def _new_folder(path: str) -> str | None:
@@ -73,14 +82,9 @@ class RecorderNode(Node):
         namespace = self.get_namespace().rstrip("/")
         return f"{namespace}/{name}"
 
-    def _matches(self, topic: str) -> bool:
-        if topic in ("/rosout", "/parameter_events"):
-            return False
-        return not self.patterns or any(topic.startswith(p) for p in self.patterns)
-
     def _discover(self) -> None:
         for topic, types in self.get_topic_names_and_types():
-            if topic in self.connections or not self._matches(topic):
+            if topic in self.connections or not topic_selected(topic, self.patterns):
                 continue
             msgtype = types[0]
             try:

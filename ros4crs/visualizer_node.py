@@ -61,6 +61,7 @@ from rosbags.typesys import TypesysError
 from ros4crs import conversions, viz_scene
 from ros4crs.interfaces import typestore
 from ros4crs.node_support import (
+    INTERNAL_TOPICS,
     ParameterError,
     declare,
     declare_track,
@@ -78,7 +79,7 @@ VIEW_QOS = QoSProfile(
     depth=10, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST
 )
 #: Topics never passed through (``/tf``: ``/viz/tf`` shows it).
-NOT_PASSED = ("/rosout", "/parameter_events", "/tf")
+NOT_PASSED = (*INTERNAL_TOPICS, "/tf")
 #: Parts of a topic name that keep it from being passed through: the 250 Hz sensor streams, the
 #: estimator's query log (what a replay needs, nothing to look at) and its odometry (the same
 #: pose as ``estimate/state``, at 60 Hz: a tenth of the node's CPU per car).

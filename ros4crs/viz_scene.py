@@ -42,7 +42,7 @@ from foxglove.messages import (
 from crs_core.analysis.laps import LapCounter
 from crs_core.errors import FieldError
 from crs_core.track import Track
-from ros4crs.conversions import body_frame
+from ros4crs.conversions import body_frame, stamp_ns
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
 
 __all__ = [
@@ -297,8 +297,7 @@ def covariance_ellipse(
 
 
 def _timestamp(seconds: float) -> Timestamp:
-    sec = math.floor(seconds)
-    return Timestamp(sec, min(round((seconds - sec) * 1e9), 999_999_999))
+    return Timestamp(*divmod(stamp_ns(seconds), 1_000_000_000))
 
 
 def _yaw_quaternion(yaw: float) -> Quaternion:

@@ -68,12 +68,11 @@ from ros4crs.node_support import (
     one_of,
     run,
     throttled_warning,
+    topic_selected,
 )
 from ros4crs.zenoh import wire
 from ros4crs.zenoh.session import MODES, ZenohSettings, open_session
 
-#: Topics never carried (every node has them; they are per machine).
-EXCLUDED = ("/rosout", "/parameter_events")
 #: Seconds between polls of the local ROS graph and of the queued liveliness changes.
 DISCOVERY_PERIOD = 0.25
 #: Reasons an imported sample is dropped.
@@ -206,11 +205,6 @@ class ZenohLinkNode(Node):
         )
 
     # ------------------------------------------------------------------ discovery
-    def _matches(self, topic: str) -> bool:
-        if topic in EXCLUDED:
-            return False
-        return not self.patterns or any(topic.startswith(p) for p in self.patterns)
-
     def _known_type(self, msgtype: str) -> bool:
         """Whether rclpy and the typestore both know ``msgtype`` (warn once if not)."""
         try:
@@ -231,7 +225,7 @@ class ZenohLinkNode(Node):
         me = (self.get_name(), self.get_namespace())
         seen = set()
         for topic, types in self.get_topic_names_and_types():
-            if not self._matches(topic):
+            if not topic_selected(topic, self.patterns):
                 continue
             publishers = [
                 info
@@ -283,7 +277,7 @@ class ZenohLinkNode(Node):
             if isinstance(entity, wire.NodeInfo):
                 names = self.far_nodes[entity.zid]
                 (names.add if alive else names.discard)(entity.full_name)
-            elif entity.kind == "MP" and self._matches(entity.topic):
+            elif entity.kind == "MP" and topic_selected(entity.topic, self.patterns):
                 self._far_publisher(key, entity, alive)
 
     def _far_publisher(self, token: str, entity: wire.EndpointInfo, alive: bool) -> None:
