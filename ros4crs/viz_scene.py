@@ -40,6 +40,7 @@ from foxglove.messages import (
 )
 
 from crs_core.analysis.laps import LapCounter
+from crs_core.analysis.statistics import covariance_ellipse
 from crs_core.errors import FieldError
 from crs_core.track import Track
 from ros4crs.conversions import body_frame, stamp_ns
@@ -55,7 +56,6 @@ __all__ = [
     "CarWatch",
     "car_status",
     "cars_scene",
-    "covariance_ellipse",
     "frame_transforms",
     "page_cars_json",
     "page_track_json",
@@ -281,21 +281,6 @@ def position_covariance(covariance: Sequence[float]) -> np.ndarray | None:
     return block
 
 
-def covariance_ellipse(
-    centre: np.ndarray,
-    covariance: np.ndarray,
-    sigma: float = ELLIPSE_SIGMA,
-    n: int = ELLIPSE_POINTS,
-) -> np.ndarray:
-    """The ``sigma``-sigma ellipse of a 2 x 2 position covariance (m^2, as
-    :func:`position_covariance` returns it) around ``centre`` ``[x, y]`` (m): ``(n, 2)``
-    points, m."""
-    values, vectors = np.linalg.eigh(covariance)
-    angle = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    unit = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    return np.asarray(centre[:2]) + sigma * (unit * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
-
-
 def _timestamp(seconds: float) -> Timestamp:
     return Timestamp(*divmod(stamp_ns(seconds), 1_000_000_000))
 
@@ -360,7 +345,9 @@ def cars_scene(cars: list[CarView], stamp: float) -> SceneUpdate:
         if car.estimate is not None:
             cubes.append(_footprint(car.estimate, _STATUS_COLOURS[car.status]))
             if car.covariance is not None:
-                ellipse = covariance_ellipse(car.estimate, car.covariance)
+                ellipse = covariance_ellipse(
+                    car.estimate, car.covariance, ELLIPSE_SIGMA, ELLIPSE_POINTS
+                )
                 lines.append(
                     _line(ellipse, LinePrimitiveLineType.LineLoop, _ELLIPSE_COLOUR, 0.004, 0.05)
                 )

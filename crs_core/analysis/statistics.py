@@ -1,5 +1,5 @@
 """Summary statistics of a sample: the one place a median, a 95th percentile and friends are
-computed for benchmarks, reports and logs.
+computed for benchmarks, reports and logs; and the ellipse of a 2-D covariance.
 
 Call sites choose which statistics they report (``keys``) and how many decimals they keep
 (``digits``); the numbers are numpy's (``np.median``, ``np.percentile`` with its default linear
@@ -17,7 +17,7 @@ from numpy.typing import ArrayLike
 
 from crs_core.errors import FieldError
 
-__all__ = ["summary"]
+__all__ = ["covariance_ellipse", "summary"]
 
 
 _FUNCTIONS: dict[str, Callable[[np.ndarray], Any]] = {
@@ -78,3 +78,15 @@ def summary(
         value = _statistic(values, key)
         out[key] = round(value, digits) if digits is not None else value
     return out
+
+
+def covariance_ellipse(
+    centre: ArrayLike, covariance: ArrayLike, sigma: float, n: int
+) -> np.ndarray:
+    """The ``sigma``-sigma ellipse of a 2 x 2 covariance (symmetric, positive semi-definite)
+    around ``centre`` (its first two values): ``(n, 2)`` points, in the units of ``centre``."""
+    values, vectors = np.linalg.eigh(np.asarray(covariance, dtype=float))
+    angle = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
+    unit = np.stack([np.cos(angle), np.sin(angle)], axis=1)
+    axes = sigma * (unit * np.sqrt(np.maximum(values, 0.0))) @ vectors.T
+    return np.asarray(centre, dtype=float)[:2] + axes

@@ -89,12 +89,6 @@ def test_the_position_covariance_is_checked_at_the_boundary():
             viz_scene.position_covariance(bad)
 
 
-def test_the_ellipse_has_two_sigma_along_the_principal_axes():
-    P = np.array([[0.04, 0.0], [0.0, 0.01]])  # sigma 0.2 m along x, 0.1 m along y
-    points = viz_scene.covariance_ellipse(np.array([1.0, 2.0]), P, n=4)
-    np.testing.assert_allclose(np.abs(points - [1.0, 2.0]).max(axis=0), [0.4, 0.2], atol=1e-12)
-
-
 def _view(**fields) -> CarView:
     base = dict(
         name="car1",

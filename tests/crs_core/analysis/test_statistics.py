@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from crs_core.analysis.statistics import summary
+from crs_core.analysis.statistics import covariance_ellipse, summary
 
 
 def test_default_keys_are_median_p95_max_and_equal_numpy():
@@ -56,3 +56,9 @@ def test_an_unknown_key_is_refused_even_for_an_empty_sample(key):
         summary([1.0, 2.0], (key,))
     with pytest.raises(ValueError, match="unknown statistic"):
         summary([], (key,))
+
+
+def test_the_ellipse_has_sigma_times_the_deviation_along_the_principal_axes():
+    P = np.array([[0.04, 0.0], [0.0, 0.01]])  # sigma 0.2 m along x, 0.1 m along y
+    points = covariance_ellipse(np.array([1.0, 2.0]), P, 2.0, 4)
+    np.testing.assert_allclose(np.abs(points - [1.0, 2.0]).max(axis=0), [0.4, 0.2], atol=1e-12)
