@@ -25,6 +25,8 @@ estimate/diagnostics  chronos_msgs/EstimatorDiagnostics
 estimate/query        chronos_msgs/EstimatorQuery      each query and the newest data it had
 controller/plan       nav_msgs/Path                    the MPCC's planned positions (world)
 controller/solve_time std_msgs/Float64                 the controller's call time, s
+lighthouse_fix        geometry_msgs/                   a Lighthouse pose fix (world; while
+                      PoseWithCovarianceStamped        someone subscribes)
 /tf (absolute)        tf2_msgs/TFMessage               ``world`` -> ``<car>/base_link``
 ====================  ===============================  =====================================
 
@@ -44,6 +46,7 @@ import numpy as np
 
 from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimate
+from crs_core.estimation.lighthouse_pose import PoseFix
 from crs_core.measurements import (
     InputSample,
     Measurement,
@@ -69,6 +72,7 @@ TOPICS = {
     "plan": "controller/plan",
     "reference": "controller/reference",
     "solve_time": "controller/solve_time",
+    "lighthouse_fix": "lighthouse_fix",
 }
 
 
@@ -173,23 +177,21 @@ def lighthouse_from_msg(msg: Any) -> Measurement:
 
 def pose_from_msg(msg: Any) -> Measurement:
     """``geometry_msgs/PoseStamped`` -> ``pose`` (x, y, yaw from the quaternion)."""
-    q = _finite(
-        "pose.orientation",
-        [
-            msg.pose.orientation.x,
-            msg.pose.orientation.y,
-            msg.pose.orientation.z,
-            msg.pose.orientation.w,
-        ],
-        4,
-    )
+    return Measurement(seconds_from_stamp(msg.header.stamp), "pose", _planar_pose("pose", msg.pose))
+
+
+def _planar_pose(field: str, pose: Any) -> np.ndarray:
+    """``geometry_msgs/Pose`` -> ``[x, y, yaw]`` (m, m, rad; yaw from the quaternion, checked
+    to be near unit length); ``field`` names it in errors."""
+    o = pose.orientation
+    q = _finite(f"{field}.orientation", [o.x, o.y, o.z, o.w], 4)
     norm = float(np.linalg.norm(q))
     if not 0.5 < norm < 1.5:
-        raise FieldError("pose.orientation", f"not a unit quaternion (norm {norm:.3g})")
+        raise FieldError(f"{field}.orientation", f"not a unit quaternion (norm {norm:.3g})")
     x, y, z, w = q / norm
     yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-    position = _finite("pose.position", [msg.pose.position.x, msg.pose.position.y], 2)
-    return Measurement(seconds_from_stamp(msg.header.stamp), "pose", np.append(position, yaw))
+    position = _finite(f"{field}.position", [pose.position.x, pose.position.y], 2)
+    return np.append(position, yaw)
 
 
 class BatchReadings(NamedTuple):
@@ -380,13 +382,21 @@ def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     msg.twist.twist.linear.x, msg.twist.twist.linear.y = float(x[3]), float(x[4])
     msg.twist.twist.angular.z = float(x[5])
     P = estimate.covariance
-    pose_cov, twist_cov = np.zeros((6, 6)), np.zeros((6, 6))
-    pose_index, twist_index = [0, 1, 5], [0, 1, 5]  # x, y, yaw / vx, vy, wz in the 6x6 layouts
-    pose_cov[np.ix_(pose_index, pose_index)] = P[:3, :3]
-    twist_cov[np.ix_(twist_index, twist_index)] = P[3:, 3:]
-    msg.pose.covariance = pose_cov.ravel().tolist()
-    msg.twist.covariance = twist_cov.ravel().tolist()
+    msg.pose.covariance = _planar_to_6d(P[:3, :3]).ravel().tolist()
+    msg.twist.covariance = _planar_to_6d(P[3:, 3:]).ravel().tolist()
     return msg
+
+
+#: Where a planar ``(x, y, yaw)`` (or ``(v_x, v_y, omega)``) covariance sits in ROS's 6 x 6
+#: ``(x, y, z, roll, pitch, yaw)`` layout.
+_PLANAR_INDEX = [0, 1, 5]
+
+
+def _planar_to_6d(covariance: np.ndarray) -> np.ndarray:
+    """A 3 x 3 planar covariance in ROS's 6 x 6 layout (zeros elsewhere)."""
+    full = np.zeros((6, 6))
+    full[np.ix_(_PLANAR_INDEX, _PLANAR_INDEX)] = covariance
+    return full
 
 
 def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
@@ -471,6 +481,27 @@ def plan_from_msg(msg: Any) -> np.ndarray:
     """``nav_msgs/Path`` -> its positions ``(n, 2)``, m."""
     xy = [(p.pose.position.x, p.pose.position.y) for p in msg.poses]
     return _finite("poses", xy).reshape(-1, 2)
+
+
+# --- Lighthouse pose fixes ------------------------------------------------------------------
+def pose_fix_msg(fix: PoseFix) -> Any:
+    """``geometry_msgs/PoseWithCovarianceStamped`` in ``world``: the fix's pose, its planar
+    covariance in ROS's 6 x 6 layout, stamped with the fix's stamp."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = "world"
+    fill_stamp(msg.header.stamp, fix.stamp)
+    x, y, yaw = map(float, fix.pose)
+    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
+    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    msg.pose.covariance = _planar_to_6d(fix.covariance).ravel().tolist()
+    return msg
+
+
+def pose_fix_from_msg(msg: Any) -> tuple[float, np.ndarray]:
+    """``geometry_msgs/PoseWithCovarianceStamped`` -> (stamp s, ``[x, y, yaw]`` m, m, rad)."""
+    return seconds_from_stamp(msg.header.stamp), _planar_pose("pose.pose", msg.pose.pose)
 
 
 def solve_time_from_msg(msg: Any) -> float:

@@ -23,6 +23,13 @@ nothing is published on ``estimate/state``, ``estimate/odometry`` and ``/tf``: a
 stale estimate and stops the car; the diagnostics say why. A clock that jumps back (a looped
 bag replay with ``/clock``) restarts the estimator on the data that follow, with a warning.
 
+For a viewer (:mod:`ros4crs.visualizer_node`) it publishes, only while someone subscribes and
+when the Lighthouse is among its sensors, ``lighthouse_fix``
+(``geometry_msgs/PoseWithCovarianceStamped`` in ``world``): each base station's single-shot pose
+fix from its sweep pair (:class:`~crs_core.estimation.lighthouse_pose.LighthouseFixes`), at most
+:data:`FIX_RATE_HZ` per station; not recorded by the stack, and not used by the estimate (which
+takes the sweeps themselves).
+
 Velocity-mode inputs: only torque-mode commands are inputs of the model: a velocity-mode command
 (``CarInput.MODE_VELOCITY``, a reference for the car's onboard velocity PID) says nothing about the
 torque the car applies, so it is ignored (counted in ``velocity_references``, logged once); with
@@ -59,6 +66,8 @@ from crs_core.estimation import (
     INPUT_MODES,
     KINDS,
     EkfSettings,
+    LighthouseFixes,
+    LighthousePoseSolver,
     MheSettings,
     make_estimator,
     parse_sensor_set,
@@ -84,6 +93,9 @@ from ros4crs.node_support import (
 )
 from ros4crs.settings_parameters import SettingsParameters, declare_settings
 
+#: Most Lighthouse pose fixes a second per base station for a viewer (a person sees ~10; the
+#: stations sweep at ~50 Hz).
+FIX_RATE_HZ = 10.0
 #: The real-time policy's settings, all parameters (default, description and bounds: the
 #: dataclass's; ``max_lag``'s default is the node's, by estimator).
 REALTIME_PARAMETERS = SettingsParameters(RealtimeSettings, ("rate_hz", "lag", "max_lag"))
@@ -152,12 +164,21 @@ class EstimatorNode(Node):
             else EkfSettings(time_offsets=offsets)
         )
         self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
+        self.fixes = (
+            LighthouseFixes(
+                LighthousePoseSolver(model, settings.noise.lighthouse_std),
+                min_interval=1.0 / FIX_RATE_HZ,
+            )
+            if "lh" in parse_sensor_set(sensors)
+            else None
+        )
         self.realtime = RealtimeEstimator(
             self.estimator,
             timing,
             None if blind_start else initial,
         )
         self.kind = kind
+        from geometry_msgs.msg import PoseWithCovarianceStamped
         from nav_msgs.msg import Odometry
 
         from chronos_msgs.msg import (
@@ -208,6 +229,9 @@ class EstimatorNode(Node):
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
         self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
+        self._fix_publisher = self.create_publisher(
+            PoseWithCovarianceStamped, conversions.TOPICS["lighthouse_fix"], 10
+        )
         self._timer = self.create_timer(1.0 / self.rate_hz, self._update)
         self.create_timer(1.0, self._publish_diagnostics)
         self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
@@ -250,6 +274,10 @@ class EstimatorNode(Node):
         warning = self.realtime.deliver(measurement, now, source)
         if warning is not None:
             self._warn[warning.kind](warning.message)
+        if self.fixes is not None and self._fix_publisher.get_subscription_count():
+            fix = self.fixes.add(measurement)
+            if fix is not None:
+                self._fix_publisher.publish(conversions.pose_fix_msg(fix))
 
     def _on_input(self, command: conversions.CarCommand) -> None:
         if command.mode != "torque":  # a velocity reference: the torque is the car's secret

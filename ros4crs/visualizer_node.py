@@ -9,8 +9,8 @@ viewer does reaches a car. It finds the cars (``cars``, else every ``/carN`` nam
 graph) and the topics by polling the graph once a second, as the recorder does, and subscribes
 raw and best-effort (a slow viewer never holds a publisher back, and joining or leaving does not
 disturb the stack). A car's ``estimate/state``, ``ground_truth``, ``estimate/diagnostics``,
-``controller/plan``, ``controller/reference`` and ``controller/solve_time`` are validated at
-the boundary
+``controller/plan``, ``controller/reference``, ``controller/solve_time`` and ``lighthouse_fix``
+(which the estimator computes only while subscribed) are validated at the boundary
 (:mod:`ros4crs.conversions`; a malformed message is dropped with a throttled warning naming the
 field) and feed a :class:`~ros4crs.viz_scene.CarWatch` each (laps counted on the track).
 
@@ -20,7 +20,8 @@ Channels (the JSON ones with a JSON schema), each built and sent only while a vi
   centreline; at the start and every 2 s for viewers that join late) and per car (entity
   ``carN``) the estimate's footprint coloured by status, the simulator's truth (fainter), the
   2-sigma position ellipse, the MPCC's planned horizon and its progress reference (the
-  centreline points the plan's stages are pulled to), at ``rate_hz``;
+  centreline points the plan's stages are pulled to) and the Lighthouse pose fixes of the last
+  half second (a dot with a heading tick each), at ``rate_hz``;
 - ``/viz/tf`` (``foxglove.FrameTransforms``): ``world`` -> ``carN/base_link``, at ``rate_hz``;
 - ``/viz/carN/status`` (JSON): status, reason, laps, last lap, solve time, deadline misses;
 - ``/viz/page/track`` and ``/viz/page/cars`` (JSON): the built-in page's contract
@@ -32,9 +33,6 @@ Channels (the JSON ones with a JSON schema), each built and sent only while a vi
   waits for its listeners before its clock starts), ``estimate/query`` (the estimator's log
   for an exact replay, at the estimator's rate) and ``estimate/odometry`` (``estimate/state``
   again).
-
-The Lighthouse pose fixes are not drawn: no topic carries them (the estimator uses the sweeps
-inside its update and publishes only the estimate).
 
 Parameters: ``port`` (Foxglove WebSocket, default 8765), ``page_port`` (built-in page, 8766),
 ``host`` (address both bind to, default 127.0.0.1; 0.0.0.0 for the lab network), ``cars``
@@ -260,6 +258,13 @@ class VisualizerNode(Node):
             return lambda msg: watch.plan(conversions.plan_from_msg(msg)), "plan"
         if relative == topics["reference"]:
             return lambda msg: watch.reference(conversions.plan_from_msg(msg)), "reference"
+        if relative == topics["lighthouse_fix"]:
+            return (
+                lambda msg: watch.lighthouse_fix(
+                    time.monotonic(), conversions.pose_fix_from_msg(msg)[1]
+                ),
+                "Lighthouse fix",
+            )
         if relative == topics["solve_time"]:
             return lambda msg: watch.solve_time(conversions.solve_time_from_msg(msg)), "solve time"
         return None, ""

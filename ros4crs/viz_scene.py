@@ -2,7 +2,7 @@
 per-car status and the built-in page's JSON.
 
 :class:`CarWatch` follows one car from its validated messages (estimate, truth, estimator
-diagnostics, the controller's plan and solve time) and counts its laps
+diagnostics, the controller's plan and solve time, the Lighthouse pose fixes) and counts its laps
 (:class:`~crs_core.analysis.laps.LapCounter` on the track's projection); :meth:`CarWatch.view`
 is a :class:`CarView`, a snapshot the builders below turn into messages:
 :func:`track_scene` / :func:`cars_scene` (``foxglove.SceneUpdate``), :func:`frame_transforms`
@@ -18,6 +18,7 @@ The car's footprint is the simulator's (:data:`sim.closed_loop.CAR_LENGTH` x
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -35,6 +36,7 @@ from foxglove.messages import (
     Quaternion,
     SceneEntity,
     SceneUpdate,
+    SpherePrimitive,
     Timestamp,
     Vector3,
 )
@@ -77,6 +79,10 @@ STALE_AFTER = 0.5
 ELLIPSE_SIGMA = 2.0
 #: Points of the drawn ellipse.
 ELLIPSE_POINTS = 32
+#: Lighthouse pose fixes stay drawn this long after they arrived, s.
+FIX_MEMORY = 0.5
+#: Diameter of a drawn fix and length of its heading tick, m.
+FIX_SIZE = (0.02, 0.06)
 
 _STATUS_COLOURS = {
     "ok": Color(r=0.1, g=0.7, b=0.2, a=0.9),
@@ -90,6 +96,7 @@ _CENTRE_COLOUR = Color(r=0.6, g=0.6, b=0.6, a=1.0)
 _PLAN_COLOUR = Color(r=0.1, g=0.5, b=1.0, a=1.0)
 _REFERENCE_COLOUR = Color(r=1.0, g=0.8, b=0.1, a=0.9)
 _ELLIPSE_COLOUR = Color(r=0.9, g=0.1, b=0.6, a=1.0)
+_FIX_COLOUR = Color(r=0.0, g=0.75, b=0.75, a=0.9)
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,9 @@ class CarView:
         The controller's planned positions ``(n, 2)``, m (empty: no plan).
     reference : numpy.ndarray
         The centreline points at the plan's progress ``(n, 2)``, m (empty: none).
+    fixes : numpy.ndarray
+        The Lighthouse pose fixes of the last :data:`FIX_MEMORY` s, ``(n, 3)`` rows
+        ``[x, y, yaw]`` (m, m, rad; empty: none).
     laps : int
         Laps completed (by the estimate).
     last_lap_s : float or None
@@ -135,6 +145,7 @@ class CarView:
     truth: np.ndarray | None = None
     plan: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     reference: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    fixes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     laps: int = 0
     last_lap_s: float | None = None
     solve_ms: float | None = None
@@ -198,6 +209,7 @@ class CarWatch:
         self._plan = np.zeros((0, 2))
         self._reference = np.zeros((0, 2))
         self._solve_ms: float | None = None
+        self._fixes: deque[tuple[float, np.ndarray]] = deque()
 
     def estimate(
         self,
@@ -239,9 +251,16 @@ class CarWatch:
         """The controller's last call time, s."""
         self._solve_ms = 1e3 * float(seconds)
 
+    def lighthouse_fix(self, received: float, pose: np.ndarray) -> None:
+        """A Lighthouse pose fix ``[x, y, yaw]`` (m, m, rad) arrived at ``received``
+        (monotonic s)."""
+        self._fixes.append((received, np.asarray(pose[:3], dtype=float)))
+
     def view(self, now: float) -> CarView:
         """The snapshot at ``now`` (monotonic s, the clock of ``received``)."""
         age = None if self._received is None else now - self._received
+        while self._fixes and self._fixes[0][0] < now - FIX_MEMORY:
+            self._fixes.popleft()
         status, reason = car_status(age, self._estimate_status, self._estimator_status)
         shown = status in ("ok", "degraded") and self._state is not None
         times = self.laps.lap_times
@@ -254,6 +273,7 @@ class CarWatch:
             truth=self._truth,
             plan=self._plan if shown else np.zeros((0, 2)),
             reference=self._reference if shown else np.zeros((0, 2)),
+            fixes=np.array([pose for _, pose in self._fixes]).reshape(-1, 3),
             laps=self.laps.laps_completed,
             last_lap_s=times[-1] if times else None,
             solve_ms=self._solve_ms,
@@ -337,11 +357,11 @@ def _footprint(pose: np.ndarray, colour: Color) -> CubePrimitive:
 def cars_scene(cars: list[CarView], stamp: float) -> SceneUpdate:
     """One entity per car (id its name, frame ``world``; each update replaces the last): the
     estimate's footprint coloured by status, the truth's fainter one, the 2-sigma position
-    ellipse, the planned horizon and its progress reference on the centreline (whichever
-    exist)."""
+    ellipse, the planned horizon and its progress reference on the centreline, the recent
+    Lighthouse pose fixes (a dot with a heading tick each; whichever exist)."""
     entities = []
     for car in cars:
-        cubes, lines = [], []
+        cubes, lines, spheres = [], [], []
         if car.estimate is not None:
             cubes.append(_footprint(car.estimate, _STATUS_COLOURS[car.status]))
             if car.covariance is not None:
@@ -363,12 +383,37 @@ def cars_scene(cars: list[CarView], stamp: float) -> SceneUpdate:
                     car.reference, LinePrimitiveLineType.LineStrip, _REFERENCE_COLOUR, 0.004, 0.01
                 )
             )
+        if len(car.fixes):
+            spheres, ticks = _fix_marks(car.fixes)
+            lines.append(ticks)
         entities.append(
             SceneEntity(
-                timestamp=_timestamp(stamp), frame_id="world", id=car.name, cubes=cubes, lines=lines
+                timestamp=_timestamp(stamp),
+                frame_id="world",
+                id=car.name,
+                cubes=cubes,
+                lines=lines,
+                spheres=spheres,
             )
         )
     return SceneUpdate(entities=entities)
+
+
+def _fix_marks(fixes: np.ndarray) -> tuple[list[SpherePrimitive], LinePrimitive]:
+    """A dot at each fix and a tick along its heading (one line list)."""
+    diameter, tick = FIX_SIZE
+    z = 0.06  # above the footprint: a fix under the car is still seen
+    dots = [
+        SpherePrimitive(
+            pose=_pose(float(x), float(y), 0.0, z),
+            size=Vector3(x=diameter, y=diameter, z=diameter),
+            color=_FIX_COLOUR,
+        )
+        for x, y, _ in fixes
+    ]
+    ends = fixes[:, :2] + tick * np.column_stack([np.cos(fixes[:, 2]), np.sin(fixes[:, 2])])
+    segments = np.stack([fixes[:, :2], ends], axis=1).reshape(-1, 2)
+    return dots, _line(segments, LinePrimitiveLineType.LineList, _FIX_COLOUR, 0.004, z)
 
 
 def frame_transforms(cars: list[CarView], stamp: float) -> FrameTransforms:
@@ -426,7 +471,8 @@ def page_track_json(track: Track) -> dict[str, Any]:
 
 def page_cars_json(cars: list[CarView], stamp: float) -> dict[str, Any]:
     """``/viz/page/cars``: every car's status, estimate and truth ``[x, y, yaw]`` (or null),
-    plan, size ``[length, width]`` (m), laps and last lap (s) at ``stamp`` (s)."""
+    plan, recent Lighthouse fixes ``[[x, y, yaw], ...]``, size ``[length, width]`` (m), laps
+    and last lap (s) at ``stamp`` (s)."""
     return {
         "stamp": round(stamp, 6),
         "cars": [
@@ -437,6 +483,7 @@ def page_cars_json(cars: list[CarView], stamp: float) -> dict[str, Any]:
                 "estimate": _pose_list(car.estimate),
                 "truth": _pose_list(car.truth),
                 "plan": _points(car.plan),
+                "fixes": [_pose_list(fix) for fix in car.fixes],
                 "size": list(CAR_SIZE),
                 "laps": car.laps,
                 "last_lap_s": _maybe(car.last_lap_s, 3),
@@ -487,6 +534,7 @@ PAGE_CARS_SCHEMA: dict[str, Any] = {
                     "estimate": _POSE,
                     "truth": _POSE,
                     "plan": _POINTS,
+                    "fixes": _POINTS,
                     "size": {"type": "array", "items": {"type": "number"}},
                     "laps": {"type": "integer"},
                     "last_lap_s": {"type": ["number", "null"]},
@@ -498,6 +546,7 @@ PAGE_CARS_SCHEMA: dict[str, Any] = {
                     "estimate",
                     "truth",
                     "plan",
+                    "fixes",
                     "size",
                     "laps",
                     "last_lap_s",

@@ -7,7 +7,12 @@ from crs_core.estimation.factory import INPUT_MODES, KINDS, input_free_model, ma
 from crs_core.estimation.health import HealthSettings
 from crs_core.estimation.initialization import InitializationSettings
 from crs_core.estimation.inputs import InputModeEstimator
-from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
+from crs_core.estimation.lighthouse_pose import (
+    LighthouseFixes,
+    LighthousePoseSolver,
+    PoseFix,
+    SweepPairer,
+)
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.estimation.realtime import (
@@ -29,6 +34,7 @@ __all__ = [
     "HealthSettings",
     "InitializationSettings",
     "InputModeEstimator",
+    "LighthouseFixes",
     "LighthousePoseSolver",
     "MheSettings",
     "MovingHorizonEstimator",

@@ -25,7 +25,7 @@ import numpy as np
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.errors import FieldError
-from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
+from crs_core.estimation.lighthouse_pose import LighthouseFixes, LighthousePoseSolver, PoseFix
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import Measurement, parse_lighthouse
 from crs_core.settings import Settings, positive
@@ -97,18 +97,16 @@ class PoseInitializer:
         self.settings, self.noise, self.max_speed = settings, noise, max_speed
         self._use_lighthouse = "lh" in sensors and model.n_base_stations > 0
         self._use_pose = "pose" in sensors
-        self._solver = LighthousePoseSolver(model, noise.lighthouse_std)
-        self._pairer = SweepPairer(settings.max_pair_gap)
+        self._lighthouse = LighthouseFixes(
+            LighthousePoseSolver(model, noise.lighthouse_std), settings.max_pair_gap
+        )
         self._fixes: list[PoseFix] = []
 
     def add(self, measurement: Measurement) -> InitialState | None:
         """Take one measurement; an initial state once enough fixes agree, else ``None``."""
         fix = None
         if self._use_lighthouse and parse_lighthouse(measurement.sensor):
-            paired = self._pairer.add(measurement)
-            if paired is not None:
-                stamp, sweeps = paired
-                fix = self._solver.solve(sweeps, stamp)  # closed-form start: no local minima
+            fix = self._lighthouse.add(measurement)
         elif self._use_pose and measurement.sensor == "pose":
             std = np.asarray(self.noise.pose_std)
             pose = measurement.values.copy()
@@ -160,5 +158,5 @@ class PoseInitializer:
         covariance[3, 3] = covariance[4, 4] = velocity_std**2
         covariance[5, 5] = max(s.yaw_rate_std, float(slope_std[2])) ** 2
         self._fixes.clear()
-        self._pairer.clear()
+        self._lighthouse.clear()
         return InitialState(float(fixes[-1].stamp), x, covariance)

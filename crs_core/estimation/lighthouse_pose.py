@@ -10,7 +10,8 @@ explaining the sweep angles of the 4 photodiodes for every station whose two pla
 
 with :math:`h` the model's own CasADi sweep-angle expressions (:mod:`crs_core.model.lighthouse`),
 :math:`J = \partial h / \partial q` at :math:`\hat q` and :math:`\sigma_\alpha` the angle noise
-std. A closed-form ray inversion gives the start. :class:`SweepPairer` pairs planes in a stream.
+std. A closed-form ray inversion gives the start. :class:`SweepPairer` pairs planes in a stream;
+:class:`LighthouseFixes` turns a stream into fixes (pairing, then solving).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from crs_core.model import CarModel
 from crs_core.model.chronos import base_station_from_parameters
 from crs_core.model.sensors import N_PHOTODIODES
 
-__all__ = ["LighthousePoseSolver", "PoseFix", "SweepPairer"]
+__all__ = ["LighthouseFixes", "LighthousePoseSolver", "PoseFix", "SweepPairer"]
 
 _MAX_ITERATIONS = 30
 _STEP_TOLERANCE = 1e-10
@@ -334,3 +335,48 @@ class SweepPairer:
     def clear(self) -> None:
         """Forget every stored sweep."""
         self._latest.clear()
+
+
+class LighthouseFixes:
+    """Pose fixes from a measurement stream: each station's sweep pair (:class:`SweepPairer`)
+    solved by a :class:`LighthousePoseSolver` from the closed-form start (no local minima).
+
+    Parameters
+    ----------
+    solver : LighthousePoseSolver
+    max_pair_gap : float
+        Largest stamp difference between paired planes, s.
+    min_interval : float
+        Fewest seconds between two solved fixes of one station (by stamp); a pair that comes
+        sooner is not solved (0: every pair). A viewer needs ~10 fixes a second, not the
+        sweep rate.
+    """
+
+    def __init__(
+        self, solver: LighthousePoseSolver, max_pair_gap: float = 0.03, min_interval: float = 0.0
+    ) -> None:
+        if not (math.isfinite(min_interval) and min_interval >= 0):
+            raise FieldError("min_interval", f"must be finite and >= 0, got {min_interval!r}")
+        self.solver = solver
+        self.min_interval = float(min_interval)
+        self._pairer = SweepPairer(max_pair_gap)
+        self._solved: dict[str, float] = {}  # the first sensor of a pair -> its last fix stamp
+
+    def add(self, measurement: Measurement) -> PoseFix | None:
+        """Take one measurement; the fix of the pair it completes (``None``: no pair, a pair
+        within ``min_interval`` of the last fix, or no credible solution)."""
+        paired = self._pairer.add(measurement)
+        if paired is None:
+            return None
+        stamp, sweeps = paired
+        station = next(iter(sweeps))
+        last = self._solved.get(station)
+        if last is not None and abs(stamp - last) < self.min_interval:
+            return None
+        self._solved[station] = stamp
+        return self.solver.solve(sweeps, stamp)
+
+    def clear(self) -> None:
+        """Forget every stored sweep and fix stamp."""
+        self._pairer.clear()
+        self._solved.clear()

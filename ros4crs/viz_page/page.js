@@ -16,6 +16,8 @@ const HEADER_BYTES = 13;
 const MARGIN_PX = 20;
 const MIN_CAR_LENGTH_PX = 14;
 const MIN_CAR_WIDTH_PX = 7;
+// Radius of a drawn Lighthouse pose fix, CSS pixels.
+const FIX_RADIUS_PX = 2;
 
 const canvas = document.getElementById("track");
 const header = document.getElementById("connection");
@@ -31,6 +33,7 @@ const COLOURS = {
   centre: colour("--track-centre"),
   plan: colour("--plan"),
   truth: colour("--truth"),
+  fix: colour("--fix"),
   text: colour("--text"),
   status: {
     ok: colour("--status-ok"),
@@ -225,6 +228,13 @@ function drawCar(ctx, fit, car) {
     ctx.restore();
     ctx.fillStyle = COLOURS.text;
     ctx.fillText(car.name, fit.x(car.estimate[0]) + 10, fit.y(car.estimate[1]) - 10);
+  }
+  // Lighthouse pose fixes: a dot each (drawn over the car: a fix under it is still seen).
+  ctx.fillStyle = COLOURS.fix;
+  for (const fix of car.fixes || []) {
+    ctx.beginPath();
+    ctx.arc(fit.x(fix[0]), fit.y(fix[1]), FIX_RADIUS_PX, 0, 2 * Math.PI);
+    ctx.fill();
   }
 }
 

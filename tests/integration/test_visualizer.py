@@ -41,7 +41,11 @@ PASSED = (
     "/car1/ground_truth",
     "/car1/controller/plan",
     "/car1/controller/reference",
+    "/car1/lighthouse_fix",
 )
+#: Lighthouse fixes the client must see, and how close to the truth (median, m): a fix is one
+#: station's sweep pair, its planes swept up to 20 ms apart while the car moves (~1 cm).
+FIXES, FIX_ERROR_M = 10, 0.03
 
 
 def _decoder(channel: dict[str, Any]) -> Any:
@@ -72,6 +76,7 @@ class Viewer:
             and any(len(c["plan"]) > 5 for m in self.messages["/viz/page/cars"] for c in m["cars"])
             and any(m["status"] == "ok" for m in self.messages["/viz/car1/status"])
             and all(self.messages[topic] for topic in PASSED)
+            and len(self.messages["/car1/lighthouse_fix"]) >= FIXES
         )
 
     def moved(self) -> float:
@@ -209,9 +214,40 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(race) -> None
     assert np.isfinite(state.x) and state.header.frame_id == "world"
     for topic in PASSED:
         assert first.messages[topic], f"nothing passed through on {topic}"
+    _check_fixes(first)
     assert "/car1/estimate/diagnostics" in first.channels
     assert not [t for t in first.channels if "/sensors/" in t or t in ("/rosout", "/tf")]
     assert second.messages["/viz/scene"], "the second client got nothing"
+
+
+def _check_fixes(viewer: Viewer) -> None:
+    """car1's Lighthouse fixes: drawn on the scene, and where the simulator's truth was at the
+    fix's stamp (interpolated between the passed-through truth messages)."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from rclpy.serialization import deserialize_message
+
+    from chronos_msgs.msg import CarState
+    from ros4crs import conversions
+
+    scenes = [e for s in viewer.messages["/viz/scene"] for e in s.entities if e.id == "car1"]
+    assert any(e.spheres for e in scenes), "no Lighthouse fix drawn for car1"
+    truth = sorted(
+        conversions.state_from_msg(deserialize_message(data, CarState))
+        for data in viewer.messages["/car1/ground_truth"]
+    )
+    times = np.array([t for t, _ in truth])
+    xy = np.array([x[:2] for _, x in truth])
+    errors = []
+    for data in viewer.messages["/car1/lighthouse_fix"]:
+        stamp, pose = conversions.pose_fix_from_msg(
+            deserialize_message(data, PoseWithCovarianceStamped)
+        )
+        k = int(np.searchsorted(times, stamp))
+        if 0 < k < len(times) and times[k] - times[k - 1] < 0.1:  # truth on both sides
+            at = [np.interp(stamp, times[k - 1 : k + 1], xy[k - 1 : k + 1, i]) for i in (0, 1)]
+            errors.append(float(np.hypot(*(pose[:2] - at))))
+    assert len(errors) >= FIXES // 2, f"{len(errors)} fixes with truth around them"
+    assert np.median(errors) < FIX_ERROR_M, sorted(errors)
 
 
 @needs_chromium

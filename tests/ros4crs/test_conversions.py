@@ -351,3 +351,23 @@ def test_the_estimator_health_is_its_status_text_and_deadline_misses() -> None:
     assert conversions.estimator_health_from_msg(msg) == ("degraded: no Lighthouse for 0.6 s", 3)
     with pytest.raises(FieldError, match="status: must start with ok, degraded or lost"):
         conversions.estimator_health_from_msg(EstimatorDiagnostics(status="fine"))
+
+
+def test_a_lighthouse_fix_round_trips_with_its_covariance_in_the_ros_layout() -> None:
+    from crs_core.estimation import PoseFix
+
+    covariance = np.array([[4e-6, 1e-6, 2e-6], [1e-6, 9e-6, 3e-6], [2e-6, 3e-6, 1e-4]])
+    fix = PoseFix(7.25, np.array([1.5, -0.5, 3.0]), covariance, 1e-3, (0,))
+    msg = conversions.pose_fix_msg(fix)
+    msg = deserialize_message(serialize_message(msg), type(msg))
+    assert msg.header.frame_id == "world"
+    stamp, pose = conversions.pose_fix_from_msg(msg)
+    assert stamp == 7.25
+    np.testing.assert_allclose(pose, [1.5, -0.5, 3.0], atol=1e-12)
+    # x, y, yaw at rows / columns 0, 1, 5 of the 6 x 6 (x, y, z, roll, pitch, yaw)
+    full = np.array(msg.pose.covariance).reshape(6, 6)
+    np.testing.assert_array_equal(full[np.ix_([0, 1, 5], [0, 1, 5])], covariance)
+    assert not full[2:5].any() and not full[:, 2:5].any()
+    msg.pose.pose.orientation.w = math.nan
+    with pytest.raises(FieldError, match=r"pose\.pose\.orientation"):
+        conversions.pose_fix_from_msg(msg)

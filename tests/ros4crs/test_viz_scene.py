@@ -99,6 +99,7 @@ def _view(**fields) -> CarView:
         truth=np.array([1.01, 2.0, 0.5]),
         plan=np.array([[1.0, 2.0], [1.2, 2.1], [1.4, 2.3]]),
         reference=np.array([[1.0, 1.9], [1.2, 2.0], [1.4, 2.2], [1.6, 2.4]]),
+        fixes=np.array([[1.0, 2.01, 0.5], [1.02, 2.0, 0.52]]),
         laps=3,
         last_lap_s=6.4321,
         solve_ms=4.56789,
@@ -131,11 +132,34 @@ def test_the_scene_draws_each_car_with_what_it_has():
     assert estimate.pose.orientation.z == pytest.approx(math.sin(0.25))
     assert (estimate.size.x, estimate.size.y) == pytest.approx(viz_scene.CAR_SIZE)
     assert truth.color.a < estimate.color.a
-    ellipse, plan, reference = car1.lines
+    ellipse, plan, reference, ticks = car1.lines
     assert len(ellipse.points) == viz_scene.ELLIPSE_POINTS and len(plan.points) == 3
     assert len(reference.points) == 4 and reference.color != plan.color
-    # the plan and its reference only
-    assert (car2.id, len(car2.cubes), len(car2.lines)) == ("car2", 0, 2)
+    # each Lighthouse fix: a dot at its position, a tick from there along its heading
+    dots = [(d.pose.position.x, d.pose.position.y) for d in car1.spheres]
+    assert dots == [(1.0, 2.01), (1.02, 2.0)]
+    tick = viz_scene.FIX_SIZE[1]
+    start, end = ticks.points[2], ticks.points[3]
+    assert (start.x, start.y) == (1.02, 2.0)
+    assert (end.x - start.x, end.y - start.y) == pytest.approx(
+        (tick * math.cos(0.52), tick * math.sin(0.52))
+    )
+    # the plan, its reference and the fixes only
+    assert (car2.id, len(car2.cubes), len(car2.lines), len(car2.spheres)) == ("car2", 0, 3, 2)
+    bare = _decoded(
+        viz_scene.cars_scene([_view(fixes=np.zeros((0, 3)))], 5.0), "foxglove.SceneUpdate"
+    )
+    assert len(bare.entities[0].spheres) == 0 and len(bare.entities[0].lines) == 3
+
+
+def test_lighthouse_fixes_are_shown_for_half_a_second_after_they_arrive():
+    watch = CarWatch("car1", TRACK)
+    watch.lighthouse_fix(10.0, np.array([1.0, 2.0, 0.1]))
+    watch.lighthouse_fix(10.3, np.array([1.1, 2.0, 0.2]))
+    np.testing.assert_allclose(watch.view(10.4).fixes, [[1.0, 2.0, 0.1], [1.1, 2.0, 0.2]])
+    later = watch.view(10.0 + viz_scene.FIX_MEMORY + 0.01)
+    np.testing.assert_allclose(later.fixes, [[1.1, 2.0, 0.2]])
+    assert watch.view(11.0).fixes.shape == (0, 3)
 
 
 def test_the_track_scene_holds_both_borders_and_the_centreline():
@@ -192,6 +216,7 @@ def test_the_status_and_the_page_json_follow_their_schemas():
     assert cars["stamp"] == 12.25
     car1, car2 = cars["cars"]
     assert car1["estimate"] == [1.0, 2.0, 0.5] and car1["plan"][1] == [1.2, 2.1]
+    assert car1["fixes"] == [[1.0, 2.01, 0.5], [1.02, 2.0, 0.52]]
     assert car1["size"] == list(viz_scene.CAR_SIZE) and car2["estimate"] is None
     track = viz_scene.page_track_json(TRACK)
     assert len(track["centre"]) == len(track["left"]) == len(track["right"]) == TRACK.num_points

@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from crs_core.analysis.angles import wrap_angle
-from crs_core.estimation.lighthouse_pose import LighthousePoseSolver, PoseFix, SweepPairer
+from crs_core.estimation.lighthouse_pose import (
+    LighthouseFixes,
+    LighthousePoseSolver,
+    PoseFix,
+    SweepPairer,
+)
 from crs_core.measurements import Measurement
 from crs_core.model import CarModel
 from crs_core.model.chronos import base_station_from_parameters
@@ -190,13 +195,25 @@ def test_sweep_pairer_pairs_within_gap_and_never_reuses():
         SweepPairer(max_gap=-1.0)
 
 
-def test_paired_stream_solves(model):
-    """Sweeps of a parked car, through the pairer, give the car's pose."""
+def test_a_stream_of_sweeps_gives_fixes_at_most_every_min_interval_per_station(model2):
+    """Sweeps of a parked car, paired and solved: the car's pose, each station's pairs solved
+    no sooner than ``min_interval`` after its last fix."""
     pose = np.array([0.4, -0.3, 2.0])
-    sweeps = _sweeps(model, pose)
-    pairer, solver = SweepPairer(), LighthousePoseSolver(model)
-    assert pairer.add(Measurement(3.0, S2, sweeps[S2])) is None
-    stamp, paired = pairer.add(Measurement(3.01, S1, sweeps[S1]))
-    fix = solver.solve(paired, stamp)
-    assert fix.stamp == pytest.approx(3.005)
+    sweeps = _sweeps(model2, pose, stations=(0, 1))
+    fixes = LighthouseFixes(LighthousePoseSolver(model2), min_interval=0.1)
+    assert fixes.add(Measurement(3.0, S2, sweeps[S2])) is None
+    fix = fixes.add(Measurement(3.01, S1, sweeps[S1]))
+    assert fix.stamp == pytest.approx(3.005) and fix.stations == (0,)
     assert np.max(np.abs(_error(fix.pose, pose))) < 1e-6
+    solved = []
+    for k in range(1, 31):  # 0.6 s of both stations' planes at 50 Hz (20 ms apart)
+        t = 3.0 + 0.02 * k
+        for sensor in (S2, S1, "lighthouse/1/1", "lighthouse/1/2"):
+            fix = fixes.add(Measurement(t + 0.001 * sensor.count("1"), sensor, sweeps[sensor]))
+            if fix is not None:
+                solved.append((fix.stations[0], fix.stamp))
+    for station in (0, 1):
+        stamps = np.array([t for s, t in solved if s == station])
+        assert np.all(np.diff(stamps) >= 0.1 - 1e-9) and 5 <= len(stamps) <= 6
+    with pytest.raises(ValueError, match="min_interval"):
+        LighthouseFixes(LighthousePoseSolver(model2), min_interval=-0.1)
