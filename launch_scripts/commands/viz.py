@@ -42,8 +42,40 @@ def node_arguments(args: argparse.Namespace) -> list[str]:
     return command
 
 
+#: The cars of a written layout unless ``--cars`` names them.
+LAYOUT_CARS = ("car1", "car2")
+
+
+def write_layout(args: argparse.Namespace) -> Path:
+    """``--layout FILE``: the Foxglove layout of ``--cars`` (default car1, car2) on ``--track``
+    written to FILE (which must not exist); errors name the option."""
+    from crs_core.track import load_demo_track, read_track
+    from ros4crs.visualizer_node import parse_cars
+    from ros4crs.viz_layout import layout_json, live_layout
+
+    path: Path = args.layout
+    if path.exists():
+        raise FieldError("--layout", f"{path} exists (remove it, or give another file)")
+    try:
+        cars = parse_cars(args.cars) if args.cars is not None else LAYOUT_CARS
+    except ValueError as error:
+        raise FieldError("--cars", str(error)) from None
+    if not cars:
+        raise FieldError("--cars", "names no car")
+    if args.track is not None and not args.track.is_file():
+        raise FieldError("--track", f"{args.track}: no such file")
+    track = read_track(args.track) if args.track is not None else load_demo_track()
+    path.write_text(layout_json(live_layout(cars, track)))
+    print(f"wrote {path}: the live view of {', '.join(cars)} (Foxglove: Layout -> Import)")
+    return path
+
+
 def viz(args: argparse.Namespace) -> int:
-    """Run the visualizer until Ctrl-C or SIGTERM (exit code 0; 2 when it cannot start)."""
+    """Run the visualizer until Ctrl-C or SIGTERM (exit code 0; 2 when it cannot start); with
+    ``--layout`` write the Foxglove layout and exit."""
+    if args.layout is not None:
+        write_layout(args)
+        return 0
     command = node_arguments(args)
     if args.domain is not None:
         os.environ["ROS_DOMAIN_ID"] = str(args.domain)
@@ -62,6 +94,13 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     )
     sub.add_argument(
         "--track", type=Path, help="track YAML (CRS format) the cars race (default: DEMO_TRACK)"
+    )
+    sub.add_argument(
+        "--layout",
+        type=Path,
+        metavar="FILE",
+        help="write the Foxglove layout of --cars (default car1,car2) on --track to FILE and "
+        "exit (docs/foxglove/chronos-layout.json is the default one)",
     )
     sub.add_argument(
         "--domain",

@@ -59,3 +59,20 @@ def test_bad_options_are_refused_with_one_line(argv, message, capsys):
     assert main(["viz", *argv]) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1, err
+
+
+def test_layout_writes_the_foxglove_layout_of_the_cars_and_refuses_to_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    out = tmp_path / "three.json"
+    assert main(["viz", "--layout", str(out), "--cars", "car1,car2,car3"]) == 0
+    assert "wrote" in capsys.readouterr().out
+    text = out.read_text()
+    assert all(f"/viz/car{i}/status.status" in text for i in (1, 2, 3))
+    assert json.loads(text)["version"] == 1
+    assert main(["viz", "--layout", str(out)]) == 2
+    assert "--layout" in capsys.readouterr().err
+    assert main(["viz", "--layout", str(tmp_path / "x.json"), "--cars", "car1,car1"]) == 2
+    assert "--cars" in capsys.readouterr().err
