@@ -1,7 +1,8 @@
 """``crs launch car --emulate``: the whole stack against emulated cars over loopback UDP.
 
-(a) one emulated car: a lap, estimation within a few mm of the emulator's truth, no process
-death, the latency chain measured; (b) the controller killed: the emulated car cuts its motors
+(a) one emulated car with the visualizer (``--viz``): a lap, estimation within a few mm of the
+emulator's truth, no process death, the latency chain measured, a viewer sees the car and its
+Lighthouse fixes; (b) the controller killed: the emulated car cuts its motors
 200 ms after the last reference, and drives again when a new controller sends (backing out
 first if it coasted to a stand off the track); (c) two emulated cars at once in /car1 and /car2
 on their own ports, racing with the MPCC and the MHE: each completes a lap on the track with its
@@ -15,15 +16,18 @@ from __future__ import annotations
 
 import signal
 import time
+from typing import Any
 
 import numpy as np
 import pytest
 
+from benchmarks.foxglove_viewer import watch
 from benchmarks.link import off_track
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import car_nodes, run_car_stack
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import StackOptions
+from launch_scripts.visualizer import VizSettings
 from ros4crs.conversions import seconds_from_stamp
 from tests.integration.stack_probe import Probe, log_text, wait_for
 
@@ -32,15 +36,47 @@ pytestmark = pytest.mark.integration
 DOMAIN_EMULATED_LAP = 123
 DOMAIN_CUTOFF = 124
 DOMAIN_TWO_EMULATED = 125
-#: The car stack's default options with the MHE.
-MHE = StackOptions("mhe")
+
+
+def _watch_car1(port: int, seconds: float, seen: dict[str, Any]) -> None:
+    """A Foxglove client on ``port`` until it sees car1 ``ok`` with its Lighthouse fixes on the
+    page's JSON (kept in ``seen["car1"]``), or ``seconds`` pass."""
+    import asyncio
+    import json
+
+    def take(channel: dict[str, Any], payload: bytes) -> None:
+        if channel["topic"] == "/viz/page/cars":
+            for car in json.loads(payload)["cars"]:
+                if car["name"] == "car1" and car["status"] == "ok" and car["fixes"]:
+                    seen["car1"] = car
+
+    deadline = time.monotonic() + seconds
+    asyncio.run(watch(f"ws://127.0.0.1:{port}", deadline, take, lambda: "car1" in seen))
 
 
 def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) -> None:
+    import threading
+
+    viz = VizSettings(port=21215, page_port=21216)
+    seen: dict[str, Any] = {}
+    viewer = threading.Thread(target=_watch_car1, args=(viz.port, 40.0, seen), daemon=True)
+    viewer.start()
     report = run_car_stack(
-        1, MHE, 14.0, tmp_path / "run", True, domain_id=DOMAIN_EMULATED_LAP, ports=(21211, 21311)
+        1,
+        StackOptions("mhe", viz=viz),
+        14.0,
+        tmp_path / "run",
+        True,
+        domain_id=DOMAIN_EMULATED_LAP,
+        ports=(21211, 21311),
     )
+    viewer.join(timeout=5.0)
     assert report["node_deaths"] == []
+    # the viewer saw car1 racing, its newest Lighthouse fix by the drawn car
+    car1 = seen.get("car1")
+    assert car1 is not None, "no viewer saw car1 ok with its Lighthouse fixes"
+    gap = np.hypot(*(np.array(car1["fixes"][-1][:2]) - car1["estimate"][:2]))
+    assert gap < 0.3, car1
     car = report["cars"]["car1"]
     assert car["laps_completed"] >= 1, car
     rmse = car["estimation_rmse"]
