@@ -22,13 +22,15 @@ Channels (the JSON ones with a JSON schema), each built and sent only while a vi
   2-sigma position ellipse, the MPCC's planned horizon and its progress reference (the
   centreline points the plan's stages are pulled to) and the Lighthouse pose fixes of the last
   half second (a dot with a heading tick each), at ``rate_hz``;
-- ``/viz/tf`` (``foxglove.FrameTransforms``): ``world`` -> ``carN/base_link``, at ``rate_hz``;
+- ``/tf`` (``foxglove.FrameTransforms``, where the Foxglove app looks for frames):
+  ``world`` -> ``carN/base_link`` from each car's estimate, at ``rate_hz`` (the ROS ``/tf`` is
+  not passed through: this channel takes its name);
 - ``/viz/carN/status`` (JSON): status, reason, laps, last lap, solve time, deadline misses;
 - ``/viz/page/track`` and ``/viz/page/cars`` (JSON): the built-in page's contract
   (``docs/live-view.md``);
 - every other topic of the graph as raw CDR with its ``ros2msg`` schema, at most ``rate_hz``
   messages a second per topic, except ``/rosout``, ``/parameter_events``, ``/tf`` (shown as
-  ``/viz/tf``), the cars' ``sensors/`` streams (250 Hz readings a viewer cannot follow, whose
+  the channel above), the cars' ``sensors/`` streams (250 Hz readings a viewer cannot follow, whose
   subscription would cost ~0.4 ms of CPU per message, and which the simulator counts when it
   waits for its listeners before its clock starts), ``estimate/query`` (the estimator's log
   for an exact replay, at the estimator's rate) and ``estimate/odometry`` (``estimate/state``
@@ -76,7 +78,7 @@ from ros4crs.viz_page import start_page_server
 VIEW_QOS = QoSProfile(
     depth=10, reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST
 )
-#: Topics never passed through (``/tf``: ``/viz/tf`` shows it).
+#: Topics never passed through (``/tf``: the scene's own ``/tf`` channel shows the frames).
 NOT_PASSED = (*INTERNAL_TOPICS, "/tf")
 #: Parts of a topic name that keep it from being passed through: the 250 Hz sensor streams, the
 #: estimator's query log (what a replay needs, nothing to look at) and its odometry (the same
@@ -172,7 +174,7 @@ class VisualizerNode(Node):
             ) from None
         context = self.view_context
         self.scene = SceneUpdateChannel("/viz/scene", context=context)
-        self.frames = FrameTransformsChannel("/viz/tf", context=context)
+        self.frames = FrameTransformsChannel("/tf", context=context)
         self.page_track = foxglove.Channel(
             "/viz/page/track", schema=viz_scene.PAGE_TRACK_SCHEMA, context=context
         )
