@@ -115,6 +115,24 @@ def bounded_number(
     return parse
 
 
+def add_track(parser: argparse.ArgumentParser, whose: str = "") -> None:
+    """``--track``: a track YAML file (unset: the demo track); ``whose`` follows "track YAML"
+    in the help."""
+    parser.add_argument(
+        "--track", type=Path, help=f"track YAML{whose} (CRS format; default: DEMO_TRACK)"
+    )
+
+
+def add_domain(parser: argparse.ArgumentParser, whose: str, default: str) -> None:
+    """``--domain``: a ROS_DOMAIN_ID, 0..232 (unset: ``None``, the caller picks ``default``, which
+    the help names); ``whose`` follows "ROS_DOMAIN_ID" in the help."""
+    parser.add_argument(
+        "--domain",
+        type=bounded_number("domain", "", -1, 232, int),
+        help=f"ROS_DOMAIN_ID{whose}, 0..232 (default: {default})",
+    )
+
+
 #: Longest simulation, race or benchmark run the CLI accepts, s.
 MAX_DURATION_S = 3600.0
 

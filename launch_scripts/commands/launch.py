@@ -13,10 +13,12 @@ from crs_core.errors import FieldError
 from launch_scripts.arguments import (
     Command,
     add_cars,
+    add_domain,
     add_duration,
     add_effect,
     add_estimator,
     add_out,
+    add_track,
     argument_type,
     bounded_number,
     endpoints,
@@ -256,11 +258,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     )
     add_duration(sub, 40.0, "wall-clock time")
     add_out(sub, "output folder", required=True)
-    sub.add_argument(
-        "--domain",
-        type=bounded_number("domain", "", -1, 232, int),
-        help="ROS_DOMAIN_ID, 0..232 (default: $ROS_DOMAIN_ID, else 42)",
-    )
+    add_domain(sub, "", "$ROS_DOMAIN_ID, else 42")
     sub.add_argument(
         "--seed", type=int, default=0, help="noise seed; car i uses SEED + i (default 0)"
     )
@@ -275,9 +273,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         action="store_true",
         help="estimators initialise from the Lighthouse instead of the known start pose",
     )
-    sub.add_argument(
-        "--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK) for every car"
-    )
+    add_track(sub, " of every car")
     sub.add_argument(
         "--params",
         type=Path,

@@ -21,6 +21,7 @@ from launch_scripts.arguments import (
     add_effect,
     add_out,
     add_seed,
+    add_track,
     argument_type,
     bounded_number,
 )
@@ -132,7 +133,7 @@ def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> 
         help="parameter YAML applied to the simulated car (a top-level 'parameters:' "
         "mapping of name: value; default: the Chronos parameters)",
     )
-    sub.add_argument("--track", type=Path, help="track YAML (CRS format; default: DEMO_TRACK)")
+    add_track(sub)
     sub.add_argument(
         "--report",
         action=argparse.BooleanOptionalAction,

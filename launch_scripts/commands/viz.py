@@ -9,7 +9,7 @@ import os
 from pathlib import Path
 
 from crs_core.errors import FieldError
-from launch_scripts.arguments import Command, bounded_number
+from launch_scripts.arguments import Command, add_domain, add_track
 from launch_scripts.visualizer import VIZ_NODE, VizSettings, add_serving_options
 
 #: ``crs viz``'s options, by the :class:`VizSettings` field they set.
@@ -92,9 +92,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         metavar="NS[,NS...]",
         help="the cars' namespaces, e.g. car1,car2 (default: every /carN in the graph)",
     )
-    sub.add_argument(
-        "--track", type=Path, help="track YAML (CRS format) the cars race (default: DEMO_TRACK)"
-    )
+    add_track(sub, " the cars race")
     sub.add_argument(
         "--layout",
         type=Path,
@@ -102,11 +100,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         help="write the Foxglove layout of --cars (default car1,car2) on --track to FILE and "
         "exit (docs/foxglove/chronos-layout.json is the default one)",
     )
-    sub.add_argument(
-        "--domain",
-        type=bounded_number("domain", "", -1, 232, int),
-        help="ROS_DOMAIN_ID of the running stack, 0..232 (default: $ROS_DOMAIN_ID)",
-    )
+    add_domain(sub, " of the running stack", "$ROS_DOMAIN_ID")
 
 
 COMMAND = Command(
