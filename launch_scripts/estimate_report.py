@@ -17,12 +17,10 @@ from matplotlib.lines import Line2D
 from matplotlib.patches import Patch
 
 from crs_core.analysis.figures import (
-    BAND_ALPHA,
-    BAND_LABEL,
     ERROR_COMPONENTS,
     STATUS_COLOURS,
-    clip_to_band,
-    draw_error_band,
+    draw_error_panel,
+    error_legend_handles,
     label_band_panel,
     shade_status_strip,
 )
@@ -160,27 +158,15 @@ def _plot_errors(axes, result: OfflineEstimates, dataset: Dataset) -> None:
     for k, (ax, (name, unit, _)) in enumerate(zip(axes, ERROR_COMPONENTS, strict=True)):
         sigma = sigmas[:, k]
         error = np.full(t.shape, np.nan) if bands is None else bands["errors"][:, k]
-        draw_error_band(ax, t, error, sigma, "tab:blue", None)
-        ax.axhline(0.0, color="0.3", lw=0.6)
-        shade_status_strip(ax, t, result.status)
-        off_scale = clip_to_band(ax, [error], [sigma], unit)
+        off_scale = draw_error_panel(ax, t, error, sigma, result.status, unit)
         if bands is None:
             ax.set_ylabel(f"{name} ±2σ [{unit}]")
             ax.set_title(f"no reference: band only   {off_scale}", loc="left", fontsize=8)
         else:
             label_band_panel(ax, name, unit, [("", bands["stats"][name])], off_scale)
-        ax.grid(alpha=0.3)
         if k < 2:
             ax.tick_params(labelbottom=False)
-    handles = []
-    if bands is not None:
-        handles.append(
-            Line2D([], [], color="tab:blue", lw=0.7, label=f"estimate − {_reference(dataset)}")
-        )
-    handles.append(Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL))
-    handles += [
-        Patch(color=c, alpha=0.8, label=f"{s} (bottom strip)") for s, c in STATUS_COLOURS.items()
-    ]
+    handles = error_legend_handles(None if bands is None else _reference(dataset))
     axes[0].legend(
         handles=handles, loc="lower left", bbox_to_anchor=(0.0, 1.12), fontsize=8, ncol=2
     )

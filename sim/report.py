@@ -23,18 +23,12 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
-from matplotlib.lines import Line2D
-from matplotlib.patches import Patch
 
 from crs_core.analysis.figures import (
-    BAND_ALPHA,
-    BAND_LABEL,
     ERROR_COMPONENTS,
-    STATUS_COLOURS,
-    clip_to_band,
-    draw_error_band,
+    draw_error_panel,
+    error_legend_handles,
     label_band_panel,
-    shade_status_strip,
 )
 from crs_core.analysis.metrics import (
     band_statistics,
@@ -342,20 +336,9 @@ def estimation_figure(estimation: dict[str, Any]):
     for k, (ax, (name, unit, factor)) in enumerate(zip(axes, ERROR_COMPONENTS, strict=True)):
         error = estimation["errors"][:, k] * factor
         sigma = np.where(lost, np.nan, estimation["sigmas"][:, k] * factor)
-        draw_error_band(ax, t, error, sigma, "tab:blue", None)
-        ax.axhline(0.0, color="0.3", lw=0.6)
-        shade_status_strip(ax, t, estimates.status)
-        off_scale = clip_to_band(ax, [error], [sigma], unit)
+        off_scale = draw_error_panel(ax, t, error, sigma, estimates.status, unit)
         label_band_panel(ax, name, unit, [("", band_statistics(error, sigma))], off_scale)
-        ax.grid(alpha=0.3)
-    handles = [
-        Line2D([], [], color="tab:blue", lw=0.7, label="estimate − simulation truth"),
-        Patch(color="tab:blue", alpha=BAND_ALPHA, label=BAND_LABEL),
-        *(
-            Patch(color=c, alpha=0.8, label=f"status {s} (bottom strip)")
-            for s, c in STATUS_COLOURS.items()
-        ),
-    ]
+    handles = error_legend_handles("simulation truth", status_prefix="status ")
     fig.legend(handles=handles, loc="outside lower center", ncol=4, fontsize=8)
     axes[-1].set_xlabel("t [s] (simulation time)")
     fig.suptitle(

@@ -6,8 +6,9 @@ Used by the simulator report (``sim/report.py``), the ``crs estimate`` figure
 the panel's y limits and title with the numbers of
 :func:`crs_core.analysis.metrics.band_statistics`, and the estimator's status shaded over time.
 
-The helpers draw on matplotlib axes handed in; this module imports no matplotlib itself (the
-callers choose the backend).
+The helpers draw on matplotlib axes handed in; this module imports no matplotlib at import time
+(the callers choose the backend; :func:`error_legend_handles` imports matplotlib's artists when
+called).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ BAND_LABEL = "±2σ claimed by the estimator (≈95 % inside if consistent)"
 BAND_ALPHA = 0.22
 #: Colour of each estimator status that is shaded (``ok`` is not).
 STATUS_COLOURS = {"degraded": "tab:orange", "lost": "tab:red"}
+#: Colour of a single estimator's error and band (:func:`draw_error_panel`).
+ESTIMATE_COLOUR = "tab:blue"
 
 
 def draw_error_band(
@@ -167,6 +170,67 @@ def shade_status_strip(
         if colour:
             right = t[min(end, len(t) - 1)]
             ax.axvspan(t[begin], right, ymin=0.0, ymax=height, color=colour, alpha=alpha, lw=0)
+
+
+def draw_error_panel(
+    ax, t: np.ndarray, error: np.ndarray, sigma: np.ndarray, status: np.ndarray, unit: str
+) -> str:
+    """One estimator's error panel: the error inside its ±2σ band (:func:`draw_error_band`, in
+    :data:`ESTIMATE_COLOUR`), the zero line, the status strip (:func:`shade_status_strip`), the
+    y limits (:func:`clip_to_band`) and a grid; the caller labels it (:func:`label_band_panel`).
+
+    Parameters
+    ----------
+    ax : matplotlib.axes.Axes
+    t, error, sigma : numpy.ndarray
+        As for :func:`draw_error_band`.
+    status : numpy.ndarray
+        As for :func:`shade_status_strip`.
+    unit : str
+        Unit of ``error`` and ``sigma``, for the note.
+
+    Returns
+    -------
+    str
+        The off-scale note of :func:`clip_to_band`.
+    """
+    draw_error_band(ax, t, error, sigma, ESTIMATE_COLOUR, None)
+    ax.axhline(0.0, color="0.3", lw=0.6)
+    shade_status_strip(ax, t, status)
+    off_scale = clip_to_band(ax, [error], [sigma], unit)
+    ax.grid(alpha=0.3)
+    return off_scale
+
+
+def error_legend_handles(reference: str | None, status_prefix: str = "") -> list[Any]:
+    """Legend entries of the panels of :func:`draw_error_panel`.
+
+    Parameters
+    ----------
+    reference : str or None
+        What the error is measured against (``"simulation truth"``): the line's label is
+        ``estimate − REFERENCE``; None: no line (no reference, only the band).
+    status_prefix : str
+        Put before each shaded status's name (``"status "``).
+
+    Returns
+    -------
+    list of matplotlib.artist.Artist
+        The line (with a reference), the ±2σ band and each status of :data:`STATUS_COLOURS`.
+    """
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list[Any] = []
+    if reference is not None:
+        label = f"estimate − {reference}"
+        handles.append(Line2D([], [], color=ESTIMATE_COLOUR, lw=0.7, label=label))
+    handles.append(Patch(color=ESTIMATE_COLOUR, alpha=BAND_ALPHA, label=BAND_LABEL))
+    handles += [
+        Patch(color=colour, alpha=0.8, label=f"{status_prefix}{status} (bottom strip)")
+        for status, colour in STATUS_COLOURS.items()
+    ]
+    return handles
 
 
 def _number(value: float) -> str:

@@ -11,6 +11,8 @@ from crs_core.analysis.figures import (
     STATUS_COLOURS,
     band_limit,
     clip_to_band,
+    draw_error_panel,
+    error_legend_handles,
     label_band_panel,
     shade_status_strip,
 )
@@ -51,3 +53,18 @@ def test_status_is_shaded_up_to_the_next_stamp():
     assert spans == [(1.0, 3.0), (3.0, 4.0)]
     colours = [p.get_facecolor()[:3] for p in ax.patches]
     assert colours == [to_rgb(STATUS_COLOURS["degraded"]), to_rgb(STATUS_COLOURS["lost"])]
+
+
+def test_error_panel_and_its_legend():
+    """The panel: band, error line, zero line, status strip, grid, the limits' note; the legend
+    names the reference (none without one), the band and each shaded status."""
+    ax = Figure().add_subplot()
+    t = np.arange(200.0)
+    status = np.array(["ok", "lost"] + ["ok"] * 198)
+    error = np.r_[1.0, np.nan, np.full(197, 1.0), 500.0]
+    note = draw_error_panel(ax, t, error, np.ones(200), status, "mm")
+    assert note == "off-scale peaks: max |error| 500 mm"
+    assert len(ax.lines) == 2 and len(ax.collections) == 1 and len(ax.patches) == 1
+    labels = [h.get_label() for h in error_legend_handles("truth", status_prefix="status ")]
+    assert labels[0] == "estimate − truth" and labels[2] == "status degraded (bottom strip)"
+    assert len(error_legend_handles(None)) == 1 + len(STATUS_COLOURS)
