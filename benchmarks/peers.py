@@ -87,10 +87,8 @@ class FilterpyEkf(Estimator):
 
     Parameters
     ----------
-    model : CarModel
-        Estimation model.
-    sensors : str or set
-        Sensor groups to use, e.g. ``"lh+imu+we"``.
+    model, sensors
+        Estimation model and sensor groups, as for :class:`~crs_core.estimation.base.Estimator`.
     settings : EkfSettings, optional
         Noise and initial standard deviations (the gate settings are not used).
     backend : {"compiled", "vm", None}, optional
@@ -264,10 +262,9 @@ class DoMpcMhe(Estimator):
 
     Parameters
     ----------
-    model : CarModel
-        Estimation model (its parameters are fixed, not estimated).
-    sensors : str or set
-        Sensor groups to use, e.g. ``"lh+imu+we"``.
+    model, sensors
+        Estimation model (its parameters are fixed, not estimated) and sensor groups, as for
+        :class:`~crs_core.estimation.base.Estimator`.
     settings : MheSettings, optional
         Horizon, nominal rate, discount and noise (nothing else of it is used).
     combine : {"latest", "mean"}

@@ -200,8 +200,9 @@ class Estimator:
 
     Parameters
     ----------
-    sensors : set of str
-        Groups to use (:data:`SENSOR_GROUPS`); measurements of other groups are ignored.
+    sensors : str or set of str
+        Groups to use (:data:`SENSOR_GROUPS`), e.g. ``"lh+imu+we"``; measurements of other
+        groups are ignored.
     model : CarModel, optional
         Estimation model: the sensors it has, and the blind-start pose solver.
     settings : EstimatorSettings, optional

@@ -178,10 +178,9 @@ class ExtendedKalmanFilter(Estimator):
 
     Parameters
     ----------
-    model : CarModel
-        Estimation model (its parameters are the identified ones).
-    sensors : str or set
-        Sensor groups to use, e.g. ``"lh+imu+we"``.
+    model, sensors
+        Estimation model (its parameters are the identified ones) and sensor groups, as for
+        :class:`~crs_core.estimation.base.Estimator`.
     settings : EkfSettings, optional
     """
 

@@ -166,10 +166,8 @@ class MovingHorizonEstimator(Estimator):
 
     Parameters
     ----------
-    model : CarModel
-        Estimation model.
-    sensors : str or set
-        Sensor groups to use, e.g. ``"lh+imu+we"``.
+    model, sensors
+        Estimation model and sensor groups, as for :class:`~crs_core.estimation.base.Estimator`.
     settings : MheSettings, optional
     """
 
