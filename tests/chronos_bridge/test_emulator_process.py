@@ -222,14 +222,13 @@ def test_a_car_that_is_not_the_default(tmp_path: Path) -> None:
     ],
 )
 def test_car_option_errors_name_the_option(
-    options: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    options: list[str], message: str, tmp_path: Path
 ) -> None:
-    from launch_scripts.cli import main
+    from tests.launch_scripts.crs_cli import refused
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("parameters:\n  warp_drive: 1.0\n")
     options = [str(bad) if o == "BAD" else o for o in options]
     message = message.replace("BAD", str(bad))
-    assert main(["car-emulator", "--host", "127.0.0.1", "--host-port", "9", *options]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith(f"crs car-emulator: error: {message}") and err.count("\n") == 1, err
+    err = refused(["car-emulator", "--host", "127.0.0.1", "--host-port", "9", *options])
+    assert err.startswith(f"crs car-emulator: error: {message}"), err

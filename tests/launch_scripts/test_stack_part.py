@@ -174,12 +174,10 @@ def test_a_node_of_the_other_stack_is_refused(tmp_path: Path):
     ],
 )
 def test_crs_launch_refuses_a_bad_part_in_one_line_before_anything_starts(
-    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+    argv: list[str], message: str, tmp_path: Path, crs_refuses
 ):
     out = tmp_path / "out"
-    assert main(["launch", *argv, "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert message in err and err.count("\n") == 1, err
+    assert message in crs_refuses(["launch", *argv, "--out", str(out)])
     assert not out.exists()
 
 

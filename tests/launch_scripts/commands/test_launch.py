@@ -21,18 +21,16 @@ from launch_scripts.cli import main
     ],
 )
 def test_launch_checks_track_and_parameter_files_before_starting_nodes(
-    option: str, content: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+    option: str, content: str, message: str, tmp_path: Path, crs_refuses
 ):
     """A bad --track or --params of `crs launch`: one line naming the file, nothing started or
     written (the nodes would refuse it too, but only after starting)."""
     bad = tmp_path / "bad.yaml"
     bad.write_text(content)
     out = tmp_path / "out"
-    assert main(["launch", "sim", option, str(bad), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
+    err = crs_refuses(["launch", "sim", option, str(bad), "--out", str(out)])
     named = f"{option}: " if option == "--params" else ""
     assert err.startswith(f"crs launch: error: {named}{bad}: ") and message in err, err
-    assert err.count("\n") == 1
     assert not out.exists()
 
 
@@ -112,12 +110,10 @@ def test_launch_car_emulate_passes_the_link(
     ],
 )
 def test_the_visualizer_options_are_refused_with_one_line(
-    argv: list[str], message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+    argv: list[str], message: str, tmp_path: Path, crs_refuses
 ):
     out = tmp_path / "out"
-    assert main(["launch", "sim", *argv, "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert message in err and err.count("\n") == 1, err
+    assert message in crs_refuses(["launch", "sim", *argv, "--out", str(out)])
     assert not out.exists()
 
 

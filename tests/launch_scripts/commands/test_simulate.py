@@ -129,15 +129,12 @@ def test_unknown_effect_parameter_is_an_argparse_error(
     ],
 )
 def test_bad_parameter_files_are_refused_naming_the_field(
-    content: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture
+    content: str, message: str, tmp_path: Path, crs_refuses
 ):
     params = tmp_path / "p.yaml"
     params.write_text(content)
     out = tmp_path / "out"
-    assert main(["sim", "--params", str(params), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("crs sim: error: ") and message in err, err
-    assert err.count("\n") == 1
+    assert message in crs_refuses(["sim", "--params", str(params), "--out", str(out)])
     assert not out.exists()
 
 
