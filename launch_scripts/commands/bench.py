@@ -344,7 +344,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         workflow,
         _workflow_options,
         "a researcher's day on an emulated car that is not the model (tyres and motor off by "
-        "10-20 %, a hidden gyro bias): race it with the default model and record, crs sysid "
+        "10-20 %%, a hidden gyro bias): race it with the default model and record, crs sysid "
         "and crs discrepancy on the bag, race again with the result; laps, flying lap, "
         "contouring error, estimation RMSE and the held-out 2 s prediction error before and "
         "after, the parameters and the effect against the truth, each step's time; ~5 min with "

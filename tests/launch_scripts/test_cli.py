@@ -51,3 +51,25 @@ def test_run_time_errors_exit_with_code_2(tmp_path: Path, capsys: pytest.Capture
     code = main(["sim", "--out", str(tmp_path / "b"), "--duration", "0"])
     assert code == 2
     assert "duration must be > 0" in capsys.readouterr().err
+
+
+def _parsers(parser):
+    """``parser`` and every sub-command's parser below it, depth first."""
+    import argparse
+
+    yield parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                yield from _parsers(child)
+
+
+def test_every_command_has_a_help_text() -> None:
+    """``--help`` of every command and sub-command formats (a ``%`` in a help text that argparse
+    would read as a format breaks it)."""
+    from launch_scripts.cli import make_parser
+
+    parsers = list(_parsers(make_parser()))
+    assert len(parsers) > 20
+    for parser in parsers:
+        assert parser.format_help().startswith("usage: "), parser.prog
