@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from crs_core.model.effects import parse_effect
 
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
@@ -179,6 +178,14 @@ def add_cars(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _parse_effect(text: str) -> Any:
+    """:func:`crs_core.model.effects.parse_effect`, imported when an option is parsed (the
+    model's package imports casadi: a command that parses no effect does not load it)."""
+    from crs_core.model.effects import parse_effect
+
+    return parse_effect(text)
+
+
 def add_effect(
     parser: argparse.ArgumentParser, help_text: str, dest: str = "effect", flag: str = "--effect"
 ) -> None:
@@ -188,7 +195,7 @@ def add_effect(
     parser.add_argument(
         flag,
         dest=dest,
-        type=argument_type(parse_effect),
+        type=argument_type(_parse_effect),
         action="append",
         metavar="NAME[.PARAM][=VALUE]",
         help=help_text,

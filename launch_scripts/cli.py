@@ -11,47 +11,38 @@ exit code 2.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from collections.abc import Callable, Sequence
 
-from chronos_bridge.emulator_process import add_command as add_car_emulator
-from launch_scripts.commands import (
-    bag,
-    bench,
-    calibration,
-    consistency,
-    dataset,
-    discrepancy,
-    estimate,
-    launch,
-    ros,
-    simulate,
-    sysid,
-    viz,
-    zenoh_router,
-)
+#: The commands in the order ``crs --help`` lists them: each name, and where what adds it to the
+#: ``crs`` parser's sub-commands lives (``module:attribute``: a
+#: :class:`~launch_scripts.arguments.Command`, or ``car-emulator``'s own ``add_command``:
+#: :mod:`chronos_bridge` declares its parser itself). A run imports only its command's module.
+REGISTRY: dict[str, str] = {
+    "sim": "launch_scripts.commands.simulate:SIM",
+    "demo": "launch_scripts.commands.simulate:DEMO",
+    "dataset": "launch_scripts.commands.dataset:COMMAND",
+    "estimate": "launch_scripts.commands.estimate:COMMAND",
+    "consistency": "launch_scripts.commands.consistency:COMMAND",
+    "sysid": "launch_scripts.commands.sysid:SYSID",
+    "validate": "launch_scripts.commands.sysid:VALIDATE",
+    "discrepancy": "launch_scripts.commands.discrepancy:COMMAND",
+    "calibrate-lighthouse": "launch_scripts.commands.calibration:COMMAND",
+    "launch": "launch_scripts.commands.launch:COMMAND",
+    "viz": "launch_scripts.commands.viz:COMMAND",
+    "zenoh-router": "launch_scripts.commands.zenoh_router:COMMAND",
+    "car-emulator": "chronos_bridge.emulator_process:add_command",
+    "bag": "launch_scripts.commands.bag:COMMAND",
+    "ros": "launch_scripts.commands.ros:COMMAND",
+    "bench": "launch_scripts.commands.bench:COMMAND",
+}
 
-#: The commands in the order ``crs --help`` lists them; each adds itself to the ``crs`` parser's
-#: sub-commands (a :class:`~launch_scripts.arguments.Command`, or ``car-emulator``'s own
-#: ``add_command``: :mod:`chronos_bridge` declares its parser itself).
-REGISTRY: tuple[Callable[[argparse._SubParsersAction], object], ...] = (
-    simulate.SIM,
-    simulate.DEMO,
-    dataset.COMMAND,
-    estimate.COMMAND,
-    consistency.COMMAND,
-    sysid.SYSID,
-    sysid.VALIDATE,
-    discrepancy.COMMAND,
-    calibration.COMMAND,
-    launch.COMMAND,
-    viz.COMMAND,
-    zenoh_router.COMMAND,
-    add_car_emulator,
-    bag.COMMAND,
-    ros.COMMAND,
-    bench.COMMAND,
-)
+
+def command_adder(name: str) -> Callable[[argparse._SubParsersAction], object]:
+    """What adds the command ``name`` (a key of :data:`REGISTRY`) to the sub-commands."""
+    module, attribute = REGISTRY[name].split(":")
+    return getattr(importlib.import_module(module), attribute)
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -61,21 +52,24 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def make_parser() -> argparse.ArgumentParser:
+def make_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``crs`` parser: with only ``command``'s sub-command when it names one (a run needs
+    no other command's module, and their imports cost ~0.7 s), else with every command."""
     parser = OneLineParser(
         prog="crs",
         description="Chronos/CRS: simulate, estimate, identify, calibrate, race (crs COMMAND "
         "--help for one).",
     )
     commands = parser.add_subparsers(dest="command", required=True)
-    for add in REGISTRY:
-        add(commands)
+    for name in [command] if command in REGISTRY else REGISTRY:
+        command_adder(name)(commands)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        args = make_parser().parse_args(argv)
+        args = make_parser(argv[0] if argv else None).parse_args(argv)
     except SystemExit as exit_:  # --help, or an argument error already printed in one line
         return int(exit_.code or 0)
     try:

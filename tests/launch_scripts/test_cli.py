@@ -73,3 +73,31 @@ def test_every_command_has_a_help_text() -> None:
     assert len(parsers) > 20
     for parser in parsers:
         assert parser.format_help().startswith("usage: "), parser.prog
+
+
+def test_the_registry_names_each_command_as_it_adds_itself() -> None:
+    import argparse
+
+    from launch_scripts.cli import REGISTRY, command_adder
+
+    for name in REGISTRY:
+        commands = argparse.ArgumentParser().add_subparsers()
+        command_adder(name)(commands)
+        assert list(commands.choices) == [name]
+
+
+def test_a_run_imports_only_its_own_commands_module() -> None:
+    """``crs ros --help`` in a fresh interpreter: no other command's module is imported (nor
+    casadi, which the model's commands need)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\nfrom launch_scripts.cli import main\n"
+        "assert main(['ros', '--help']) == 0\n"
+        "print(sorted(m for m in sys.modules if m.startswith('launch_scripts.commands.') "
+        "or m == 'casadi'))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "['launch_scripts.commands.ros']"
