@@ -2,7 +2,9 @@
 # Chronos/CRS in Python: the one entry point.
 #   ./run.sh                  set up .venv (if needed) and run the main job into ${OUT:-out/demo}:
 #                             the simulator report (crs demo) and the ROS 2 stack (crs launch sim)
-#   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...)
+#   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...: the
+#                             tests that start no stack on two workers, then the integration
+#                             tests alone; see run_tests)
 #   ./run.sh setup            only set up .venv
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
 # The set-up installs requirements.lock with --no-deps, then this project in editable mode,
@@ -165,6 +167,38 @@ warm_compile() {
     "$VENV/bin/python" -m launch_scripts.warm_cache || die "compiling the model functions failed"
 }
 
+# The suite in two phases, ARGS (files, -k, -x, ...) given to both: first the tests that start
+# no stack, on two workers (pytest-xdist; a test module's tests stay on one worker, so its
+# fixtures are built once); then the integration tests (ROS 2 stacks racing in real time, whose
+# timing the other phase would disturb), alone. ARGS choosing a marker themselves (-m) run as
+# one pytest, on one worker. Exit code: the first phase's failure, else the second's; 1 when
+# no test was collected (pytest's 5).
+run_tests() {
+    local rc_unit=0 rc_integration=0 arg
+    for arg in "$@"; do
+        if [ "$arg" = "-m" ] || [[ "$arg" == -m?* ]]; then
+            "$VENV/bin/python" -m pytest -q "$@" || rc_unit=$?
+            [ "$rc_unit" -ne 5 ] || { echo "run.sh: no tests were collected" >&2; exit 1; }
+            exit "$rc_unit"
+        fi
+    done
+    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile -m "not integration" "$@" || rc_unit=$?
+    if [ "$rc_unit" -ne 0 ] && [ "$rc_unit" -ne 1 ] && [ "$rc_unit" -ne 5 ]; then
+        exit "$rc_unit"  # interrupted, an internal or a usage error: the second phase would too
+    fi
+    "$VENV/bin/python" -m pytest -q -m integration "$@" || rc_integration=$?
+    if [ "$rc_unit" -eq 5 ] && [ "$rc_integration" -eq 5 ]; then
+        echo "run.sh: no tests were collected: treating that as a failure" >&2
+        exit 1
+    fi
+    for rc in "$rc_unit" "$rc_integration"; do
+        if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then
+            exit "$rc"
+        fi
+    done
+    exit 0
+}
+
 build_msgs() {
     local pkg
     for pkg in "${MSG_PACKAGES[@]}"; do
@@ -259,13 +293,7 @@ case "$cmd" in
         shift
         bootstrap
         warm_compile
-        rc=0
-        "$VENV/bin/python" -m pytest -q "$@" || rc=$?
-        if [ "$rc" -eq 5 ]; then
-            echo "run.sh: no tests were collected: treating that as a failure" >&2
-            exit 1
-        fi
-        exit "$rc"
+        run_tests "$@"
         ;;
     setup)
         [ $# -le 1 ] || { usage; exit 2; }

@@ -21,7 +21,7 @@ from launch_scripts.sim_stack import CarTruth, StackOptions
 
 pytestmark = pytest.mark.integration
 
-DOMAIN_WORKFLOW = 126
+DOMAIN_WORKFLOW = 128
 #: Not the benchmark's car: other parameters, another sign and size of the bias.
 TRUTH_FACTORS = {"Df": 1.12, "Cm1": 0.85}
 GYRO_BIAS = -0.12

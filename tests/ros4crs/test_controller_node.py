@@ -40,7 +40,7 @@ def test_the_plan_and_the_solve_time_go_out_only_to_a_listener(monkeypatch) -> N
     from ros4crs import conversions
     from ros4crs.controller_node import ControllerNode
 
-    monkeypatch.setenv("ROS_DOMAIN_ID", "171")  # its own (the suite's tests use others)
+    monkeypatch.setenv("ROS_DOMAIN_ID", "173")  # its own (the suite's tests use others)
     rclpy.init(args=["--ros-args", "-p", "controller:=mpcc"])
     try:
         node = ControllerNode()
