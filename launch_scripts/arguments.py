@@ -13,7 +13,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
