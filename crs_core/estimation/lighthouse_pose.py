@@ -348,7 +348,7 @@ class LighthouseFixes:
         Largest stamp difference between paired planes, s.
     min_interval : float
         Fewest seconds between two solved fixes of one station (by stamp); a pair that comes
-        sooner is not solved (0: every pair). A viewer needs ~10 fixes a second, not the
+        sooner is not solved (0: every pair). A viewer needs a few fixes a second, not the
         sweep rate.
     """
 
