@@ -22,7 +22,7 @@ from crs_core.track import load_demo_track
 from launch_scripts.sim_stack import StackOptions, stack_nodes
 from launch_scripts.visualizer import VizSettings
 from tests.integration.browser import check_track_and_moving_car, needs_chromium, two_screenshots
-from tests.integration.stack_probe import launched
+from tests.integration.stack_probe import launched, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -222,6 +222,18 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(race) -> None
     assert second.messages["/viz/scene"], "the second client got nothing"
 
 
+def _serves(url: str) -> bool:
+    """Whether an HTTP GET of ``url`` answers 200."""
+    import urllib.error
+    import urllib.request
+
+    try:
+        with urllib.request.urlopen(url, timeout=1.0) as reply:
+            return reply.status == 200
+    except (urllib.error.URLError, OSError):
+        return False
+
+
 def _check_fixes(viewer: Viewer) -> None:
     """car1's Lighthouse fixes: drawn on the scene, and where the simulator's truth was at the
     fix's stamp (interpolated between the passed-through truth messages)."""
@@ -257,6 +269,9 @@ def test_the_built_in_page_shows_the_race_in_a_browser(race, tmp_path) -> None:
     """Headless Chromium on the visualizer's page (``http://127.0.0.1:PAGE_PORT/?ws=PORT``):
     the screenshots show the demo track and car1, moving."""
     launcher, _, _ = race
+    # the page's server first: a page Chromium loads from a server not up yet is its error page,
+    # which no retry of the suite's page reloads (the module's first test runs on a stack up)
+    wait_for(lambda: _serves(f"http://127.0.0.1:{PAGE_PORT}/"), TIMEOUT_S, "the page's server")
     first, second = two_screenshots(
         f"http://127.0.0.1:{PAGE_PORT}/?ws={PORT}", tmp_path / "profile"
     )
