@@ -39,6 +39,7 @@ from crs_core.identification.models import identification_model
 from crs_core.identification.problem import DEFAULT_FIT
 from crs_core.identification.validation import validate
 from crs_core.model import CarModel
+from crs_core.model.bicycle import cornering_stiffness
 from crs_core.model.effects import effect_text, parse_effect
 from crs_core.track import load_demo_track
 from ros4crs.bag_dataset import dataset_from_bag
@@ -219,11 +220,27 @@ def format_table(result: dict[str, Any]) -> str:
         f"gap on its held-out part {found['gap_before_m']:.3f} -> {found['gap_after_m']:.3f} m).",
         f"The changed parameters against the truth (error, and in the fit's σ): crs sysid "
         f"(no effect) {_recovery(sysid, changed)}; crs discrepancy's final model "
-        f"{_recovery(found['parameters'], changed)}.",
+        f"{_recovery(found['parameters'], changed)}. Cornering stiffness D·C·B, front / rear: "
+        f"crs sysid {_stiffness(sysid)}, the final model {_stiffness(found['parameters'])}.",
         "Steps: "
         + ", ".join(f"{k[:-2].replace('_', ' ')} {v:.0f} s" for k, v in result["steps_s"].items()),
     ]
     return "\n".join(lines)
+
+
+def stiffness_errors(recovery: dict[str, Any]) -> dict[str, float]:
+    """Relative error of each axle's cornering stiffness ``D C B``
+    (:func:`~crs_core.model.bicycle.cornering_stiffness`), identified against the truth, from a
+    :func:`parameter_recovery`'s rows: ``{"front": ..., "rear": ...}``."""
+    rows = recovery["parameters"]
+
+    def stiffness(axle: str, which: str) -> float:
+        return cornering_stiffness(*(rows[f"{p}{axle}"][which] for p in "DCB"))
+
+    return {
+        name: round(stiffness(axle, "identified") / stiffness(axle, "truth") - 1.0, 4)
+        for name, axle in (("front", "f"), ("rear", "r"))
+    }
 
 
 def _recovery(recovery: dict[str, Any], names: list[str]) -> str:
@@ -233,6 +250,10 @@ def _recovery(recovery: dict[str, Any], names: list[str]) -> str:
         + (f" ({rows[n]['sigmas']:+.1f} σ)" if rows[n]["sigmas"] is not None else "")
         for n in names
     )
+
+
+def _stiffness(recovery: dict[str, Any]) -> str:
+    return " / ".join(f"{100 * e:+.1f} %" for e in stiffness_errors(recovery).values())
 
 
 def _rmse(race: dict[str, Any]) -> str:

@@ -82,6 +82,13 @@ def slip_angles(x: ca.SX, u: ca.SX, P: ParameterAccess) -> tuple[ca.SX, ca.SX]:
     return alpha_f, alpha_r
 
 
+def cornering_stiffness(D: float, C: float, B: float) -> float:
+    r"""Slope of an axle's Pacejka curve :math:`F_y = D \sin(C \arctan(B \alpha))` at zero
+    slip, :math:`\partial F_y / \partial \alpha |_{\alpha=0} = D C B` (N/rad): the linear
+    tyre, which driving within the grip determines even where it leaves D and B apart."""
+    return D * C * B
+
+
 def axle_forces(x: ca.SX, u: ca.SX, P: ParameterAccess) -> AxleForces:
     """Pacejka lateral forces, AWD-split motor force and friction (paper Sec. III-A)."""
     vx = x[3]

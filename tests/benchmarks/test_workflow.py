@@ -13,6 +13,7 @@ from benchmarks.workflow import (
     TRUTH_FACTORS,
     format_table,
     parameter_recovery,
+    stiffness_errors,
     truth_parameters,
 )
 from crs_core.identification.problem import DEFAULT_FIT
@@ -82,3 +83,13 @@ def test_the_table_shows_before_and_after(tmp_path: Path):
     )
     assert "crs sysid (no effect) Df +5.0 %" in table
     assert "Steps: race default model 52 s, sysid 7 s" in table
+
+
+def test_a_peak_and_a_shape_off_along_the_ridge_keep_the_cornering_stiffness(tmp_path: Path):
+    """D up 20 % and B down by the same factor: the parameters are off, the axle's slope at zero
+    slip (D C B) is not; the front's D alone moves its stiffness by as much."""
+    ridge = parameter_recovery(_params_file(tmp_path / "r.yaml", {"Dr": 1.2, "Br": 1 / 1.2}))
+    assert ridge["parameters"]["Dr"]["error"] == pytest.approx(0.2)
+    assert stiffness_errors(ridge) == pytest.approx({"front": 0.0, "rear": 0.0}, abs=1e-4)
+    front = parameter_recovery(_params_file(tmp_path / "f.yaml", {"Df": 1.1}))
+    assert stiffness_errors(front) == pytest.approx({"front": 0.1, "rear": 0.0}, abs=1e-4)

@@ -169,3 +169,16 @@ def test_kinematics_rotate_body_velocity_into_world(model):
     )
     c, s = np.cos(psi), np.sin(psi)
     np.testing.assert_allclose(xdot[:3], [1.2 * c - 0.1 * s, 1.2 * s + 0.1 * c, 0.4], rtol=1e-14)
+
+
+def test_the_cornering_stiffness_is_the_slope_of_the_tyre_curve_at_zero_slip():
+    import numpy as np
+
+    from crs_core.model.bicycle import cornering_stiffness
+
+    D, C, B = 0.6, 1.5, 5.2
+    alpha = 1e-6
+    slope = (D * np.sin(C * np.arctan(B * alpha)) - D * np.sin(C * np.arctan(-B * alpha))) / (
+        2 * alpha
+    )
+    assert cornering_stiffness(D, C, B) == pytest.approx(slope, rel=1e-6)
