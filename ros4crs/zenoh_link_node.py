@@ -6,16 +6,25 @@ and speaks rmw_zenoh's wire format (:mod:`ros4crs.zenoh.wire`), so another machi
 node, or a stock ROS 2 machine running ``rmw_zenoh_cpp``, sees this machine's topics and this
 machine sees theirs; discovery is dynamic on both sides, like rmw_zenoh's.
 
-* Export: every 0.25 s the local ROS graph is polled for topics (matching ``topics``) with a
-  publisher other than this node; each gets a raw subscription (CDR bytes, never deserialized),
-  with the publishers' reliability and durability, and its samples are put on Zenoh at the
-  topic's key with rmw_zenoh's attachment (sequence number, source time, GID). The node declares
-  its ``NN`` token and an ``MP`` token per exported topic (an ``MS`` token per imported one).
+* Interest: every 0.25 s the local ROS graph is polled for topics (matching ``topics``) with a
+  subscription other than this node's; each gets an ``MS`` token, as rmw_zenoh declares one per
+  subscription, so far machines see what this one listens to (and withdrawn when the last local
+  subscription goes).
+* Export: in the same poll, topics with a publisher other than this node; a transient-local one
+  is exported always (a far subscriber joining late gets its history), a volatile one only while
+  another session has an ``MS`` token for it (a far subscriber): a topic nobody far away listens
+  to is not subscribed here, so its publisher sees no subscriber (a controller then builds no
+  plan for a viewer that is not there) and nothing crosses the network. An exported topic gets a
+  raw subscription (CDR bytes, never deserialized), with the publishers' reliability and
+  durability, and its samples are put on Zenoh at the topic's key with rmw_zenoh's attachment
+  (sequence number, source time, GID). The node declares its ``NN`` token and an ``MP`` token
+  per exported topic.
   Transient-local topics go through a Zenoh advanced publisher with a cache (the last
   ``LOG_DEPTH`` samples; ROS does not report a remote publisher's depth) so that a far
   subscriber joining late gets the history; volatile ones through a plain publisher of
   ``STREAM_QOS.depth``. Congestion control: drop (block only for
-  keep-all, as rmw_zenoh). A topic whose publishers are all gone is withdrawn.
+  keep-all, as rmw_zenoh). A topic whose publishers are all gone, or (volatile) whose far
+  subscribers are, is withdrawn.
 * Import: the node follows the liveliness tokens of ``domain`` (with history); for each
   publisher token (``MP``) of another Zenoh session whose topic matches ``topics`` it publishes
   the samples on that topic locally, raw, with the announced QoS (an advanced subscriber with
@@ -135,6 +144,20 @@ class EchoFilter:
             del self._count[data]
 
 
+def _endpoint_qos(endpoints: list, all_transient: bool) -> wire.Qos:
+    """The QoS to announce for local endpoints (rclpy ``TopicEndpointInfo``): best effort if
+    one is, transient-local if all are (publishers: ``all_transient``) or one is
+    (subscriptions), with the depth the link uses for it."""
+    best_effort = any(e.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for e in endpoints)
+    durable = [e.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for e in endpoints]
+    transient = all(durable) if all_transient else any(durable)
+    return wire.Qos(
+        reliability="best_effort" if best_effort else "reliable",
+        durability="transient_local" if transient else "volatile",
+        depth=LOG_DEPTH if transient else STREAM_QOS.depth,
+    )
+
+
 def _profile(qos: wire.Qos) -> QoSProfile:
     """The rclpy QoS of an announced QoS."""
     return QoSProfile(
@@ -186,6 +209,10 @@ class ZenohLinkNode(Node):
         self._echo: dict[str, EchoFilter] = {}  # by topic
         self.far_nodes: dict[str, set[str]] = collections.defaultdict(set)  # zid -> node names
         self._far_tokens: set[str] = set()
+        #: Far subscriptions (``MS`` tokens of other sessions), by topic.
+        self.far_subscriptions: dict[str, set[str]] = collections.defaultdict(set)
+        #: This machine's subscriptions announced as ``MS`` tokens, by topic.
+        self.interests: dict[str, Any] = {}
         self._node_token = self.session.liveliness().declare_token(
             wire.node_token(self.domain, self.zid, 0, self.get_namespace(), self.get_name())
         )
@@ -219,11 +246,12 @@ class ZenohLinkNode(Node):
 
     def _discover(self) -> None:
         self._take_liveliness_changes()
-        self._update_exports()
+        self._update_graph()
 
-    def _update_exports(self) -> None:
+    def _update_graph(self) -> None:
+        """Announce the local subscriptions, export what far subscribers want (module doc)."""
         me = (self.get_name(), self.get_namespace())
-        seen = set()
+        published, listened = set(), set()
         for topic, types in self.get_topic_names_and_types():
             if not topic_selected(topic, self.patterns):
                 continue
@@ -232,27 +260,46 @@ class ZenohLinkNode(Node):
                 for info in self.get_publishers_info_by_topic(topic)
                 if (info.node_name, info.node_namespace) != me
             ]
-            if not publishers:
+            subscriptions = [
+                info
+                for info in self.get_subscriptions_info_by_topic(topic)
+                if (info.node_name, info.node_namespace) != me
+            ]
+            known = self._known_type(types[0]) if publishers or subscriptions else False
+            if subscriptions and known:
+                listened.add(topic)
+                if topic not in self.interests:
+                    self.interests[topic] = self._interest(topic, types[0], subscriptions)
+            if not publishers or not known:
                 continue
-            seen.add(topic)
-            if topic not in self.exports and self._known_type(types[0]):
-                self.exports[topic] = self._export(topic, types[0], publishers)
-        for topic in set(self.exports) - seen:
+            qos = _endpoint_qos(publishers, all_transient=True)
+            if qos.durability == "volatile" and not self.far_subscriptions.get(topic):
+                continue  # nobody far away listens
+            published.add(topic)
+            if topic not in self.exports:
+                self.exports[topic] = self._export(topic, types[0], qos)
+        for topic in set(self.interests) - listened:
+            self.interests.pop(topic).undeclare()
+        for topic in set(self.exports) - published:
             self.exports.pop(topic).close(self)
-            self.get_logger().info(f"export of {topic} withdrawn (no local publisher)")
+            why = "far subscriber" if self._has_publisher(topic, me) else "local publisher"
+            self.get_logger().info(f"export of {topic} withdrawn (no {why})")
 
-    def _export(self, topic: str, msgtype: str, publishers: list) -> _Export:
-        best_effort = any(
-            p.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT for p in publishers
+    def _has_publisher(self, topic: str, me: tuple[str, str]) -> bool:
+        return any(
+            (info.node_name, info.node_namespace) != me
+            for info in self.get_publishers_info_by_topic(topic)
         )
-        transient = all(
-            p.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for p in publishers
-        )
-        qos = wire.Qos(
-            reliability="best_effort" if best_effort else "reliable",
-            durability="transient_local" if transient else "volatile",
-            depth=LOG_DEPTH if transient else STREAM_QOS.depth,
-        )
+
+    def _interest(self, topic: str, msgtype: str, subscriptions: list) -> Any:
+        """The ``MS`` token announcing this machine's subscriptions of ``topic``."""
+        token = wire.endpoint_token(
+            "MS", self.domain, self.zid, 0, next(self._entity_ids), self.get_namespace(),
+            self.get_name(), topic, msgtype, _endpoint_qos(subscriptions, all_transient=False),
+        )  # fmt: skip
+        return self.session.liveliness().declare_token(token)
+
+    def _export(self, topic: str, msgtype: str, qos: wire.Qos) -> _Export:
         export = _Export(self, topic, msgtype, qos, next(self._entity_ids))
         self.get_logger().info(f"exporting {topic} ({msgtype}) on {export.key}")
         return export
@@ -279,6 +326,9 @@ class ZenohLinkNode(Node):
                 (names.add if alive else names.discard)(entity.full_name)
             elif entity.kind == "MP" and topic_selected(entity.topic, self.patterns):
                 self._far_publisher(key, entity, alive)
+            elif entity.kind == "MS" and topic_selected(entity.topic, self.patterns):
+                tokens = self.far_subscriptions[entity.topic]
+                (tokens.add if alive else tokens.discard)(key)
 
     def _far_publisher(self, token: str, entity: wire.EndpointInfo, alive: bool) -> None:
         key = entity.key()
@@ -438,13 +488,6 @@ class _Import:
             self._subscriber = node.session.declare_subscriber(
                 key, self._on_sample, allowed_origin=zenoh.Locality.REMOTE
             )
-        # a subscription token (MS), as rmw_zenoh declares one: far graphs see this machine's
-        # subscription of the topic
-        token = wire.endpoint_token(
-            "MS", node.domain, node.zid, 0, next(node._entity_ids), node.get_namespace(),
-            node.get_name(), entity.topic, entity.msgtype, entity.qos, hash_=entity.type_hash,
-        )  # fmt: skip
-        self._token = node.session.liveliness().declare_token(token)
 
     def _drop(self, reason: str, detail: str = "") -> None:
         self.counts.dropped[reason] += 1
@@ -473,7 +516,6 @@ class _Import:
         return None
 
     def close(self) -> None:
-        self._token.undeclare()
         self._subscriber.undeclare()
 
 

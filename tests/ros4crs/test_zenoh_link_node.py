@@ -299,6 +299,34 @@ def test_a_far_node_that_restarts_is_found_again(machines: dict) -> None:
     assert received[-1][1].header.stamp.sec > 3000
 
 
+def test_a_volatile_topic_crosses_only_while_a_far_machine_subscribes(machines: dict) -> None:
+    """A publisher on A that nobody on B listens to has no subscriber at all (A's link does not
+    export it: a controller then builds no plan for a viewer that is not there); a subscription
+    on B brings A's link to subscribe and the messages across; when it goes, A's link lets go."""
+    from chronos_msgs.msg import CarInput
+
+    topic = "/car1/controller/unwatched"
+    publisher = machines["a"].node.create_publisher(CarInput, topic, STREAM_QOS)
+    time.sleep(2.0)  # several polls of both links
+    assert publisher.get_subscription_count() == 0
+    node_b = machines["b"].node
+    received: list = []
+    subscription = node_b.create_subscription(
+        CarInput, topic, lambda msg: received.append(msg), STREAM_QOS
+    )
+    wait_for(lambda: publisher.get_subscription_count() == 1, 10.0, "A's link subscribing")
+    deadline = time.monotonic() + 10.0
+    while not received:
+        publisher.publish(_car_input(1))
+        time.sleep(0.05)
+        assert time.monotonic() < deadline, "nothing on B while it subscribes"
+    node_b.destroy_subscription(subscription)
+    wait_for(lambda: publisher.get_subscription_count() == 0, 10.0, "A's link letting go")
+    withdrawn = f"export of {topic} withdrawn (no far subscriber)"
+    wait_for(lambda: withdrawn in machines["log"].read_text(errors="replace"), 5.0, withdrawn)
+    machines["a"].node.destroy_publisher(publisher)
+
+
 def test_echo_filter_drops_each_own_payload_once() -> None:
     echo = EchoFilter(size=2)
     echo.add(b"a")
