@@ -67,8 +67,8 @@ def _pipeline_cpu(run: dict[str, Any]) -> str:
     return ", ".join(f"{name.rsplit('/', 1)[-1]} {value:g}" for name, value in cpu.items())
 
 
-def format_table(result: dict[str, Any]) -> str:
-    """The two runs side by side, for a person."""
+def _rows(result: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The compared figures: (label with its unit, direct simulator, emulated car)."""
     sim, emu = result["runs"]["sim"], result["runs"]["emulated"]
     rows = []
 
@@ -117,12 +117,52 @@ def format_table(result: dict[str, Any]) -> str:
         ),
     )
     row("node deaths", lambda r: str(len(r.get("node_deaths", []))))
+    return rows
+
+
+def _settings(result: dict[str, Any]) -> str:
+    return f"1 car, {result['estimator']}, {result['duration_s']:g} s, seed {result['seed']}"
+
+
+def format_table(result: dict[str, Any]) -> str:
+    """The two runs side by side, for a person."""
+    rows = _rows(result)
     width = max(len(label) for label, _, _ in rows)
     lines = [
-        f"1 car, {result['estimator']}, {result['duration_s']:g} s, seed {result['seed']}",
+        _settings(result),
         f"{'':{width}}  {'direct simulator':>36}  {'emulated car over UDP':>36}",
     ]
     lines += [f"{label:{width}}  {a:>36}  {b:>36}" for label, a, b in rows]
-    lines.append(f"CPU % once running, sim: {_pipeline_cpu(sim)}")
-    lines.append(f"CPU % once running, emulated: {_pipeline_cpu(emu)}")
+    lines.append(f"CPU % once running, sim: {_pipeline_cpu(result['runs']['sim'])}")
+    lines.append(f"CPU % once running, emulated: {_pipeline_cpu(result['runs']['emulated'])}")
+    return "\n".join(lines)
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The two runs side by side as the docs show them (Markdown): the rows of
+    :func:`format_table`, then the CPU per process once running.
+
+    Parameters
+    ----------
+    result : dict
+        The benchmark's JSON (:func:`bridge_benchmark`): RMSE in m, m/s and rad, latencies in
+        ms, CPU in % of one core.
+
+    Returns
+    -------
+    str
+        Markdown: a settings line and a table in the units its labels name.
+    """
+    lines = [
+        f"{_settings(result)}.",
+        "",
+        "| | direct simulator | emulated car over UDP |",
+        "|---|---|---|",
+    ]
+    lines += [f"| {label.replace('->', '→')} | {a} | {b} |" for label, a, b in _rows(result)]
+    sim, emu = result["runs"]["sim"], result["runs"]["emulated"]
+    lines.append(
+        f"| CPU once running (% of one core) | {_pipeline_cpu(sim) or '-'} | "
+        f"{_pipeline_cpu(emu) or '-'} |"
+    )
     return "\n".join(lines)

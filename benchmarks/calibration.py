@@ -1,4 +1,4 @@
-"""Accuracy of Lighthouse calibration on simulated data (``crs calibrate-lighthouse bench``).
+"""Accuracy of Lighthouse calibration on simulated data (``crs bench calibration``).
 
 Static: for each setting (sweeps averaged per point, error of the known positions) and seed, 24
 points on the demo-track area (:func:`sim.static_points.grid_layout`), the recorded station,
@@ -12,6 +12,7 @@ only) with a 20 ms clock offset; offset and station errors. Means over seeds.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -115,3 +116,76 @@ def moving_study(seeds: int = 3, duration: float = 20.0, offset: float = 0.02) -
                 }
             )
     return out
+
+
+def _setting(sweeps: int, position_std: float) -> str:
+    """A static setting as the docs' table names it."""
+    per_point = f"{sweeps} sweep{'s' if sweeps > 1 else ''} per point"
+    known = (
+        f"known positions off by {1e3 * position_std:g} mm (std)"
+        if position_std
+        else "exact known positions"
+    )
+    return f"{per_point}, {known}"
+
+
+def format_markdown(result: dict[str, Any], columns: tuple[int, ...] = (4, 6)) -> str:
+    """The docs' tables of a run (Markdown): per static setting the mean reprojected error over
+    all points when fitted on ``columns`` and on all points, and the station's position error
+    at 6 points (all mm); then the moving study's worst seed.
+
+    Parameters
+    ----------
+    result : dict
+        The benchmark's JSON: ``static`` (:func:`static_study`, errors in m) and ``moving``
+        (:func:`moving_study`, offsets in s, errors in m).
+    columns : tuple of int, optional
+        The point counts shown besides all points.
+
+    Returns
+    -------
+    str
+        Markdown: a table and a line on the moving study.
+    """
+    static = result["static"]
+    every = static[0]["rows"][-1]["n"]
+    shown = [n for n in columns if n < every] + [every]
+    lines = [
+        f"Static: {every} points, mean over {static[0]['seeds']} seeds; mean reprojected "
+        f"position error over all {every} points (mm) when fitted on the first n:",
+        "",
+        "| setting | "
+        + " | ".join(f"{n} points" for n in shown)
+        + " | station position error at 6 points |",
+        "|---|" + "---|" * (len(shown) + 1),
+    ]
+    for setting in static:
+        by_n = {row["n"]: row for row in setting["rows"]}
+        cells = [f"{1e3 * by_n[n]['all_mean_m']:.2f}" for n in shown]
+        station = by_n.get(6, {}).get("station_position_error_m")
+        lines.append(
+            f"| {_setting(setting['sweeps_per_point'], setting['position_std_m'])} | "
+            + " | ".join(cells)
+            + f" | {'–' if station is None else f'{1e3 * station:.1f} mm'} |"
+        )
+    moving = result.get("moving") or []
+    if moving:
+        parts = []
+        for photodiodes in (False, True):
+            runs = [r for r in moving if r["fit_photodiodes"] == photodiodes]
+            if runs:
+                offset = max(r["offset_error_s"] for r in runs)
+                station = max(r["station_position_error_m"] for r in runs)
+                what = "with the photodiodes fitted too" if photodiodes else "station and offset"
+                parts.append(
+                    f"{what}: offset error {1e3 * offset:.2g} ms, station position error "
+                    f"{1e3 * station:.2g} mm"
+                )
+        first = moving[0]
+        lines += [
+            "",
+            f"Moving: {first['duration_s']:g} s of simulated driving with a "
+            f"{1e3 * first['offset_true_s']:g} ms clock offset, worst of "
+            f"{len({r['seed'] for r in moving})} seeds; " + "; ".join(parts) + ".",
+        ]
+    return "\n".join(lines)

@@ -279,6 +279,68 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _speed_line(run: dict[str, Any]) -> str:
+    """The speed run's bullet: its wall time and what it named against the truth."""
+    named = "; ".join(
+        f"{effect} " + ", ".join(f"{p['value']:.4g} ± {p['std']:.2g}" for p in parameters.values())
+        for effect, parameters in run["parameters"].items()
+    )
+    truth = ", ".join(
+        f"{name} {value:g}" for values in run["truth"].values() for name, value in values.items()
+    )
+    found = f"{named} named" if named else f"*{run['verdict']}*"
+    return (
+        f"- **Time:** one run on a {run['recording_s']:g} s recording (`crs discrepancy REC` with "
+        f"its defaults: held out the {run['held_out']}, every hypothesis, `--workers "
+        f"{run['workers']}`) took **{run['time_s']:.0f} s** ({found} for a hidden {truth}, gap "
+        f"{run['gap_before_m']:.3f} → {run['gap_after_m']:.3f} m)."
+    )
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The docs' account of a run (Markdown): its settings, the false alarms, the hidden
+    effects named, the speed run, then the table of :func:`markdown`.
+
+    Parameters
+    ----------
+    result : dict
+        The benchmark's JSON (:func:`discrepancy_benchmark`): ``settings`` (durations in s),
+        ``cases``, ``summary`` (:func:`tabulate`), optionally ``speed_60s`` (times in s, gaps
+        in m) and ``wall_time_s``.
+
+    Returns
+    -------
+    str
+        Markdown: a settings line, three bullets and the per-case table.
+    """
+    settings, rows = result["settings"], result["cases"]
+    hidden = [r for r in rows if r["effect"]]
+    clean = result["summary"]["false_alarms"]
+    correct = [r for r in hidden if r["correct"]]
+    independent = [r for r in hidden if r["independent"]]
+    seeds = sorted({r["seed"] for r in hidden})
+    wall = f"; the whole benchmark {result['wall_time_s']:.0f} s" if "wall_time_s" in result else ""
+    lines = [
+        f"Training runs of {settings['duration_s']:g} s, held-out runs of "
+        f"{settings['held_out_s']:g} s (another seed); {len(hidden)} hidden-effect cases (seed"
+        f"{'s' if len(seeds) > 1 else ''} {', '.join(map(str, seeds))}) and {clean['runs']} clean "
+        f"runs{wall}.",
+        "",
+        f"- **False alarms: {clean['findings']} findings in {clean['runs']} clean runs** "
+        f"({clean['mismatched_noise']['runs']} of them with mismatched sensor noise, "
+        f"{clean['mismatched_noise']['findings']} findings there); designed: ≤ "
+        f"{100 * settings['false_alarm_rate_designed']:g} % per round.",
+        f"- **Hidden effects: {len(correct)} of {len(hidden)} named correctly** "
+        f"({sum(r['correct'] for r in independent)} of {len(independent)} independent), the "
+        f"parameter within {100 * RELATIVE_TOLERANCE:g} % of the truth in "
+        f"{sum(r.get('within_tolerance', False) for r in correct)} of those {len(correct)}; "
+        f"**wrong names: {len(result['summary']['wrong_names'])}**.",
+    ]
+    if "speed_60s" in result:
+        lines.append(_speed_line(result["speed_60s"]))
+    return "\n".join([*lines, "", markdown(rows)])
+
+
 def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
     """Wall time of one workflow run on a ``duration`` s recording as ``crs discrepancy REC``
     runs it by default: the last 30 % held out, every hypothesis, ``workers`` processes."""

@@ -22,10 +22,14 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.bridge import format_markdown as bridge_markdown
+from benchmarks.calibration import format_markdown as calibration_markdown
 from benchmarks.contingency import format_table as contingency_table
 from benchmarks.control import format_table as control_table
+from benchmarks.discrepancy import format_markdown as discrepancy_markdown
 from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
+from benchmarks.model import format_markdown as model_markdown
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
@@ -81,6 +85,10 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "stack_viz": _headed("stack", stack_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
+    "discrepancy": _headed("discrepancy", discrepancy_markdown),
+    "calibration": _headed("calibration", calibration_markdown),
+    "model": _headed("model", model_markdown),
+    "bridge": _headed("bridge", bridge_markdown),
     # a second block of the same JSON: FILE.json#NAME
     "estimation#robust": _headed("estimation", lambda result: robust_markdown(result["rows"])),
 }

@@ -45,6 +45,6 @@ def timing(call: Callable[[], object], repeats: int) -> dict[str, float]:
 
 
 def format_ms(value: float) -> str:
-    """A time in ms for a table: 3 significant digits, whole milliseconds from 1000 ms on (no
-    exponent)."""
+    """A time for a table (in ms in most, µs in ``crs bench model``'s): 3 significant digits,
+    whole units from 1000 on (no exponent)."""
     return f"{value:.3g}" if abs(value) < 1000 else f"{value:.0f}"

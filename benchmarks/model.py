@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 import time
 from typing import Any
 
 import numpy as np
 
-from benchmarks.machine import machine, timing
+from benchmarks.machine import format_ms, timing
 from crs_core.control.path_following import PathFollower
 from crs_core.model import CarModel
 from crs_core.model.car_model import NumericModel
@@ -46,8 +45,6 @@ def model_benchmark(repeats: int = 20000, sim_duration: float = 60.0) -> dict[st
     )
     elapsed = time.perf_counter() - start
     return {
-        "machine": machine(),
-        "command": " ".join(["crs", *sys.argv[1:]]) if sys.argv else "crs bench model",
         "model_evaluation": rows,
         "simulator": {
             "simulated_s": sim_duration,
@@ -58,3 +55,50 @@ def model_benchmark(repeats: int = 20000, sim_duration: float = 60.0) -> dict[st
             "controller_hz": 50,
         },
     }
+
+
+#: The docs' names of the model functions' backends and of the functions timed.
+BACKENDS = {"compiled": "compiled C (ctypes)", "vm": "CasADi VM"}
+FUNCTIONS = {
+    "f": "f(x, u, p), per call",
+    "rk4_step": "one RK4 step",
+    "all_sensor_outputs": "all sensor outputs",
+}
+
+
+def format_markdown(result: dict[str, Any]) -> str:
+    """The docs' account of a run (Markdown): median (p95) time per call of each model function
+    on each backend (µs), then the simulator's wall time (s) and real-time factor.
+
+    Parameters
+    ----------
+    result : dict
+        The benchmark's JSON (:func:`model_benchmark`): ``model_evaluation`` (times in µs) and
+        ``simulator`` (times in s).
+
+    Returns
+    -------
+    str
+        Markdown: a table and a line on the simulator.
+    """
+    rows = result["model_evaluation"]
+    names = [BACKENDS.get(r["backend"], r["backend"]) for r in rows]
+    lines = [
+        "| | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(rows),
+    ]
+    for key, label in FUNCTIONS.items():
+        cells = [
+            f"{format_ms(r[key]['median_us'])} µs median (p95 {format_ms(r[key]['p95_us'])})"
+            for r in rows
+        ]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    calls = ", ".join(f"{r['calls']} calls {name}" for r, name in zip(rows, names, strict=True))
+    sim = result["simulator"]
+    lines += [
+        "",
+        f"Per function {calls}. Simulator, {sim['simulated_s']:g} s with all sensors "
+        f"({sim['sensors']}) and the path follower at {sim['controller_hz']:g} Hz: "
+        f"{sim['wall_s']:.2f} s wall, **real-time factor {sim['real_time_factor']:.0f}**.",
+    ]
+    return "\n".join(lines)

@@ -60,9 +60,7 @@ EXEMPT: dict[str, str] = {
     # Runs of minutes without a cheap public function; their docs tables are checked by
     # tests/benchmarks/test_docs.py.
     "benchmarks/contingency.py": "minutes-long runs, docs table checked by test_docs.py",
-    "benchmarks/calibration.py": "minutes-long runs, docs table checked by test_docs.py",
     "benchmarks/control_peers.py": "minutes-long runs, docs table checked by test_docs.py",
-    "benchmarks/model.py": "minutes-long runs, docs table checked by test_docs.py",
 }
 
 #: Modules whose tests exist but still sit in another module's test file, each with where they

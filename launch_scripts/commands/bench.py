@@ -43,10 +43,10 @@ def _with_machine(result: dict[str, Any]) -> dict[str, Any]:
 
 
 def model(args: argparse.Namespace) -> Outcome:
-    from benchmarks.model import model_benchmark
+    from benchmarks.model import format_markdown, model_benchmark
 
-    result = model_benchmark()
-    return result, json.dumps(result, indent=2)
+    result = _with_machine(model_benchmark())
+    return result, format_markdown(result)
 
 
 def estimation(args: argparse.Namespace) -> Outcome:
@@ -121,7 +121,7 @@ def sysid(args: argparse.Namespace) -> Outcome:
 
 
 def discrepancy(args: argparse.Namespace) -> Outcome:
-    from benchmarks.discrepancy import discrepancy_benchmark, markdown
+    from benchmarks.discrepancy import discrepancy_benchmark, format_markdown
 
     result = {
         "command": command_line(),
@@ -134,8 +134,7 @@ def discrepancy(args: argparse.Namespace) -> Outcome:
             resume=args.resume,
         ),
     }
-    headline = json.dumps({k: result[k] for k in ("summary", "wall_time_s") if k in result})
-    return result, f"{headline}\n{markdown(result['cases'])}"
+    return result, format_markdown(result)
 
 
 def control(args: argparse.Namespace) -> Outcome:
@@ -163,7 +162,7 @@ def contingency(args: argparse.Namespace) -> Outcome:
 def calibration(args: argparse.Namespace) -> Outcome:
     import time
 
-    from benchmarks.calibration import moving_study, static_study
+    from benchmarks.calibration import format_markdown, moving_study, static_study
 
     started = time.perf_counter()
     result = _with_machine(
@@ -173,7 +172,7 @@ def calibration(args: argparse.Namespace) -> Outcome:
         }
     )
     result["elapsed_s"] = round(time.perf_counter() - started, 1)
-    return result, json.dumps(result, indent=2)
+    return result, format_markdown(result)
 
 
 def run(benchmark: Callable[[argparse.Namespace], Outcome], args: argparse.Namespace) -> None:

@@ -4,7 +4,7 @@ the units it names (the runs themselves launch two stacks and are not started he
 
 from __future__ import annotations
 
-from benchmarks.bridge import format_table
+from benchmarks.bridge import format_markdown, format_table
 
 RESULT = {
     "estimator": "mhe",
@@ -64,3 +64,23 @@ def test_the_runs_side_by_side_in_the_named_units() -> None:
     # CPU of the running phase where measured, else over the whole run; node names shortened
     assert lines[-2] == "CPU % once running, sim: estimator 45.5, controller 20"
     assert lines[-1] == "CPU % once running, emulated: bridge 12.25"
+
+
+def test_the_docs_table_has_the_same_rows_in_markdown_and_the_cpu_per_process() -> None:
+    lines = format_markdown(RESULT).splitlines()
+    assert lines[:4] == [
+        "1 car, mhe, 30 s, seed 2.",
+        "",
+        "| | direct simulator | emulated car over UDP |",
+        "|---|---|---|",
+    ]
+    assert "| laps (lap times) | 2 (9.13, 8.90 s) | 0 ( s) |" in lines
+    assert "| RMSE vx / vy [mm/s] | 20.0 / 0.0 | - / - |" in lines
+    assert "| sensor → estimate [ms] med / p95 | 2.0 / 6.0 | - |" in lines
+    assert "| bridge received / commands sent | - | 7400 / 1480 |" in lines
+    assert "| node deaths | 0 | 1 |" in lines
+    assert lines[-1] == (
+        "| CPU once running (% of one core) | estimator 45.5, controller 20 | bridge 12.25 |"
+    )
+    # one row per figure of the text table, and the CPU row
+    assert len(lines) - 4 == len(format_table(RESULT).splitlines()) - 4 + 1

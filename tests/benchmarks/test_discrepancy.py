@@ -116,3 +116,86 @@ def test_markdown_table_has_a_line_per_hidden_effect_and_counts_the_clean_runs()
         "+21 %, p 3e-05 | 0.037 → 0.028 |"
     )
     assert "Clean runs: 1 (none 1); 1 with mismatched sensor noise (0 not `none`)." in text
+
+
+def test_the_docs_account_counts_the_cases_and_gives_the_speed_run() -> None:
+    """``format_markdown``: the settings line, the three bullets and the table, from a
+    hand-written result with two hidden-effect cases (one named, one missed) and two clean
+    runs."""
+    named = {
+        "effect": "gyro_bias",
+        "magnitude": "large",
+        "values": {"gyro_bias": 0.05},
+        "seed": 100,
+        "independent": True,
+        "noise": "nominal",
+        "verdict": "effect",
+        "named": ["gyro_bias"],
+        "correct": True,
+        "within_tolerance": True,
+        "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0493, "std": 0.0024}}},
+        "hypotheses": {"gyro_bias": {"improvement": 0.21, "p_value": 3e-5}},
+        "gap_before_m": 0.037,
+        "gap_after_m": 0.028,
+    }
+    missed = {
+        **named,
+        "effect": "motor_lag",
+        "values": {"tau_motor": 0.1},
+        "independent": False,
+        "verdict": "none",
+        "named": [],
+        "correct": False,
+        "within_tolerance": False,
+        "parameters": {},
+        "hypotheses": {"motor_lag": {"improvement": 0.4, "p_value": 0.006}},
+    }
+    clean = [
+        {
+            "effect": None,
+            "magnitude": None,
+            "seed": 200 + k,
+            "verdict": "none",
+            "named": [],
+            "noise": noise,
+        }
+        for k, noise in enumerate(("nominal", "mismatched"))
+    ]
+    cases = [named, clean[0], missed, clean[1]]
+    result = {
+        "settings": {"duration_s": 20.0, "held_out_s": 30.0, "false_alarm_rate_designed": 0.01},
+        "cases": cases,
+        "summary": bench.tabulate(cases),
+        "speed_60s": {
+            "workers": 2,
+            "recording_s": 60.0,
+            "held_out": "last 30 % of the training run",
+            "time_s": 185.4,
+            "truth": {"gyro_bias": {"gyro_bias": 0.05}},
+            "verdict": "effect",
+            "named": ["gyro_bias"],
+            "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0494, "std": 0.0017}}},
+            "gap_before_m": 0.028,
+            "gap_after_m": 0.011,
+        },
+        "wall_time_s": 1234.4,
+    }
+    lines = bench.format_markdown(result).splitlines()
+    assert lines[:6] == [
+        "Training runs of 20 s, held-out runs of 30 s (another seed); 2 hidden-effect cases "
+        "(seed 100) and 2 clean runs; the whole benchmark 1234 s.",
+        "",
+        "- **False alarms: 0 findings in 2 clean runs** (1 of them with mismatched sensor noise, "
+        "0 findings there); designed: ≤ 1 % per round.",
+        "- **Hidden effects: 1 of 2 named correctly** (1 of 1 independent), the parameter within "
+        "15 % of the truth in 1 of those 1; **wrong names: 0**.",
+        "- **Time:** one run on a 60 s recording (`crs discrepancy REC` with its defaults: held "
+        "out the last 30 % of the training run, every hypothesis, `--workers 2`) took **185 s** "
+        "(gyro_bias 0.0494 ± 0.0017 named for a hidden gyro_bias 0.05, gap 0.028 → 0.011 m).",
+        "",
+    ]
+    assert lines[6:] == bench.markdown(cases).splitlines()
+    assert (
+        "| motor_lag | tau_motor 0.1 | 100, simulator | *none* | — | +40 %, p 0.006 | "
+        "0.037 → 0.028 |"
+    ) in lines
