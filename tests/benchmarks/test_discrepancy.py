@@ -93,21 +93,25 @@ def test_resume_on_an_empty_file_runs_everything(runs, tmp_path):
     assert len(result["cases"]) == len(bench.cases(1, 0, 20.0))
 
 
+#: A hidden-effect case as the benchmark records it: a gyro bias, named and fitted.
+HIDDEN_CASE = {
+    "effect": "gyro_bias",
+    "magnitude": "large",
+    "values": {"gyro_bias": 0.05},
+    "seed": 100,
+    "independent": True,
+    "noise": "nominal",
+    "verdict": "effect",
+    "named": ["gyro_bias"],
+    "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0493, "std": 0.0024}}},
+    "hypotheses": {"gyro_bias": {"improvement": 0.21, "p_value": 3e-5}},
+    "gap_before_m": 0.037,
+    "gap_after_m": 0.028,
+}
+
+
 def test_markdown_table_has_a_line_per_hidden_effect_and_counts_the_clean_runs():
-    hidden = {
-        "effect": "gyro_bias",
-        "magnitude": "large",
-        "values": {"gyro_bias": 0.05},
-        "seed": 100,
-        "independent": True,
-        "noise": "nominal",
-        "verdict": "effect",
-        "named": ["gyro_bias"],
-        "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0493, "std": 0.0024}}},
-        "hypotheses": {"gyro_bias": {"improvement": 0.21, "p_value": 3e-5}},
-        "gap_before_m": 0.037,
-        "gap_after_m": 0.028,
-    }
+    hidden = HIDDEN_CASE
     clean = {"effect": None, "verdict": "none", "noise": "mismatched"}
     text = bench.markdown([clean, hidden])
     line = next(ln for ln in text.splitlines() if ln.startswith("| gyro_bias"))
@@ -122,22 +126,7 @@ def test_the_docs_account_counts_the_cases_and_gives_the_speed_run() -> None:
     """``format_markdown``: the settings line, the three bullets and the table, from a
     hand-written result with two hidden-effect cases (one named, one missed) and two clean
     runs."""
-    named = {
-        "effect": "gyro_bias",
-        "magnitude": "large",
-        "values": {"gyro_bias": 0.05},
-        "seed": 100,
-        "independent": True,
-        "noise": "nominal",
-        "verdict": "effect",
-        "named": ["gyro_bias"],
-        "correct": True,
-        "within_tolerance": True,
-        "parameters": {"gyro_bias": {"gyro_bias": {"value": 0.0493, "std": 0.0024}}},
-        "hypotheses": {"gyro_bias": {"improvement": 0.21, "p_value": 3e-5}},
-        "gap_before_m": 0.037,
-        "gap_after_m": 0.028,
-    }
+    named = {**HIDDEN_CASE, "correct": True, "within_tolerance": True}
     missed = {
         **named,
         "effect": "motor_lag",
