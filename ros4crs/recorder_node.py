@@ -2,8 +2,9 @@
 
 Subscribes raw (no deserialization) to every topic that matches ``topics`` (comma-separated
 names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
-up topics as they appear (transient-local topics, such as the estimates, with the messages
-published before it joined). Each message is written with its receive time on the node's clock
+up topics as their first publisher appears (transient-local topics, such as the estimates and
+the commands, with the messages published before it joined; a topic seen only through its
+subscriptions waits for a publisher, whose QoS says how to subscribe). Each message is written with its receive time on the node's clock
 (``/clock`` with ``use_sim_time``). The callbacks only queue the messages; a thread of its own
 writes them, so a slow disk never blocks the subscriptions. The bag is closed
 cleanly on shutdown.
@@ -86,6 +87,12 @@ class RecorderNode(Node):
         for topic, types in self.get_topic_names_and_types():
             if topic in self.connections or not topic_selected(topic, self.patterns):
                 continue
+            offered = [i.qos_profile.durability for i in self.get_publishers_info_by_topic(topic)]
+            if not offered:
+                # seen through its subscriptions only (the estimator's input before the
+                # controller is up): its QoS is not known yet, and a volatile subscription now
+                # would miss the history a transient-local publisher keeps for late joiners
+                continue
             msgtype = types[0]
             try:
                 message_class(msgtype)
@@ -101,17 +108,9 @@ class RecorderNode(Node):
                 message_class(msgtype),
                 topic,
                 self._writer_for(topic, connection),
-                self._qos_for(topic),
+                _qos_for(offered),
                 raw=True,
             )
-
-    def _qos_for(self, topic: str) -> QoSProfile:
-        """Transient-local (getting what was published before it joined) when every publisher
-        of ``topic`` offers it, else the stream QoS."""
-        offered = [info.qos_profile.durability for info in self.get_publishers_info_by_topic(topic)]
-        if offered and all(d == DurabilityPolicy.TRANSIENT_LOCAL for d in offered):
-            return LOG_QOS
-        return STREAM_QOS
 
     def _writer_for(self, topic: str, connection):
         def write(data: bytes) -> None:
@@ -149,6 +148,14 @@ class RecorderNode(Node):
         total = sum(self.counts.values())
         self.get_logger().info(f"bag closed: {total} messages on {len(self.counts)} topics")
         super().destroy_node()
+
+
+def _qos_for(offered: list[DurabilityPolicy]) -> QoSProfile:
+    """Transient-local (getting what was published before it joined) when every publisher of
+    the topic offers it (``offered``: their durabilities), else the stream QoS."""
+    if all(d == DurabilityPolicy.TRANSIENT_LOCAL for d in offered):
+        return LOG_QOS
+    return STREAM_QOS
 
 
 def main(argv: Sequence[str] | None = None) -> int:

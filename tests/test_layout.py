@@ -42,7 +42,6 @@ EXEMPT: dict[str, str] = {
     # what they share is tested in tests/ros4crs (node_support, settings_parameters, conversions).
     "ros4crs/simulator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
     "ros4crs/estimator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
-    "ros4crs/recorder_node.py": "a ROS node, driven by tests/integration/test_replay.py",
     "ros4crs/replayer_node.py": "a ROS node, driven by tests/integration/test_replay.py",
     "ros4crs/visualizer_node.py": "a ROS node, driven by tests/integration/test_visualizer.py",
     # Need a running graph; tests/integration/test_tools.py drives them.
