@@ -4,10 +4,10 @@ Subscribes raw (no deserialization) to every topic that matches ``topics`` (comm
 names or prefixes; relative names resolve in the node's namespace; empty = everything), picking
 up topics as their first publisher appears (transient-local topics, such as the estimates and
 the commands, with the messages published before it joined; a topic seen only through its
-subscriptions waits for a publisher, whose QoS says how to subscribe). Each message is written with its receive time on the node's clock
-(``/clock`` with ``use_sim_time``). The callbacks only queue the messages; a thread of its own
-writes them, so a slow disk never blocks the subscriptions. The bag is closed
-cleanly on shutdown.
+subscriptions waits for a publisher, whose QoS says how to subscribe). Each message is written
+with its receive time on the node's clock (``/clock`` with ``use_sim_time``). The callbacks only
+queue the messages; a thread of its own writes them, so a slow disk never blocks the
+subscriptions. The bag is closed cleanly on shutdown.
 
 Parameters: ``output`` (bag directory, must not exist), ``topics``, ``storage`` (mcap | sqlite3),
 ``flush_period`` (s between writes to disk: what a killed recorder loses at most).

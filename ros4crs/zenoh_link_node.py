@@ -250,21 +250,12 @@ class ZenohLinkNode(Node):
 
     def _update_graph(self) -> None:
         """Announce the local subscriptions, export what far subscribers want (module doc)."""
-        me = (self.get_name(), self.get_namespace())
-        published, listened = set(), set()
+        published, listened, local_publishers = set(), set(), set()
         for topic, types in self.get_topic_names_and_types():
             if not topic_selected(topic, self.patterns):
                 continue
-            publishers = [
-                info
-                for info in self.get_publishers_info_by_topic(topic)
-                if (info.node_name, info.node_namespace) != me
-            ]
-            subscriptions = [
-                info
-                for info in self.get_subscriptions_info_by_topic(topic)
-                if (info.node_name, info.node_namespace) != me
-            ]
+            publishers = self._others(self.get_publishers_info_by_topic(topic))
+            subscriptions = self._others(self.get_subscriptions_info_by_topic(topic))
             known = self._known_type(types[0]) if publishers or subscriptions else False
             if subscriptions and known:
                 listened.add(topic)
@@ -272,6 +263,7 @@ class ZenohLinkNode(Node):
                     self.interests[topic] = self._interest(topic, types[0], subscriptions)
             if not publishers or not known:
                 continue
+            local_publishers.add(topic)
             qos = _endpoint_qos(publishers, all_transient=True)
             if qos.durability == "volatile" and not self.far_subscriptions.get(topic):
                 continue  # nobody far away listens
@@ -282,14 +274,13 @@ class ZenohLinkNode(Node):
             self.interests.pop(topic).undeclare()
         for topic in set(self.exports) - published:
             self.exports.pop(topic).close(self)
-            why = "far subscriber" if self._has_publisher(topic, me) else "local publisher"
+            why = "far subscriber" if topic in local_publishers else "local publisher"
             self.get_logger().info(f"export of {topic} withdrawn (no {why})")
 
-    def _has_publisher(self, topic: str, me: tuple[str, str]) -> bool:
-        return any(
-            (info.node_name, info.node_namespace) != me
-            for info in self.get_publishers_info_by_topic(topic)
-        )
+    def _others(self, endpoints: list) -> list:
+        """The endpoints (rclpy ``TopicEndpointInfo``) of other nodes than this one."""
+        me = (self.get_name(), self.get_namespace())
+        return [e for e in endpoints if (e.node_name, e.node_namespace) != me]
 
     def _interest(self, topic: str, msgtype: str, subscriptions: list) -> Any:
         """The ``MS`` token announcing this machine's subscriptions of ``topic``."""
