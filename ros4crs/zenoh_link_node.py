@@ -234,13 +234,14 @@ class ZenohLinkNode(Node):
     # ------------------------------------------------------------------ discovery
     def _known_type(self, msgtype: str) -> bool:
         """Whether rclpy and the typestore both know ``msgtype`` (warn once if not)."""
+        if msgtype in self._warned_types:
+            return False
         try:
             message_class(msgtype)
             wire.type_hash(msgtype)
         except (ImportError, AttributeError, KeyError, ValueError) as error:
-            if msgtype not in self._warned_types:
-                self._warned_types.add(msgtype)
-                self.get_logger().warning(f"cannot carry {msgtype}: unknown type ({error})")
+            self._warned_types.add(msgtype)
+            self.get_logger().warning(f"cannot carry {msgtype}: unknown type ({error})")
             return False
         return True
 
@@ -256,20 +257,22 @@ class ZenohLinkNode(Node):
                 continue
             publishers = self._others(self.get_publishers_info_by_topic(topic))
             subscriptions = self._others(self.get_subscriptions_info_by_topic(topic))
-            known = self._known_type(types[0]) if publishers or subscriptions else False
-            if subscriptions and known:
+            # the type is checked once, when a topic is first announced or exported
+            if subscriptions and (topic in self.interests or self._known_type(types[0])):
                 listened.add(topic)
                 if topic not in self.interests:
                     self.interests[topic] = self._interest(topic, types[0], subscriptions)
-            if not publishers or not known:
+            if not publishers:
                 continue
             local_publishers.add(topic)
             qos = _endpoint_qos(publishers, all_transient=True)
             if qos.durability == "volatile" and not self.far_subscriptions.get(topic):
                 continue  # nobody far away listens
-            published.add(topic)
             if topic not in self.exports:
+                if not self._known_type(types[0]):
+                    continue
                 self.exports[topic] = self._export(topic, types[0], qos)
+            published.add(topic)
         for topic in set(self.interests) - listened:
             self.interests.pop(topic).undeclare()
         for topic in set(self.exports) - published:
