@@ -178,25 +178,29 @@ run_tests() {
     for arg in "$@"; do
         if [ "$arg" = "-m" ] || [[ "$arg" == -m?* ]]; then
             "$VENV/bin/python" -m pytest -q "$@" || rc_unit=$?
-            [ "$rc_unit" -ne 5 ] || { echo "run.sh: no tests were collected" >&2; exit 1; }
-            exit "$rc_unit"
+            exit_tests "$rc_unit"
         fi
     done
     "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile -m "not integration" "$@" || rc_unit=$?
-    if [ "$rc_unit" -ne 0 ] && [ "$rc_unit" -ne 1 ] && [ "$rc_unit" -ne 5 ]; then
-        exit "$rc_unit"  # interrupted, an internal or a usage error: the second phase would too
-    fi
+    case "$rc_unit" in
+        0 | 1 | 5) ;;
+        *) exit "$rc_unit" ;; # interrupted, an internal or a usage error: the second phase would too
+    esac
     "$VENV/bin/python" -m pytest -q -m integration "$@" || rc_integration=$?
-    if [ "$rc_unit" -eq 5 ] && [ "$rc_integration" -eq 5 ]; then
+    # a phase that collected nothing counts only when the other did not either
+    [ "$rc_unit" -ne 5 ] || exit_tests "$rc_integration"
+    [ "$rc_unit" -eq 0 ] || exit "$rc_unit"
+    [ "$rc_integration" -ne 5 ] || exit 0
+    exit "$rc_integration"
+}
+
+# Exits with pytest's status $1, treating 5 (no test collected) as a failure.
+exit_tests() {
+    if [ "$1" -eq 5 ]; then
         echo "run.sh: no tests were collected: treating that as a failure" >&2
         exit 1
     fi
-    for rc in "$rc_unit" "$rc_integration"; do
-        if [ "$rc" -ne 0 ] && [ "$rc" -ne 5 ]; then
-            exit "$rc"
-        fi
-    done
-    exit 0
+    exit "$1"
 }
 
 build_msgs() {
