@@ -48,7 +48,7 @@ import ipaddress
 import re
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import foxglove
@@ -84,6 +84,8 @@ NOT_PASSED = (*INTERNAL_TOPICS, "/tf")
 #: estimator's query log (what a replay needs, nothing to look at) and its odometry (the same
 #: pose as ``estimate/state``, at 60 Hz: a tenth of the node's CPU per car).
 NOT_PASSED_PARTS = ("/sensors/", "/estimate/query", "/estimate/odometry")
+#: A car's topics whose every message is read (events: each station's fixes), not the newest.
+READ_EVERY = (conversions.TOPICS["lighthouse_fix"],)
 #: How often the track is sent again, s (for viewers that join late).
 TRACK_PERIOD = 2.0
 #: How often the graph is polled for new cars and topics, s.
@@ -122,9 +124,12 @@ class _Topic:
     read: Callable[[Any], None] | None
     what: str
     due: float = 0.0
-    #: The newest message not read yet (CDR), read at the next scene tick: a topic faster
-    #: than the scene costs one deserialisation a tick, not one a message.
-    pending: bytes | None = None
+    #: Whether every message is read (events, such as the Lighthouse fixes of several
+    #: stations), else only the newest.
+    every: bool = False
+    #: The messages not read yet (CDR), read at the next scene tick: only the newest unless
+    #: ``every``, so a topic faster than the scene costs one deserialisation a tick.
+    pending: list[bytes] = field(default_factory=list)
 
 
 class VisualizerNode(Node):
@@ -233,7 +238,8 @@ class VisualizerNode(Node):
             channel = foxglove.Channel(
                 topic, schema=schema, message_encoding="cdr", context=self.view_context
             )
-        entry = _Topic(msg_type, channel, read, what or topic)
+        every = watch is not None and topic.split("/", 2)[2] in READ_EVERY
+        entry = _Topic(msg_type, channel, read, what or topic, every=every)
         self.create_subscription(
             msg_type, topic, lambda data: self._on_message(topic, entry, data), VIEW_QOS, raw=True
         )
@@ -280,21 +286,25 @@ class VisualizerNode(Node):
             entry.due = max(entry.due, now - self.period) + self.period
             channel.log(bytes(data), log_time=time.time_ns())
         if entry.read is not None:
-            entry.pending = bytes(data)
+            if entry.every:
+                entry.pending.append(bytes(data))
+            else:
+                entry.pending = [bytes(data)]
 
     def _read_pending(self) -> None:
-        """Read the newest message of each read topic that has one (validated: a malformed one
-        is dropped with a throttled warning naming what it is)."""
+        """Read the pending messages of each read topic (validated: a malformed one is dropped
+        with a throttled warning naming what it is)."""
         from rclpy.serialization import deserialize_message
 
         for topic, entry in list(self.topics.items()):
-            if entry is None or entry.pending is None or entry.read is None:
+            if entry is None or entry.read is None:
                 continue
-            data, entry.pending = entry.pending, None
-            try:
-                entry.read(deserialize_message(data, entry.msg_type))
-            except Exception as error:  # whatever a malformed message raises: never fatal
-                self._warn(f"dropped malformed {entry.what} on {topic}: {error}")
+            pending, entry.pending = entry.pending, []
+            for data in pending:
+                try:
+                    entry.read(deserialize_message(data, entry.msg_type))
+                except Exception as error:  # whatever a malformed message raises: never fatal
+                    self._warn(f"dropped malformed {entry.what} on {topic}: {error}")
 
     def _publish(self) -> None:
         self._read_pending()

@@ -43,7 +43,6 @@ EXEMPT: dict[str, str] = {
     "ros4crs/simulator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
     "ros4crs/estimator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
     "ros4crs/replayer_node.py": "a ROS node, driven by tests/integration/test_replay.py",
-    "ros4crs/visualizer_node.py": "a ROS node, driven by tests/integration/test_visualizer.py",
     # Need a running graph; tests/integration/test_tools.py drives them.
     "ros4crs/tools.py": "needs a running ROS graph, driven by tests/integration/test_tools.py",
     "launch_scripts/commands/ros.py": "needs a running ROS graph, driven by test_tools.py",
