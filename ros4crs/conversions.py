@@ -135,8 +135,7 @@ def measurement_to_msg(measurement: Measurement, frame_id: str = "base_link") ->
         msg.front_left, msg.front_right, msg.rear_left, msg.rear_right = map(float, v)
     elif sensor == "pose":
         msg = PoseStamped()
-        msg.pose.position.x, msg.pose.position.y = float(v[0]), float(v[1])
-        msg.pose.orientation.z, msg.pose.orientation.w = math.sin(v[2] / 2), math.cos(v[2] / 2)
+        _fill_planar_pose(msg.pose, v)
         frame_id = "world"
     else:
         station, plane = parse_lighthouse(sensor)
@@ -178,6 +177,18 @@ def lighthouse_from_msg(msg: Any) -> Measurement:
 def pose_from_msg(msg: Any) -> Measurement:
     """``geometry_msgs/PoseStamped`` -> ``pose`` (x, y, yaw from the quaternion)."""
     return Measurement(seconds_from_stamp(msg.header.stamp), "pose", _planar_pose("pose", msg.pose))
+
+
+def _fill_yaw(quaternion: Any, yaw: float) -> None:
+    """Write the rotation by ``yaw`` (rad) about z into a ``geometry_msgs/Quaternion``."""
+    quaternion.z, quaternion.w = math.sin(yaw / 2), math.cos(yaw / 2)
+
+
+def _fill_planar_pose(pose: Any, planar: Sequence[float]) -> None:
+    """Write ``[x, y, yaw]`` (m, m, rad) into a ``geometry_msgs/Pose`` (z and the other
+    rotations left 0): the inverse of :func:`_planar_pose`."""
+    pose.position.x, pose.position.y = float(planar[0]), float(planar[1])
+    _fill_yaw(pose.orientation, float(planar[2]))
 
 
 def _planar_pose(field: str, pose: Any) -> np.ndarray:
@@ -376,9 +387,7 @@ def odometry_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     msg.header.frame_id, msg.child_frame_id = "world", child_frame_id
     fill_stamp(msg.header.stamp, estimate.stamp)
     x = estimate.x
-    msg.pose.pose.position.x, msg.pose.pose.position.y = float(x[0]), float(x[1])
-    msg.pose.pose.orientation.z = math.sin(x[2] / 2)
-    msg.pose.pose.orientation.w = math.cos(x[2] / 2)
+    _fill_planar_pose(msg.pose.pose, x)
     msg.twist.twist.linear.x, msg.twist.twist.linear.y = float(x[3]), float(x[4])
     msg.twist.twist.angular.z = float(x[5])
     P = estimate.covariance
@@ -412,8 +421,7 @@ def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     x = estimate.x
     transform.transform.translation.x = float(x[0])
     transform.transform.translation.y = float(x[1])
-    transform.transform.rotation.z = math.sin(x[2] / 2)
-    transform.transform.rotation.w = math.cos(x[2] / 2)
+    _fill_yaw(transform.transform.rotation, x[2])
     return TFMessage(transforms=[transform])
 
 
@@ -492,9 +500,7 @@ def pose_fix_msg(fix: PoseFix) -> Any:
     msg = PoseWithCovarianceStamped()
     msg.header.frame_id = "world"
     fill_stamp(msg.header.stamp, fix.stamp)
-    x, y, yaw = map(float, fix.pose)
-    msg.pose.pose.position.x, msg.pose.pose.position.y = x, y
-    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(yaw / 2), math.cos(yaw / 2)
+    _fill_planar_pose(msg.pose.pose, fix.pose)
     msg.pose.covariance = _planar_to_6d(fix.covariance).ravel().tolist()
     return msg
 
