@@ -178,7 +178,7 @@ class VisualizerNode(Node):
                 "page_port", f"cannot serve on {host}:{page_port}: {error}"
             ) from None
         context = self.view_context
-        self.scene = SceneUpdateChannel("/viz/scene", context=context)
+        self.scene = SceneUpdateChannel(viz_scene.SCENE_CHANNEL, context=context)
         self.frames = FrameTransformsChannel("/tf", context=context)
         self.page_track = foxglove.Channel(
             "/viz/page/track", schema=viz_scene.PAGE_TRACK_SCHEMA, context=context
@@ -205,7 +205,9 @@ class VisualizerNode(Node):
     def _watch(self, name: str) -> None:
         self.watches[name] = viz_scene.CarWatch(name, self.track)
         self.status[name] = foxglove.Channel(
-            f"/viz/{name}/status", schema=viz_scene.STATUS_SCHEMA, context=self.view_context
+            viz_scene.status_channel(name),
+            schema=viz_scene.STATUS_SCHEMA,
+            context=self.view_context,
         )
 
     def _discover(self) -> None:

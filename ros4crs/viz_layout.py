@@ -13,24 +13,17 @@ from __future__ import annotations
 
 import json
 from collections.abc import Sequence
-from typing import Any
 
 import foxglove.layouts as fl
 import numpy as np
 
 from crs_core.track import Track
+from ros4crs.viz_scene import SCENE_CHANNEL, status_channel
 
-__all__ = ["SCENE_TOPIC", "layout_json", "live_layout", "message_paths", "status_topic"]
+__all__ = ["layout_json", "live_layout"]
 
-#: The visualizer's scene channel (``foxglove.SceneUpdate``).
-SCENE_TOPIC = "/viz/scene"
 #: Space around the track in the 3D panel's view, as a fraction of its larger extent.
 VIEW_MARGIN = 0.15
-
-
-def status_topic(car: str) -> str:
-    """The visualizer's JSON status channel of ``car`` (a namespace without the slash)."""
-    return f"/viz/{car}/status"
 
 
 def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
@@ -48,7 +41,7 @@ def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
         config=fl.ThreeDeeConfig(
             follow_tf="world",
             follow_mode="follow-none",
-            topics={SCENE_TOPIC: fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
+            topics={SCENE_CHANNEL: fl.BaseRendererSceneUpdateTopicSettings(visible=True)},
             camera_state=fl.ThreeDeeCameraState(
                 perspective=False,  # a map, x to the right and y up
                 phi=0.0,
@@ -62,7 +55,7 @@ def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
         title="Estimate status",
         config=fl.StateTransitionsConfig(
             paths=[
-                fl.StateTransitionsSeries(value=f"{status_topic(car)}.status", label=car)
+                fl.StateTransitionsSeries(value=f"{status_channel(car)}.status", label=car)
                 for car in cars
             ]
         ),
@@ -73,7 +66,7 @@ def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
             show_legend=True,
             paths=[
                 fl.PlotSeries(
-                    enabled=True, label=f"{car} {label}", value=f"{status_topic(car)}.{field}"
+                    enabled=True, label=f"{car} {label}", value=f"{status_channel(car)}.{field}"
                 )
                 for field, label in (("solve_ms", "solve ms"), ("laps", "laps"))
                 for car in cars
@@ -81,7 +74,7 @@ def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
         ),
     )
     raw = fl.RawMessagesPanel(
-        title=f"{cars[0]} status", config=fl.RawMessagesConfig(topic_path=status_topic(cars[0]))
+        title=f"{cars[0]} status", config=fl.RawMessagesConfig(topic_path=status_channel(cars[0]))
     )
     side = fl.SplitContainer(
         direction="column",
@@ -101,19 +94,3 @@ def live_layout(cars: Sequence[str], track: Track) -> fl.Layout:
 def layout_json(layout: fl.Layout) -> str:
     """The layout as the file the Foxglove app imports (indented, one trailing newline)."""
     return json.dumps(json.loads(layout.to_json()), indent=2) + "\n"
-
-
-def message_paths(content: dict[str, Any]) -> list[str]:
-    """Every topic or message path a layout (its parsed JSON) reads: the 3D panels' topics,
-    the series' ``value`` and the raw panels' ``topicPath``, in layout order."""
-    paths: list[str] = []
-    if content.get("type") == "panel":
-        config = content.get("config", {})
-        paths += list(config.get("topics", {}))
-        paths += [series["value"] for series in config.get("paths", [])]
-        paths += [config["topicPath"]] if "topicPath" in config else []
-    for item in content.get("items", []):
-        paths += message_paths(item["content"])
-    if "content" in content:
-        paths += message_paths(content["content"])
-    return paths

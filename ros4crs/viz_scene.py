@@ -52,6 +52,7 @@ __all__ = [
     "CAR_SIZE",
     "PAGE_CARS_SCHEMA",
     "PAGE_TRACK_SCHEMA",
+    "SCENE_CHANNEL",
     "STATUSES",
     "STATUS_SCHEMA",
     "CarView",
@@ -62,9 +63,19 @@ __all__ = [
     "page_cars_json",
     "page_track_json",
     "position_covariance",
+    "status_channel",
     "status_json",
     "track_scene",
 ]
+
+#: The channel of the scene (``foxglove.SceneUpdate``).
+SCENE_CHANNEL = "/viz/scene"
+
+
+def status_channel(car: str) -> str:
+    """The JSON status channel of ``car`` (a namespace without the slash)."""
+    return f"/viz/{car}/status"
+
 
 #: A car's footprint ``[length, width]``, m.
 CAR_SIZE = (CAR_LENGTH, CAR_WIDTH)

@@ -5,15 +5,33 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from crs_core.track import load_demo_track
 from ros4crs import viz_scene
-from ros4crs.viz_layout import SCENE_TOPIC, layout_json, live_layout, message_paths, status_topic
+from ros4crs.viz_layout import layout_json, live_layout
+from ros4crs.viz_scene import SCENE_CHANNEL, status_channel
 
 SHIPPED = Path(__file__).resolve().parents[2] / "docs" / "foxglove" / "chronos-layout.json"
 TRACK = load_demo_track()
+
+
+def message_paths(content: dict[str, Any]) -> list[str]:
+    """Every topic or message path a layout (its parsed JSON) reads: the 3D panels' topics,
+    the series' ``value`` and the raw panels' ``topicPath``, in layout order."""
+    paths: list[str] = []
+    if content.get("type") == "panel":
+        config = content.get("config", {})
+        paths += list(config.get("topics", {}))
+        paths += [series["value"] for series in config.get("paths", [])]
+        paths += [config["topicPath"]] if "topicPath" in config else []
+    for item in content.get("items", []):
+        paths += message_paths(item["content"])
+    if "content" in content:
+        paths += message_paths(content["content"])
+    return paths
 
 
 def test_the_shipped_layout_is_the_built_one() -> None:
@@ -29,14 +47,14 @@ def test_every_path_of_the_layout_is_served_by_the_visualizer(cars: tuple[str, .
     assert layout["version"] == 1 and layout["content"]["type"] == "split"
     paths = message_paths(layout["content"])
     status_fields = set(viz_scene.STATUS_SCHEMA["properties"])
-    assert paths[0] == SCENE_TOPIC
+    assert paths[0] == SCENE_CHANNEL
     for path in paths[1:]:
         topic, _, field = path.partition(".")
-        assert topic in {status_topic(car) for car in cars}, path
+        assert topic in {status_channel(car) for car in cars}, path
         assert not field or field in status_fields, path
     for car in cars:  # each car's status, solve time and laps
         for field in ("status", "solve_ms", "laps"):
-            assert f"{status_topic(car)}.{field}" in paths
+            assert f"{status_channel(car)}.{field}" in paths
 
 
 def test_the_3d_view_looks_down_on_the_whole_track() -> None:
