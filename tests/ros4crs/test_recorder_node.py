@@ -3,18 +3,11 @@ recording of a running stack is driven by tests/integration (test_replay, test_r
 
 from __future__ import annotations
 
-import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
-
-def _until(condition: Callable[[], object], what: str, timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"no {what} within {timeout} s"
-        time.sleep(0.02)
+from tests.integration.stack_probe import wait_for
 
 
 def test_a_topic_seen_before_its_publisher_waits_for_it_and_takes_its_durability(
@@ -40,11 +33,11 @@ def test_a_topic_seen_before_its_publisher_waits_for_it_and_takes_its_durability
         other = rclpy.create_node("estimator_and_controller")
         try:
             other.create_subscription(CarInput, topic, lambda _: None, STREAM_QOS)
-            _until(lambda: topic in dict(recorder.get_topic_names_and_types()), "topic")
+            wait_for(lambda: topic in dict(recorder.get_topic_names_and_types()), 10.0, "the topic")
             recorder._discover()
             assert topic not in recorder.connections  # a subscription only: not yet
             other.create_publisher(CarInput, topic, STREAM_OUT_QOS)
-            _until(lambda: recorder.get_publishers_info_by_topic(topic), "publisher")
+            wait_for(lambda: recorder.get_publishers_info_by_topic(topic), 10.0, "its publisher")
             recorder._discover()
             assert topic in recorder.connections
             mine = [
