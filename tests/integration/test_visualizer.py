@@ -43,9 +43,12 @@ PASSED = (
     "/car1/controller/reference",
     "/car1/lighthouse_fix",
 )
-#: Lighthouse fixes the client must see, and how close to the truth (median, m): a fix is one
-#: station's sweep pair, its planes swept up to 20 ms apart while the car moves (~1 cm).
-FIXES, FIX_ERROR_M = 10, 0.03
+#: Lighthouse fixes the client waits for (4 s of them at 5 a second: the truth passed through
+#: around a fix's stamp is missing near the ends of the window and in its gaps, which left 4 of
+#: 10 fixes comparable in one fresh clone's run), how many of them must have the truth around
+#: them, and how close to it they must be (median, m): a fix is one station's sweep pair, its
+#: planes swept up to 20 ms apart while the car moves (~1 cm).
+FIXES, COMPARED_FIXES, FIX_ERROR_M = 20, 5, 0.03
 
 
 def _decoder(channel: dict[str, Any]) -> Any:
@@ -260,7 +263,7 @@ def _check_fixes(viewer: Viewer) -> None:
         if 0 < k < len(times) and times[k] - times[k - 1] < 0.1:  # truth on both sides
             at = [np.interp(stamp, times[k - 1 : k + 1], xy[k - 1 : k + 1, i]) for i in (0, 1)]
             errors.append(float(np.hypot(*(pose[:2] - at))))
-    assert len(errors) >= FIXES // 2, f"{len(errors)} fixes with truth around them"
+    assert len(errors) >= COMPARED_FIXES, f"{len(errors)} fixes with truth around them"
     assert np.median(errors) < FIX_ERROR_M, sorted(errors)
 
 
