@@ -39,7 +39,7 @@ from crs_core.identification.models import identification_model
 from crs_core.identification.problem import DEFAULT_FIT
 from crs_core.identification.validation import validate
 from crs_core.model import CarModel
-from crs_core.model.bicycle import cornering_stiffness
+from crs_core.model.bicycle import cornering_stiffness, grip_used, peak_slip
 from crs_core.model.effects import effect_text, parse_effect
 from crs_core.track import load_demo_track
 from ros4crs.bag_dataset import dataset_from_bag
@@ -52,6 +52,8 @@ HIDDEN_EFFECT = "gyro_bias=0.15"
 HORIZON_S = 2.0
 #: Identified within this relative error of the truth counts as recovered.
 RECOVERED_WITHIN = 0.10
+#: Grip used is taken above this forward speed, m/s (slip angles are defined at speed).
+GRIP_SPEED = 0.5
 
 
 def truth_parameters() -> dict[str, float]:
@@ -70,13 +72,19 @@ def _crs(argv: list[str]) -> float:
     return time.perf_counter() - started
 
 
-def race_figures(run: Path) -> dict[str, Any]:
-    """Laps, flying lap, contouring error and estimation RMSE of a ``crs launch car --emulate``
+def race_figures(run: Path, car: CarModel) -> dict[str, Any]:
+    """Laps, flying lap, contouring error, estimation RMSE and the grip each axle used (99th
+    percentile and largest :func:`~crs_core.model.bicycle.grip_used` of the emulated ``car``'s
+    true states at speed, with the recorded commands held) of a ``crs launch car --emulate``
     run folder (the emulator's truth)."""
     report = json.loads((run / "report.json").read_text())["cars"]["car1"]
     truth = np.load(run / "truth_car1.npz")
     laps = lap_statistics(truth["t"], truth["x"], load_demo_track())
     flying = report["lap_times_s"][1:]
+    commands = dataset_from_bag(run / "bag", reference="none")
+    held = np.clip(np.searchsorted(commands.t, truth["t"], side="right") - 1, 0, None)
+    moving = truth["x"][:, 3] > GRIP_SPEED
+    used = grip_used(truth["x"][moving], commands.u[held[moving]], car.parameters.value)
     return {
         "laps": report["laps_completed"],
         "lap_times_s": report["lap_times_s"],
@@ -85,6 +93,13 @@ def race_figures(run: Path) -> dict[str, Any]:
         "contouring_max_m": laps["max_lateral_error_m"],
         "estimation_rmse": report["estimation_rmse"],
         "motor_cutoffs": report.get("motor_cutoffs"),
+        "grip_used": {
+            axle: {
+                "p99": round(float(np.percentile(column, 99)), 3),
+                "max": round(float(column.max()), 3),
+            }
+            for axle, column in zip(("front", "rear"), used.T, strict=True)
+        },
     }
 
 
@@ -168,6 +183,7 @@ def summarise(work: Path, duration: float, seed: int, steps: dict[str, float]) -
     """The figures of a day run in ``work`` (its races, sysid and discrepancy folders)."""
     final = work / "discrepancy" / "params.yaml"
     found = json.loads((work / "discrepancy" / "report.json").read_text())
+    car = CarModel.from_file(work / "truth.yaml")
     data = held_out(work / "race_after")
     return {
         "truth": {"factors": TRUTH_FACTORS, "effect": HIDDEN_EFFECT},
@@ -175,8 +191,12 @@ def summarise(work: Path, duration: float, seed: int, steps: dict[str, float]) -
         "seed": seed,
         "steps_s": {k: round(v, 1) for k, v in steps.items()},
         "races": {
-            "default_model": race_figures(work / "race_before"),
-            "identified_model": race_figures(work / "race_after"),
+            "default_model": race_figures(work / "race_before", car),
+            "identified_model": race_figures(work / "race_after", car),
+        },
+        "peak_slip_rad": {
+            axle: round(peak_slip(*(car.parameters.value(f"{p}{a}") for p in "CB")), 3)
+            for axle, a in (("front", "f"), ("rear", "r"))
         },
         "prediction_error": {
             "held_out": "the second race's recording against the emulator's truth",
@@ -222,6 +242,10 @@ def format_table(result: dict[str, Any]) -> str:
         f"(no effect) {_recovery(sysid, changed)}; crs discrepancy's final model "
         f"{_recovery(found['parameters'], changed)}. Cornering stiffness D·C·B, front / rear: "
         f"crs sysid {_stiffness(sysid)}, the final model {_stiffness(found['parameters'])}.",
+        f"Grip the first race used, |F_y| / D (99th percentile / most): front "
+        f"{_grip(before, 'front')}, rear {_grip(before, 'rear')}; the tyre curves peak at "
+        f"{result['peak_slip_rad']['front']:.2f} / {result['peak_slip_rad']['rear']:.2f} rad "
+        "of slip.",
         "Steps: "
         + ", ".join(f"{k[:-2].replace('_', ' ')} {v:.0f} s" for k, v in result["steps_s"].items()),
     ]
@@ -254,6 +278,11 @@ def _recovery(recovery: dict[str, Any], names: list[str]) -> str:
 
 def _stiffness(recovery: dict[str, Any]) -> str:
     return " / ".join(f"{100 * e:+.1f} %" for e in stiffness_errors(recovery).values())
+
+
+def _grip(race: dict[str, Any], axle: str) -> str:
+    used = race["grip_used"][axle]
+    return f"{used['p99']:.2f} / {used['max']:.2f}"
 
 
 def _rmse(race: dict[str, Any]) -> str:

@@ -32,10 +32,12 @@ Two documented departures from the paper's formulas, both at low speed:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
+import numpy as np
 
 #: Low-speed slip denominator at standstill, a fraction of ``eps``: 0.9 keeps the fastest
 #: dynamics at rest within RK4's stable step at :data:`~crs_core.model.MAX_SUBSTEP`.
@@ -87,6 +89,28 @@ def cornering_stiffness(D: float, C: float, B: float) -> float:
     slip, :math:`\partial F_y / \partial \alpha |_{\alpha=0} = D C B` (N/rad): the linear
     tyre, which driving within the grip determines even where it leaves D and B apart."""
     return D * C * B
+
+
+def peak_slip(C: float, B: float) -> float:
+    r"""Slip angle at the peak of an axle's Pacejka curve, :math:`\tan(\pi / (2C)) / B`, rad
+    (for :math:`C > 1`): a drive that stays below it bends the curve only so far."""
+    return math.tan(math.pi / (2.0 * C)) / B
+
+
+def grip_used(states: np.ndarray, inputs: np.ndarray, P: Callable[[str], float]) -> np.ndarray:
+    r"""How much of each axle's grip a drive used: :math:`|F_y| / D` of the front and rear
+    tyre (columns) per row of ``states`` (N x 6) and ``inputs`` (N x 2), with the numeric
+    parameters ``P``; 1 at the peak of the Pacejka curve, where the drive would tell :math:`D`
+    apart from :math:`B`."""
+
+    def constant(name: str) -> ca.SX:
+        return ca.SX(P(name))
+
+    x, u = ca.SX.sym("x", 6), ca.SX.sym("u", 2)
+    forces = axle_forces(x, u, constant)
+    used = ca.vertcat(ca.fabs(forces.fy_front) / P("Df"), ca.fabs(forces.fy_rear) / P("Dr"))
+    rows = ca.Function("grip_used", [x, u], [used]).map(len(states))
+    return np.asarray(rows(np.asarray(states).T, np.asarray(inputs).T)).T
 
 
 def axle_forces(x: ca.SX, u: ca.SX, P: ParameterAccess) -> AxleForces:

@@ -55,6 +55,7 @@ def test_the_table_shows_before_and_after(tmp_path: Path):
         "contouring_rms_m": 0.074,
         "contouring_max_m": 0.17,
         "estimation_rmse": {"x": 0.0024, "y": 0.0024, "yaw": 0.037},
+        "grip_used": {"front": {"p99": 0.82, "max": 0.857}, "rear": {"p99": 0.6, "max": 0.62}},
     }
     result = {
         "duration_s": 40.0,
@@ -65,6 +66,7 @@ def test_the_table_shows_before_and_after(tmp_path: Path):
             "default_model": {"position_rmse_m": 0.29},
             "identified_model": {"position_rmse_m": 0.064},
         },
+        "peak_slip_rad": {"front": 0.342, "rear": 0.194},
         "sysid": recovery,
         "discrepancy": {
             "named": ["gyro_bias"],
@@ -82,6 +84,7 @@ def test_the_table_shows_before_and_after(tmp_path: Path):
         in table
     )
     assert "crs sysid (no effect) Df +5.0 %" in table
+    assert "front 0.82 / 0.86, rear 0.60 / 0.62; the tyre curves peak at 0.34 / 0.19 rad" in table
     assert "Steps: race default model 52 s, sysid 7 s" in table
 
 

@@ -182,3 +182,24 @@ def test_the_cornering_stiffness_is_the_slope_of_the_tyre_curve_at_zero_slip():
         2 * alpha
     )
     assert cornering_stiffness(D, C, B) == pytest.approx(slope, rel=1e-6)
+
+
+def test_the_peak_slip_is_where_the_tyre_curve_tops_and_grip_used_is_one_there(model):
+    from crs_core.model.bicycle import grip_used, peak_slip
+
+    P = model.parameters.value
+    C, B = P("Cr"), P("Br")
+    alpha = np.linspace(0.0, 1.0, 200001)
+    curve = np.sin(C * np.arctan(B * alpha))
+    assert peak_slip(C, B) == pytest.approx(alpha[np.argmax(curve)], abs=1e-5)
+    # Straight at 2 m/s with the rear sliding at its peak slip (no yaw rate), then at half of it;
+    # the front steered to zero slip.
+    vx = 2.0
+    vy = -vx * np.tan(np.array([peak_slip(C, B), 0.5 * peak_slip(C, B)]))
+    states = np.column_stack([np.zeros((2, 3)), np.full(2, vx), vy, np.zeros(2)])
+    inputs = np.column_stack([np.arctan(vy / vx), np.zeros(2)])
+    used = grip_used(states, inputs, P)
+    assert used.shape == (2, 2)
+    np.testing.assert_allclose(used[:, 0], 0.0, atol=1e-12)
+    assert used[0, 1] == pytest.approx(1.0, abs=1e-12)
+    assert used[1, 1] == pytest.approx(np.sin(C * np.arctan(0.5 * B * peak_slip(C, B))))
