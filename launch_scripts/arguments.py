@@ -177,6 +177,12 @@ def add_cars(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_simulated_stations(parser: argparse.ArgumentParser, help_text: str) -> None:
+    """``--stations``: the Lighthouse base stations of a simulation, 1..8 (default 1)."""
+    stations = bounded_number("stations", "", 0, 8, int)
+    parser.add_argument("--stations", type=stations, default=1, help=help_text)
+
+
 def _parse_effect(text: str) -> Any:
     """:func:`crs_core.model.effects.parse_effect`, imported when an option is parsed (the
     model's package imports casadi: a command that parses no effect does not load it)."""

@@ -81,9 +81,8 @@ from ros4crs.node_support import (
     CheckedSubscription,
     ParameterError,
     declare,
+    declare_initial_state,
     declare_model,
-    declare_track,
-    finite_vector,
     in_range,
     input_subscription,
     one_of,
@@ -139,11 +138,7 @@ class EstimatorNode(Node):
             raise ParameterError("blind_start", "needs lh (Lighthouse) or pose among the sensors")
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
         model = declare_model(self, n_base_stations=stations)
-        track = declare_track(self)
-        start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
-        initial = np.asarray(
-            declare(self, "initial_state", start, "initial estimate", finite_vector(6))
-        )
+        initial = np.asarray(declare_initial_state(self, "initial estimate"))
         offsets = parse_time_offsets(
             declare(
                 self,

@@ -174,6 +174,14 @@ def declare_track(node: Node) -> Track:
         raise ParameterError("track_file", str(message)) from None
 
 
+def declare_initial_state(node: Node, description: str) -> list[float]:
+    """The ``initial_state`` parameter: ``x, y, yaw, vx, vy, omega`` (m, rad, m/s, rad/s), by
+    default the start of the ``track_file`` parameter's track (:func:`declare_track`), at rest."""
+    track = declare_track(node)
+    start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
+    return declare(node, "initial_state", start, description, finite_vector(6))
+
+
 def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> CarModel:
     """The car model with the ``params_file`` parameter (a parameter YAML, empty for the
     Chronos defaults) applied."""

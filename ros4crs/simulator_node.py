@@ -41,9 +41,8 @@ from crs_core.model.effects import effect_spec, parse_effect
 from ros4crs import conversions
 from ros4crs.node_support import (
     declare,
+    declare_initial_state,
     declare_model,
-    declare_track,
-    finite_vector,
     in_range,
     input_subscription,
     non_negative,
@@ -78,7 +77,6 @@ class SimulatorNode(Node):
 
     def __init__(self) -> None:
         super().__init__("simulator")
-        track = declare_track(self)
         seed = declare(self, "seed", 0, "seed of all noise")
         noise_free = declare(self, "noise_free", False, "ideal sensors")
         effects = parse_effects(
@@ -99,10 +97,7 @@ class SimulatorNode(Node):
         self.rate_factor = declare(self, "rate_factor", 1.0, "simulated s per wall s", positive)
         tick_hz = declare(self, "tick_hz", 250.0, "how often the engine advances, Hz", positive)
         truth_hz = declare(self, "truth_rate_hz", 50.0, "ground-truth rate, Hz", positive)
-        start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
-        initial = declare(
-            self, "initial_state", start, "x, y, yaw, vx, vy, omega", finite_vector(6)
-        )
+        initial = declare_initial_state(self, "x, y, yaw, vx, vy, omega")
         self.duration = declare(self, "duration", 0.0, "stop after (s); 0 = never", non_negative)
         self.wait_for_subscribers = declare(
             self,

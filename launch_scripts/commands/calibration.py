@@ -21,7 +21,13 @@ from typing import Any
 import numpy as np
 
 from crs_core.dataset import Geometry
-from launch_scripts.arguments import Command, add_out, bounded_number, command_line
+from launch_scripts.arguments import (
+    Command,
+    add_out,
+    add_simulated_stations,
+    bounded_number,
+    command_line,
+)
 from launch_scripts.output_folder import prepare_output, prepare_output_file
 from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
@@ -42,12 +48,6 @@ def _add_offset(parser: argparse.ArgumentParser, default: float, help_text: str)
     """``--offset``: the motion-capture clock minus the car's, s, in [-1, 1]."""
     offset = bounded_number("offset", "s", -1.0, 1.0, include_low=True)
     parser.add_argument("--offset", type=offset, default=default, help=help_text)
-
-
-def _add_simulated_stations(parser: argparse.ArgumentParser, help_text: str) -> None:
-    """``--stations``: base stations of a simulation, 1..8 (default 1)."""
-    stations = bounded_number("stations", "", 1, 8, int, include_low=True)
-    parser.add_argument("--stations", type=stations, default=1, help=help_text)
 
 
 def _static_arguments(sub: argparse.ArgumentParser) -> None:
@@ -110,7 +110,7 @@ def _simulate_points_arguments(sub: argparse.ArgumentParser) -> None:
         default=24,
         help="number of points (default 24)",
     )
-    _add_simulated_stations(sub, "base stations, 1..8 (default 1: the recorded one)")
+    add_simulated_stations(sub, "base stations, 1..8 (default 1: the recorded one)")
     sub.add_argument(
         "--sweeps",
         type=bounded_number("sweeps", "", 1, 10000, int, include_low=True),
@@ -138,7 +138,7 @@ def _simulate_moving_arguments(sub: argparse.ArgumentParser) -> None:
         help="simulated time, s (default 20)",
     )
     _add_offset(sub, 0.02, "motion-capture clock minus car clock, s (default 0.02)")
-    _add_simulated_stations(sub, "base stations, 1..8 (default 1)")
+    add_simulated_stations(sub, "base stations, 1..8 (default 1)")
     sub.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
 
 

@@ -21,6 +21,7 @@ from launch_scripts.arguments import (
     add_effect,
     add_out,
     add_seed,
+    add_simulated_stations,
     add_track,
     argument_type,
     bounded_number,
@@ -114,12 +115,7 @@ def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> 
         "gyro, pose) from START for DURATION, s of simulated time (repeatable), e.g. "
         "lighthouse:10:1.127",
     )
-    sub.add_argument(
-        "--stations",
-        type=bounded_number("stations", "", 0, 8, int),
-        default=1,
-        help="Lighthouse base stations, 1..8 (default 1)",
-    )
+    add_simulated_stations(sub, "Lighthouse base stations, 1..8 (default 1)")
     sub.add_argument(
         "--speed",
         type=bounded_number("speed", "m/s", 0.0, 5.0),

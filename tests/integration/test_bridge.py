@@ -30,7 +30,6 @@ from chronos_bridge.packets import (
     BATTERY_CURRENT_LIMIT,
     BATTERY_VOLTAGE_MAX,
     CAR_VELOCITY_LIMIT,
-    CURRENT_TORQUE_REF_LIMIT,
     GYRO_LIMIT,
     STEER_LIMIT,
     TIMESTAMP_MAX_US,
@@ -38,16 +37,12 @@ from chronos_bridge.packets import (
     WHEEL_SPEED_LIMIT,
     Battery,
     CarState,
-    ControlInput,
     Imu,
-    LighthouseFrame,
     LighthouseSweep,
-    Steering,
-    WheelSpeeds,
 )
 from launch_scripts.launcher import Launcher, NodeSpec
 from ros4crs import conversions
-from tests.chronos_bridge.bridge_builders import BAD_FLOATS, tag, varint
+from tests.chronos_bridge.bridge_builders import BAD_FLOATS, make_state, tag, varint
 from tests.integration.stack_probe import Probe, wait_for
 
 pytestmark = pytest.mark.integration
@@ -66,19 +61,13 @@ def _free_port() -> int:
 
 
 def _state(k: int, voltage: float = 7.5, sweeps: tuple = ()) -> CarState:
-    """A valid car state, varying with ``k``; ``voltage`` tells the cars apart."""
+    """A valid car state (:func:`make_state`), its IMU varying with ``k``; ``voltage`` tells the
+    cars apart."""
     phase = 0.01 * k
-    return CarState(
-        current_reference=ControlInput(0.2, 0.1, torque_limit=CURRENT_TORQUE_REF_LIMIT),
-        drive_power=0.3,
-        steer_power=-0.1,
+    return make_state(
         imu=Imu((-1.0, 0.5 * math.sin(phase), 9.8), (0.0, 0.0, math.cos(phase))),
-        steering=Steering(0.1, 2100),
-        wheel_speeds=WheelSpeeds(20.0, 20.5, 21.0, 21.5),
         battery=Battery(voltage, -1.0),
-        frames=(LighthouseFrame(1, 2, 3, 4, 5, 6),),
         sweeps=sweeps,
-        longitudinal_velocity=0.35,
     )
 
 

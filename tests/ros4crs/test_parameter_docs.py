@@ -79,9 +79,10 @@ def _declared(tree: ast.AST, module: Any) -> dict[str, Any]:
 
 def _helpers() -> dict[str, dict[str, Any]]:
     """The ``declare_*`` functions of ``ros4crs`` that declare parameters themselves (by hand or
-    from a settings dataclass), with their parameters; not those of the machinery,
+    from a settings dataclass), with their parameters and those of the helpers they call
+    (``declare_initial_state`` calls ``declare_track``); not those of the machinery,
     :mod:`ros4crs.settings_parameters`."""
-    found = {}
+    found, functions = {}, {}
     for path in (ROOT / "ros4crs").glob("*.py"):
         if path.stem == "settings_parameters":
             continue
@@ -89,6 +90,11 @@ def _helpers() -> dict[str, dict[str, Any]]:
             if isinstance(function, ast.FunctionDef) and function.name.startswith("declare_"):
                 if _calls(function, "declare", "declare_fields", "declare_settings"):
                     found[function.name] = _declared(function, _module(path))
+                    functions[function.name] = function
+    for name, function in functions.items():
+        for helper in functions.keys() - {name}:
+            if _calls(function, helper):
+                found[name] = {**found[helper], **found[name]}
     return found
 
 
@@ -116,6 +122,7 @@ def test_the_helpers_and_settings_are_found() -> None:
     assert controller["command_delay"] == 0.02
     assert controller["rate_hz"] is COMPUTED
     estimator = declared_parameters(ROOT / "ros4crs" / "estimator_node.py")
+    assert {"track_file", "initial_state"} <= set(estimator)
     assert estimator["max_lag"] is COMPUTED
     assert estimator["horizon"] == 40
 
