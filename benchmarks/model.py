@@ -40,9 +40,7 @@ def model_benchmark(repeats: int = 20000, sim_duration: float = 60.0) -> dict[st
     controller = PathFollower(track, model.parameters.value("lf") + model.parameters.value("lr"))
     simulator = Simulator(model, SensorSuite(), seed=0)
     start = time.perf_counter()
-    result = simulator.run(
-        controller, sim_duration, np.array([track.start_x, track.start_y, track.start_yaw, 0, 0, 0])
-    )
+    result = simulator.run(controller, sim_duration, track.start_state())
     elapsed = time.perf_counter() - start
     return {
         "model_evaluation": rows,

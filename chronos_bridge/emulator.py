@@ -176,7 +176,7 @@ class CarEmulator:
             from crs_core.track import load_demo_track
 
             track = load_demo_track()
-            x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+            x0 = track.start_state()
         self.model = model or CarModel()
         sensors = sensors or SensorSuite()
         for name in ("imu", "wheel_encoders"):

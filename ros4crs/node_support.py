@@ -178,7 +178,7 @@ def declare_initial_state(node: Node, description: str) -> list[float]:
     """The ``initial_state`` parameter: ``x, y, yaw, vx, vy, omega`` (m, rad, m/s, rad/s), by
     default the start of the ``track_file`` parameter's track (:func:`declare_track`), at rest."""
     track = declare_track(node)
-    start = [track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0]
+    start = track.start_state().tolist()
     return declare(node, "initial_state", start, description, finite_vector(6))
 
 

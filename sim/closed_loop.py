@@ -179,7 +179,7 @@ def run_closed_loop(
             raise FieldError(name, f"must be positive, got {value!r}")
     if laps < 1:
         raise FieldError("laps", f"must be at least 1, got {laps!r}")
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     session = simulator.session(x0, keep_history=False)
     if estimator is not None:
         estimator.reset(0.0, x0)

@@ -65,7 +65,7 @@ def simulate_mocap_recording(
     track = load_demo_track()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
     controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=speed))
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     result = Simulator(model, sensors, seed=seed).run(controller, duration, x0)
     result.extra_meta["clock_offset_s"] = float(clock_offset)
     dataset = result.to_dataset()

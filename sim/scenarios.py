@@ -94,7 +94,7 @@ def simulate_dataset(
         controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
     else:
         controller = JoystickDriver(track, wheelbase, seed)
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     result = Simulator(model, sensors or SensorSuite(), seed=seed).run(controller, duration, x0)
     return result.to_dataset()
 
@@ -107,6 +107,6 @@ def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> Simulatio
     track = load_demo_track()
     model = CarModel()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     simulator = Simulator(model, SensorSuite(blackouts=tuple(blackouts)), seed=seed)
     return simulator.run(JoystickDriver(track, wheelbase, seed), duration, x0)

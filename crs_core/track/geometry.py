@@ -211,6 +211,12 @@ class Track:
         """Number of centerline samples in one lap."""
         return int(self.x.size)
 
+    def start_state(self, speed: float = 0.0) -> NDArray[np.float64]:
+        """The car's state on the start pose, rolling straight ahead at ``speed`` (m/s):
+        ``[x, y, yaw, v_x, v_y, omega]`` (m, rad, m/s, rad/s; world position and yaw, body
+        velocities)."""
+        return np.array([self.start_x, self.start_y, self.start_yaw, speed, 0.0, 0.0])
+
     def borders(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Left and right track edges (N, 2), m: the centerline moved by half the width along
         its normal (left in the direction of travel first)."""

@@ -9,8 +9,6 @@ from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
 
-import numpy as np
-
 from crs_core.control.path_following import PathFollowerSettings
 from crs_core.errors import FieldError
 from crs_core.model import EFFECTS, CarModel
@@ -67,7 +65,7 @@ def simulate(args: argparse.Namespace) -> Path:
         sensors = sensors.ideal()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
     controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=args.speed))
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     simulator = Simulator(model, sensors, seed=args.seed)
     started = time.perf_counter()
     result = simulator.run(controller, args.duration, x0, progress=sys.stderr.isatty())

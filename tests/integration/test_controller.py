@@ -24,7 +24,7 @@ DOMAIN = 107
 def _start_state() -> np.ndarray:
     """The car at the DEMO_TRACK start pose at 1 m/s: the estimate the tests publish."""
     track = load_demo_track()
-    return np.array([track.start_x, track.start_y, track.start_yaw, 1.0, 0.0, 0.0])
+    return track.start_state(1.0)
 
 
 @contextmanager

@@ -48,7 +48,7 @@ def test_the_plan_and_the_solve_time_go_out_only_to_a_listener(monkeypatch) -> N
         executor = SingleThreadedExecutor()
         executor.add_node(listener)
         track = load_demo_track()
-        x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.5, 0.0, 0.0])
+        x0 = track.start_state(0.5)
         try:
             node.supervisor.observe(node.get_clock().now().nanoseconds * 1e-9, x0, "ok")
             node._control()  # nobody listens: nothing is serialised

@@ -25,7 +25,7 @@ def run() -> SimulationResult:
     model = CarModel()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
     controller = PathFollower(track, wheelbase, PathFollowerSettings(v_ref=1.0))
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     return Simulator(model, SensorSuite(), seed=3).run(controller, 4.0, x0)
 
 

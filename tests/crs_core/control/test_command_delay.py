@@ -116,7 +116,7 @@ def race_behind_a_delay(measure: bool, delay: float, duration: float) -> tuple[f
     car = Simulator(
         CarModel({"input_delay": delay}), SensorSuite().ideal(), onboard=OnboardSettings()
     )
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     session = car.session(x0)
     meter = CommandDelay() if measure else None
     supervisor = Supervisor(Mpcc(track), model=CarModel(), command_delay=meter)

@@ -18,7 +18,7 @@ def mpcc(track) -> Mpcc:
 
 
 def _start(track, speed: float = 1.0) -> np.ndarray:
-    return np.array([track.start_x, track.start_y, track.start_yaw, speed, 0.0, 0.0])
+    return track.start_state(speed)
 
 
 def _within_limits(u: np.ndarray, settings: MpccSettings) -> bool:

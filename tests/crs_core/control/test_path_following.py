@@ -44,7 +44,7 @@ def _bicycle_step(x: np.ndarray, u: np.ndarray, dt: float) -> np.ndarray:
 def test_follows_the_demo_track_for_one_lap(track: Track) -> None:
     settings = PathFollowerSettings()
     controller = PathFollower(track, WHEELBASE, settings)
-    x = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x = track.start_state()
     counter = LapCounter(track.length)
     dt, t = 0.005, 0.0
     hint = None
@@ -123,7 +123,7 @@ def test_output_order_is_steer_then_torque(track: Track) -> None:
 
 def test_time_steps_that_are_not_positive_do_not_integrate(track: Track) -> None:
     controller = PathFollower(track, WHEELBASE)
-    x = np.array([track.start_x, track.start_y, track.start_yaw, 0.2, 0.0, 0.0])
+    x = track.start_state(0.2)
     first = controller(0.0, x)
     later = controller(1.0, x)  # integrates one second of speed error
     assert later[1] > first[1]
@@ -136,7 +136,7 @@ def test_time_steps_that_are_not_positive_do_not_integrate(track: Track) -> None
 def test_integral_is_clamped(track: Track) -> None:
     settings = PathFollowerSettings(torque_max=1.0, integral_limit=0.05)
     controller = PathFollower(track, WHEELBASE, settings)
-    x = np.array([track.start_x, track.start_y, track.start_yaw, 0.9, 0.0, 0.0])
+    x = track.start_state(0.9)
     for k in range(200):
         u = controller(0.1 * k, x)
     error = 1.0 - 0.9

@@ -103,7 +103,7 @@ def test_time_offset_corrects_a_sensor_latency(kind):
     suite = SensorSuite(lighthouse=SensorSpec(50.0, (1e-3,) * 4, latency_s=0.025))
     track, model = load_demo_track(), CarModel()
     wheelbase = model.parameters.value("lf") + model.parameters.value("lr")
-    x0 = np.array([track.start_x, track.start_y, track.start_yaw, 0.0, 0.0, 0.0])
+    x0 = track.start_state()
     result = Simulator(model, suite, seed=1).run(JoystickDriver(track, wheelbase, 1), 6.0, x0)
     queries = np.arange(1, 360) / 60.0
     rms = {}

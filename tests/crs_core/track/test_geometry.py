@@ -101,3 +101,14 @@ def test_progress_unwrapped(demo: Track) -> None:
     progress = 3.0 + np.linspace(0.0, 30.0, 3001)
     unwrapped = demo.progress_unwrapped(progress % demo.length)
     np.testing.assert_allclose(unwrapped, progress, atol=1e-9)
+
+
+def test_the_start_state_stands_on_the_centreline_heading_along_it(track: Track) -> None:
+    state = track.start_state(0.7)
+    np.testing.assert_array_equal(
+        state, [track.start_x, track.start_y, track.start_yaw, 0.7, 0.0, 0.0]
+    )
+    projection = track.project(state[0], state[1])
+    assert abs(projection.lateral_error) < 0.02  # the demo track starts on its centreline
+    assert track.start_state() is not track.start_state()  # a new array each call
+    assert track.start_state()[3] == 0.0
