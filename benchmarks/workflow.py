@@ -54,6 +54,10 @@ HORIZON_S = 2.0
 RECOVERED_WITHIN = 0.10
 #: Grip used is taken above this forward speed, m/s (slip angles are defined at speed).
 GRIP_SPEED = 0.5
+#: The axles, as the figures name them, and their parameters' suffix (``Df``, ``Dr``).
+AXLES = {"front": "f", "rear": "r"}
+#: The two races of the day: the figures' name and the run folder.
+RACES = {"default_model": "race_before", "identified_model": "race_after"}
 
 
 def truth_parameters() -> dict[str, float]:
@@ -72,19 +76,26 @@ def _crs(argv: list[str]) -> float:
     return time.perf_counter() - started
 
 
-def race_figures(run: Path, car: CarModel) -> dict[str, Any]:
+def load_race(run: Path) -> tuple[Dataset, dict[str, np.ndarray]]:
+    """A ``crs launch car --emulate`` run folder's recording (its bag, no reference states)
+    and the emulator's truth (``t``, s, and ``x``, the states)."""
+    truth = np.load(run / "truth_car1.npz")
+    return dataset_from_bag(run / "bag", reference="none"), {k: truth[k] for k in ("t", "x")}
+
+
+def race_figures(
+    run: Path, car: CarModel, recording: Dataset, truth: dict[str, np.ndarray]
+) -> dict[str, Any]:
     """Laps, flying lap, contouring error, estimation RMSE and the grip each axle used (99th
     percentile and largest :func:`~crs_core.model.bicycle.grip_used` of the emulated ``car``'s
     true states at speed, with the recorded commands held) of a ``crs launch car --emulate``
-    run folder (the emulator's truth)."""
+    run folder, its recording and truth (:func:`load_race`)."""
     report = json.loads((run / "report.json").read_text())["cars"]["car1"]
-    truth = np.load(run / "truth_car1.npz")
     laps = lap_statistics(truth["t"], truth["x"], load_demo_track())
     flying = report["lap_times_s"][1:]
-    commands = dataset_from_bag(run / "bag", reference="none")
-    held = np.clip(np.searchsorted(commands.t, truth["t"], side="right") - 1, 0, None)
+    held = np.clip(np.searchsorted(recording.t, truth["t"], side="right") - 1, 0, None)
     moving = truth["x"][:, 3] > GRIP_SPEED
-    used = grip_used(truth["x"][moving], commands.u[held[moving]], car.parameters.value)
+    used = grip_used(truth["x"][moving], recording.u[held[moving]], car.parameters.value)
     return {
         "laps": report["laps_completed"],
         "lap_times_s": report["lap_times_s"],
@@ -98,16 +109,15 @@ def race_figures(run: Path, car: CarModel) -> dict[str, Any]:
                 "p99": round(float(np.percentile(column, 99)), 3),
                 "max": round(float(column.max()), 3),
             }
-            for axle, column in zip(("front", "rear"), used.T, strict=True)
+            for axle, column in zip(AXLES, used.T, strict=True)
         },
     }
 
 
-def held_out(run: Path) -> Dataset:
-    """The recording of a race with the emulator's truth as its reference states."""
-    dataset = dataset_from_bag(run / "bag", reference="none")
-    truth = np.load(run / "truth_car1.npz")
-    t = truth["t"]
+def held_out(recording: Dataset, truth: dict[str, np.ndarray]) -> Dataset:
+    """A race's recording, where the emulator's truth covers it, with that truth as its
+    reference states (:func:`load_race`)."""
+    dataset, t = recording, truth["t"]
     keep = (dataset.t >= t[0]) & (dataset.t <= t[-1])
     dataset = dataset.samples(int(np.argmax(keep)), int(len(keep) - np.argmax(keep[::-1])))
     states = interpolate_states(dataset.t, t, truth["x"])
@@ -168,14 +178,13 @@ def workflow_benchmark(work: Path, duration: float = 40.0, seed: int = 0, domain
     race = ["launch", "car", "--emulate", "--duration", str(duration), "--seed", str(seed)]
     race += ["--domain", str(domain), *car]
     steps: dict[str, float] = {}
-    steps["race_default_model_s"] = _crs([*race, "--out", str(work / "race_before")])
-    bag = work / "race_before" / "bag"
+    before, after = (work / RACES[name] for name in ("default_model", "identified_model"))
+    steps["race_default_model_s"] = _crs([*race, "--out", str(before)])
+    bag = before / "bag"
     steps["sysid_s"] = _crs(["sysid", str(bag), "--out", str(work / "sysid")])
     steps["discrepancy_s"] = _crs(["discrepancy", str(bag), "--out", str(work / "discrepancy")])
     final = work / "discrepancy" / "params.yaml"
-    steps["race_identified_model_s"] = _crs(
-        [*race, "--params", str(final), "--out", str(work / "race_after")]
-    )
+    steps["race_identified_model_s"] = _crs([*race, "--params", str(final), "--out", str(after)])
     return summarise(work, duration, seed, steps)
 
 
@@ -184,19 +193,19 @@ def summarise(work: Path, duration: float, seed: int, steps: dict[str, float]) -
     final = work / "discrepancy" / "params.yaml"
     found = json.loads((work / "discrepancy" / "report.json").read_text())
     car = CarModel.from_file(work / "truth.yaml")
-    data = held_out(work / "race_after")
+    races = {name: load_race(work / folder) for name, folder in RACES.items()}
+    data = held_out(*races["identified_model"])
     return {
         "truth": {"factors": TRUTH_FACTORS, "effect": HIDDEN_EFFECT},
         "duration_s": duration,
         "seed": seed,
         "steps_s": {k: round(v, 1) for k, v in steps.items()},
         "races": {
-            "default_model": race_figures(work / "race_before", car),
-            "identified_model": race_figures(work / "race_after", car),
+            name: race_figures(work / folder, car, *races[name]) for name, folder in RACES.items()
         },
         "peak_slip_rad": {
             axle: round(peak_slip(*(car.parameters.value(f"{p}{a}") for p in "CB")), 3)
-            for axle, a in (("front", "f"), ("rear", "r"))
+            for axle, a in AXLES.items()
         },
         "prediction_error": {
             "held_out": "the second race's recording against the emulator's truth",
@@ -263,7 +272,7 @@ def stiffness_errors(recovery: dict[str, Any]) -> dict[str, float]:
 
     return {
         name: round(stiffness(axle, "identified") / stiffness(axle, "truth") - 1.0, 4)
-        for name, axle in (("front", "f"), ("rear", "r"))
+        for name, axle in AXLES.items()
     }
 
 
