@@ -224,7 +224,8 @@ class VisualizerNode(Node):
         self, topic: str, msgtype: str, watch: viz_scene.CarWatch | None
     ) -> _Topic | None:
         """Subscribe to ``topic`` if it is passed through or read (None: neither)."""
-        read, what = self._reader(topic, watch) if watch is not None else (None, "")
+        relative = topic.split("/", 2)[2] if watch is not None else ""  # the car's own name
+        read, what = self._reader(relative, watch) if watch is not None else (None, "")
         passed = topic not in NOT_PASSED and not any(p in topic for p in NOT_PASSED_PARTS)
         if read is None and not passed:
             return None
@@ -240,7 +241,7 @@ class VisualizerNode(Node):
             channel = foxglove.Channel(
                 topic, schema=schema, message_encoding="cdr", context=self.view_context
             )
-        every = watch is not None and topic.split("/", 2)[2] in READ_EVERY
+        every = watch is not None and relative in READ_EVERY
         entry = _Topic(msg_type, channel, read, what or topic, every=every)
         self.create_subscription(
             msg_type, topic, lambda data: self._on_message(topic, entry, data), VIEW_QOS, raw=True
@@ -248,10 +249,10 @@ class VisualizerNode(Node):
         return entry
 
     def _reader(
-        self, topic: str, watch: viz_scene.CarWatch
+        self, relative: str, watch: viz_scene.CarWatch
     ) -> tuple[Callable[[Any], None] | None, str]:
-        """What reads a car's ``topic`` into its watch, and what the messages are."""
-        relative = topic.split("/", 2)[2]
+        """What reads a car's topic (``relative``: its name in the car's namespace) into its
+        watch, and what the messages are."""
         topics = conversions.TOPICS
         if relative == topics["state"]:
             return lambda msg: watch.estimate(
