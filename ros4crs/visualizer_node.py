@@ -3,7 +3,8 @@ foxglove-sdk) and in the suite's built-in page.
 
 Node ``visualizer`` in the global namespace. It serves a Foxglove WebSocket on ``host:port``
 (a ``foxglove.Context`` of its own: nothing else of the process logs to it) and the built-in
-page over HTTP on ``host:page_port`` (:mod:`ros4crs.viz_page`). Viewers may only subscribe: the
+page over HTTP on ``host:page_port`` (:mod:`ros4crs.viz_page`; the page connects to ``port``,
+which the page server writes into it). Viewers may only subscribe: the
 server advertises no capability (no client publishing, services or parameters), so nothing a
 viewer does reaches a car. It finds the cars (``cars``, else every ``/carN`` namespace in the
 graph) and the topics by polling the graph once a second, as the recorder does, and subscribes
@@ -171,7 +172,7 @@ class VisualizerNode(Node):
         except RuntimeError as error:
             raise ParameterError("port", f"cannot serve on {host}:{port}: {error}") from None
         try:
-            self.page = start_page_server(host, page_port)
+            self.page = start_page_server(host, page_port, self.server.port)
         except OSError as error:
             self.server.stop()
             raise ParameterError(

@@ -1,10 +1,13 @@
 """The built-in live page (issue 29): a small web page for people without Foxglove.
 
-``start_page_server(host, port)`` serves the page's three static files (``index.html``,
-``page.js``, ``page.css``, installed as package data) over HTTP from a daemon thread. The page
-itself connects to the visualizer node's foxglove-sdk WebSocket server (subprotocol
-``foxglove.sdk.v1``, port from the page's ``?ws=`` query, 8765 by default), subscribes to
-``/viz/page/track`` and ``/viz/page/cars`` and draws them; see docs/live-view.md.
+``start_page_server(host, port, ws_port)`` serves the page's three static files
+(``index.html``, ``page.js``, ``page.css``, installed as package data) over HTTP from a daemon
+thread. The page itself connects to the visualizer node's foxglove-sdk WebSocket server
+(subprotocol ``foxglove.sdk.v1``) on the host it was loaded from, subscribes to
+``/viz/page/track`` and ``/viz/page/cars`` and draws them; see docs/live-view.md. The WebSocket's
+port is ``ws_port``, the one the visualizer serves on: the server writes it into index.html's
+``<meta name="crs-ws-port">`` (in place of :data:`WS_PORT_PLACEHOLDER`), and page.js reads it
+there; a ``?ws=PORT`` in the page's address overrides it.
 """
 
 from __future__ import annotations
@@ -18,6 +21,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import urlsplit
 
+from crs_core.errors import FieldError
+
 log = logging.getLogger(__name__)
 
 #: The served files: URL path -> (file of this package, content type).
@@ -29,12 +34,17 @@ FILES: dict[str, tuple[str, str]] = {
 }
 
 
+#: What index.html holds where the server writes the WebSocket's port (exactly once).
+WS_PORT_PLACEHOLDER = b"@WS_PORT@"
+
+
 class PageServerError(OSError):
     """The page server could not start (its port is taken, its host cannot be bound, ...)."""
 
 
-def _read_files() -> dict[str, bytes]:
-    """The static files' contents by file name; a clear error when one is not installed."""
+def _read_files(ws_port: int) -> dict[str, bytes]:
+    """The files' contents by file name, index.html with ``ws_port`` written in; a clear error
+    when one is not installed."""
     package = resources.files(__name__)
     contents = {}
     for name, _ in FILES.values():
@@ -45,6 +55,13 @@ def _read_files() -> dict[str, bytes]:
                 f"ros4crs.viz_page: the page file {name} is not installed ({e}); reinstall the "
                 "project (./run.sh setup) so its package data is present"
             ) from e
+    html = contents["index.html"]
+    if html.count(WS_PORT_PLACEHOLDER) != 1:
+        raise PageServerError(
+            f"ros4crs.viz_page: index.html must hold {WS_PORT_PLACEHOLDER.decode()} once (where "
+            f"the WebSocket's port is written), found it {html.count(WS_PORT_PLACEHOLDER)} times"
+        )
+    contents["index.html"] = html.replace(WS_PORT_PLACEHOLDER, str(ws_port).encode())
     return contents
 
 
@@ -103,11 +120,13 @@ class _HTTPServer(ThreadingHTTPServer):
 class PageServer:
     """The running page server; ``close()`` stops it and frees its port."""
 
-    def __init__(self, httpd: _HTTPServer) -> None:
+    def __init__(self, httpd: _HTTPServer, ws_port: int) -> None:
         self._httpd = httpd
         self.host: str = httpd.server_address[0]
         #: The bound port (the chosen one when started with port 0).
         self.port: int = httpd.server_address[1]
+        #: The WebSocket port the page connects to unless its address says ``?ws=``.
+        self.ws_port = ws_port
         self._thread = threading.Thread(
             target=httpd.serve_forever,
             kwargs={"poll_interval": 0.05},  # how long close() may wait
@@ -138,16 +157,22 @@ class PageServer:
         self.close()
 
 
-def start_page_server(host: str, port: int) -> PageServer:
-    """Serve the live page on ``host``:``port`` (0: any free port) from a daemon thread.
+def start_page_server(host: str, port: int, ws_port: int) -> PageServer:
+    """Serve the live page on ``host``:``port`` (0: any free port) from a daemon thread; the
+    page connects to the WebSocket on ``ws_port`` of the host it was loaded from (the port the
+    visualizer's WebSocket server was started with), unless its address says ``?ws=PORT``.
 
     Raises
     ------
+    FieldError
+        ``ws_port`` is not a port number (1..65535).
     PageServerError
         A page file is not installed, or the address cannot be bound (the message names
         ``page_port``; a port in use says so).
     """
-    contents = _read_files()
+    if isinstance(ws_port, bool) or not isinstance(ws_port, int) or not 1 <= ws_port <= 65535:
+        raise FieldError("ws_port", f"must be a port number in 1..65535, got {ws_port!r}")
+    contents = _read_files(ws_port)
     try:
         httpd = _HTTPServer((host, port), contents)
     except OSError as e:
@@ -160,4 +185,4 @@ def start_page_server(host: str, port: int) -> PageServer:
         raise PageServerError(
             e.errno, f"cannot serve the page on {host}:{port} (host, page_port): {e.strerror}"
         ) from e
-    return PageServer(httpd)
+    return PageServer(httpd, ws_port)

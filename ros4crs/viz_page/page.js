@@ -6,7 +6,8 @@
 const TRACK_TOPIC = "/viz/page/track";
 const CARS_TOPIC = "/viz/page/cars";
 const SUBPROTOCOL = "foxglove.sdk.v1";
-const DEFAULT_WS_PORT = 8765;
+// The page server writes the WebSocket port of its visualizer into this meta tag of index.html.
+const WS_PORT_META = 'meta[name="crs-ws-port"]';
 const RECONNECT_MS = 2000;
 // Binary "message data" frame: u8 opcode 0x01 | u32 LE subscription id | u64 LE log time ns |
 // payload (here JSON text).
@@ -54,14 +55,26 @@ let channels = new Map();
 let subscriptions = new Map();
 let nextSubscriptionId = 1;
 
-// The WebSocket port from "?ws=PORT"; null when it is not a port number.
+// A port number (1-65535) from text; null when the text is not one.
+function portNumber(raw) {
+  const port = raw !== null && /^[0-9]+$/.test(raw) ? Number(raw) : NaN;
+  return Number.isInteger(port) && port >= 1 && port <= 65535 ? port : null;
+}
+
+// The WebSocket port: "?ws=PORT" when the address gives one, else the port the page server
+// wrote into the page (its visualizer's). {port} or {error}: what to show instead.
 function wsPort() {
   const raw = new URLSearchParams(location.search).get("ws");
-  if (raw === null) {
-    return DEFAULT_WS_PORT;
+  if (raw !== null) {
+    const port = portNumber(raw);
+    return port === null ? {error: "?ws= must be a port number (1-65535), e.g. ?ws=8765"} : {port};
   }
-  const port = Number(raw);
-  return Number.isInteger(port) && port >= 1 && port <= 65535 ? port : null;
+  const meta = document.querySelector(WS_PORT_META);
+  const port = portNumber(meta === null ? null : meta.content);
+  if (port === null) {
+    return {error: "no WebSocket port: open the page from the visualizer, or add ?ws=PORT"};
+  }
+  return {port};
 }
 
 function setHeader(text, connected) {
@@ -296,9 +309,9 @@ function updateTable() {
 
 window.addEventListener("resize", requestRedraw);
 requestRedraw();
-const port = wsPort();
-if (port === null) {
-  setHeader("?ws= must be a port number (1-65535), e.g. ?ws=8765", false);
+const ws = wsPort();
+if (ws.error) {
+  setHeader(ws.error, false);
 } else {
-  connect(`ws://${location.hostname || "127.0.0.1"}:${port}`);
+  connect(`ws://${location.hostname || "127.0.0.1"}:${ws.port}`);
 }

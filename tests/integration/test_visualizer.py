@@ -185,10 +185,14 @@ def test_a_foxglove_client_watches_the_race_and_others_come_and_go(race) -> None
     third = Viewer()
     deadline = time.monotonic() + 20.0
     asyncio.run(_watch(third, deadline, lambda: _seen_car1(third), ALONE_PORT))
+    # each page connects to its own node's WebSocket port (neither is 8765), no ?ws= needed
+    alone_page = _page_ws_port(f"http://127.0.0.1:{ALONE_PAGE_PORT}/")
     alone.send_signal(signal.SIGINT)
     output = alone.communicate(timeout=10)[0]
     assert alone.returncode == 0, output
     assert _seen_car1(third), f"crs viz did not find car1:\n{output}"
+    assert alone_page == ALONE_PORT
+    assert _page_ws_port(f"http://127.0.0.1:{PAGE_PORT}/") == PORT
     before = len(estimates)
     time.sleep(1.0)
     assert len(estimates) > before + 10, "the estimates stopped after the second client"
@@ -237,6 +241,17 @@ def _serves(url: str) -> bool:
         return False
 
 
+def _page_ws_port(url: str) -> int | None:
+    """The WebSocket port the page at ``url`` connects to unless told ``?ws=``: the one its
+    server wrote into ``<meta name="crs-ws-port">``; ``None`` when there is none."""
+    import re
+    import urllib.request
+
+    with urllib.request.urlopen(url, timeout=5.0) as reply:
+        found = re.search(rb'<meta name="crs-ws-port" content="(\d+)">', reply.read())
+    return int(found[1]) if found else None
+
+
 def _check_fixes(viewer: Viewer) -> None:
     """car1's Lighthouse fixes: drawn on the scene, and where the simulator's truth was at the
     fix's stamp (interpolated between the passed-through truth messages)."""
@@ -269,15 +284,14 @@ def _check_fixes(viewer: Viewer) -> None:
 
 @needs_chromium
 def test_the_built_in_page_shows_the_race_in_a_browser(race, tmp_path) -> None:
-    """Headless Chromium on the visualizer's page (``http://127.0.0.1:PAGE_PORT/?ws=PORT``):
+    """Headless Chromium on the visualizer's page (``http://127.0.0.1:PAGE_PORT/``, no ``?ws=``:
+    the page connects to the WebSocket port the node was started with, PORT, not 8765):
     the screenshots show the demo track and car1, moving."""
     launcher, _, _ = race
     # the page's server first: a page Chromium loads from a server not up yet is its error page,
     # which no retry of the suite's page reloads (the module's first test runs on a stack up)
     wait_for(lambda: _serves(f"http://127.0.0.1:{PAGE_PORT}/"), TIMEOUT_S, "the page's server")
-    first, second = two_screenshots(
-        f"http://127.0.0.1:{PAGE_PORT}/?ws={PORT}", tmp_path / "profile"
-    )
+    first, second = two_screenshots(f"http://127.0.0.1:{PAGE_PORT}/", tmp_path / "profile")
     (tmp_path / "first.png").write_bytes(first)
     (tmp_path / "second.png").write_bytes(second)
     check_track_and_moving_car(first, second, TRACK)

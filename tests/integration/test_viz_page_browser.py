@@ -112,8 +112,9 @@ def visualizer() -> Iterator[Visualizer]:
 
 
 @pytest.fixture
-def page() -> Iterator[PageServer]:
-    with start_page_server("127.0.0.1", 0) as server:
+def page(visualizer: Visualizer) -> Iterator[PageServer]:
+    """The page server of ``visualizer``'s WebSocket port (the page connects to it unasked)."""
+    with start_page_server("127.0.0.1", 0, visualizer.server.port) as server:
         yield server
 
 
@@ -128,8 +129,7 @@ def wait_for(condition: Callable[[], bool], what: str, timeout: float = 10.0) ->
 def test_the_page_draws_the_track_and_the_moving_car(
     visualizer: Visualizer, page: PageServer, tmp_path: Path
 ) -> None:
-    url = f"{page.url}?ws={visualizer.server.port}"
-    first, second = two_screenshots(url, tmp_path / "profile")
+    first, second = two_screenshots(page.url, tmp_path / "profile")  # no ?ws=: the server's port
     (tmp_path / "first.png").write_bytes(first)
     (tmp_path / "second.png").write_bytes(second)
     check_track_and_moving_car(first, second, visualizer.track)
@@ -139,9 +139,11 @@ def test_the_page_draws_the_track_and_the_moving_car(
 
 
 @needs_chromium
-def test_the_page_reconnects_when_the_server_comes_back(page: PageServer, tmp_path: Path) -> None:
+def test_the_page_reconnects_when_the_server_comes_back(tmp_path: Path) -> None:
     first = Visualizer(load_demo_track())
     port = first.server.port
+    # ?ws= overrides the port the page server was started with (here one nothing listens on)
+    page = start_page_server("127.0.0.1", 0, 9)
     browser = DevTools(f"{page.url}?ws={port}", tmp_path / "profile")
     try:
         browser.attach_to_page()
@@ -162,3 +164,4 @@ def test_the_page_reconnects_when_the_server_comes_back(page: PageServer, tmp_pa
             again.stop()
     finally:
         browser.close()
+        page.close()
