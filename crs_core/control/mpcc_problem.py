@@ -47,7 +47,17 @@ from crs_core.errors import FieldError
 from crs_core.model import MAX_SUBSTEP, CarModel
 from crs_core.settings import Settings, finite, non_negative, positive
 
-__all__ = ["EXTRA_STATES", "INPUTS", "QP_ARGUMENTS", "MpccProblem", "MpccSettings", "RtiFunctions"]
+__all__ = [
+    "EXTRA_STATES",
+    "INPUTS",
+    "QP_ARGUMENTS",
+    "SOLVERS",
+    "LeastSquares",
+    "MpccProblem",
+    "MpccSettings",
+    "RtiFunctions",
+    "gauss_newton",
+]
 
 #: Stage states after the car's: progress and the previous stage's inputs.
 EXTRA_STATES = ("theta", "steer_previous", "torque_previous", "progress_speed_previous")
@@ -55,6 +65,9 @@ EXTRA_STATES = ("theta", "steer_previous", "torque_previous", "progress_speed_pr
 INPUTS = ("steer", "torque", "progress_speed", "slack")
 #: Bound standing for "free" (HPIPM takes finite bounds on every variable).
 FREE = 1e4
+#: Values of :attr:`MpccSettings.solver`: a CasADi QP plugin behind our own real-time
+#: iteration, or ``"acados"`` (its SQP-RTI with HPIPM, :mod:`~crs_core.control.mpcc_acados`).
+SOLVERS = (*QP_SOLVERS, "acados")
 
 
 #: The integer fields of :class:`MpccSettings` (each >= 1).
@@ -106,7 +119,9 @@ class MpccSettings(Settings):
         Safe stop: torque ``-brake_gain * v_x`` (within the limits) until the car stands.
     solver : str
         CasADi QP plugin: ``"hpipm"`` (default, structure-exploiting interior point), or for
-        comparison ``"qrqp"``, ``"osqp"``, ``"qpoases"``.
+        comparison ``"qrqp"``, ``"osqp"``, ``"qpoases"``; or ``"acados"``: the same problem's
+        real-time iteration by acados (SQP-RTI, HPIPM; :mod:`~crs_core.control.mpcc_acados`),
+        generated and compiled once into the compile cache (needs ``./run.sh setup``'s acados).
     qp_max_iter : int
         Iteration limit of the QP solver.
     cold_start_iterations : int
@@ -173,8 +188,8 @@ class MpccSettings(Settings):
                 f"must exceed torque_min ({self.torque_min!r}, itself <= 0), "
                 f"got {self.torque_max!r}",
             )
-        if self.solver not in QP_SOLVERS:
-            raise FieldError("solver", f"one of {', '.join(QP_SOLVERS)}, got {self.solver!r}")
+        if self.solver not in SOLVERS:
+            raise FieldError("solver", f"one of {', '.join(SOLVERS)}, got {self.solver!r}")
 
     @property
     def dt(self) -> float:
@@ -202,7 +217,7 @@ _WEIGHTS = (
 )
 
 
-def _gauss_newton(
+def gauss_newton(
     residuals: ca.SX, weights: ca.SX, linear: ca.SX | float, w: ca.SX
 ) -> tuple[ca.SX, ca.SX]:
     r"""Gauss-Newton model of :math:`\sum_i q_i r_i(w)^2 + l(w)` at :math:`\bar w`, as the
@@ -219,6 +234,37 @@ def _gauss_newton(
 #: Arguments of a CasADi QP solver, in the order :meth:`MpccProblem.real_time_iteration`'s
 #: data function returns them.
 QP_ARGUMENTS = ("h", "g", "a", "lba", "uba", "lbx", "ubx", "x0")
+
+
+@dataclass(frozen=True)
+class LeastSquares:
+    r"""A cost :math:`\sum_i q_i r_i^2 + l` as weighted squared residuals plus linear terms,
+    symbolic over :class:`MpccProblem`'s ``z_sym``, ``v_sym``, ``ref_sym``, ``w_sym`` and the
+    model's ``p_sym`` (the form a Gauss-Newton Hessian :math:`2 J^\top Q J` comes from).
+
+    Attributes
+    ----------
+    residuals : casadi.SX
+        The residuals :math:`r`.
+    weights : casadi.SX
+        Their weights :math:`q` (functions of ``w_sym``).
+    linear : casadi.SX
+        The linear terms :math:`l` (0 for the terminal cost).
+    """
+
+    residuals: ca.SX
+    weights: ca.SX
+    linear: ca.SX
+
+    @property
+    def cost(self) -> ca.SX:
+        """The cost expression."""
+        return ca.sum1(self.weights * self.residuals**2) + self.linear
+
+    def gauss_newton(self, w: ca.SX) -> tuple[ca.SX, ca.SX]:
+        """Its Gauss-Newton Hessian and gradient at zero over the variables ``w``
+        (:func:`gauss_newton`)."""
+        return gauss_newton(self.residuals, self.weights, self.linear, w)
 
 
 @dataclass(frozen=True)
@@ -304,12 +350,15 @@ class MpccProblem:
             W["q_sideslip"],
         )
         linear = -W["q_progress"] * s.dt * v[2] + W["slack_linear"] * v[3]
-        stage_cost = ca.sum1(residual_weights * residuals**2) + linear
         terminal_residuals = ca.vertcat(contour, lag)
         terminal_weights = W["terminal_scale"] * ca.vertcat(W["q_contour"], W["q_lag"])
-        terminal_cost = ca.sum1(terminal_weights * terminal_residuals**2)
-        self._least_squares = (residuals, residual_weights, linear)
-        self._terminal_least_squares = (terminal_residuals, terminal_weights)
+        #: The stage cost as weighted squared residuals plus linear terms (the one definition
+        #: the RTI's QP, the IPOPT peer and acados's OCP all take their cost from).
+        self.least_squares = LeastSquares(residuals, residual_weights, linear)
+        #: The terminal cost, likewise (no linear terms).
+        self.terminal_least_squares = LeastSquares(terminal_residuals, terminal_weights, ca.SX(0))
+        stage_cost = self.least_squares.cost
+        terminal_cost = self.terminal_least_squares.cost
         self.z_sym, self.v_sym, self.ref_sym, self.w_sym = z, v, ref, w
         self.dynamics = ca.Function("mpcc_dynamics", [z, v, p], [z_next], SX_OPTIONS)
         self.contouring_error = ca.Function("mpcc_contour", [z, ref], [contour], SX_OPTIONS)
@@ -328,7 +377,7 @@ class MpccProblem:
         zv = ca.vertcat(z, v)
         z_next = self.dynamics(z, v, p)
         A, B = ca.jacobian(z_next, z), ca.jacobian(z_next, v)
-        H, g = _gauss_newton(*self._least_squares, zv)
+        H, g = self.least_squares.gauss_newton(zv)
         contour = self.contouring_error(z, ref)
         C = ca.jacobian(contour, z)
         # dense blocks: HPIPM's interface reads the stage structure from dense blocks
@@ -345,7 +394,7 @@ class MpccProblem:
 
     def _terminal_linearization(self) -> ca.Function:
         z, ref, w = self.z_sym, self.ref_sym, self.w_sym
-        H, g = _gauss_newton(*self._terminal_least_squares, ca.SX(0), z)
+        H, g = self.terminal_least_squares.gauss_newton(z)
         return ca.Function(
             "mpcc_terminal",
             [z, ref, w],

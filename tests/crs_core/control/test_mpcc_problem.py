@@ -92,6 +92,6 @@ def test_contouring_and_lag_errors_are_distances_along_the_path_normal_and_tange
     z[problem.nx_car] = 5.2
     # e_c: distance to the right of the path
     assert float(problem.contouring_error(z, ref)) == pytest.approx(-0.03)
-    cost_terms = problem._least_squares[0]
+    cost_terms = problem.least_squares.residuals
     lag = ca.Function("lag", [problem.z_sym, problem.v_sym, problem.ref_sym], [cost_terms[1]])
     assert float(lag(z, np.zeros(problem.nv), ref)) == pytest.approx(0.0, abs=1e-12)
