@@ -4,13 +4,13 @@ same stack on one machine.
 The one-machine run is :func:`launch_scripts.sim_stack.run_stack` (``crs launch sim``, DDS on
 loopback). The split run is two ``crs launch sim`` parts in two network namespaces joined by a
 veth pair (:mod:`benchmarks.netns`; needs root): namespace A runs ``--nodes simulator,recorder``
-and listens, namespace B runs ``--nodes estimator,controller`` and connects, so every sensor
-reading crosses to B and every estimate and command back to A. Per run: laps, position RMSE, the
-sensor -> input latency (median / p95: the recorder's receive times of a command and of the
-readings it was computed from; across machines a round trip over the link) and CPU per node;
-for the link, its bytes per second each way on the veth (Ethernet frames, so every header is
-counted) and the CPU of the ``zenoh_link`` node on each side. One car: the link figures are per
-car.
+and listens (``--zenoh-open``: the veth reaches nothing but B), namespace B runs ``--nodes
+estimator,controller`` and connects, so every sensor reading crosses to B and every estimate and
+command back to A. Per run: laps, position RMSE, the sensor -> input latency (median / p95: the
+recorder's receive times of a command and of the readings it was computed from; across machines
+a round trip over the link) and CPU per node; for the link, its bytes per second each way on the
+veth (Ethernet frames, so every header is counted) and the CPU of the ``zenoh_link`` node on each
+side. One car: the link figures are per car.
 """
 
 from __future__ import annotations
@@ -47,10 +47,12 @@ def split_stack(
     """The two parts of :data:`PARTS` launched in ``pair``'s namespaces for ``duration`` s
     (``crs launch sim --nodes ... --zenoh-listen/--zenoh-connect``, ROS domain ``domain`` in
     each, reports in ``out/A`` and ``out/B``, their output in ``out/A.txt`` and ``out/B.txt``);
-    yields the processes by part, and kills any still running when the block ends."""
+    yields the processes by part, and kills any still running when the block ends. A listens
+    unauthenticated (``--zenoh-open``, one warning line in ``out/A.txt``): its veth address
+    reaches B only, and the run measures the link, not who may join it."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     endpoint = f"tcp/{pair.address_a}:{port}"
-    joins = {"A": ["--zenoh-listen", endpoint], "B": ["--zenoh-connect", endpoint]}
+    joins = {"A": ["--zenoh-listen", endpoint, "--zenoh-open"], "B": ["--zenoh-connect", endpoint]}
     processes: dict[str, subprocess.Popen] = {}
     try:
         for part, nodes in PARTS.items():

@@ -222,3 +222,20 @@ def endpoints(text: str) -> list[str]:
     """An argparse type for ``action="extend"``: ``ENDPOINT[,ENDPOINT...]`` -> the Zenoh
     endpoints (a repeated option collects them all; checked where the settings are made)."""
     return [endpoint.strip() for endpoint in text.split(",") if endpoint.strip()]
+
+
+#: The option that lets a Zenoh listener beyond loopback admit any machine, unauthenticated
+#: (``crs launch``, ``crs zenoh-router``; :func:`ros4crs.zenoh.admission.check_listening`).
+ZENOH_OPEN = "--zenoh-open"
+
+
+def add_zenoh_open(parser: argparse.ArgumentParser, listen: str, config: str) -> None:
+    """:data:`ZENOH_OPEN` (``args.zenoh_open``), for a command listening on its option
+    ``listen`` with the Zenoh configuration of its option ``config``."""
+    parser.add_argument(
+        ZENOH_OPEN,
+        action="store_true",
+        help=f"let {listen} beyond loopback admit any machine, unauthenticated (one warning "
+        f"line); without it such a listener needs a {config} that authenticates who joins "
+        "(user/password or mutual TLS; examples: docs/zenoh/)",
+    )

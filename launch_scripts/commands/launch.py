@@ -11,6 +11,7 @@ from chronos_bridge.impairment import SPEC_HELP
 from crs_core.control.supervisor import HOLD_SAFE_MODES
 from crs_core.errors import FieldError
 from launch_scripts.arguments import (
+    ZENOH_OPEN,
     Command,
     add_cars,
     add_domain,
@@ -19,6 +20,7 @@ from launch_scripts.arguments import (
     add_estimator,
     add_out,
     add_track,
+    add_zenoh_open,
     argument_type,
     bounded_number,
     endpoints,
@@ -26,8 +28,15 @@ from launch_scripts.arguments import (
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
-from launch_scripts.stack_part import STACK_NODES, StackPart, parse_nodes, zenoh_settings
+from launch_scripts.stack_part import (
+    STACK_NODES,
+    ZENOH_FLAGS,
+    StackPart,
+    parse_nodes,
+    zenoh_settings,
+)
 from launch_scripts.visualizer import VizSettings, add_serving_options
+from ros4crs.zenoh.admission import check_listening
 from ros4crs.zenoh.session import MODES
 
 
@@ -92,10 +101,17 @@ def _viz_settings(args: argparse.Namespace) -> VizSettings | None:
 
 def _stack_part(args: argparse.Namespace) -> StackPart:
     """This machine's part of the stack: ``--nodes`` (of the scenario's stack) and the Zenoh
-    options; errors name the option."""
+    options (listening beyond loopback authenticated, or ``--zenoh-open`` with one warning
+    line: :func:`~ros4crs.zenoh.admission.check_listening`); errors name the option."""
     zenoh = zenoh_settings(
         args.zenoh_mode, args.zenoh_listen, args.zenoh_connect, args.zenoh_config
     )
+    if args.zenoh_open and not args.zenoh_listen:
+        raise ValueError(f"{ZENOH_OPEN}: only with --zenoh-listen (it opens a listener)")
+    if zenoh is not None:
+        warning = check_listening(zenoh, args.zenoh_open, ZENOH_FLAGS, ZENOH_OPEN)
+        if warning is not None:
+            print(f"crs launch: warning: {warning}", file=sys.stderr, flush=True)
     part = StackPart(args.nodes, zenoh)
     part.check(args.scenario, "--nodes")
     if not args.viz and part.nodes is not None and "visualizer" in part.nodes:
@@ -331,7 +347,8 @@ def add_part(sub: argparse.ArgumentParser) -> None:
         type=endpoints,
         metavar="ENDPOINT",
         help="join the other machines through a zenoh_link node that listens on ENDPOINT, "
-        "e.g. tcp/0.0.0.0:7447 (repeatable or comma-separated)",
+        "e.g. tcp/0.0.0.0:7447 (repeatable or comma-separated); beyond loopback it needs a "
+        "--zenoh-config that authenticates who joins (docs/zenoh/) or --zenoh-open",
     )
     sub.add_argument(
         "--zenoh-connect",
@@ -352,8 +369,9 @@ def add_part(sub: argparse.ArgumentParser) -> None:
         type=Path,
         metavar="FILE",
         help="a Zenoh JSON5 configuration the link reads first: TLS, user / password, access "
-        "control (the options above are set over it)",
+        "control (the options above are set over it; examples: docs/zenoh/)",
     )
+    add_zenoh_open(sub, "--zenoh-listen", "--zenoh-config")
 
 
 COMMAND = Command(

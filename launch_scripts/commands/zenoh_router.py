@@ -5,28 +5,38 @@ from __future__ import annotations
 
 import argparse
 import signal
+import sys
 import threading
 from pathlib import Path
 
 from crs_core.errors import FieldError
-from launch_scripts.arguments import Command, endpoints
+from launch_scripts.arguments import ZENOH_OPEN, Command, add_zenoh_open, endpoints
 
-#: Where the router listens unless told: every interface, Zenoh's port (as ``rmw_zenohd``).
-DEFAULT_LISTEN = "tcp/[::]:7447"
+#: Where the router listens unless told: this machine only, Zenoh's port. Listening for the
+#: lab network (``--listen tcp/0.0.0.0:7447``) needs a ``--config`` that authenticates who
+#: joins, or ``--zenoh-open`` (:func:`ros4crs.zenoh.admission.check_listening`).
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+#: The options by the :class:`~ros4crs.zenoh.session.ZenohSettings` field they set.
+FLAGS = {"listen": "--listen", "config_file": "--config"}
 #: The signals that stop the router (exit code 0).
 _STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def zenoh_router(args: argparse.Namespace) -> int:
     """Open a router session listening on ``--listen`` (with ``--config``), print one line with
-    its endpoints and Zenoh id, and run until SIGINT or SIGTERM (exit code 0)."""
+    its endpoints and Zenoh id, and run until SIGINT or SIGTERM (exit code 0). Listening beyond
+    loopback needs a ``--config`` that authenticates who joins, or ``--zenoh-open`` (then one
+    warning line on stderr first)."""
+    from ros4crs.zenoh.admission import check_listening
     from ros4crs.zenoh.session import ZenohSettings, open_session
 
-    flags = {"listen": "--listen", "config_file": "--config"}
     try:
         settings = ZenohSettings(
             "router", listen=tuple(args.listen or (DEFAULT_LISTEN,)), config_file=args.config
         )
+        warning = check_listening(settings, args.zenoh_open, FLAGS, ZENOH_OPEN)
+        if warning is not None:
+            print(f"crs zenoh-router: warning: {warning}", file=sys.stderr, flush=True)
         session = open_session(settings)
     except FieldError as error:
         if "already in use" in error.reason:
@@ -35,7 +45,7 @@ def zenoh_router(args: argparse.Namespace) -> int:
                 f"{', '.join(settings.listen)}: the address is in use (another router, or a crs "
                 "launch --zenoh-listen, on this machine?)",
             ) from None
-        raise error.renamed(flags.get(error.field, error.field)) from None
+        raise error.renamed(FLAGS.get(error.field, error.field)) from None
     stop = threading.Event()
     previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in _STOP_SIGNALS}
     try:
@@ -62,7 +72,8 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         type=endpoints,
         metavar="ENDPOINT",
         help=f"where the router listens (repeatable or comma-separated; default {DEFAULT_LISTEN}"
-        ", every interface)",
+        ", this machine only; e.g. tcp/0.0.0.0:7447 for the lab network, with an "
+        "authenticating --config or --zenoh-open)",
     )
     sub.add_argument(
         "--config",
@@ -72,6 +83,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "access control; --listen, the router mode and the scouting are set over it (examples: "
         "docs/zenoh/)",
     )
+    add_zenoh_open(sub, "--listen", "--config")
 
 
 COMMAND = Command(
@@ -80,8 +92,9 @@ COMMAND = Command(
     description="A Zenoh router in this process (no zenohd binary): the machines of a stack "
     "split with crs launch --nodes connect to it (--zenoh-connect tcp/THIS_HOST:7447, "
     "--zenoh-mode client or peer), and it routes between them. Prints its endpoints and Zenoh "
-    "id, runs until Ctrl-C or SIGTERM. Who may join: --config with the examples of docs/zenoh/ "
-    "(docs/several-machines.md).",
+    "id, runs until Ctrl-C or SIGTERM. It listens on this machine only unless --listen says "
+    "otherwise; listening beyond loopback needs a --config that authenticates who joins (the "
+    "examples of docs/zenoh/, docs/several-machines.md) or --zenoh-open.",
     arguments=add_arguments,
     handler=zenoh_router,
 )

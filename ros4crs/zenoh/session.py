@@ -13,7 +13,9 @@ and on a shared lab network it would find strangers). Three roles:
 
 Security (TLS endpoints and certificates, user / password authentication, access-control rules)
 is Zenoh's own configuration: ``config_file`` names a Zenoh JSON5 configuration that is read first;
-the settings' mode, endpoints and scouting are applied over it.
+the settings' mode, endpoints and scouting are applied over it. Whether a listener beyond
+loopback authenticates who joins is checked by the commands, before the session opens
+(:func:`ros4crs.zenoh.admission.check_listening`).
 """
 
 from __future__ import annotations

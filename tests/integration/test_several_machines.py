@@ -2,8 +2,10 @@
 A and B on one host, joined by a veth pair (:mod:`tests.integration.netns`), so nothing but the
 link crosses (each namespace has its own loopback, and ROS discovery stays on it).
 
-A runs ``crs launch sim --nodes simulator,recorder --zenoh-listen tcp/<A>:PORT``, B runs
-``crs launch sim --nodes estimator,controller --zenoh-connect tcp/<A>:PORT``: the sensors go
+A runs ``crs launch sim --nodes simulator,recorder --zenoh-listen tcp/<A>:PORT --zenoh-open``
+(unauthenticated on purpose: the veth reaches B only, and who may join is tested in
+tests/ros4crs/zenoh/), B runs ``crs launch sim --nodes estimator,controller --zenoh-connect
+tcp/<A>:PORT``: the sensors go
 from A to B, the estimates and commands from B to A. Halfway the cable is pulled for 2 s: the
 far commands stop, the simulated car cuts its motor 200 ms after the last one (its firmware's
 watchdog) and coasts to a stand, B's estimator dead-reckons and its controller, seeing the

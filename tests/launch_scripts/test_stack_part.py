@@ -1,6 +1,7 @@
 """A stack split across machines: ``StackPart`` (``crs launch --nodes`` and the Zenoh options),
-the nodes each stack launches with it, the ``zenoh_link`` node, and the report of a part without
-the recorder. No process starts."""
+the nodes each stack launches with it, the ``zenoh_link`` node, the report of a part without
+the recorder, and who may join a listening part (``--zenoh-config`` that authenticates, or
+``--zenoh-open``; :mod:`ros4crs.zenoh.admission`). No process starts."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from launch_scripts.stack_part import StackPart, zenoh_settings
 from ros4crs.zenoh.session import ZenohSettings
 
 LISTEN = ZenohSettings("peer", listen=("tcp/0.0.0.0:17647",))
+EXAMPLES = Path(__file__).resolve().parents[2] / "docs" / "zenoh"
 
 
 def _names(nodes) -> list[str]:
@@ -127,7 +129,7 @@ def test_zenoh_options_are_repeatable_or_comma_separated_and_peer_by_default(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ):
     assert zenoh_settings(None, None, None, None) is None
-    argv = ["sim", "--zenoh-listen", "tcp/0.0.0.0:17600, tcp/[::]:17601"]
+    argv = ["sim", "--zenoh-open", "--zenoh-listen", "tcp/0.0.0.0:17600, tcp/[::]:17601"]
     argv += ["--zenoh-listen", "tcp/0.0.0.0:17603", "--zenoh-connect", "tcp/h:17602"]
     options = _launched_options(argv, tmp_path / "out", monkeypatch)
     assert options.part.zenoh == ZenohSettings(
@@ -170,6 +172,11 @@ def test_a_node_of_the_other_stack_is_refused(tmp_path: Path):
             "--zenoh-config: no such file",
         ),
         (["sim", "--zenoh-mode", "router"], "--zenoh-listen: a router needs an endpoint"),
+        (["sim", "--zenoh-open"], "--zenoh-open: only with --zenoh-listen"),
+        (
+            ["sim", "--zenoh-open", "--zenoh-connect", "tcp/10.0.0.1:17600"],
+            "--zenoh-open: only with --zenoh-listen",
+        ),
         (["sim", "--nodes", "simulator", "--require-laps", "1"], "--require-laps: laps are"),
     ],
 )
@@ -213,3 +220,64 @@ def test_a_part_without_the_recorder_reports_its_processes_and_no_bag(
     text = sim_stack.summary(report, tmp_path)
     assert text.splitlines()[0].startswith("no bag analysis: none on this machine")
     assert "path.png" not in text and not (tmp_path / "bag").exists()
+
+
+# --- who may join a listening part ----------------------------------------------------------
+
+
+def test_crs_launch_refuses_to_listen_openly_without_an_authenticating_config(
+    tmp_path: Path, crs_refuses
+):
+    """One line on stderr, exit code 2, naming --zenoh-config and the examples; nothing starts."""
+    out = tmp_path / "out"
+    argv = ["launch", "sim", "--zenoh-listen", "tcp/0.0.0.0:17600", "--out", str(out)]
+    line = crs_refuses(argv)
+    assert line.startswith(
+        "crs launch: error: --zenoh-listen: tcp/0.0.0.0:17600 admits any machine that reaches "
+        "it, and any of them may publish a car's input: give --zenoh-config FILE that "
+        "authenticates who joins (examples: docs/zenoh/listener.json5 (user/password), "
+        "docs/zenoh/mtls-listener.json5 (mutual TLS);"
+    ), line
+    assert "or pass --zenoh-open to listen openly" in line
+    assert not out.exists()
+
+
+def test_crs_launch_refuses_a_config_that_authenticates_nobody(tmp_path: Path, crs_refuses):
+    out = tmp_path / "out"
+    argv = ["launch", "sim", "--zenoh-listen", "tcp/[::]:17600", "--out", str(out)]
+    line = crs_refuses([*argv, "--zenoh-config", str(EXAMPLES / "member.json5")])
+    assert line.startswith("crs launch: error: --zenoh-config: ")
+    assert "member.json5 authenticates nobody" in line and "docs/zenoh/listener.json5" in line
+    assert not out.exists()
+
+
+def test_crs_launch_listens_with_an_authenticating_config(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+):
+    monkeypatch.chdir(EXAMPLES)  # listener.json5's dictionary_file is relative
+    config = EXAMPLES / "listener.json5"
+    argv = ["sim", "--zenoh-listen", "tcp/0.0.0.0:17600", "--zenoh-config", str(config)]
+    options = _launched_options(argv, tmp_path / "out", monkeypatch)
+    assert options.part.zenoh == ZenohSettings("peer", ("tcp/0.0.0.0:17600",), (), config)
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("listen", ["tcp/127.0.0.1:17600", "tcp/[::1]:17600,tcp/localhost:17601"])
+def test_crs_launch_listens_on_loopback_silently(
+    listen: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+):
+    options = _launched_options(["sim", "--zenoh-listen", listen], tmp_path / "out", monkeypatch)
+    assert options.part.zenoh is not None and options.part.zenoh.listen
+    assert capsys.readouterr().err == ""
+
+
+def test_crs_launch_zenoh_open_listens_openly_after_one_warning(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+):
+    argv = ["sim", "--zenoh-listen", "tcp/0.0.0.0:17600", "--zenoh-open"]
+    options = _launched_options(argv, tmp_path / "out", monkeypatch)
+    assert options.part.zenoh == ZenohSettings("peer", ("tcp/0.0.0.0:17600",))
+    assert capsys.readouterr().err == (
+        "crs launch: warning: --zenoh-listen tcp/0.0.0.0:17600 admits any machine that reaches "
+        "it, unauthenticated (--zenoh-open): any of them may publish a car's input\n"
+    )
