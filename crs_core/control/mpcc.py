@@ -225,14 +225,17 @@ class Mpcc:
 
         Forgets the plan; with ``keep_plan`` (a short gap, e.g. a late state estimate) the
         plan is kept, shifted by a stage per call as time goes on, for the next call to start
-        from, and forgotten once the stops in a row have used up half its horizon: a car
-        that coasted a few periods is still near it, and a cold start from a moving car
-        would take several periods to converge.
+        from, and its steering is held, until the stops in a row have used up half its
+        horizon: a car that coasted a few periods is still near it, and a cold start from a
+        moving car would take several periods to converge.
         """
         command = self._stop_command(x)
         self._held += 1
         if keep_plan and self._Z is not None and self._held <= self.problem.N // 2:
             self._Z, self._V = self._shifted()
+            # the plan's steering, not straight wheels: a car that coasts straight on from a
+            # bend at racing speed leaves the track before the next estimate comes
+            command[0] = self._V[0, 0]
             self._command = command
         else:
             self.reset()

@@ -50,13 +50,14 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from crs_core.control.command_delay import CommandDelay
 from crs_core.control.mpcc import OUTPUTS, Mpcc
+from crs_core.control.overload import OverloadSettings, OverloadWatch
 from crs_core.control.recovery import StuckRecovery
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
@@ -87,6 +88,9 @@ EVENT_KINDS = (
     "unstuck",
     "cautious",
     "relaxed",
+    "starved",
+    "standing",
+    "fed",
 )
 #: When the MPCC is asked for hold-safe plans (:attr:`SupervisorSettings.hold_safe`).
 HOLD_SAFE_MODES = ("after_outage", "always", "never")
@@ -134,6 +138,9 @@ class SupervisorSettings(Settings):
     ok_before_outage : float
         A degraded estimate counts as an outage after this long driving on ok ones, s (the
         estimator's first estimates are degraded until the Lighthouse is accepted).
+    overload : OverloadSettings
+        When the loop counts as starved (late ticks, old estimates) and how slow the car goes
+        then (:mod:`~crs_core.control.overload`).
     """
 
     stale_timeout: float = positive(0.2)
@@ -149,6 +156,7 @@ class SupervisorSettings(Settings):
     hold_safe: str = "after_outage"
     caution_memory: float = non_negative(60.0)
     ok_before_outage: float = non_negative(1.0)
+    overload: OverloadSettings = field(default_factory=OverloadSettings)
 
     def _check_relations(self) -> None:
         if self.hold_safe not in HOLD_SAFE_MODES:
@@ -184,8 +192,10 @@ class SupervisorEvent:
         ``"controller"`` (the MPCC did not solve: fallback or stop), ``"failed"`` (the controller
         raised), ``"rejected"`` (a bad command was replaced by the stop command), ``"stuck"``
         (the car stands: backing it out), ``"unstuck"`` (the controller drives again),
-        ``"cautious"`` (an outage: hold-safe plans from now on) or ``"relaxed"`` (no outage for
-        ``caution_memory`` s: racing plans again).
+        ``"cautious"`` (an outage: hold-safe plans from now on), ``"relaxed"`` (no outage for
+        ``caution_memory`` s: racing plans again), ``"starved"`` (the loop ran late: slowing),
+        ``"standing"`` (late most of the time: stopping on the track) or ``"fed"`` (on time
+        again: the overload limit is lifted).
     message : str
         One line saying what and why.
     """
@@ -285,6 +295,8 @@ class Supervisor:
         self.outages = 0
         self._ok_driving_since: float | None = None
         self._pending_events: list[SupervisorEvent] = []
+        #: late ticks of the loop and the speed limit they call for
+        self.overload = OverloadWatch(self.settings.overload)
 
     def observe(self, stamp: float, x: ArrayLike, status: str) -> None:
         """Take a state estimate: base state ``x`` (6,) at ``stamp`` (s) with its ``status``.
@@ -311,6 +323,7 @@ class Supervisor:
         solve_time = None
         why = self._stale_reason(now)
         self._watch_link(now, why, events)
+        self._watch_overload(now, dt, events)
         if why:
             if not self._stale:
                 self.stops += 1
@@ -435,6 +448,30 @@ class Supervisor:
                 )
             )
 
+    def _watch_overload(self, now: float, dt: float, events: list) -> None:
+        """Take this tick into the overload watch (its interval and the newest estimate's
+        age) and say when its limit changes; not before the first estimate (start-up)."""
+        if self._latest is None:
+            return
+        before = self.overload.state
+        reason = self.overload.tick(now, dt, now - self._latest[0])
+        state = self.overload.state
+        if state == before:
+            return
+        o = self.overload.settings
+        if state == "slow":
+            message = f"the loop is starved ({reason}): slowing to {o.slow_speed:g} m/s"
+            events.append(SupervisorEvent("starved", message))
+        elif state == "stand":
+            message = (
+                f"the loop is starved, late {100 * self.overload.late_fraction(now):.0f} % of "
+                f"the last {o.window:g} s ({reason}): stopping on the track"
+            )
+            events.append(SupervisorEvent("standing", message))
+        else:
+            message = f"the loop kept its period for {o.hold:g} s: overload limit lifted"
+            events.append(SupervisorEvent("fed", message))
+
     def _outage(self, now: float, why: str, events: list) -> None:
         """An outage of the link at ``now`` (s): hold-safe plans for ``caution_memory`` s."""
         self.outages += 1
@@ -486,15 +523,23 @@ class Supervisor:
                         f"(at {s.rise_rate:g} m/s^2)",
                     )
                 )
+        before = self.speed_cap
         if self._limited:
             self.speed_cap = max(self.speed_cap - s.ramp_rate * dt, s.degraded_speed)
         else:
             self.speed_cap = min(self.speed_cap + s.rise_rate * dt, s.max_speed)
+        limit = self.overload.limit
+        if limit is not None and self.speed_cap > limit:  # falls from the car's speed, if lower
+            start = min(before, max(speed, limit))
+            self.speed_cap = min(self.speed_cap, max(start - s.ramp_rate * dt, limit))
 
     def _backing_out(self, now: float, x: np.ndarray, events: list) -> np.ndarray | None:
         """The recovery's reverse command while it backs a stuck car out, else None; the
         controller starts over from cold once it ends."""
         if self.recovery is None:
+            return None
+        if self.overload.state == "stand":  # standing on purpose
+            self.recovery.reset()
             return None
         was_active = self.recovery.active
         u = self.recovery(now, x)
@@ -567,9 +612,9 @@ class Supervisor:
         known, so it rolls to a stop rather than being braked (which could reverse it). In
         velocity mode: straight wheels and a zero velocity reference (the car's velocity PID
         brakes it to a stand, on its own wheel speeds). With ``keep_plan`` the MPCC keeps its
-        plan for a short gap in the estimates (see :meth:`Mpcc.stop`)."""
+        plan for a short gap in the estimates, and its steering (see :meth:`Mpcc.stop`)."""
         if self._mpcc is not None:
-            self._mpcc.stop(None, reason, keep_plan=keep_plan)
+            return self._mpcc.stop(None, reason, keep_plan=keep_plan)
         return STOP.copy()
 
     def _model_input(self, u: np.ndarray) -> np.ndarray:

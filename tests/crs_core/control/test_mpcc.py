@@ -163,14 +163,14 @@ def test_the_progress_reference_is_the_centreline_at_the_plans_progress(track) -
 
 def test_a_short_stop_keeps_the_plan_shifted_in_time_and_a_long_one_forgets_it(track) -> None:
     """Stops with ``keep_plan`` (a late estimate) shift the plan a stage per call, as the calls
-    would have; the next call starts from it (no cold start); once the stops have used up half
-    the horizon, the plan is forgotten."""
+    would have, and hold its steering with no torque; the next call starts from it (no cold
+    start); once the stops have used up half the horizon, the plan is forgotten."""
     controller = Mpcc(track)
     x = _start(track, 1.0)
     controller(x)
     Z, V = controller.plan
-    for _ in range(3):
-        assert np.array_equal(controller.stop(None, "late", keep_plan=True), [0.0, 0.0])
+    for k in range(3):  # the plan's steering held, no torque
+        assert np.array_equal(controller.stop(None, "late", keep_plan=True), [V[k + 1, 0], 0.0])
     assert controller.status.mode == "stop"
     kept_Z, kept_V = controller.plan
     np.testing.assert_array_equal(kept_V[:-3], V[3:])

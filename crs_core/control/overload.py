@@ -1,0 +1,117 @@
+"""Overload of the control loop: when the machine cannot keep the loop's period, slow the car,
+and if it must, stand it on the track.
+
+A starved stack does not slow down by itself: its controller's ticks come late, its estimates
+arrive old, and a car racing on them at full speed leaves the track before a stale estimate
+stops it (which then lets it roll straight on). :class:`OverloadWatch` looks at every tick of
+the loop: a tick that comes more than ``late_tick`` s after the one before, or whose newest
+estimate is more than ``max_age`` s old, is *late*. After a late tick the speed limit is
+``slow_speed`` (slow enough that a gap of a few hundred milliseconds, a stale stop, or the car's
+motor cut-off costs centimetres); when late intervals fill more than ``stand_fraction`` of the
+last ``window`` s, the limit is 0: the controller brakes the car to a stand on its path. The
+limit is lifted after ``hold`` s without a late tick. The :class:`~crs_core.control.supervisor.
+Supervisor` ramps its speed cap to this limit; :attr:`OverloadWatch.late_ticks` and
+:attr:`OverloadWatch.episodes` say how starved a run was.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+from crs_core.settings import Settings, positive, within
+
+__all__ = ["OVERLOAD_STATES", "OverloadSettings", "OverloadWatch"]
+
+#: The watch's states: racing, slowed after a late tick, brought to a stand.
+OVERLOAD_STATES = ("ok", "slow", "stand")
+
+
+@dataclass(frozen=True)
+class OverloadSettings(Settings):
+    """When the loop counts as starved and what the car does then.
+
+    Attributes
+    ----------
+    late_tick : float
+        A tick more than this after the previous one is late, s (three periods of the MPCC's
+        30 Hz; its car cuts the motors after 0.2 s without a command).
+    max_age : float
+        A tick whose newest estimate is older than this is late, s (an estimate is 25-40 ms
+        old at a tick on a machine that keeps up: the estimator's lag and the transport).
+    slow_speed : float
+        Speed limit after a late tick, m/s.
+    window : float
+        How far back the late intervals are summed, s.
+    stand_fraction : float
+        Above this fraction of ``window`` spent in late intervals the limit is 0 (the car is
+        stopped on the track).
+    hold : float
+        The limit is lifted after this long without a late tick, s.
+    """
+
+    late_tick: float = positive(0.1)
+    max_age: float = positive(0.1)
+    slow_speed: float = positive(0.6)
+    window: float = positive(2.0)
+    stand_fraction: float = within(0.25, low=0.0, high=1.0)
+    hold: float = positive(3.0)
+
+
+class OverloadWatch:
+    """Late ticks of a control loop and the speed limit they call for.
+
+    Parameters
+    ----------
+    settings : OverloadSettings, optional
+    """
+
+    def __init__(self, settings: OverloadSettings | None = None) -> None:
+        self.settings = settings or OverloadSettings()
+        self.state = "ok"
+        #: late ticks so far
+        self.late_ticks = 0
+        #: times the car was slowed from racing (state ok -> slow or stand)
+        self.episodes = 0
+        #: times it was brought to a stand
+        self.stands = 0
+        self._late: deque[tuple[float, float]] = deque()  # (tick time, late interval s)
+        self._last_late = -float("inf")
+
+    @property
+    def limit(self) -> float | None:
+        """The speed limit now, m/s (None: none)."""
+        if self.state == "ok":
+            return None
+        return 0.0 if self.state == "stand" else self.settings.slow_speed
+
+    def late_fraction(self, now: float) -> float:
+        """The fraction of the last ``window`` s spent in late intervals."""
+        s = self.settings
+        while self._late and self._late[0][0] <= now - s.window:
+            self._late.popleft()
+        return min(sum(interval for _, interval in self._late) / s.window, 1.0)
+
+    def tick(self, now: float, interval: float, age: float) -> str:
+        """Take a tick at ``now`` (s), ``interval`` s after the previous one, whose newest
+        estimate is ``age`` s old (inf: none); the reason it was late ('' if on time)."""
+        s = self.settings
+        reason = ""
+        if interval > s.late_tick:
+            reason = f"the controller's tick came {interval * 1e3:.0f} ms after the last"
+        elif age > s.max_age:
+            reason = f"the state estimate is {age * 1e3:.0f} ms old at the tick"
+        if reason:
+            self.late_ticks += 1
+            self._last_late = now
+            self._late.append((now, min(interval, s.window)))
+        fraction = self.late_fraction(now)
+        if reason and self.state == "ok":
+            self.episodes += 1
+            self.state = "slow"
+        if reason and self.state != "stand" and fraction > s.stand_fraction:
+            self.stands += 1
+            self.state = "stand"
+        elif self.state != "ok" and now - self._last_late >= s.hold:
+            self.state = "ok"
+        return reason

@@ -1,0 +1,127 @@
+"""The overload watch: late ticks slow the car, a loop late most of the time stands it, a loop
+on time again lifts the limit; and the supervisor ramps its cap to that limit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from crs_core.control.overload import OverloadSettings, OverloadWatch
+from crs_core.control.supervisor import Supervisor, SupervisorSettings
+from crs_core.errors import FieldError
+
+PERIOD = 1 / 30
+
+
+def test_on_time_ticks_with_fresh_estimates_set_no_limit():
+    watch = OverloadWatch()
+    for k in range(300):
+        assert watch.tick(k * PERIOD, PERIOD, 0.03) == ""
+    assert watch.state == "ok" and watch.limit is None and watch.late_ticks == 0
+
+
+def test_one_late_tick_slows_the_car_until_the_loop_has_kept_its_period_for_hold():
+    settings = OverloadSettings(hold=3.0, slow_speed=0.6)
+    watch = OverloadWatch(settings)
+    now = 0.0
+    for _ in range(30):
+        now += PERIOD
+        watch.tick(now, PERIOD, 0.03)
+    now += 0.15
+    reason = watch.tick(now, 0.15, 0.03)
+    assert "150 ms after the last" in reason
+    assert watch.state == "slow" and watch.limit == 0.6 and watch.episodes == 1
+    late_at = now
+    while now < late_at + 3.0 - PERIOD:
+        now += PERIOD
+        watch.tick(now, PERIOD, 0.03)
+        assert watch.state == "slow"
+    now += 2 * PERIOD
+    watch.tick(now, PERIOD, 0.03)
+    assert watch.state == "ok" and watch.limit is None
+
+
+def test_an_old_estimate_at_an_on_time_tick_is_late():
+    watch = OverloadWatch(OverloadSettings(max_age=0.1))
+    assert "estimate is 120 ms old" in watch.tick(1.0, PERIOD, 0.12)
+    assert watch.state == "slow"
+
+
+def test_a_loop_late_most_of_the_time_stands_the_car():
+    """Ticks every 0.2 s (a starved process): after enough of the 2 s window is late the limit
+    is 0; the late fraction counts each late tick's interval once."""
+    watch = OverloadWatch(OverloadSettings(window=2.0, stand_fraction=0.25))
+    now, states = 0.0, []
+    for _ in range(4):
+        now += 0.2
+        watch.tick(now, 0.2, 0.05)
+        states.append(watch.state)
+    assert states == ["slow", "slow", "stand", "stand"]  # 0.6 s of 2 s late: over a quarter
+    assert watch.limit == 0.0 and watch.stands == 1
+    assert watch.late_fraction(now) == pytest.approx(0.4)
+    assert watch.late_fraction(now + 5.0) == 0.0  # the window forgets
+
+
+def test_settings_are_checked():
+    with pytest.raises(FieldError, match="stand_fraction"):
+        OverloadSettings(stand_fraction=1.5)
+    with pytest.raises(FieldError, match="late_tick"):
+        OverloadSettings(late_tick=0.0)
+
+
+class Driver:
+    """A controller that drives at the speed limit it is given (the car's speed follows)."""
+
+    def __init__(self) -> None:
+        self.limits: list[float | None] = []
+
+    def __call__(self, now: float, x: np.ndarray, limit: float | None) -> np.ndarray:
+        self.limits.append(limit)
+        return np.array([0.0, 0.5])
+
+
+def test_the_supervisor_ramps_to_the_overload_limit_and_back():
+    """A car at 2.5 m/s whose estimator stalls for 0.15 s: the cap falls from the car's speed to
+    0.6 m/s at the ramp rate, stays there while the loop keeps its period for ``hold`` s, then
+    rises; the events say so."""
+    driver = Driver()
+    settings = SupervisorSettings(overload=OverloadSettings(hold=2.0), ramp_rate=1.5)
+    supervisor = Supervisor(driver, settings)
+    fast = np.array([0.0, 0.0, 0.0, 2.5, 0.0, 0.0])
+    now, caps, kinds = 0.0, {}, []
+    stall = (1.0, 1.15)
+    stamp = 0.0
+    while now < 5.0:
+        now = round(now + PERIOD, 6)
+        if not stall[0] <= now <= stall[1]:
+            stamp = now - 0.03
+            supervisor.observe(stamp, fast, "ok")
+        step = supervisor(now)
+        caps[now] = step.speed_cap
+        kinds += [e.kind for e in step.events]
+    assert kinds == ["fresh", "starved", "fed"]
+    after_stall = [cap for t, cap in caps.items() if stall[0] < t < stall[1] + 2.0]
+    assert min(after_stall) == pytest.approx(0.6)
+    first_low = min(t for t, cap in caps.items() if cap <= 0.6 + 1e-9)
+    assert first_low - stall[0] == pytest.approx((2.5 - 0.6) / 1.5, abs=0.15)
+    assert caps[max(caps)] > 0.6  # lifted after the hold
+    assert supervisor.overload.episodes == 1 and supervisor.overload.late_ticks >= 1
+
+
+def test_a_standing_car_is_not_backed_out_as_stuck():
+    """While the watch stands the car, the stuck recovery (a car standing while driven) stays
+    quiet: it would reverse a car that was stopped on purpose."""
+    from crs_core.control.recovery import StuckRecovery
+    from crs_core.track import load_demo_track
+
+    track = load_demo_track()
+    start = track.start_state(0.0)
+    recovery = StuckRecovery(track, 0.34)
+    supervisor = Supervisor(Driver(), SupervisorSettings(), recovery=recovery)
+    now = 0.0
+    for _ in range(60):  # 12 s of ticks 0.2 s apart with fresh estimates: late ticks
+        now += 0.2
+        supervisor.observe(now - 0.01, start, "ok")
+        supervisor(now)
+    assert supervisor.overload.state == "stand"
+    assert recovery.count == 0 and not recovery.active
