@@ -2,7 +2,10 @@
 
 :class:`Mpcc` turns a state estimate into the car input: per call one Gauss-Newton SQP iteration
 (real-time iteration) of the problem in :mod:`~crs_core.control.mpcc_problem`, warm-started from
-the previous plan shifted by one stage, its QP solved by HPIPM (:mod:`~crs_core.control.ocp_qp`).
+the previous plan shifted by one stage, its QP solved by HPIPM (:mod:`~crs_core.control.ocp_qp`);
+with ``MpccSettings(solver="acados")`` the iteration is acados's SQP-RTI of the same problem
+(:mod:`~crs_core.control.mpcc_acados`), everything around it (guess, step check, fallbacks)
+unchanged.
 
 Fallback: a failed or non-finite solve serves the shifted previous plan's next input; after
 ``max_failures`` of them in a row, or on an estimate that is stale or unusable, the car is
@@ -27,6 +30,7 @@ import math
 import time
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -40,6 +44,9 @@ from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
 from crs_core.parameters import ParameterSet
 from crs_core.track import Track
+
+if TYPE_CHECKING:
+    from crs_core.control.mpcc_acados import AcadosIterate, AcadosRti
 
 __all__ = ["Mpcc", "MpccStatus"]
 
@@ -144,7 +151,9 @@ class Mpcc:
         self.problem = MpccProblem(self.model, self.settings)
         self.p = (parameters or self.model.parameters).vector()
         s = self.settings
-        self._rti = self.problem.real_time_iteration()
+        #: acados's iteration of the problem (``solver="acados"``), else None
+        self._acados = _acados_rti(self.problem) if s.solver == "acados" else None
+        self._rti = None if self._acados is not None else self.problem.real_time_iteration()
         # the step check's rollouts and costs, compiled (in CasADi's VM they were a quarter of
         # a call: 0.38 ms per cost)
         checks = compile_functions(
@@ -487,6 +496,8 @@ class Mpcc:
         path linearised at ``refs`` (N+1, 4): its data in the order of
         :data:`~crs_core.control.mpcc_problem.QP_ARGUMENTS` (CasADi matrices), with this
         call's input bounds."""
+        if self._rti is None:
+            raise RuntimeError("Mpcc.qp_data: the CasADi QP is not built with solver='acados'")
         return self._rti.data(
             Z.T,
             V.T,
@@ -499,10 +510,22 @@ class Mpcc:
             self._half_width,
         )
 
-    def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> _Iterate:
+    def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> _Iterate | AcadosIterate:
         """One SQP iteration from the guess; the new plan and whether it is usable. Data that
         are not finite never reach the solver (a failed iterate, status ``non-finite data``)."""
+        if self._acados is not None:
+            return self._acados.iterate(
+                Z,
+                V,
+                refs,
+                self._weights,
+                self.p,
+                self._v_lower,
+                self._v_upper,
+                self._half_width,
+            )
         rti = self._rti
+        assert rti is not None
         data = self.qp_data(Z, V, refs)
         for name, value in zip(QP_ARGUMENTS, data, strict=True):
             if not np.all(np.isfinite(value.nonzeros())):
@@ -614,3 +637,15 @@ class Mpcc:
             return command.copy()
         speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
         return np.array([command[0], min(max(speed, 0.0), self.settings.velocity_max)])
+
+
+def _acados_rti(problem: MpccProblem) -> AcadosRti:
+    """acados's real-time iteration of ``problem`` (built once into the compile cache)."""
+    from crs_core.acados_support import AcadosUnavailable
+
+    try:
+        from crs_core.control.mpcc_acados import AcadosRti
+
+        return AcadosRti(problem)
+    except AcadosUnavailable as error:
+        raise AcadosUnavailable(f"MpccSettings(solver='acados'): {error}") from error
