@@ -185,9 +185,20 @@ class AcadosMhe(StepTimedMhe):
       carries the arrival cost (exact to about 1e-7 relative).
     - A non-finite solution or an acados status other than 0 restarts the window (ours'
       ``_restart``); ours first drops the Lighthouse samples whose model output is undefined.
-    - The covariance returned is a placeholder (ours' prior at the last restart): acados gives
-      no marginal of the newest node. A query on a grid node is unaffected; between nodes the
-      read-out's EKF steps start from it.
+    - acados gives no covariance. The newest node's is computed from acados's QP (a forward
+      pass over its stages, in Python) only when the read-out needs it, to carry the node
+      over measurements past it; otherwise the covariance returned is the last one computed
+      (at first ours' prior at the last restart). On the benchmark's grid queries that is
+      when a sample's stamp rounds past the node's (22 of 1199 updates of a 20 s drive: the
+      query grid and the node grid differ by a rounding error, and an IMU sample stamped at
+      the query falls past the node); with a stale covariance there, those read-outs
+      differed from ours by up to 0.09 rad/s.
+
+    Measured on the standard drive (seed 0, 20 s, ``lh+imu+we``, 60 Hz, the standard wrong
+    start): after the 2 s settling time its estimates agree with ours to 2e-8 (ours took the
+    full step at every update but its first two); they differ in the first second (3 cm at
+    the first update), where ours' backtracking and the start-up above act. Warm-starting
+    with defect-free noise (:math:`w_k = x_{k+1} - F(x_k)`) changed none of the RMSE digits.
 
     Parameters
     ----------
@@ -208,6 +219,7 @@ class AcadosMhe(StepTimedMhe):
         hpipm_mode: str = "BALANCE",
     ) -> None:
         self._qp: tuple | None = None
+        self._covariance_due = False  # the newest node's covariance is not computed yet
         self._W = np.zeros(0)
         super().__init__(model, sensors, settings)
         s = self.settings
@@ -337,6 +349,7 @@ class AcadosMhe(StepTimedMhe):
         super()._restart_window(node, x, weight)
         self._W = np.zeros((self.model.nx, self.settings.horizon))
         self._qp = None
+        self._covariance_due = False
 
     def _shift(self) -> None:
         super()._shift()  # ours: marginalize (below), shift the nodes, predict the new one
@@ -387,6 +400,30 @@ class AcadosMhe(StepTimedMhe):
             return
         self._qp = (self._X[:, 1].copy(),)  # the QP of this solve holds stage 0 until the next
         self._X, self._W = X.T.copy(), W.T.copy()
+        self._covariance_due = True
+
+    def _read_out(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Ours, with the newest node's covariance computed from acados's QP when the read-out
+        carries the node forward over measurements (it weighs them with it)."""
+        if self._covariance_due and self._pending and self._pending[0][0] <= t:
+            self._node_covariance = self._newest_covariance()
+            self._covariance_due = False
+        return super()._read_out(t)
+
+    def _newest_covariance(self) -> np.ndarray:
+        """The newest node's marginal covariance under the last QP: the inverse of its
+        Hessian's Schur complement, by a forward (Kalman) pass over the stages, as ours takes
+        it from its normal equations."""
+        nx, M = self.model.nx, self.settings.horizon
+        get, shape = self.interface.get_qp, (nx, nx)
+        covariance = np.linalg.inv(_symmetric_from_lower(get(b"Q", 0, shape)))
+        for k in range(M):
+            A = get(b"A", k, shape)
+            noise = np.linalg.inv(_symmetric_from_lower(get(b"R", k, shape)))
+            predicted = A @ covariance @ A.T + noise
+            information = np.linalg.inv(predicted) + _symmetric_from_lower(get(b"Q", k + 1, shape))
+            covariance = np.linalg.inv(information)
+        return 0.5 * (covariance + covariance.T)
 
     def _marginalize(self) -> None:
         """Fold node 0 into a prior on node 1 from acados's QP of the last solve (see the

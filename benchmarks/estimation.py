@@ -284,12 +284,21 @@ def _plot_real(name: str, reference: np.ndarray, trajectories: dict, folder: Pat
 
 
 def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
-    """filterpy's EKF and do-mpc's MHE beside ours: same model, noise settings and data.
+    """filterpy's EKF, do-mpc's MHE and acados's MHE beside ours: same model, noise settings
+    and data.
 
-    do-mpc averages the samples of an interval like our MHE (``combine="mean"``). Each peer row
-    carries ``ratio_to_ours``: its RMSE and median time divided by ours (time > 1: slower).
+    do-mpc averages the samples of an interval like our MHE (``combine="mean"``). acados solves
+    our MHE's own problem (:class:`benchmarks.acados_mhe.AcadosMhe`), so it is compared with our
+    MHE on the commanded model (the estimator whose solver it replaces; the other rows' ours
+    start input-free until the first command); its row adds ``solve_ms`` (acados's ``solve()``
+    alone), ``step_ms`` (its step: the data in and out of acados, ``solve()``, the
+    marginalization; ours' Gauss-Newton step in ``ours``), both per update, and the fallbacks.
+    Each peer row carries ``ratio_to_ours``: its RMSE and median time divided by ours (time > 1:
+    slower). Without acados (:class:`~crs_core.acados_support.AcadosUnavailable`) its row says
+    why it was skipped.
     """
     from benchmarks.peers import DoMpcMhe, FilterpyEkf
+    from crs_core.acados_support import AcadosUnavailable
 
     drives = [standard_drive(seed) for seed in seeds]
     makers = {
@@ -298,40 +307,71 @@ def peer_rows(seeds: Sequence[int], sensors: str = "lh+imu+we") -> list[dict]:
         "filterpy-ekf": lambda: FilterpyEkf(CarModel(), sensors),
         "do-mpc-mhe": lambda: DoMpcMhe(CarModel(), sensors, MheSettings(), combine="mean"),
     }
+    skipped = {}
+    try:
+        from benchmarks.acados_mhe import AcadosMhe, StepTimedMhe
+        from crs_core.acados_support import acados_template
+
+        acados_template()
+        makers["mhe-commanded"] = lambda: StepTimedMhe(CarModel(), sensors, MheSettings())
+        makers["acados-mhe"] = lambda: AcadosMhe(CarModel(), sensors, MheSettings())
+    except AcadosUnavailable as error:
+        skipped["acados-mhe"] = str(error)
     measured = {}
     for name, make in makers.items():
         values, times = [], []
+        extra: dict[str, list] = {"solve": [], "step": [], "fallbacks": []}
         for result in drives:
-            run = replay(make(), result, 60.0, start_state(result))
+            estimator = make()
+            run = replay(estimator, result, 60.0, start_state(result))
             values.append([rmse(run, result)[s] for s in STATE_NAMES])
             times.extend(run.update_times_s)
-        measured[name] = (np.mean(values, axis=0), time_summary(times))
+            extra["solve"].extend(getattr(estimator, "solve_times_s", []))
+            extra["step"].extend(getattr(estimator, "step_times_s", []))
+            extra["fallbacks"].append(estimator.diagnostics.fallbacks)
+        measured[name] = (np.mean(values, axis=0), time_summary(times), extra)
     rows = []
-    for peer, ours in (("filterpy-ekf", "ekf"), ("do-mpc-mhe", "mhe")):
-        values, timing = measured[peer]
-        our_values, our_timing = measured[ours]
-        rows.append(
-            {
-                "benchmark": "peer",
-                "estimator": peer,
-                "sensors": sensors,
-                "rate_hz": 60.0,
-                "rmse": dict(zip(STATE_NAMES, values.round(6).tolist(), strict=True)),
-                "time_ms": timing,
-                "compared_with": ours,
-                "ours": {
-                    "rmse": dict(zip(STATE_NAMES, our_values.round(6).tolist(), strict=True)),
-                    "time_ms": our_timing,
-                },
-                "ratio_to_ours": {
-                    "rmse": dict(
-                        zip(STATE_NAMES, (values / our_values).round(3).tolist(), strict=True)
-                    ),
-                    "time_median": round(timing["median"] / our_timing["median"], 2),
-                },
-                "seeds": list(seeds),
-            }
-        )
+    pairs = [("filterpy-ekf", "ekf"), ("do-mpc-mhe", "mhe"), ("acados-mhe", "mhe-commanded")]
+    for peer, ours in pairs:
+        if peer in skipped:
+            rows.append(
+                {"benchmark": "peer", "estimator": peer, "skipped": skipped[peer],
+                 "seeds": list(seeds)}
+            )  # fmt: skip
+            continue
+        values, timing, extra = measured[peer]
+        our_values, our_timing, our_extra = measured[ours]
+        row = {
+            "benchmark": "peer",
+            "estimator": peer,
+            "sensors": sensors,
+            "rate_hz": 60.0,
+            "rmse": dict(zip(STATE_NAMES, values.round(6).tolist(), strict=True)),
+            "time_ms": timing,
+            "compared_with": "mhe" if ours == "mhe-commanded" else ours,
+            "ours": {
+                "rmse": dict(zip(STATE_NAMES, our_values.round(6).tolist(), strict=True)),
+                "time_ms": our_timing,
+            },
+            "ratio_to_ours": {
+                "rmse": dict(
+                    zip(STATE_NAMES, (values / our_values).round(3).tolist(), strict=True)
+                ),
+                "time_median": round(timing["median"] / our_timing["median"], 2),
+            },
+            "seeds": list(seeds),
+        }
+        if peer == "acados-mhe":
+            row["solve_ms"] = time_summary(extra["solve"])
+            row["step_ms"] = time_summary(extra["step"])
+            row["fallbacks"] = int(sum(extra["fallbacks"]))
+            row["ours"]["inputs"] = "commanded"
+            row["ours"]["step_ms"] = time_summary(our_extra["step"])
+            row["ours"]["fallbacks"] = int(sum(our_extra["fallbacks"]))
+            row["ratio_to_ours"]["step_median"] = round(
+                row["step_ms"]["median"] / row["ours"]["step_ms"]["median"], 2
+            )
+        rows.append(row)
     return rows
 
 
@@ -386,6 +426,8 @@ def format_table(rows: list[dict]) -> str:
                 f"at its end {end['mean'] * 1e3:.1f} mm (max {end['max'] * 1e3:.1f}), recovered "
                 f"after {recover['mean']:.2f} s (max {recover['max']:.2f})"
             )
+        elif kind == "peer" and "skipped" in row:
+            lines.append(f"peer {row['estimator']}: skipped ({row['skipped']})")
         elif kind in ("speed", "peer"):
             t = row["time_ms"]
             what = (
@@ -402,6 +444,13 @@ def format_table(rows: list[dict]) -> str:
                     f"; rmse x/y/yaw/vx/vy {errors_mm}; vs {row['compared_with']}: time "
                     f"x{ratio['time_median']:g}, rmse ratios {ratios}"
                 )
+                if "solve_ms" in row:
+                    extra += (
+                        f"; solve() median {row['solve_ms']['median']:.3f} ms (p95 "
+                        f"{row['solve_ms']['p95']:.3f}), step {row['step_ms']['median']:.3f} ms"
+                        f" vs ours' {row['ours']['step_ms']['median']:.3f} ms, fallbacks "
+                        f"{row['fallbacks']} vs {row['ours']['fallbacks']}"
+                    )
             lines.append(
                 f"{kind} {what}: median {t['median']:.3f} ms, p95 {t['p95']:.3f}, "
                 f"p99 {t['p99']:.3f}, max {t['max']:.3f}{extra}"
@@ -424,6 +473,7 @@ SPEED_TARGETS = {"mhe": "median ≤ 1 ms, p99 ≤ 3 ms", "ekf": "≤ 0.2 ms"}
 PEER_NAMES = {
     "filterpy-ekf": "filterpy `ExtendedKalmanFilter`",
     "do-mpc-mhe": "do-mpc `MHE` (IPOPT)",
+    "acados-mhe": "acados OCP (SQP-RTI, HPIPM) on our MHE's problem",
 }
 
 
@@ -433,6 +483,23 @@ def _seeds(seeds: Sequence[int]) -> str:
     if len(seeds) > 1 and seeds == list(range(seeds[0], seeds[-1] + 1)):
         return f"{seeds[0]}–{seeds[-1]}"
     return ", ".join(str(s) for s in seeds)
+
+
+def _solver_split(row: dict) -> str:
+    """What of the acados peer's update is solver and what is Python, beside ours."""
+    solve, step, t = row["solve_ms"], row["step_ms"], row["time_ms"]
+    ours = row["ours"]
+    return (
+        f"acados per update (median / p95): `solve()` {format_ms(solve['median'])} / "
+        f"{format_ms(solve['p95'])} ms; its step with the data set in and read back through "
+        f"ctypes and the marginalization {format_ms(step['median'])} / {format_ms(step['p95'])}"
+        f" ms; the whole update {format_ms(t['median'])} / {format_ms(t['p95'])} ms (the rest "
+        f"is our MHE's bookkeeping, which it shares). Ours (commanded model): Gauss-Newton step "
+        f"with marginalization {format_ms(ours['step_ms']['median'])} / "
+        f"{format_ms(ours['step_ms']['p95'])} ms, update {format_ms(ours['time_ms']['median'])}"
+        f" / {format_ms(ours['time_ms']['p95'])} ms. Fallbacks: acados {row['fallbacks']}, "
+        f"ours {ours['fallbacks']}."
+    )
 
 
 def format_markdown(rows: list[dict]) -> str:
@@ -512,6 +579,8 @@ def format_markdown(rows: list[dict]) -> str:
             "|---|---|---|---|---|",
         ]
         for row in of["peer"]:
+            if "skipped" in row:
+                continue
             ratio = row["ratio_to_ours"]
             slower = ratio["time_median"]
             pace = f"{slower:.3g}× slower" if slower >= 1 else f"{1 / slower:.3g}× faster"
@@ -522,6 +591,12 @@ def format_markdown(rows: list[dict]) -> str:
                 f"| {pace} | {rmse_ratios} |"
             )
         lines.append("")
+        for row in of["peer"]:
+            if "skipped" in row:
+                lines += [f"{PEER_NAMES.get(row['estimator'], row['estimator'])}: skipped "
+                          f"({row['skipped']}).", ""]  # fmt: skip
+            elif "solve_ms" in row:
+                lines += [_solver_split(row), ""]
     if of["real"]:
         lines += [
             "**Real recordings** (reference: the car's own on-line estimate, *not* ground truth):",

@@ -121,3 +121,46 @@ def test_without_rows_of_a_kind_its_table_is_left_out() -> None:
     markdown = format_markdown(ROWS[:2])
     assert "Blackout" not in markdown and "Speed" not in markdown and "Peers" not in markdown
     assert not markdown.endswith("\n")
+
+
+ACADOS_ROW = {
+    "benchmark": "peer",
+    "estimator": "acados-mhe",
+    "sensors": "lh+imu+we",
+    "rate_hz": 60.0,
+    "rmse": dict.fromkeys(STATE_NAMES, 0.001),
+    "time_ms": {"median": 1.36, "p95": 2.27, "p99": 3.57, "max": 3.91},
+    "solve_ms": {"median": 0.502, "p95": 0.68, "p99": 1.2, "max": 2.49},
+    "step_ms": {"median": 0.84, "p95": 1.1, "p99": 1.9, "max": 3.0},
+    "fallbacks": 0,
+    "compared_with": "mhe",
+    "ours": {
+        "rmse": dict.fromkeys(STATE_NAMES, 0.001),
+        "time_ms": {"median": 1.03, "p95": 1.26, "p99": 2.0, "max": 2.18},
+        "step_ms": {"median": 0.51, "p95": 0.7, "p99": 1.1, "max": 1.5},
+        "inputs": "commanded",
+        "fallbacks": 0,
+    },
+    "ratio_to_ours": {"rmse": dict.fromkeys(STATE_NAMES, 1.0), "time_median": 1.32},
+    "seeds": [0, 1],
+}
+
+
+def test_the_acados_peer_shows_what_is_solver_and_what_is_python() -> None:
+    markdown = format_markdown([*ROWS, ACADOS_ROW])
+    assert _cells(markdown, "acados OCP (SQP-RTI, HPIPM) on our MHE's problem") == [
+        "acados OCP (SQP-RTI, HPIPM) on our MHE's problem", "our MHE", "1.36 ms",
+        "1.32× slower", "1.00 / 1.00 / 1.00 / 1.00 / 1.00",
+    ]  # fmt: skip
+    assert "`solve()` 0.502 / 0.68 ms" in markdown
+    assert "Gauss-Newton step with marginalization 0.51 / 0.7 ms" in markdown
+    table = format_table([ACADOS_ROW])
+    assert "solve() median 0.502 ms (p95 0.680), step 0.840 ms vs ours' 0.510 ms" in table
+
+
+def test_a_skipped_peer_says_why() -> None:
+    skipped = {"benchmark": "peer", "estimator": "acados-mhe", "skipped": "not installed",
+               "seeds": [0, 1]}  # fmt: skip
+    markdown = format_markdown([*ROWS, skipped])
+    assert "acados OCP (SQP-RTI, HPIPM) on our MHE's problem: skipped (not installed)." in markdown
+    assert "peer acados-mhe: skipped (not installed)" in format_table([skipped])
