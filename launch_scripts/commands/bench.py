@@ -278,7 +278,7 @@ def _calibration_options(parser: argparse.ArgumentParser) -> None:
 
 def _estimation_options(parser: argparse.ArgumentParser) -> None:
     _seeds(parser, "seeds per row")
-    parser.add_argument("--no-peers", action="store_true", help="skip filterpy and do-mpc")
+    parser.add_argument("--no-peers", action="store_true", help="skip filterpy, do-mpc and acados")
 
 
 def _discrepancy_options(parser: argparse.ArgumentParser) -> None:
@@ -304,7 +304,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         estimation,
         _estimation_options,
         "EKF / MHE accuracy and speed on simulated runs (and on the real recordings in "
-        f"{REAL_DATA} when present), with peers (filterpy, do-mpc); ~11 min",
+        f"{REAL_DATA} when present), with peers (filterpy, do-mpc, acados); ~11 min",
     ),
     "stack": (
         stack,
