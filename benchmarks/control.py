@@ -8,6 +8,12 @@ Measured in one run on this machine:
   IpoptMpcc`, the same problem solved to convergence by IPOPT) on every ``peer_every``-th of the
   race's problems (same state, guess and path linearisation), after the race: the ratio of the
   medians, and how far one real-time iteration's first command is from the converged one.
+- **acados** (:class:`~benchmarks.control_peers.AcadosRacer`: acados's SQP-RTI + HPIPM of the
+  same problem, its own shift warm start, its ``solve()`` timed from Python) in its own race,
+  and the MPCC with acados as its iteration (``MpccSettings(solver="acados")``, the whole call
+  timed as the stack calls it) in another: time, lap times, contouring error, violations, the
+  ratios of the medians (acados / ours), and on the IPOPT peer's problems how far acados's one
+  iteration's first command is from ours.
 - **QP solvers**: the same race with each CasADi QP plugin (HPIPM, qpOASES, OSQP, qrqp).
 - **Closed loop**: 5 laps on the true state and with the MHE in the loop, each without and with
   a 1.127 s Lighthouse blackout every lap; then the MHE races a car the model does not know
@@ -17,14 +23,16 @@ Measured in one run on this machine:
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from benchmarks.control_peers import IpoptMpcc
+from benchmarks.control_peers import AcadosRacer, IpoptMpcc
 from benchmarks.machine import format_ms, machine
+from crs_core.acados_support import AcadosUnavailable
 from crs_core.analysis.statistics import summary
 from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
@@ -98,6 +106,72 @@ def _row(race: tuple[ClosedLoopResult, np.ndarray], **labels: Any) -> dict[str, 
     return {**labels, **result.summary(), "solve_ms": _stats_ms(times[1:])}
 
 
+def _accuracy(result: ClosedLoopResult) -> dict[str, Any]:
+    """A race's laps and how close to the path and the edges it stayed."""
+    raced = result.summary()
+    lateral = np.asarray(result.lateral_error, dtype=float)
+    keys = ("laps", "lap_times_s", "mean_lap_s", "boundary_violations", "max_contouring_error_m")
+    return {
+        **{key: raced[key] for key in keys},
+        "contouring_error_rms_m": round(float(np.sqrt(np.mean(lateral**2))), 4),
+        "max_outside_m": raced["max_outside_m"],
+        "controller_modes": raced["controller_modes"],
+    }
+
+
+def _acados_races(
+    track: Track,
+    settings: MpccSettings,
+    mpcc: Mpcc,
+    problems: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    laps: int,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """acados's own race (bare: its ``solve()`` timed), the first-command differences of its
+    one iteration to ours on ``problems``, and the race of the MPCC with acados as its
+    iteration (the whole call timed)."""
+    racer = AcadosRacer(mpcc)
+    truth = CarModel()
+    result = run_closed_loop(
+        Simulator(truth, SensorSuite(), seed=1),
+        track,
+        lambda t, x: racer(x),
+        racer.stop,
+        settings.rate_hz,
+        laps=laps,
+        max_duration=12.0 * laps,
+        status_of=lambda: racer.mode,
+    )
+    to_ours = []
+    for Z, V, refs in problems:
+        ours = mpcc._solve_qp(Z, V, refs)
+        theirs = racer.rti.iterate(
+            Z, V, refs, mpcc._weights, mpcc.p, mpcc._v_lower, mpcc._v_upper, mpcc._half_width
+        )
+        if ours.success and theirs.success:
+            to_ours.append(float(np.max(np.abs(ours.V[0, :2] - theirs.V[0, :2]))))
+    statuses = np.asarray(racer.statuses)
+    bare = {
+        "name": "acados 0.2.2 (SQP-RTI, PARTIAL_CONDENSING_HPIPM; the same problem, its own "
+        "shift warm start; solve() timed from Python)",
+        "solve_ms": _stats_ms(np.asarray(racer.solve_times[1:])),
+        **_accuracy(result),
+        "failed_solves": int(np.count_nonzero(statuses)),
+        "qp_iterations_median": float(np.median(racer.qp_iterations)),
+        "first_command_difference_to_ours": {
+            **summary(to_ours, ("median", "max")),
+            "problems": len(to_ours),
+        },
+    }
+    backend = Mpcc(track, settings=dataclasses.replace(settings, solver="acados"))
+    raced, times = _race(backend, track, laps=laps)
+    return bare, {
+        "name": "our MPCC with acados's iteration (MpccSettings(solver='acados'); the whole "
+        "Mpcc.__call__ timed)",
+        "solve_ms": _stats_ms(times[1:]),
+        **_accuracy(raced),
+    }
+
+
 def control_benchmark(
     laps: int = 5, peer_every: int = 3, progress: Callable[[str], None] | None = None
 ) -> dict[str, Any]:
@@ -153,6 +227,15 @@ def control_benchmark(
             peer_gap.append(float(np.max(np.abs(rti.V[0, :2] - plan_V[0, :2]))))
     peer_solve = _stats_ms(np.array(peer_times))
 
+    say("acados: its own race, then the MPCC with acados as its iteration")
+    acados: dict[str, Any] | None = None
+    backend: dict[str, Any] | None = None
+    try:
+        acados, backend = _acados_races(track, settings, mpcc, problems, laps)
+    except AcadosUnavailable as error:
+        say(f"acados unavailable: {error}")
+        acados = {"unavailable": str(error)}
+
     say("QP solvers")
     solvers = []
     for name in ("hpipm", "qpoases", "osqp", "qrqp"):
@@ -163,7 +246,7 @@ def control_benchmark(
             if v.status.mode == "solved" and v.status.qp_iterations >= 0:  # OSQP: not reported
                 out.append(v.status.qp_iterations)
 
-        result, times = _race(variant, track, laps=2, after_call=count)
+        result, times = _race(variant, track, laps=min(2, laps), after_call=count)
         raced = result.summary()  # not "summary": that is the statistics function used below
         solvers.append(
             {
@@ -234,6 +317,19 @@ def control_benchmark(
             "first_command_difference_median": round(float(np.median(peer_gap)), 5),
         },
         "speedup_median": round(peer_solve["median"] / solve["median"], 1),
+        "peers": {"acados": acados},
+        "acados_backend": backend,
+        "ours_accuracy": _accuracy(timed),
+        "ratios": (
+            {
+                "acados/ours": round(acados["solve_ms"]["median"] / solve["median"], 3),
+                "acados/ours_acados_backend": round(
+                    acados["solve_ms"]["median"] / backend["solve_ms"]["median"], 3
+                ),
+            }
+            if backend is not None and acados is not None
+            else None
+        ),
         "qp_solvers": solvers,
         "closed_loop": closed_loop,
         "mhe_vs_true_lap_ratio": round(mhe_mean / true_mean, 4) if true_mean and mhe_mean else None,
@@ -248,6 +344,58 @@ QP_SOLVER_NAMES = {
     "osqp": "OSQP (ADMM, eps 10⁻⁸, polished)",
     "qrqp": "qrqp (CasADi active set)",
 }
+
+
+def _acados_lines(result: dict[str, Any]) -> list[str]:
+    """The table of ours against acados, each in its own race (none in a result without
+    acados: the saved runs before it)."""
+    acados = (result.get("peers") or {}).get("acados")
+    if acados is None:
+        return []
+    if "unavailable" in acados:
+        return [f"acados: not measured ({acados['unavailable']}).", ""]
+    rows = [
+        ("ours: MPCC, real-time iteration + HPIPM (CasADi), whole call", result["solve_ms"],
+         result.get("ours_accuracy")),
+        ("ours with acados's iteration (solver='acados'), whole call",
+         (result.get("acados_backend") or {}).get("solve_ms"), result.get("acados_backend")),
+        ("acados SQP-RTI + HPIPM, own race, solve() only", acados["solve_ms"], acados),
+    ]  # fmt: skip
+    lines = [
+        "Against acados on the same problem (each controller in its own race on the true state):",
+        "",
+        "| controller | median ms | p95 ms | p99 ms | max ms | lap times s | mean lap | "
+        "contouring error RMS | max \\|lateral\\| | violations |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, solve, race in rows:
+        if solve is None or race is None:
+            continue
+        mean = "–" if race["mean_lap_s"] is None else f"{race['mean_lap_s']:.3f} s"
+        lines.append(
+            f"| {name} | "
+            + " | ".join(format_ms(solve[k]) for k in ("median", "p95", "p99", "max"))
+            + f" | {', '.join(f'{v:.2f}' for v in race['lap_times_s']) or '–'} | {mean} | "
+            f"{1e3 * race['contouring_error_rms_m']:.1f} mm | "
+            f"{race['max_contouring_error_m']:.3f} m | {race['boundary_violations']} |"
+        )
+    ratios = result.get("ratios") or {}
+    difference = acados["first_command_difference_to_ours"]
+    lines += [
+        "",
+        (
+            f"**acados / ours = {ratios['acados/ours']:g}** (medians; ≥ 1: ours at most as "
+            f"slow), {ratios['acados/ours_acados_backend']:g} against ours with acados's "
+            "iteration. "
+            if "acados/ours" in ratios
+            else ""
+        )
+        + f"acados's one iteration's first command is {difference['median']:.2g} (median; max "
+        f"{difference['max']:.2g}; steering rad or torque) from ours on {difference['problems']} "
+        f"of the race's problems; {acados['failed_solves']} of its solves failed.",
+        "",
+    ]
+    return lines
 
 
 def format_table(result: dict[str, Any]) -> str:
@@ -281,6 +429,9 @@ def format_table(result: dict[str, Any]) -> str:
         f"{peer['first_command_difference_median']:.2g} (median; steering rad or torque, "
         "whichever is larger) from IPOPT's converged optimum for the same problem.",
         "",
+    ]
+    lines += _acados_lines(result)
+    lines += [
         "| QP solver | median ms | p99 ms | QP iterations | lap times s | solves that failed "
         "the constraint check |",
         "|---|---|---|---|---|---|",

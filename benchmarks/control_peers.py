@@ -1,20 +1,29 @@
-"""Peer controller for comparison: the same MPCC problem as a plain NLP solved by IPOPT.
+"""Peer controllers for comparison, on the same MPCC problem (``crs bench control``).
 
 :class:`IpoptMpcc` states the optimal control problem of :mod:`crs_core.control.mpcc_problem`
 (the same stage functions, dynamics, cost, track-boundary rows with slack, bounds and path
 linearisation) as one multiple-shooting NLP and solves it to convergence with IPOPT (exact
 Hessian, MUMPS), warm-started from the same shifted plan. It is what one writes first with
-CasADi's ``nlpsol``: the yardstick for the real-time iteration's speed (``crs bench control``).
+CasADi's ``nlpsol``: the yardstick for the real-time iteration's speed.
+
+:class:`AcadosRacer` races with acados's SQP-RTI of the same problem
+(:class:`~crs_core.control.mpcc_acados.AcadosRti`) as acados's users run it: per call the
+previous solution shifted by one stage as the guess, the path linearised at the guess's
+progress, one ``solve()``, the first input; its ``solve()`` calls are timed from Python.
 """
 
 from __future__ import annotations
 
+import math
+import time
+
 import casadi as ca
 import numpy as np
 
+from crs_core.control.mpcc import Mpcc
 from crs_core.control.mpcc_problem import FREE, MpccProblem
 
-__all__ = ["IpoptMpcc"]
+__all__ = ["AcadosRacer", "IpoptMpcc"]
 
 
 class IpoptMpcc:
@@ -97,3 +106,110 @@ class IpoptMpcc:
         stages = w[: N * (nz + nv)].reshape(N, nz + nv)
         plan_Z = np.vstack((stages[:, :nz], w[N * (nz + nv) :]))
         return plan_Z, stages[:, nz:], bool(stats["success"]), int(stats["iter_count"])
+
+
+class AcadosRacer:
+    """acados's real-time iteration as a racing controller: ``racer(x) -> [delta, T]``.
+
+    Per call: the stage state from ``x`` (progress by projection near the plan's, the previous
+    command; below ``kinematic_speed`` the kinematic bicycle's lateral velocity and yaw rate,
+    as :class:`~crs_core.control.mpcc.Mpcc` does, since the tire model is singular at rest),
+    the previous solution shifted by one stage as acados's initial guess (a cold start: the
+    MPCC's driving guess and ``cold_start_iterations`` solves), the path linearised at the
+    guess's progress, one ``solve()``; the plan's first input, clipped to the limits. A failed
+    solve keeps the shifted plan. No rollout, step check or safe stop: the bare solver.
+
+    Parameters
+    ----------
+    mpcc : Mpcc
+        The MPCC whose problem, path, weights, parameters and limits are raced (and whose
+        driving guess starts a cold call).
+    rti : AcadosRti, optional
+        acados's iteration of ``mpcc.problem`` (built if not given).
+
+    Attributes
+    ----------
+    solve_times : list of float
+        Each call's time in ``solve()``, s (a cold call's solves summed).
+    statuses, qp_iterations : list of int
+        Each ``solve()``'s acados status and HPIPM iterations.
+    mode : str
+        The last call's: ``"solved"``, ``"fallback"`` (a failed solve: the shifted plan's input)
+        or ``"stop"``.
+    """
+
+    def __init__(self, mpcc: Mpcc, rti=None) -> None:
+        if rti is None:
+            from crs_core.control.mpcc_acados import AcadosRti
+
+            rti = AcadosRti(mpcc.problem)
+        self.mpcc, self.rti = mpcc, rti
+        self.settings = mpcc.settings
+        self.solve_times: list[float] = []
+        self.statuses: list[int] = []
+        self.qp_iterations: list[int] = []
+        self.mode = ""
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the plan (the next call starts cold)."""
+        self._Z: np.ndarray | None = None
+        self._V: np.ndarray | None = None
+        self._command = np.zeros(2)
+        self._progress_speed = 0.0
+
+    def stop(self, x: np.ndarray | None = None, reason: str = "") -> np.ndarray:
+        """The MPCC's safe-stop command; forgets the plan."""
+        self.reset()
+        self.mode = "stop"
+        return self.mpcc._stop_command(x)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        mpcc, s = self.mpcc, self.settings
+        nxc = mpcc.model.nx
+        state = np.array(x, dtype=float).ravel()[:nxc]
+        vx = float(state[3])
+        if abs(vx) < s.kinematic_speed:
+            lf, lr = mpcc._wheelbase_parts
+            tan_delta = math.tan(float(self._command[0]))
+            state[4] = vx * lr * tan_delta / (lf + lr)
+            state[5] = vx * tan_delta / (lf + lr)
+        near = None if self._Z is None else float(self._Z[1, nxc])
+        theta = mpcc.path.progress(state[0], state[1], near)
+        z0 = np.concatenate((state, [theta], self._command, [self._progress_speed]))
+        if self._Z is None or self._V is None:
+            Z, V = mpcc._driving_guess(z0)
+            iterations = s.cold_start_iterations
+        else:
+            Z = np.vstack((self._Z[1:], self._Z[-1:]))
+            V = np.vstack((self._V[1:], self._V[-1:]))
+            Z[0] = z0
+            iterations = 1
+        elapsed = 0.0
+        plan = (Z, V)
+        self.mode = "solved"
+        for _ in range(iterations):
+            refs = mpcc._references(Z[:, nxc])
+            self.rti.load(
+                Z, V, refs, mpcc._weights, mpcc.p, mpcc._v_lower, mpcc._v_upper, mpcc._half_width
+            )
+            started = time.perf_counter()
+            status = self.rti.solve()
+            elapsed += time.perf_counter() - started
+            self.statuses.append(status)
+            self.qp_iterations.append(self.rti.qp_iterations())
+            Z, V = self.rti.plan()
+            if status != 0 or not (np.all(np.isfinite(Z)) and np.all(np.isfinite(V))):
+                Z, V = plan  # keep the shifted plan
+                self.mode = "fallback"
+                break
+        self.solve_times.append(elapsed)
+        self._Z, self._V = Z, V
+        self._command = np.array(
+            [
+                min(max(float(V[0, 0]), -s.steer_max), s.steer_max),
+                min(max(float(V[0, 1]), s.torque_min), s.torque_max),
+            ]
+        )
+        self._progress_speed = float(V[0, 2])
+        return self._command.copy()

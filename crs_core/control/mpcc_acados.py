@@ -244,6 +244,10 @@ class AcadosRti:
         """One SQP-RTI iteration from what :meth:`load` gave (acados's ``solve()``)."""
         return self.solver.solve()
 
+    def qp_iterations(self) -> int:
+        """HPIPM's iterations in the last :meth:`solve`."""
+        return self._helper.qp_iterations()
+
     def plan(self) -> tuple[np.ndarray, np.ndarray]:
         """The last iteration's plan ``(Z, V)`` (copies)."""
         self._helper.read(self._Z, self._V)
@@ -268,7 +272,7 @@ class AcadosRti:
         self.load(Z, V, refs, weights, p, v_lower, v_upper, half_width)
         status = self.solve()
         plan_Z, plan_V = self.plan()
-        iterations = self._helper.qp_iterations()
+        iterations = self.qp_iterations()
         violation = self.violation(plan_Z, plan_V, refs, v_lower, v_upper, half_width)
         success = (
             status == 0

@@ -143,7 +143,10 @@ def control(args: argparse.Namespace) -> Outcome:
     def progress(line: str) -> None:
         print(f"control bench: {line}", file=sys.stderr)
 
-    result = {"command": command_line(), **control_benchmark(progress=progress)}
+    result = {
+        "command": command_line(),
+        **control_benchmark(laps=args.laps, progress=progress),
+    }
     return result, format_table(result)
 
 
@@ -272,6 +275,15 @@ def _contingency_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _control_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--laps",
+        type=bounded_number("laps", "", 1, 20, int, include_low=True),
+        default=5,
+        help="laps of each race (default 5; the QP solvers' races: at most 2)",
+    )
+
+
 def _calibration_options(parser: argparse.ArgumentParser) -> None:
     _seeds(parser, "static seeds per setting; moving uses min(seeds, 3)")
 
@@ -382,11 +394,12 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
     ),
     "control": (
         control,
-        None,
-        "the MPCC's solve time (N = 40, 30 Hz) against an IPOPT peer on the same problem, the "
-        "QP solvers (HPIPM, qpOASES, OSQP, qrqp), and 5-lap races on the true state and with "
-        "the MHE, with and without a 1.127 s Lighthouse blackout per lap, on a mismatched car "
-        "and with velocity references; ~5 min",
+        _control_options,
+        "the MPCC's solve time (N = 40, 30 Hz) against an IPOPT peer on the same problem and "
+        "against acados (SQP-RTI + HPIPM of the same problem, in its own race and as the MPCC's "
+        "iteration), the QP solvers (HPIPM, qpOASES, OSQP, qrqp), and --laps-lap races on the "
+        "true state and with the MHE, with and without a 1.127 s Lighthouse blackout per lap, on "
+        "a mismatched car and with velocity references; ~6 min",
     ),
 }
 

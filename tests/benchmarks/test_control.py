@@ -139,6 +139,7 @@ class _FakeMpcc:
         self.settings = settings
         self.status = _Status()
         self.problem = self.p = self._v_lower = self._v_upper = self._half_width = None
+        self._weights = None
         self.last_guess = (np.zeros(3), np.zeros((2, 4)), np.zeros(2))
 
     def reset(self) -> None:
@@ -156,6 +157,25 @@ class _FakePeer:
         return None, V, True, 14
 
 
+class _FakeRti:
+    def iterate(self, Z, V, refs, *settings) -> SimpleNamespace:
+        return SimpleNamespace(success=True, V=V + 0.001)
+
+
+class _FakeRacer:
+    def __init__(self, mpcc) -> None:
+        self.rti = _FakeRti()
+        self.solve_times = [0.01, 0.001, 0.001, 0.0015]
+        self.statuses = [0, 0, 0, 0]
+        self.qp_iterations = [9, 8, 8, 7]
+
+    def __call__(self, x) -> np.ndarray:
+        return np.zeros(2)
+
+    def stop(self, x=None, reason="") -> np.ndarray:
+        return np.zeros(2)
+
+
 class _FakeRace:
     def summary(self) -> dict[str, Any]:
         return {
@@ -169,6 +189,8 @@ class _FakeRace:
             "mean_speed_mps": 1.6,
             "controller_modes": {"solved": 6},
         }
+
+    lateral_error = np.array([0.03, -0.04])
 
 
 def test_the_benchmark_runs_to_its_table_on_fake_races(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -186,9 +208,23 @@ def test_the_benchmark_runs_to_its_table_on_fake_races(monkeypatch: pytest.Monke
     monkeypatch.setattr(control, "IpoptMpcc", _FakePeer)
     monkeypatch.setattr(control, "load_demo_track", lambda: None)
     monkeypatch.setattr(control, "_race", race)
+    monkeypatch.setattr(control, "AcadosRacer", _FakeRacer)
+    monkeypatch.setattr(control, "run_closed_loop", lambda *args, **options: _FakeRace())
     result = control.control_benchmark(laps=2, peer_every=3)
     assert result["solve_ms"]["median"] == 2.0 and result["qp_iterations"]["median"] == 8
     assert result["peer"]["iterations_median"] == 14 and result["speedup_median"] >= 0
     assert [row["solver"] for row in result["qp_solvers"]] == ["hpipm", "qpoases", "osqp", "qrqp"]
     assert len(result["closed_loop"]) == 6 and result["mhe_vs_true_lap_ratio"] == 1.0
-    assert "| MPCC, real-time iteration + HPIPM | 2 | 2 | 2 | 2 | 8 (QP) |" in format_table(result)
+    table = format_table(result)
+    assert "| MPCC, real-time iteration + HPIPM | 2 | 2 | 2 | 2 | 8 (QP) |" in table
+    # acados: its own race (solve() only), ours with its iteration, the ratios of the medians
+    acados = result["peers"]["acados"]
+    assert acados["solve_ms"]["median"] == 1.0 and acados["solve_ms"]["calls"] == 3
+    assert acados["contouring_error_rms_m"] == pytest.approx(0.0354, abs=1e-4)
+    assert acados["first_command_difference_to_ours"]["median"] == pytest.approx(0.009)
+    assert result["acados_backend"]["solve_ms"]["median"] == 2.0
+    assert result["ratios"] == {"acados/ours": 0.5, "acados/ours_acados_backend": 0.5}
+    assert "**acados / ours = 0.5** (medians;" in table
+    assert _row(table, "acados SQP-RTI + HPIPM, own race, solve() only")[1:] == [
+        "1", "1.45", "1.49", "1.5", "6.80, 6.50", "6.650 s", "35.4 mm", "0.170 m", "0",
+    ]  # fmt: skip

@@ -4,6 +4,8 @@ one with IPOPT beside it."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 
 import casadi as ca
@@ -120,6 +122,28 @@ def test_casadi_stays_the_pinned_one_with_ipopt_after_acados_loads(mpcc: Mpcc) -
     options = {"ipopt.print_level": 0, "print_time": False, "ipopt.sb": "yes"}
     solver = ca.nlpsol("check", "ipopt", {"x": x, "f": (x - 1) ** 2}, options)
     assert float(solver(x0=0)["x"]) == pytest.approx(1.0, abs=1e-6)
+
+
+#: acados loaded first, then CasADi's HPIPM solves a QP (a fresh process: the libraries' order).
+_HPIPM_AFTER_ACADOS = """
+import casadi as ca
+from crs_core.acados_support import acados_template
+acados_template()
+h, a = ca.DM([[2.0]]), ca.DM([[1.0]])
+options = {"N": 0, "nx": [1], "nu": [0], "ng": [1]}
+qp = ca.conic("qp", "hpipm", {"h": h.sparsity(), "a": a.sparsity()}, options)
+print(float(qp(h=h, g=-2.0, a=a, lba=-10, uba=10, lbx=-10, ubx=10)["x"]))
+"""
+
+
+def test_casadis_hpipm_still_solves_in_a_process_that_loaded_acados_first() -> None:
+    """Both wheels ship a ``libhpipm.so``; loaded first, acados's took over CasADi's HPIPM
+    plugin, whose first solve then crashed the process (segmentation fault)."""
+    run = subprocess.run(
+        [sys.executable, "-c", _HPIPM_AFTER_ACADOS], capture_output=True, text=True, timeout=60
+    )
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert float(run.stdout.split()[-1]) == pytest.approx(1.0, abs=1e-6)
 
 
 def test_without_acados_the_setting_says_so(track, monkeypatch: pytest.MonkeyPatch) -> None:
