@@ -154,6 +154,7 @@ def _acados_races(
         "name": "acados 0.2.2 (SQP-RTI, PARTIAL_CONDENSING_HPIPM; the same problem, its own "
         "shift warm start; solve() timed from Python)",
         "solve_ms": _stats_ms(np.asarray(racer.solve_times[1:])),
+        "call_ms": _stats_ms(np.asarray(racer.call_times[1:])),
         **_accuracy(result),
         "failed_solves": int(np.count_nonzero(statuses)),
         "qp_iterations_median": float(np.median(racer.qp_iterations)),
@@ -388,6 +389,12 @@ def _acados_lines(result: dict[str, Any]) -> list[str]:
             f"slow), {ratios['acados/ours_acados_backend']:g} against ours with acados's "
             "iteration. "
             if "acados/ours" in ratios
+            else ""
+        )
+        + (
+            f"acados's whole call from Python (state, shift, path, data in and out): "
+            f"{format_ms(acados['call_ms']['median'])} ms median. "
+            if "call_ms" in acados
             else ""
         )
         + f"acados's one iteration's first command is {difference['median']:.2g} (median; max "

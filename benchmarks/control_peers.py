@@ -131,6 +131,8 @@ class AcadosRacer:
     ----------
     solve_times : list of float
         Each call's time in ``solve()``, s (a cold call's solves summed).
+    call_times : list of float
+        Each whole call's time, s (state, shift, path, data in and out, ``solve()``).
     statuses, qp_iterations : list of int
         Each ``solve()``'s acados status and HPIPM iterations.
     mode : str
@@ -146,6 +148,7 @@ class AcadosRacer:
         self.mpcc, self.rti = mpcc, rti
         self.settings = mpcc.settings
         self.solve_times: list[float] = []
+        self.call_times: list[float] = []
         self.statuses: list[int] = []
         self.qp_iterations: list[int] = []
         self.mode = ""
@@ -165,6 +168,7 @@ class AcadosRacer:
         return self.mpcc._stop_command(x)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
+        called = time.perf_counter()
         mpcc, s = self.mpcc, self.settings
         nxc = mpcc.model.nx
         state = np.array(x, dtype=float).ravel()[:nxc]
@@ -212,4 +216,5 @@ class AcadosRacer:
             ]
         )
         self._progress_speed = float(V[0, 2])
+        self.call_times.append(time.perf_counter() - called)
         return self._command.copy()

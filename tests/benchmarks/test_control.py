@@ -166,6 +166,7 @@ class _FakeRacer:
     def __init__(self, mpcc) -> None:
         self.rti = _FakeRti()
         self.solve_times = [0.01, 0.001, 0.001, 0.0015]
+        self.call_times = [0.02, 0.0012, 0.0012, 0.0017]
         self.statuses = [0, 0, 0, 0]
         self.qp_iterations = [9, 8, 8, 7]
 
@@ -225,6 +226,7 @@ def test_the_benchmark_runs_to_its_table_on_fake_races(monkeypatch: pytest.Monke
     assert result["acados_backend"]["solve_ms"]["median"] == 2.0
     assert result["ratios"] == {"acados/ours": 0.5, "acados/ours_acados_backend": 0.5}
     assert "**acados / ours = 0.5** (medians;" in table
+    assert "acados's whole call from Python (state, shift, path, data in and out): 1.2 ms" in table
     assert _row(table, "acados SQP-RTI + HPIPM, own race, solve() only")[1:] == [
         "1", "1.45", "1.49", "1.5", "6.80, 6.50", "6.650 s", "35.4 mm", "0.170 m", "0",
     ]  # fmt: skip
