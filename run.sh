@@ -7,8 +7,9 @@
 #                             tests alone; see run_tests)
 #   ./run.sh setup            only set up .venv
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
-# The set-up installs requirements.lock with --no-deps, then this project in editable mode,
-# and is skipped when .venv/.crs-setup-stamp matches sha256(requirements.lock + pyproject.toml).
+# The set-up installs requirements.lock with --no-deps, acados (requirements-acados.lock) into
+# .venv/acados, then this project in editable mode, and is skipped when .venv/.crs-setup-stamp
+# matches sha256(requirements.lock + requirements-acados.lock + pyproject.toml).
 # It then builds the ROS 2 interfaces in chronos_msgs/ and tf2_msgs/ (rosidl + ament_cmake from
 # the wheels, cmake/gcc of the machine) and installs them into .venv itself; each is skipped when
 # .venv/.<package>-stamp matches sha256(requirements.lock + the package's files). Last, the
@@ -66,7 +67,7 @@ venv_ok() {
 }
 
 setup_hash() {
-    cat requirements.lock pyproject.toml | sha256sum | cut -d' ' -f1
+    cat requirements.lock requirements-acados.lock pyproject.toml | sha256sum | cut -d' ' -f1
 }
 
 bootstrap() {
@@ -82,7 +83,7 @@ bootstrap() {
     fi
 
     if [ -f "$STAMP" ] && [ "$(cat "$STAMP")" = "$want" ]; then
-        log ".venv is up to date (stamp matches requirements.lock + pyproject.toml)"
+        log ".venv is up to date (stamp matches the lock files + pyproject.toml)"
         build_msgs
         return 0
     fi
@@ -107,6 +108,8 @@ bootstrap() {
         die "pip install -r requirements.lock failed (full log: .venv/setup.log)"
     fi
 
+    install_acados
+
     log "installing chronos-crs in editable mode"
     if ! "$VENV/bin/python" -m pip install --no-deps --no-build-isolation --disable-pip-version-check \
         -e . >>"$LOG" 2>&1; then
@@ -123,6 +126,23 @@ bootstrap() {
     echo "$want" >"$STAMP"
     build_msgs
     log "done in $((SECONDS - t0)) s"
+}
+
+# acados (the solvers' peer) into a folder of its own: its wheel ships a slimmed casadi that
+# would replace the pinned one's files, so that copy is deleted and the folder joins the path
+# through a .pth file (crs_core/acados_support.py loads it).
+install_acados() {
+    local target="$VENV/acados" site
+    log "installing acados into .venv/acados (casadi left as pinned)"
+    rm -rf "$target"
+    if ! "$VENV/bin/python" -m pip install --no-deps --disable-pip-version-check --require-hashes \
+        --target "$target" -r requirements-acados.lock >>"$LOG" 2>&1; then
+        tail -n 30 "$LOG" >&2
+        die "pip install of requirements-acados.lock failed (full log: .venv/setup.log)"
+    fi
+    rm -rf "$target/casadi" "$target"/casadi-*
+    site="$("$VENV/bin/python" -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')"
+    echo "$target" >"$site/acados.pth"
 }
 
 # The ROS 2 interface packages built from source at set-up (the PyPI wheels lack them).
