@@ -186,7 +186,9 @@ def car_nodes(
         else:
             bridge = {"port": host_port, "bind": "0.0.0.0", "car_ip": car_ips[i - 1]}
         nodes += [
-            NodeSpec("bridge", "ros4crs.bridge_node", ns, bridge),
+            NodeSpec(
+                "bridge", "ros4crs.bridge_node", ns, bridge, process=options.pipeline_process()
+            ),
             # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
             *car_control_nodes(ns, options, files, input_topic="input/applied"),
         ]

@@ -43,6 +43,10 @@ class NodeSpec:
     stops_first : bool
         Stopped, and waited for, before the others (an emulated car: stopped while the host
         still sends, it never sees the host go away, which it would count as a motor cut-off).
+    process : str
+        The name of a process the node shares with the other nodes of its namespace that give
+        the same one (:mod:`ros4crs.composed`; the process is ``<namespace>/<process>`` in
+        reports); ``""``: a process of its own.
     """
 
     name: str
@@ -51,14 +55,22 @@ class NodeSpec:
     parameters: dict[str, Any] = field(default_factory=dict)
     arguments: list[str] | None = None
     stops_first: bool = False
+    process: str = ""
 
     def __post_init__(self) -> None:
         if self.arguments is not None and self.parameters:
             raise ValueError(f"{self.full_name}: a plain process (arguments) takes no parameters")
+        if self.arguments is not None and self.process:
+            raise ValueError(f"{self.full_name}: a plain process (arguments) shares no process")
 
     @property
     def full_name(self) -> str:
         return f"{self.namespace.rstrip('/')}/{self.name}"
+
+    @property
+    def process_name(self) -> str:
+        """The name of the process that runs the node (its own: its full name)."""
+        return f"{self.namespace.rstrip('/')}/{self.process}" if self.process else self.full_name
 
 
 @dataclass
@@ -107,43 +119,47 @@ class Launcher:
         return env
 
     def start(self) -> None:
-        """Start every node (in list order)."""
+        """Start every process (in the order of their first node); the nodes that share a
+        process (:attr:`NodeSpec.process`) are started together in it."""
         self.log_dir.mkdir(parents=True, exist_ok=True)
         env = self.environment()
+        groups: dict[str, list[NodeSpec]] = {}
         for spec in self.nodes:
-            stem = spec.full_name.strip("/").replace("/", "_")
-            log = self.log_dir / f"{stem}.log"
+            groups.setdefault(spec.process_name, []).append(spec)
+        for process, specs in groups.items():
+            log = self.log_dir / f"{_stem(process)}.log"
+            spec = specs[0]
             if spec.arguments is not None:
-                self._spawn(spec, [sys.executable, "-m", spec.module, *spec.arguments], log, env)
+                self._spawn(process, [sys.executable, "-m", spec.module, *spec.arguments], log, env)
                 continue
-            params = self.log_dir / f"{stem}.params.yaml"
-            params.write_text(
-                yaml.safe_dump({spec.full_name: {"ros__parameters": spec.parameters}})
-            )
-            command = [
-                sys.executable,
-                "-m",
-                spec.module,
-                "--ros-args",
-                "-r",
-                f"__node:={spec.name}",
-                "--params-file",
-                str(params),
-            ]
-            if spec.namespace:
-                command[4:4] = ["-r", f"__ns:={spec.namespace}"]
-            self._spawn(spec, command, log, env)
+            files = [self._params_file(s) for s in specs]
+            if not spec.process:
+                command = [sys.executable, "-m", spec.module, "--ros-args"]
+                if spec.namespace:
+                    command += ["-r", f"__ns:={spec.namespace}"]
+                command += ["-r", f"__node:={spec.name}", "--params-file", str(files[0])]
+            else:
+                command = [sys.executable, "-m", "ros4crs.composed"]
+                for node, params in zip(specs, files, strict=True):
+                    command += ["--node", f"{node.full_name}={node.module}:{params}"]
+            self._spawn(process, command, log, env)
 
-    def _spawn(self, spec: NodeSpec, command: list[str], log: Path, env: dict[str, str]) -> None:
+    def _params_file(self, spec: NodeSpec) -> Path:
+        """Write the parameter file of node ``spec``; its path."""
+        params = self.log_dir / f"{_stem(spec.full_name)}.params.yaml"
+        params.write_text(yaml.safe_dump({spec.full_name: {"ros__parameters": spec.parameters}}))
+        return params
+
+    def _spawn(self, process: str, command: list[str], log: Path, env: dict[str, str]) -> None:
         with open(log, "w") as handle:
-            self.processes[spec.full_name] = subprocess.Popen(
+            self.processes[process] = subprocess.Popen(
                 command,
                 stdout=handle,
                 stderr=subprocess.STDOUT,
                 env=env,
                 start_new_session=True,
             )
-        self._logs[spec.full_name] = log
+        self._logs[process] = log
 
     def poll(self) -> list[Exited]:
         """Processes that ended since the last poll."""
@@ -183,7 +199,7 @@ class Launcher:
     def stop(self, timeout: float = 5.0) -> None:
         """Stop the nodes marked ``stops_first``, then the others: SIGINT, then SIGTERM, then
         SIGKILL whatever is still running."""
-        first = {spec.full_name for spec in self.nodes if spec.stops_first}
+        first = {spec.process_name for spec in self.nodes if spec.stops_first}
         for group in (first, set(self.processes) - first):
             self._stop([p for name, p in self.processes.items() if name in group], timeout)
 
@@ -237,3 +253,9 @@ class Launcher:
             self.wall_at_stop = time.monotonic() - started
             self.stop()
         return deaths
+
+
+def _stem(name: str) -> str:
+    """A file-name stem of a node's or process's full name (``/car1/estimator`` ->
+    ``car1_estimator``)."""
+    return name.strip("/").replace("/", "_")

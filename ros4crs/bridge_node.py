@@ -127,8 +127,8 @@ APPLIED_PERIOD_S = 0.02
 class BridgeNode(Node):
     """One car's UDP link as ROS topics (see the module docstring)."""
 
-    def __init__(self) -> None:
-        super().__init__("bridge")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("bridge", **node_options)
         # a node on port 0 would listen where no car knows to send
         link = declare_settings(self, LINK_PARAMETERS, checks={"port": in_range(1, 65535)})
         poll_hz = declare(self, "poll_hz", 200.0, "socket polls per s", positive)

@@ -51,6 +51,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from rclpy.node import Node
@@ -110,8 +111,8 @@ COMMAND_DELAY_PARAMETERS = SettingsParameters(
 class ControllerNode(Node):
     """MPCC (or path following) on the latest estimate, through a :class:`Supervisor`."""
 
-    def __init__(self) -> None:
-        super().__init__("controller")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("controller", **node_options)
         kind = declare(self, "controller", "mpcc", "mpcc or path", _controller_kind)
         self.output = declare(
             self, "output", "torque", "command torque or velocity (MPCC)", one_of(*OUTPUTS)
@@ -192,6 +193,9 @@ class ControllerNode(Node):
             "unstuck": self.get_logger().info,
             "cautious": lambda message: self.get_logger().warning(message),
             "relaxed": lambda message: self.get_logger().info(message),
+            "starved": lambda message: self.get_logger().warning(message),
+            "standing": lambda message: self.get_logger().warning(message),
+            "fed": lambda message: self.get_logger().info(message),
             "failed": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
             "rejected": lambda message: self.get_logger().error(message, throttle_duration_sec=1.0),
         }

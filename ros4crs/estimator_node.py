@@ -58,6 +58,7 @@ track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track'
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from rclpy.node import Node
@@ -103,8 +104,8 @@ REALTIME_PARAMETERS = SettingsParameters(RealtimeSettings, ("rate_hz", "lag", "m
 class EstimatorNode(Node):
     """Wraps a :class:`~crs_core.estimation.realtime.RealtimeEstimator`."""
 
-    def __init__(self) -> None:
-        super().__init__("estimator")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("estimator", **node_options)
         kind = declare(self, "estimator", "mhe", "ekf or mhe", one_of(*KINDS))
         sensors = declare(
             self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)

@@ -312,6 +312,17 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
     in the environment the node runs under :mod:`cProfile` and writes
     ``DIR/<ns>_<node>_<pid>.prof`` when it stops (``python -m pstats FILE``).
     """
+    args = list(argv) if argv is not None else sys.argv
+    return run_nodes([(_node_name(args, make_node), make_node)], args)
+
+
+def run_nodes(
+    makers: Sequence[tuple[str, Callable[[], Node]]], argv: Sequence[str] | None = None
+) -> int:
+    """:func:`run` for several nodes in one process: ``makers`` are ``(full name, factory)``
+    pairs, made in order and spun in one executor (:mod:`ros4crs.composed`). A node that
+    cannot start stops the process with its one line, as :func:`run` says."""
+    args = list(argv) if argv is not None else sys.argv
     folder = os.environ.get("CRS_PROFILE")
     if folder:
         import cProfile
@@ -319,42 +330,44 @@ def run(make_node: Callable[[], Node], argv: Sequence[str] | None = None) -> int
         profiler = cProfile.Profile()
         profiler.enable()
         try:
-            return _run(make_node, argv)
+            return _run(makers, args)
         finally:
             profiler.disable()
             Path(folder).mkdir(parents=True, exist_ok=True)
-            label = _node_name(list(argv) if argv is not None else sys.argv, make_node)
-            stem = label.strip("/").replace("/", "_") or "node"
+            stem = "+".join(name.strip("/").replace("/", "_") for name, _ in makers) or "node"
             profiler.dump_stats(str(Path(folder) / f"{stem}_{os.getpid()}.prof"))
-    return _run(make_node, argv)
+    return _run(makers, args)
 
 
-def _run(make_node: Callable[[], Node], argv: Sequence[str] | None) -> int:
+def _run(makers: Sequence[tuple[str, Callable[[], Node]]], args: list[str]) -> int:
     from rclpy._rclpy_pybind11 import RCLError
 
     set_discovery_environment()
-    args = list(argv) if argv is not None else sys.argv
-    name = _node_name(args, make_node)
+    first = makers[0][0]
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     except RCLError as error:  # e.g. a --params-file that is not valid YAML
         reason = " ".join(str(error).split()).split(", at /")[0]
-        return _start_failure(name, f"cannot start ROS: {reason}")
+        return _start_failure(first, f"cannot start ROS: {reason}")
     signal.signal(signal.SIGTERM, signal.default_int_handler)  # as Ctrl-C while starting
-    node = None
+    nodes: list[Node] = []
     try:
         try:
             executor = make_executor()  # a bad CRS_EXECUTOR is a start-up error too
-            node = make_node()
-        except (ValueError, KeyError, OSError) as error:  # what a user can give wrong
-            message = error.args[0] if isinstance(error, KeyError) else str(error)
-            return _start_failure(name, " ".join(str(message).split()))
-        # rclpy finds a log call's caller with inspect, whose first use scans the file of every
-        # loaded module: 50 ms on an idle machine, 200 ms and more on a loaded one. Paid here,
-        # not in the first callback that logs (it held a controller's commands back past the
-        # car's 200 ms motor cut-off).
-        node.get_logger().info(f"running (pid {os.getpid()})")
-        executor.add_node(node)
+        except (ValueError, KeyError, OSError) as error:
+            return _start_failure(first, _reason(error))
+        for name, make_node in makers:
+            try:
+                nodes.append(make_node())
+            except (ValueError, KeyError, OSError) as error:  # what a user can give wrong
+                return _start_failure(name, _reason(error))
+        for node in nodes:
+            # rclpy finds a log call's caller with inspect, whose first use scans the file of
+            # every loaded module: 50 ms on an idle machine, 200 ms and more on a loaded one.
+            # Paid here, not in the first callback that logs (it held a controller's commands
+            # back past the car's 200 ms motor cut-off).
+            node.get_logger().info(f"running (pid {os.getpid()})")
+            executor.add_node(node)
         # from now on Ctrl-C / SIGTERM end the loop between callbacks: a signal that shut the
         # context down (rclpy's own handlers) or raised inside a callback stopped it mid-publish
         stop: list[int] = []
@@ -369,10 +382,16 @@ def _run(make_node: Callable[[], Node], argv: Sequence[str] | None) -> int:
             raise  # a real failure while running
         # the context was shut down (Ctrl-C, SIGTERM) under a running callback, e.g. mid-publish
     finally:
-        if node is not None:
+        for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _reason(error: Exception) -> str:
+    """A start-up error's message on one line (a ``KeyError``'s without its quotes)."""
+    message = error.args[0] if isinstance(error, KeyError) and error.args else str(error)
+    return " ".join(str(message).split())
 
 
 #: Executors a node can spin in (``CRS_EXECUTOR``; default ``events``).

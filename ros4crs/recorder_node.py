@@ -19,6 +19,7 @@ import queue
 import threading
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile
@@ -52,8 +53,8 @@ def _new_folder(path: str) -> str | None:
 class RecorderNode(Node):
     """Writes raw CDR messages of matching topics into a bag."""
 
-    def __init__(self) -> None:
-        super().__init__("recorder")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("recorder", **node_options)
         output = Path(declare(self, "output", "bag", "bag directory to create", _new_folder))
         patterns = declare(self, "topics", "", "comma-separated topic names or prefixes")
         plugins = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}

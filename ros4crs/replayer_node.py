@@ -31,6 +31,7 @@ import contextlib
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import rclpy
 from rclpy.node import Node
@@ -52,8 +53,8 @@ from ros4crs.node_support import (
 class ReplayerNode(Node):
     """Publishes the messages of a bag in recorded order and timing."""
 
-    def __init__(self) -> None:
-        super().__init__("replayer")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("replayer", **node_options)
         self.bag = declare(self, "bag", "", "bag directory")
         self.rate = declare(self, "rate", 1.0, "replay speed factor", positive)
         self.loop = declare(self, "loop", False, "start over at the end")

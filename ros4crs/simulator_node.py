@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import rclpy
@@ -75,8 +76,8 @@ def parse_blackouts(text: str) -> tuple[Blackout, ...]:
 class SimulatorNode(Node):
     """Runs a :class:`sim.simulator.SimulationSession` against the wall clock."""
 
-    def __init__(self) -> None:
-        super().__init__("simulator")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("simulator", **node_options)
         seed = declare(self, "seed", 0, "seed of all noise")
         noise_free = declare(self, "noise_free", False, "ideal sensors")
         effects = parse_effects(
@@ -174,7 +175,14 @@ class SimulatorNode(Node):
             )
         t = self._now = (time.monotonic() - self._wall_start) * self.rate_factor
         self._inputs.take_pending()  # commands that arrived apply before time advances
-        if self._cutoff is not None and self._cutoff.expired(t):
+        # a late tick (a starved process) integrates up to the cut-off's own instant first: the
+        # firmware cuts the motor 0.2 s into a silence, however long the silence lasts
+        cut_at = t
+        if self._cutoff is not None and self._cutoff.last_command is not None:
+            if not self._cutoff.cut:
+                cut_at = min(t, self._cutoff.last_command + self._cutoff.threshold)
+        measurements = self.session.advance(cut_at) if cut_at < t else []
+        if self._cutoff is not None and self._cutoff.expired(cut_at):
             self.session.command(np.array([self._steer, 0.0]), "torque")
             self._cut_log(
                 f"no command for {self._cutoff.threshold * 1e3:.0f} ms: motors cut "
@@ -184,9 +192,9 @@ class SimulatorNode(Node):
             self.get_logger().info(f"simulated {self.duration:g} s; stopping")
             rclpy.try_shutdown()
             return
+        measurements += self.session.advance(t)
         self._sensors.add(
-            (type(m)(self.epoch + m.stamp, m.sensor, m.values) for m in self.session.advance(t)),
-            t,
+            (type(m)(self.epoch + m.stamp, m.sensor, m.values) for m in measurements), t
         )
         if self._clock_publisher is not None:
             from rosgraph_msgs.msg import Clock

@@ -136,8 +136,8 @@ class _Topic:
 class VisualizerNode(Node):
     """Serves the scene, the cars' status and the suite's topics to Foxglove viewers."""
 
-    def __init__(self) -> None:
-        super().__init__("visualizer")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("visualizer", **node_options)
         port = declare(self, "port", 8765, "Foxglove WebSocket port", in_range(1, 65535))
         page_port = declare(
             self, "page_port", 8766, "built-in page's HTTP port", in_range(1, 65535)

@@ -175,8 +175,8 @@ def _profile(qos: wire.Qos) -> QoSProfile:
 class ZenohLinkNode(Node):
     """Carries ROS 2 topics between this machine and others over Zenoh (rmw_zenoh's format)."""
 
-    def __init__(self) -> None:
-        super().__init__("zenoh_link")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("zenoh_link", **node_options)
         mode = declare(self, "mode", "peer", "router, peer or client", one_of(*MODES))
         listen = declare(self, "listen", "", "comma-separated Zenoh endpoints to listen on")
         connect = declare(self, "connect", "", "comma-separated Zenoh endpoints to connect to")

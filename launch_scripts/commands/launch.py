@@ -69,7 +69,16 @@ def launch(args: argparse.Namespace) -> None:
 def _stack_options(args: argparse.Namespace) -> StackOptions:
     """What ``run_stack`` and ``run_car_stack`` both take, from their options (no
     ``--hold-safe``: the stack's default; ``crs launch car`` refuses ``--track``)."""
-    same_name = ("estimator", "controller", "output", "record", "blind_start", "hold_safe", "seed")
+    same_name = (
+        "estimator",
+        "controller",
+        "output",
+        "record",
+        "blind_start",
+        "hold_safe",
+        "seed",
+        "process_per_node",
+    )
     return StackOptions(
         **{field: getattr(args, field) for field in same_name},
         params_file=args.params,
@@ -288,6 +297,12 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "--blind-start",
         action="store_true",
         help="estimators initialise from the Lighthouse instead of the known start pose",
+    )
+    sub.add_argument(
+        "--process-per-node",
+        action="store_true",
+        help="every node in a process of its own, for debugging (default: a car's simulator or "
+        "bridge, estimator and controller share one; the topics are the same)",
     )
     add_track(sub, " of every car")
     sub.add_argument(

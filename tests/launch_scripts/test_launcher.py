@@ -59,3 +59,39 @@ def test_nodes_that_stop_first_have_exited_before_the_others_are_interrupted(tmp
         for name, path in logs.items()
     }
     assert float(times["car"]["exited"]) <= float(times["host"]["interrupted"])
+
+
+def test_nodes_that_name_one_process_run_in_it(tmp_path) -> None:
+    """Two nodes of /car1 with ``process="pipeline"`` start as one ``ros4crs.composed``
+    process, ``/car1/pipeline``, each with its own parameter file; a third, without, alone."""
+    specs = [
+        NodeSpec(
+            "estimator", "ros4crs.estimator_node", "/car1", {"estimator": "ekf"}, process="pipeline"
+        ),
+        NodeSpec(
+            "controller",
+            "ros4crs.controller_node",
+            "/car1",
+            {"controller": "path"},
+            process="pipeline",
+        ),
+        NodeSpec("echo", "json.tool", "/car1", arguments=["--help"]),
+    ]
+    launcher = Launcher(specs, 151, tmp_path)
+    try:
+        launcher.start()
+        assert set(launcher.processes) == {"/car1/pipeline", "/car1/echo"}
+        command = launcher.processes["/car1/pipeline"].args
+        assert command[1:3] == ["-m", "ros4crs.composed"]
+        assert [a.split("=")[0] for a in command[4::2]] == ["/car1/estimator", "/car1/controller"]
+        assert {p.name for p in tmp_path.glob("*.params.yaml")} == {
+            "car1_estimator.params.yaml",
+            "car1_controller.params.yaml",
+        }
+    finally:
+        launcher.stop()
+
+
+def test_a_plain_process_shares_no_process() -> None:
+    with pytest.raises(ValueError, match="shares no process"):
+        NodeSpec("emulator", "chronos_bridge.emulator_process", arguments=[], process="pipeline")
