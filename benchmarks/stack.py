@@ -22,11 +22,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from launch_scripts.sim_stack import StackOptions, rmse_text, run_stack
+from launch_scripts.sim_stack import StackOptions, pipeline_cpu, rmse_text, run_stack
 from launch_scripts.visualizer import VizSettings
 
-#: A car's pipeline: the nodes whose CPU the docs add up per car.
-PIPELINE = ("simulator", "estimator", "controller")
 #: A process that keeps one core busy until it is killed.
 BUSY_LOOP = "while True:\n    pass\n"
 #: Where the benchmark's visualizer serves (not the defaults: a viewer of the user's may be open).
@@ -229,7 +227,7 @@ def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
     pipelines, recorder = [], []
     for run, car, _ in cars:
         cpu = run.get("cpu_percent_running") or run.get("cpu_percent") or {}
-        pipelines.append([cpu.get(f"/{car}/{n}", 0.0) for n in PIPELINE])
+        pipelines.append([pipeline_cpu(cpu, car)])
         recorder += [cpu["/recorder"]] if "/recorder" in cpu else []
     pipeline = _span([sum(p) for p in pipelines], ".1f") + " %"
     if len(pipelines) == 1:

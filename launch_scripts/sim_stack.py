@@ -20,6 +20,7 @@ import numpy as np
 
 from crs_core.analysis.latency import latencies
 from crs_core.analysis.metrics import interpolate_pose, lap_statistics, state_rmse
+from crs_core.control.overload import OverloadSettings
 from crs_core.model.effects import effect_text
 from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
@@ -27,6 +28,7 @@ from launch_scripts.stack_part import StackPart
 from launch_scripts.stack_plot import plot
 from launch_scripts.visualizer import VizSettings, visualizer_node
 from launch_scripts.warm_cache import warm_compile_cache
+from sim.closed_loop import off_track
 
 #: What ``crs launch --record`` records, per car (relative topics) and globally. ``all``:
 #: everything, so the bag replays the estimator offline to its estimates exactly
@@ -45,6 +47,11 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 SETTLE_S = 10.0
 #: ``report.json``'s ``bag_analysis`` of a part of a stack without the recorder.
 NO_BAG = "none on this machine: the recorder runs on another one (its report analyses the run)"
+#: The process a car's simulator or bridge, estimator and controller share (``/car1/pipeline``)
+#: unless :attr:`StackOptions.process_per_node`.
+PIPELINE_PROCESS = "pipeline"
+#: The nodes of a car's pipeline (the simulator or, on a car, the bridge).
+PIPELINE_NODES = ("simulator", "bridge", "estimator", "controller")
 #: What the controllers command: ``torque`` (``[delta, T]``) or ``velocity`` (``[delta, v_x]``
 #: references for the car's onboard velocity PID; MPCC only).
 OUTPUTS = ("torque", "velocity")
@@ -140,6 +147,10 @@ class StackOptions:
         The nodes that run on this machine and its Zenoh link (default: all, no link).
     viz : VizSettings or None
         Add the ``visualizer`` node serving as these settings say (None: no visualizer).
+    process_per_node : bool
+        Every node in a process of its own (for debugging: a node's own log, profile and CPU
+        figure); by default a car's simulator or bridge, estimator and controller share one
+        (:data:`PIPELINE_PROCESS`, :mod:`ros4crs.composed`), the topics on the wire the same.
     """
 
     estimator: str
@@ -155,6 +166,11 @@ class StackOptions:
     seed: int = 0
     part: StackPart = field(default_factory=StackPart)
     viz: VizSettings | None = None
+    process_per_node: bool = False
+
+    def pipeline_process(self) -> str:
+        """The process a car's pipeline nodes share (``""``: each its own)."""
+        return "" if self.process_per_node else PIPELINE_PROCESS
 
     def __post_init__(self) -> None:
         if self.estimator not in ("ekf", "mhe"):
@@ -213,6 +229,7 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
                     **files,
                     **options.car.simulator_parameters(),
                 },
+                process=options.pipeline_process(),
             ),
             *car_control_nodes(ns, options, files),
         ]
@@ -244,12 +261,14 @@ def car_control_nodes(
             "ros4crs.estimator_node",
             ns,
             {**estimator, **estimator_parameters, **files},
+            process=options.pipeline_process(),
         ),
         NodeSpec(
             "controller",
             "ros4crs.controller_node",
             ns,
             {"controller": options.controller, **commands, **files},
+            process=options.pipeline_process(),
         ),
     ]
 
@@ -429,11 +448,17 @@ def summary(report: dict[str, Any], out: Path) -> str:
     for car, c in report["cars"].items():
         times = ", ".join(f"{t:.1f}" for t in c.get("lap_times_s", []))
         laps = f"{c.get('laps_completed', 0)} laps" + (f" ({times} s)" if times else "")
-        lines.append(
+        line = (
             f"{car}: {laps}; {rmse_text(c.get('estimation_rmse'))}; "
             f"{c.get('estimator_deadline_misses', 0)} deadline misses in "
             f"{c.get('estimator_updates', 0)} updates"
         )
+        overload, outside = c.get("overload"), c.get("off_track")
+        if overload and overload["starved"]:
+            line += f"; starved ({overload['late_commands']} late commands)"
+        if outside and outside["episodes"]:
+            line += f"; LEFT THE TRACK ({outside['seconds']:.1f} s outside)"
+        lines.append(line)
     deaths = report.get("node_deaths") or []
     lines.append(
         "node deaths: " + (", ".join(f"{d['node']} ({d['returncode']})" for d in deaths) or "none")
@@ -489,13 +514,59 @@ def analyse(
             rmse = estimation_rmse(contents.estimates, stamps, states)
             if rmse is not None:
                 car["estimation_rmse"] = rmse
+            car["off_track"] = off_track(stamps[moving:], states[moving:], track)
         car["estimator_deadline_misses"] = contents.deadline_misses
         car["estimator_updates"] = contents.updates
+        car["overload"] = overload_figures(
+            [sample.stamp for sample in contents.inputs], contents.deadline_misses, contents.updates
+        )
+        car["outcome"] = outcome(car)
         car["estimator_reinitializations"] = contents.reinitializations
         car["malformed_messages"] = contents.malformed
         car["latency_ms"] = latencies(read_receive_times(bag, ns))
         report["cars"][ns.strip("/")] = car
     return report
+
+
+def pipeline_cpu(cpu: dict[str, float], car: str) -> float:
+    """A car's pipeline CPU (% of one core) from a report's ``cpu_percent`` (or
+    ``cpu_percent_running``): its shared process (``/car1/pipeline``) or, with
+    ``process_per_node``, its simulator or bridge, estimator and controller summed."""
+    shared = cpu.get(f"/{car}/{PIPELINE_PROCESS}")
+    if shared is not None:
+        return shared
+    return sum(cpu.get(f"/{car}/{node}", 0.0) for node in PIPELINE_NODES)
+
+
+def overload_figures(
+    command_stamps: list[float], misses: int, updates: int, late: float | None = None
+) -> dict[str, Any]:
+    """How starved a car's loop was, from what it sent: the gaps between its commands (stamps,
+    s) longer than ``late`` (default: the supervisor's late tick,
+    :class:`~crs_core.control.overload.OverloadSettings`), the longest gap, and the share of
+    the estimator's updates that missed their deadline; ``starved`` when a command came late or
+    more than 1 % of the updates missed."""
+    late = OverloadSettings().late_tick if late is None else late
+    gaps = np.diff(np.sort(np.asarray(command_stamps, dtype=float)))
+    fraction = misses / updates if updates else 0.0
+    late_commands = int(np.sum(gaps > late))
+    return {
+        "late_commands": late_commands,
+        "longest_command_gap_s": round(float(gaps.max()), 3) if gaps.size else None,
+        "estimator_miss_fraction": round(fraction, 4),
+        "starved": bool(late_commands or fraction > 0.01),
+    }
+
+
+def outcome(car: dict[str, Any]) -> str:
+    """``"left the track"`` (its footprint was outside the border), ``"raced"`` (a lap or
+    more, always inside) or ``"stood on the track"``; ``"unknown"`` without its truth."""
+    outside = car.get("off_track")
+    if outside is None:
+        return "unknown"
+    if outside["episodes"]:
+        return "left the track"
+    return "raced" if car.get("laps_completed", 0) else "stood on the track"
 
 
 def estimation_rmse(

@@ -127,6 +127,54 @@ class ClosedLoopResult:
         return summary
 
 
+def off_track(t: np.ndarray, x: np.ndarray, track: Track) -> dict[str, float | int]:
+    """Time with the car's footprint (:data:`~sim.closed_loop.CAR_LENGTH` x
+    :data:`~sim.closed_loop.CAR_WIDTH`) partly outside the track, from a true trajectory.
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        (n,) increasing stamps, s.
+    x : numpy.ndarray
+        (n, >= 3) true states ``[x, y, yaw, ...]``, m and rad.
+    track : Track
+        The track (its borders: half its width on each side of the centreline).
+
+    Returns
+    -------
+    dict
+        ``seconds``: total time with any corner outside (each sample holds until the next; the
+        last one for the median sample period), s; ``max_outside_m``: the largest distance of a
+        corner outside the border, m (0 when always inside); ``episodes``: separate spells
+        outside.
+    """
+    t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+    if t.size == 0:
+        return {"seconds": 0.0, "max_outside_m": 0.0, "episodes": 0}
+    # a corner is at most this far from the centre of mass, so a footprint whose centre is
+    # further than this inside the border is inside (the distance to the centreline is
+    # 1-Lipschitz): only those samples need the four corners projected
+    reach = math.hypot(CAR_LENGTH / 2, CAR_WIDTH / 2)
+    outside = np.zeros(t.size)
+    s_hint = None
+    for k in range(t.size):
+        projection = track.project(x[k, 0], x[k, 1], s_hint)
+        s_hint = projection.s
+        if abs(projection.lateral_error) + reach > track.width / 2:
+            outside[k] = footprint_outside(track, x[k, 0], x[k, 1], x[k, 2], s_hint)
+        else:
+            outside[k] = -1.0
+    dt = np.diff(t)
+    hold = np.append(dt, np.median(dt) if dt.size else 0.0)
+    out = outside > 0
+    starts = np.flatnonzero(out & ~np.concatenate(([False], out[:-1])))
+    return {
+        "seconds": round(float(np.sum(hold[out])), 3),
+        "max_outside_m": round(float(max(outside.max(), 0.0)), 4),
+        "episodes": int(starts.size),
+    }
+
+
 def run_closed_loop(
     simulator: Simulator,
     track: Track,

@@ -14,13 +14,12 @@ from benchmarks.link import (
     driving_references,
     format_table,
     free_ports,
-    off_track,
     outage_recovery,
     outage_windows,
     summarise,
 )
 from crs_core.track import Track
-from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
+from sim.closed_loop import CAR_LENGTH, CAR_WIDTH, off_track
 
 WIDTH = 0.46
 RADIUS = 1.0

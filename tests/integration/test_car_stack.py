@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 from benchmarks.foxglove_viewer import watch
-from benchmarks.link import off_track
 from crs_core.track import load_demo_track
 from launch_scripts.car_stack import car_nodes, run_car_stack
 from launch_scripts.launcher import Launcher, NodeSpec
 from launch_scripts.sim_stack import StackOptions
 from launch_scripts.visualizer import VizSettings
 from ros4crs.conversions import seconds_from_stamp
+from sim.closed_loop import off_track
 from tests.integration.stack_probe import Probe, log_text, wait_for
 
 pytestmark = pytest.mark.integration
