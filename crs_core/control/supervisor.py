@@ -92,6 +92,9 @@ EVENT_KINDS = (
     "standing",
     "fed",
 )
+#: A speed cap this low (m/s) while the overload watch stands the car: it is braked to a stand
+#: (:meth:`Supervisor._brake`) instead of controlled.
+STANDING_CAP = 0.05
 #: When the MPCC is asked for hold-safe plans (:attr:`SupervisorSettings.hold_safe`).
 HOLD_SAFE_MODES = ("after_outage", "always", "never")
 #: The stop command: straight wheels and zero torque (velocity mode: a zero reference).
@@ -348,6 +351,8 @@ class Supervisor:
             backing_out = self._backing_out(now, x, events)
             if backing_out is not None:
                 u = backing_out
+            elif self.overload.state == "stand" and self.speed_cap <= STANDING_CAP:
+                u = self._brake(x, "the loop is starved: standing on the track")
             else:
                 u, solve_time = self._command(now, x, limit, dt, events)
             problem = self._problem(u)
@@ -616,6 +621,15 @@ class Supervisor:
         if self._mpcc is not None:
             return self._mpcc.stop(None, reason, keep_plan=keep_plan)
         return STOP.copy()
+
+    def _brake(self, x: np.ndarray, reason: str) -> np.ndarray:
+        """Brake the car of (predicted) state ``x`` to a stand where it is: the MPCC's stop
+        (``-brake_gain v_x`` until it stands, the plan's steering while it has one); without
+        the MPCC, the stop command. The controller is not asked: a starved loop's controller
+        would keep correcting towards its path, on estimates that have gone astray."""
+        if self._mpcc is None:
+            return STOP.copy()
+        return self._mpcc.stop(x, reason, keep_plan=True)
 
     def _model_input(self, u: np.ndarray) -> np.ndarray:
         """The model input ``[delta, T]`` of command ``u`` (for the prediction): ``u`` itself

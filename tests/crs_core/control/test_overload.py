@@ -125,3 +125,21 @@ def test_a_standing_car_is_not_backed_out_as_stuck():
         supervisor(now)
     assert supervisor.overload.state == "stand"
     assert recovery.count == 0 and not recovery.active
+
+
+def test_a_standing_car_is_braked_not_controlled():
+    """Once the cap has fallen to zero in the stand state, the controller is no longer called:
+    the command is the stop command (it would otherwise steer on estimates gone astray)."""
+    driver = Driver()
+    supervisor = Supervisor(driver, SupervisorSettings())
+    slow = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])
+    now, commands = 0.0, []
+    for _ in range(40):  # ticks 0.2 s apart: late
+        now += 0.2
+        supervisor.observe(now - 0.01, slow, "ok")
+        commands.append(supervisor(now).command)
+    assert supervisor.overload.state == "stand" and supervisor.speed_cap == 0.0
+    calls = len(driver.limits)
+    supervisor.observe(now, slow, "ok")
+    assert np.array_equal(supervisor(now + 0.2).command, [0.0, 0.0])
+    assert len(driver.limits) == calls
