@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import fcntl
+import io
 import os
 import subprocess
 import sys
@@ -90,20 +91,25 @@ def solver_dir(name: str) -> Path:
 
 
 @contextlib.contextmanager
-def _quiet() -> Iterator[None]:
-    """Silence acados's code generator and wrapper (prints, ``make``, ``t_renderer``) on the
-    process's stdout: file descriptor 1 goes to /dev/null for the duration."""
+def _output_to(log: Path) -> Iterator[None]:
+    """The process's stdout and stderr (file descriptors 1 and 2: Python's prints,
+    ``t_renderer``, ``make``, gcc) into ``log`` for the duration: acados's code generation and
+    build talk a lot."""
     sys.stdout.flush()
-    saved = os.dup(1)
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
     try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            with contextlib.redirect_stdout(null):
+        with open(log, "w") as handle:
+            os.dup2(handle.fileno(), 1)
+            os.dup2(handle.fileno(), 2)
+            with contextlib.redirect_stdout(handle), contextlib.redirect_stderr(handle):
                 yield
     finally:
         sys.stdout.flush()
-        os.dup2(saved, 1)
-        os.close(saved)
+        sys.stderr.flush()
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 @contextlib.contextmanager
@@ -152,15 +158,16 @@ def build_or_load(ocp: Any, name: str, helper: str | None = None) -> tuple[Any, 
     ocp.code_export_directory = str(code)
     with _locked(folder):
         if not done.exists():
-            with _quiet():
+            log = folder / "build.log"
+            with _output_to(log):
                 template.AcadosOcpSolver.generate(ocp, json_file=str(json_file))
-                template.AcadosOcpSolver.build(str(code), verbose=False)
+                template.AcadosOcpSolver.build(str(code), verbose=True)
             if not library.exists():
-                raise AcadosUnavailable(f"acados: building {name} failed (see {code})")
+                raise AcadosUnavailable(f"acados: building {name} failed (see {log})")
             if helper is not None:
                 _compile_helper(helper.replace("{name}", name), code, name, helper_library)
             done.write_text("ok\n")
-        with _quiet():
+        with contextlib.redirect_stdout(io.StringIO()):  # "compiled without OpenMP"
             solver = template.AcadosOcpSolver(
                 ocp, json_file=str(json_file), build=False, generate=False, verbose=False
             )
