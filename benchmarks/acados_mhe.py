@@ -166,7 +166,9 @@ class AcadosMhe(StepTimedMhe):
 
     Each update shifts the previous solution (ours' prediction for the new node, zero noise on
     the new stage), sets the parameters, runs ``solve()`` once (SQP-RTI: one Gauss-Newton QP
-    with HPIPM, full step) and reads the nodes back. The node leaving the window is
+    with HPIPM, full step) and reads the nodes back, all through :class:`CInterface`
+    (``solve_times_s``: ``solve()`` alone; ``step_times_s``: the whole step with the
+    marginalization). The node leaving the window is
     marginalized as in ours, from acados's own QP of the last solve (``A``, ``Q``, ``R``,
     ``q``, ``r``, ``b`` of stage 0: the Schur complement onto node 1 with
     :math:`w_0 = \delta x_1 - A\,\delta x_0 - b`), floored, discounted.
@@ -228,6 +230,7 @@ class AcadosMhe(StepTimedMhe):
         self._used_index = np.array([self._group_index[g] for g in self._used], dtype=int)
         self._ug_rows = np.concatenate([[2 * g, 2 * g + 1] for g in self._used_index]).astype(int)
         self.hpipm_mode = hpipm_mode
+        self._par = self._layout()
         self._W = np.zeros((model.nx, s.horizon))
         self._pin = PIN_FACTOR * np.sqrt(s.rate_hz) / self._q
         #: Per update: seconds in acados's ``solve()`` (``step_times_s`` adds setting the
@@ -258,7 +261,7 @@ class AcadosMhe(StepTimedMhe):
         """States, controls, parameters, discrete dynamics and the residuals of the first,
         the middle and the last stage."""
         model = self.model
-        nx, layout = model.nx, self._layout()
+        nx, layout = model.nx, self._par
         x, w = ca.SX.sym("x", nx), ca.SX.sym("w", nx)
         par = ca.SX.sym("p", layout["xbound"].stop)
         P = ca.DM(self._p)
@@ -368,7 +371,7 @@ class AcadosMhe(StepTimedMhe):
         stamp = float(self._times[-1])
         wp, y, wy, tau, ug = self._weights()
         first, information = self._arrival_terms()
-        layout = self._layout()
+        layout = self._par
         P = np.zeros((M + 1, layout["xbound"].stop))  # row k: the parameters of stage k
         P[:M, layout["u"]] = self._U.T
         P[first:M, layout["dt"]] = self._DT[0, first:, None]
@@ -439,15 +442,15 @@ class AcadosMhe(StepTimedMhe):
         )
         Q, R = _symmetric_from_lower(Q), _symmetric_from_lower(R)  # HPIPM keeps the lower half
         q, r, b = q.ravel(), r.ravel(), b.ravel()
-        eye, zero = np.eye(nx), np.zeros((nx, nx))
-        # z = [dx0; dx1], dx0 = E z, w0 = T z - b (the QP's dynamics dx1 = A dx0 + dw0 + b);
-        # no residual couples x_0 and w_0, so the QP has no cross term (S = 0)
-        E, T = np.hstack([eye, zero]), np.hstack([-A, eye])
-        H = E.T @ Q @ E + T.T @ R @ T
-        g = E.T @ q + T.T @ (r - R @ b)
-        solved = np.linalg.solve(H[:nx, :nx], np.column_stack([H[:nx, nx:], g[:nx]]))
-        information = H[nx:, nx:] - H[nx:, :nx] @ solved[:, :-1]
-        beta = g[nx:] - H[nx:, :nx] @ solved[:, -1]
+        # the QP's dynamics dx1 = A dx0 + dw0 + b give dw0 = dx1 - A dx0 - b; no residual
+        # couples x_0 and w_0 (S = 0). In (dx0, dx1) the Hessian is [[Q + A'RA, -A'R],
+        # [-RA, R]] and the gradient [q - A'(r - Rb); r - Rb]; minimising over dx0 leaves
+        # 1/2 dx1' L dx1 + beta' dx1 (ours: L = S0 - O0' D0^-1 O0, b = g1 - O0' D0^-1 g0)
+        RA = R @ A
+        g1 = r - R @ b
+        solved = np.linalg.solve(Q + A.T @ RA, np.column_stack([RA.T, q - A.T @ g1]))
+        information = R - RA @ solved[:, :-1]
+        beta = g1 + RA @ solved[:, -1]
         information = 0.5 * (information + information.T)
         information += np.eye(nx) / self.settings.arrival_floor_std**2
         self._arrival = x1_lin - np.linalg.solve(information, beta)
