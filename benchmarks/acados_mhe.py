@@ -10,23 +10,22 @@ Both are :class:`StepTimedMhe`, which times the solver's part of each update (th
 marginalization) apart from the bookkeeping they share.
 
 The solver is generated from the model's CasADi expressions and compiled once per problem into
-the compile cache (:func:`crs_core.acados_support.solver_dir`, a folder named by the model,
-sensors, horizon, rate and a hash of the problem); a later construction loads the library.
+the compile cache (:func:`crs_core.acados_support.build_or_load`, a folder named by the model,
+sensors, horizon, rate and a hash of the problem and its C helper); a later construction loads
+the library.
 """
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
-import fcntl
 import hashlib
-import io
 import time
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from crs_core.acados_support import acados_template, solver_dir
+from crs_core.acados_support import acados_template, build_or_load, solver_dir
 from crs_core.estimation.base import sensor_group
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
 from crs_core.estimation.mhe_problem import offset_output_functions
@@ -46,64 +45,114 @@ def _symmetric_from_lower(matrix: np.ndarray) -> np.ndarray:
     return lower + np.tril(matrix, -1).T
 
 
-class CInterface:
-    """acados's C interface to one solver, its argument types declared once.
+#: A small C helper compiled beside the solver (:func:`~crs_core.acados_support.build_or_load`):
+#: an update's data in one call each way instead of about 200 ``ctypes`` calls (acados's
+#: ``AcadosOcpSolver.set``/``get`` took 6 ms per update beside a 0.8 ms ``solve()``).
+_HELPER_SOURCE = r"""
+#include "acados_c/ocp_nlp_interface.h"
+#include "acados_solver_{name}.h"
 
-    ``AcadosOcpSolver.set``/``get``/``cost_set``/``get_from_qp_in`` declare the argument
-    types, check dimensions and copy on every call (about 30 us each here); an MHE update makes
-    about 200 such calls, which took 6 ms beside a 0.8 ms ``solve()``. These are the same C
-    functions called directly (1-2 us each), the way acados's Cython wrapper does in C.
-    Arrays passed in must be C-contiguous float64.
-    """
+static ocp_nlp_config *config(void *c) { return {name}_acados_get_nlp_config(c); }
+static ocp_nlp_dims *dims(void *c) { return {name}_acados_get_nlp_dims(c); }
 
-    def __init__(self, solver) -> None:
-        lib, name = solver.shared_lib, solver.model_name
+/* nodes X (N+1 x nx), noise W (N x nu), parameters P (N+1 x np), row-major; the first
+   stage's weight matrix W0 (symmetric) and reference y0 */
+int {name}_io_load(void *capsule, int N, int nx, int nu, int np,
+                   double *X, double *W, double *P, double *W0, double *y0)
+{
+    ocp_nlp_config *cfg = config(capsule);
+    ocp_nlp_dims *dim = dims(capsule);
+    ocp_nlp_in *in = {name}_acados_get_nlp_in(capsule);
+    ocp_nlp_out *out = {name}_acados_get_nlp_out(capsule);
+    for (int k = 0; k <= N; k++) {
+        ocp_nlp_out_set(cfg, dim, out, k, "x", X + k * nx);
+        {name}_acados_update_params(capsule, k, P + k * np, np);
+        if (k < N) ocp_nlp_out_set(cfg, dim, out, k, "u", W + k * nu);
+    }
+    ocp_nlp_cost_model_set(cfg, dim, in, 0, "W", W0);
+    ocp_nlp_cost_model_set(cfg, dim, in, 0, "yref", y0);
+    return 0;
+}
+
+int {name}_io_read(void *capsule, int N, int nx, int nu, double *X, double *W)
+{
+    ocp_nlp_config *cfg = config(capsule);
+    ocp_nlp_dims *dim = dims(capsule);
+    ocp_nlp_out *out = {name}_acados_get_nlp_out(capsule);
+    for (int k = 0; k <= N; k++) {
+        ocp_nlp_out_get(cfg, dim, out, k, "x", X + k * nx);
+        if (k < N) ocp_nlp_out_get(cfg, dim, out, k, "u", W + k * nu);
+    }
+    return 0;
+}
+
+/* stage k's blocks of the last QP, column-major one after the other: A (nx x nx), Q (nx x
+   nx, HPIPM fills the lower half), R (nu x nu, likewise), q, r, b; the last stage: Q, q */
+int {name}_io_qp_stage(void *capsule, int N, int k, int nx, int nu, double *blocks)
+{
+    ocp_nlp_config *cfg = config(capsule);
+    ocp_nlp_dims *dim = dims(capsule);
+    ocp_nlp_solver *solver = {name}_acados_get_nlp_solver(capsule);
+    double *A = blocks, *Q = A + nx * nx, *R = Q + nx * nx;
+    double *q = R + nu * nu, *r = q + nx, *b = r + nu;
+    ocp_nlp_get_at_stage(cfg, dim, solver, k, "Q", Q);
+    ocp_nlp_get_at_stage(cfg, dim, solver, k, "q", q);
+    if (k < N) {
+        ocp_nlp_get_at_stage(cfg, dim, solver, k, "A", A);
+        ocp_nlp_get_at_stage(cfg, dim, solver, k, "R", R);
+        ocp_nlp_get_at_stage(cfg, dim, solver, k, "r", r);
+        ocp_nlp_get_at_stage(cfg, dim, solver, k, "b", b);
+    }
+    return 0;
+}
+"""
+
+
+class _Helper:
+    """The C helper's functions and the solver's ``solve()``, bound once; arrays passed in are
+    C-contiguous float64."""
+
+    def __init__(self, solver: Any, library: ctypes.CDLL, name: str, nx: int, N: int) -> None:
         pointer, integer = ctypes.c_void_p, ctypes.c_int
-        self._handles = (solver.nlp_config, solver.nlp_dims)
-        self._out, self._in, self._solver = solver.nlp_out, solver.nlp_in, solver.nlp_solver
-        self._capsule = solver.capsule
-        self._solve = getattr(lib, f"{name}_acados_solve")
+        self._capsule, self.nx, self.N = pointer(solver.capsule), nx, N
+        self._solve = getattr(solver.shared_lib, f"{name}_acados_solve")
         self._solve.argtypes, self._solve.restype = [pointer], integer
-        self._params = getattr(lib, f"{name}_acados_update_params")
-        self._params.argtypes = [pointer, integer, pointer, integer]
-        self._params.restype = integer
-        self._out_set, self._out_get = lib.ocp_nlp_out_set, lib.ocp_nlp_out_get
-        self._cost_set, self._qp_get = lib.ocp_nlp_cost_model_set, lib.ocp_nlp_get_at_stage
-        for function in (self._out_set, self._out_get, self._cost_set, self._qp_get):
-            function.argtypes = [pointer, pointer, pointer, integer, ctypes.c_char_p, pointer]
-            function.restype = None
+        self._load = getattr(library, f"{name}_io_load")
+        self._load.argtypes = [pointer] + [integer] * 4 + [pointer] * 5
+        self._read = getattr(library, f"{name}_io_read")
+        self._read.argtypes = [pointer] + [integer] * 3 + [pointer] * 2
+        self._stage = getattr(library, f"{name}_io_qp_stage")
+        self._stage.argtypes = [pointer] + [integer] * 4 + [pointer]
+        self._blocks = np.zeros(3 * nx * nx + 3 * nx)
 
     def solve(self) -> int:
         return self._solve(self._capsule)
 
-    def set_parameters(self, values: np.ndarray) -> None:
-        """Row ``k`` of ``values`` (C-contiguous float64) to stage ``k``, every stage."""
-        address, size = values.ctypes.data, values.shape[1]
-        for stage in range(values.shape[0]):
-            if self._params(self._capsule, stage, address + 8 * size * stage, size) != 0:
-                raise RuntimeError(f"acados refused the parameters of stage {stage}")
+    def load(self, X: np.ndarray, W: np.ndarray, P: np.ndarray, W0: np.ndarray, y0: np.ndarray):
+        """Nodes (N+1, nx), noise (N, nx), parameters (N+1, np), the first stage's weight
+        matrix and reference."""
+        self._load(self._capsule, self.N, self.nx, self.nx, P.shape[1], X.ctypes.data,
+                   W.ctypes.data, P.ctypes.data, W0.ctypes.data, y0.ctypes.data)  # fmt: skip
 
-    def set_iterate(self, field: bytes, values: np.ndarray) -> None:
-        """``field`` (``b"x"``, ``b"u"``) of the iterate at stage ``k`` from row ``k``."""
-        address, size = values.ctypes.data, values.shape[1]
-        for stage in range(values.shape[0]):
-            self._out_set(*self._handles, self._out, stage, field, address + 8 * size * stage)
+    def read(self, X: np.ndarray, W: np.ndarray) -> None:
+        self._read(self._capsule, self.N, self.nx, self.nx, X.ctypes.data, W.ctypes.data)
 
-    def get_iterate(self, field: bytes, out: np.ndarray) -> None:
-        """``field`` of the iterate at stage ``k`` into row ``k`` of ``out``."""
-        address, size = out.ctypes.data, out.shape[1]
-        for stage in range(out.shape[0]):
-            self._out_get(*self._handles, self._out, stage, field, address + 8 * size * stage)
-
-    def set_cost(self, field: bytes, stage: int, values: np.ndarray) -> None:
-        """``W`` (symmetric, so its order does not matter) or ``yref`` of a stage."""
-        self._cost_set(*self._handles, self._in, stage, field, values.ctypes.data)
-
-    def get_qp(self, field: bytes, stage: int, shape: tuple[int, int]) -> np.ndarray:
-        """A matrix of the last QP (``A``, ``Q``, ``q``, ...), column-major in acados."""
-        out = np.zeros(shape[0] * shape[1])
-        self._qp_get(*self._handles, self._solver, stage, field, out.ctypes.data)
-        return out.reshape(shape, order="F")
+    def qp_stage(self, k: int) -> tuple[np.ndarray, ...]:
+        """``A, Q, R, q, r, b`` of stage ``k`` of the last QP (Q and R symmetric; the last
+        stage: Q and q, the others zero)."""
+        nx, blocks = self.nx, self._blocks
+        blocks[:] = 0.0
+        self._stage(self._capsule, self.N, k, nx, nx, blocks.ctypes.data)
+        square = [blocks[i * nx * nx : (i + 1) * nx * nx].reshape((nx, nx), order="F")
+                  for i in range(3)]  # fmt: skip
+        A, Q, R = (
+            square[0].copy(),
+            _symmetric_from_lower(square[1]),
+            _symmetric_from_lower(square[2]),
+        )
+        q, r, b = (blocks[3 * nx * nx + i * nx : 3 * nx * nx + (i + 1) * nx].copy()
+                   for i in range(3))  # fmt: skip
+        return A, Q, R, q, r, b
 
 
 class StepTimedMhe(MovingHorizonEstimator):
@@ -166,10 +215,10 @@ class AcadosMhe(StepTimedMhe):
 
     Each update shifts the previous solution (ours' prediction for the new node, zero noise on
     the new stage), sets the parameters, runs ``solve()`` once (SQP-RTI: one Gauss-Newton QP
-    with HPIPM, full step) and reads the nodes back, all through :class:`CInterface`
-    (``solve_times_s``: ``solve()`` alone; ``step_times_s``: the whole step with the
-    marginalization). The node leaving the window is
-    marginalized as in ours, from acados's own QP of the last solve (``A``, ``Q``, ``R``,
+    with HPIPM, full step) and reads the nodes back, the data going through a C helper
+    compiled beside the solver, one call each way (``solve_times_s``: ``solve()`` alone;
+    ``step_times_s``: the whole step with the marginalization). The node leaving the window
+    is marginalized as in ours, from acados's own QP of the last solve (``A``, ``Q``, ``R``,
     ``q``, ``r``, ``b`` of stage 0: the Schur complement onto node 1 with
     :math:`w_0 = \delta x_1 - A\,\delta x_0 - b`), floored, discounted.
 
@@ -237,16 +286,10 @@ class AcadosMhe(StepTimedMhe):
         #: parameters and the iterate, reading it back, and the marginalization).
         self.solve_times_s: list[float] = []
         self._solve_time = 0.0
-        self.solver, self.solver_folder, self.built = self._solver()
-        self.interface = CInterface(self.solver)
+        self.solver, library, self.solver_folder, self.built = self._solver()
+        self._helper = _Helper(self.solver, library, self.name, model.nx, s.horizon)
         n_first = self.solver.acados_ocp.cost.W_0.shape[0]
         self._weight_first, self._reference_first = np.eye(n_first), np.zeros(n_first)
-        nx = model.nx  # the controls are the process noise: nu = nx
-        self._qp_shapes = tuple(
-            (field.encode(), shape)
-            for field, shape in (("A", (nx, nx)), ("Q", (nx, nx)), ("R", (nx, nx)),
-                                 ("q", (nx, 1)), ("r", (nx, 1)), ("b", (nx, 1)))
-        )  # fmt: skip
 
     # --- the OCP ------------------------------------------------------------------------
     def _layout(self) -> dict[str, slice]:
@@ -307,18 +350,15 @@ class AcadosMhe(StepTimedMhe):
         }
         problem = ca.Function("problem", [x, w, par], [dynamics, r_first, r_stage, r_node])
         digest = hashlib.sha1(
-            (problem.serialize() + repr(sorted(options.items())) + str(N)).encode()
+            (problem.serialize() + repr(sorted(options.items())) + _HELPER_SOURCE).encode()
         ).hexdigest()[:10]
         sensors = "_".join(sorted(self.sensors))
-        folder = solver_dir(
+        self.name = (
             f"mhe_{model.tag}_{model.n_base_stations}bs_{sensors}_N{N}_"
             f"{s.rate_hz:g}hz_{digest}".replace(".", "p")
         )
-        name = f"crs_mhe_{digest}"
-
         ocp = template.AcadosOcp()
         ocp.model = template.AcadosModel()
-        ocp.model.name = name
         ocp.model.x, ocp.model.u, ocp.model.p = x, w, par
         ocp.model.disc_dyn_expr = dynamics
         ocp.model.cost_y_expr_0 = r_first
@@ -333,19 +373,11 @@ class AcadosMhe(StepTimedMhe):
         ocp.parameter_values = np.zeros(par.numel())
         for key, value in options.items():
             setattr(ocp.solver_options, key, value)
-        ocp.code_export_directory = str(folder / "c_generated_code")
-        json_file = str(folder / f"{name}.json")
-        library = folder / "c_generated_code" / f"libacados_ocp_solver_{name}.so"
-        quiet = io.StringIO()  # acados prints its build steps and notes
-        with open(folder / "build.lock", "w") as lock, contextlib.redirect_stdout(quiet):
-            fcntl.flock(lock, fcntl.LOCK_EX)  # one process generates, the others wait and reuse
-            built = not library.exists()
-            solver = template.AcadosOcpSolver(
-                ocp, json_file=json_file, build=built, generate=built, verbose=False
-            )
-        if built and not library.exists():
-            raise RuntimeError(f"acados did not build {library}:\n{quiet.getvalue()}")
-        return solver, folder, built
+        folder = solver_dir(self.name)
+        library = folder / "c_generated_code" / f"libacados_ocp_solver_{self.name}.so"
+        built = not library.exists()
+        solver, helper = build_or_load(ocp, self.name, helper=_HELPER_SOURCE)
+        return solver, helper, folder, built
 
     # --- our MHE's hooks ----------------------------------------------------------------
     def _restart_window(self, node: int, x: np.ndarray, weight: np.ndarray) -> None:
@@ -385,18 +417,13 @@ class AcadosMhe(StepTimedMhe):
         P[first:, layout["xbound"]] = s.bound_weight
         self._weight_first[:nx, :nx] = information
         self._reference_first[:nx] = self._arrival
-        c = self.interface
-        c.set_cost(b"W", 0, self._weight_first)
-        c.set_cost(b"yref", 0, self._reference_first)
+        helper = self._helper
         X, W = np.ascontiguousarray(self._X.T), np.ascontiguousarray(self._W.T)
-        c.set_parameters(P)
-        c.set_iterate(b"x", X)
-        c.set_iterate(b"u", W)
+        helper.load(X, W, P, self._weight_first, self._reference_first)
         start = time.perf_counter()
-        status = c.solve()
+        status = helper.solve()
         self._solve_time += time.perf_counter() - start
-        c.get_iterate(b"x", X)
-        c.get_iterate(b"u", W)
+        helper.read(X, W)
         if status != 0 or not (np.all(np.isfinite(X)) and np.all(np.isfinite(W))):
             self._qp = None
             self._restart(stamp, f"acados status {status}")
@@ -417,15 +444,13 @@ class AcadosMhe(StepTimedMhe):
         """The newest node's marginal covariance under the last QP: the inverse of its
         Hessian's Schur complement, by a forward (Kalman) pass over the stages, as ours takes
         it from its normal equations."""
-        nx, M = self.model.nx, self.settings.horizon
-        get, shape = self.interface.get_qp, (nx, nx)
-        covariance = np.linalg.inv(_symmetric_from_lower(get(b"Q", 0, shape)))
-        for k in range(M):
-            A = get(b"A", k, shape)
-            noise = np.linalg.inv(_symmetric_from_lower(get(b"R", k, shape)))
-            predicted = A @ covariance @ A.T + noise
-            information = np.linalg.inv(predicted) + _symmetric_from_lower(get(b"Q", k + 1, shape))
-            covariance = np.linalg.inv(information)
+        stage = self._helper.qp_stage
+        A, Q, R, *_ = stage(0)
+        covariance = np.linalg.inv(Q)
+        for k in range(1, self.settings.horizon + 1):
+            predicted = A @ covariance @ A.T + np.linalg.inv(R)
+            A, Q, R, *_ = stage(k)
+            covariance = np.linalg.inv(np.linalg.inv(predicted) + Q)
         return 0.5 * (covariance + covariance.T)
 
     def _marginalize(self) -> None:
@@ -437,11 +462,7 @@ class AcadosMhe(StepTimedMhe):
         (x1_lin,) = self._qp
         self._qp = None
         nx = self.model.nx
-        A, Q, R, q, r, b = (
-            self.interface.get_qp(field, 0, shape) for field, shape in self._qp_shapes
-        )
-        Q, R = _symmetric_from_lower(Q), _symmetric_from_lower(R)  # HPIPM keeps the lower half
-        q, r, b = q.ravel(), r.ravel(), b.ravel()
+        A, Q, R, q, r, b = self._helper.qp_stage(0)
         # the QP's dynamics dx1 = A dx0 + dw0 + b give dw0 = dx1 - A dx0 - b; no residual
         # couples x_0 and w_0 (S = 0). In (dx0, dx1) the Hessian is [[Q + A'RA, -A'R],
         # [-RA, R]] and the gradient [q - A'(r - Rb); r - Rb]; minimising over dx0 leaves
@@ -457,4 +478,4 @@ class AcadosMhe(StepTimedMhe):
         self._arrival_information = self.settings.discount * information
 
 
-__all__ = ["PIN_FACTOR", "AcadosMhe", "CInterface", "StepTimedMhe"]
+__all__ = ["PIN_FACTOR", "AcadosMhe", "StepTimedMhe"]

@@ -105,19 +105,20 @@ def test_one_rti_step_and_the_marginalization_are_ours(peer):
     np.testing.assert_allclose(peer._arrival_information, ours[1], rtol=1e-10)
 
 
-def test_the_c_interface_reads_what_acados_reads(peer):
-    """The ctypes calls give what acados's own getters give (the QP's Q in its lower half)."""
+def test_the_c_helper_reads_what_acados_reads(peer):
+    """The helper's reads give what acados's own getters give (the QP's Q and R from their
+    lower half, which HPIPM fills)."""
     nx, M = peer.model.nx, peer.settings.horizon
-    X = np.zeros((M + 1, nx))
-    peer.interface.get_iterate(b"x", X)
+    X, W = np.zeros((M + 1, nx)), np.zeros((M, nx))
+    peer._helper.read(X, W)
     np.testing.assert_array_equal(X[7], peer.solver.get(7, "x"))
-    for field in ("A", "Q", "R"):
-        ours = peer.interface.get_qp(field.encode(), 3, (nx, nx))
-        theirs = peer.solver.get_from_qp_in(3, field)
-        np.testing.assert_array_equal(np.tril(ours), np.tril(theirs))
-    np.testing.assert_array_equal(
-        peer.interface.get_qp(b"b", 3, (nx, 1)).ravel(), peer.solver.get_from_qp_in(3, "b").ravel()
-    )
+    np.testing.assert_array_equal(W[39], peer.solver.get(39, "u"))
+    A, Q, R, q, r, b = peer._helper.qp_stage(3)
+    for field, ours in (("A", A), ("Q", Q), ("R", R)):
+        np.testing.assert_array_equal(np.tril(ours), np.tril(peer.solver.get_from_qp_in(3, field)))
+    for field, ours in (("q", q), ("r", r), ("b", b)):
+        np.testing.assert_array_equal(ours, peer.solver.get_from_qp_in(3, field).ravel())
+    np.testing.assert_array_equal(Q, Q.T)
 
 
 @pytest.mark.slow
