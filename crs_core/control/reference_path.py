@@ -78,8 +78,11 @@ class ReferencePath:
         speed = np.hypot(through_x(u, 1), through_y(u, 1))
         sigma = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u))))
         self.length = float(sigma[-1])
-        self._x = CubicSpline(sigma, through_x(u), bc_type="periodic")
-        self._y = CubicSpline(sigma, through_y(u), bc_type="periodic")
+        # x and y as one vector-valued spline, and its derivatives: a point costs three
+        # evaluations, not six (the MPCC evaluates the path several times a call)
+        points = np.column_stack((through_x(u), through_y(u)))
+        self._xy = CubicSpline(sigma, points, bc_type="periodic")
+        self._dxy, self._ddxy = self._xy.derivative(1), self._xy.derivative(2)
         # arc length on the spline of each track sample, to map the track's projection
         self._sample_s, self._sample_sigma = s, np.interp(s, u, sigma)
 
@@ -95,12 +98,12 @@ class ReferencePath:
         if not np.all(np.isfinite(theta)):
             raise FieldError("theta", "arc length must be finite")
         s = np.mod(theta, self.length)
-        dx, dy = self._x(s, 1), self._y(s, 1)
-        ddx, ddy = self._x(s, 2), self._y(s, 2)
+        xy, dxy, ddxy = self._xy(s), self._dxy(s), self._ddxy(s)
+        dx, dy, ddx, ddy = dxy[..., 0], dxy[..., 1], ddxy[..., 0], ddxy[..., 1]
         speed = np.hypot(dx, dy)
         return PathPoint(
-            np.asarray(self._x(s)),
-            np.asarray(self._y(s)),
+            np.asarray(xy[..., 0]),
+            np.asarray(xy[..., 1]),
             np.arctan2(dy, dx),
             np.asarray((dx * ddy - dy * ddx) / speed**3),
         )
