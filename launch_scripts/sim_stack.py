@@ -353,8 +353,27 @@ def launch_and_report(
     report["nodes"] = [spec.full_name for spec in nodes]
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     report.update(process_figures(launcher))
+    report["solver_cpu_percent"] = solver_cpu_percent(out / "logs", launcher.wall_at_stop)
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
+
+
+def solver_cpu_percent(log_dir: Path, wall_s: float) -> dict[str, float]:
+    """Per car, the CPU of its solvers over the run (% of one core): the estimator's updates
+    and the controller's decisions, from the ``*.stats.json`` the nodes write when they stop
+    (:data:`~ros4crs.discovery.STATS_DIR_VARIABLE`); the whole run's wall time ``wall_s``,
+    like ``cpu_percent``. A car whose nodes wrote none is left out."""
+    totals: dict[str, float] = {}
+    for path in sorted(Path(log_dir).glob("*.stats.json")):
+        try:
+            stats = json.loads(path.read_text())
+            car = stats["node"].strip("/").split("/")[0]
+            totals[car] = totals.get(car, 0.0) + float(stats["solver_cpu_s"])
+        except (OSError, ValueError, KeyError, AttributeError):
+            continue  # a node killed while writing: no figure rather than a wrong one
+    if wall_s <= 0:
+        return {}
+    return {car: round(100 * seconds / wall_s, 1) for car, seconds in totals.items()}
 
 
 def run_folder(out: Path, domain_id: int | None) -> tuple[Path, Path, int]:
@@ -560,13 +579,14 @@ def overload_figures(
 
 def outcome(car: dict[str, Any]) -> str:
     """``"left the track"`` (its footprint was outside the border), ``"raced"`` (a lap or
-    more, always inside) or ``"stood on the track"``; ``"unknown"`` without its truth."""
+    more, always inside) or ``"stayed on the track"`` (no lap); ``"unknown"`` without its
+    truth."""
     outside = car.get("off_track")
     if outside is None:
         return "unknown"
     if outside["episodes"]:
         return "left the track"
-    return "raced" if car.get("laps_completed", 0) else "stood on the track"
+    return "raced" if car.get("laps_completed", 0) else "stayed on the track"
 
 
 def estimation_rmse(

@@ -4,10 +4,11 @@ and if it must, stand it on the track.
 A starved stack does not slow down by itself: its controller's ticks come late, its estimates
 arrive old, and a car racing on them at full speed leaves the track before a stale estimate
 stops it (which then lets it roll straight on). :class:`OverloadWatch` looks at every tick of
-the loop: a tick that comes more than ``late_tick`` s after the one before, or whose newest
-estimate is more than ``max_age`` s old, is *late*. After a late tick the speed limit is
-``slow_speed`` (slow enough that a gap of a few hundred milliseconds, a stale stop, or the car's
-motor cut-off costs centimetres); when late intervals fill more than ``stand_fraction`` of the
+the loop: a tick that comes more than ``late_tick`` s after the one before, or that has seen no
+new estimate for more than ``estimate_gap`` s, is *late* (not the estimate's age: an estimator
+lags the data by design, up to 0.1 s for an EKF waiting for late Wi-Fi data). After a late tick
+the speed limit is ``slow_speed`` (slow enough that a gap of a few hundred milliseconds, a stale
+stop, or the car's motor cut-off costs centimetres); when late intervals fill more than ``stand_fraction`` of the
 last ``window`` s, the limit is 0: the controller brakes the car to a stand on its path. The
 limit is lifted after ``hold`` s without a late tick. The :class:`~crs_core.control.supervisor.
 Supervisor` ramps its speed cap to this limit; :attr:`OverloadWatch.late_ticks` and
@@ -34,13 +35,13 @@ class OverloadSettings(Settings):
     Attributes
     ----------
     late_tick : float
-        A tick more than this after the previous one is late, s (three periods of the MPCC's
-        30 Hz; its car cuts the motors after 0.2 s without a command).
-    max_age : float
-        A tick whose newest estimate is older than this is late, s (an estimate is 25-40 ms
-        old at a tick on a machine that keeps up: the estimator's lag and the transport).
+        A tick more than this after the previous one is late, s (four and a half periods of
+        the MPCC's 30 Hz; its car cuts the motors after 0.2 s without a command).
+    estimate_gap : float
+        A tick that has seen no new estimate for longer than this is late, s (the estimators
+        publish at 60 Hz: nine periods).
     slow_speed : float
-        Speed limit after a late tick, m/s.
+        Speed limit after a late tick, m/s (a gap of 0.2 s then costs 0.2 m of open loop).
     window : float
         How far back the late intervals are summed, s.
     stand_fraction : float
@@ -50,12 +51,12 @@ class OverloadSettings(Settings):
         The limit is lifted after this long without a late tick, s.
     """
 
-    late_tick: float = positive(0.1)
-    max_age: float = positive(0.1)
-    slow_speed: float = positive(0.6)
-    window: float = positive(2.0)
-    stand_fraction: float = within(0.25, low=0.0, high=1.0)
-    hold: float = positive(3.0)
+    late_tick: float = positive(0.15)
+    estimate_gap: float = positive(0.15)
+    slow_speed: float = positive(1.0)
+    window: float = positive(4.0)
+    stand_fraction: float = within(0.3, low=0.0, high=1.0)
+    hold: float = positive(2.0)
 
 
 class OverloadWatch:
@@ -92,15 +93,16 @@ class OverloadWatch:
             self._late.popleft()
         return min(sum(interval for _, interval in self._late) / s.window, 1.0)
 
-    def tick(self, now: float, interval: float, age: float) -> str:
-        """Take a tick at ``now`` (s), ``interval`` s after the previous one, whose newest
-        estimate is ``age`` s old (inf: none); the reason it was late ('' if on time)."""
+    def tick(self, now: float, interval: float, since_estimate: float) -> str:
+        """Take a tick at ``now`` (s), ``interval`` s after the previous one, ``since_estimate``
+        s after the tick that saw the newest estimate arrive (0: this one); the reason it was
+        late ('' if on time)."""
         s = self.settings
         reason = ""
         if interval > s.late_tick:
             reason = f"the controller's tick came {interval * 1e3:.0f} ms after the last"
-        elif age > s.max_age:
-            reason = f"the state estimate is {age * 1e3:.0f} ms old at the tick"
+        elif since_estimate > s.estimate_gap:
+            reason = f"no new state estimate for {since_estimate * 1e3:.0f} ms"
         if reason:
             self.late_ticks += 1
             self._last_late = now

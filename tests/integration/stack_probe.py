@@ -22,6 +22,7 @@ from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from crs_core.analysis.laps import LapCounter
 from crs_core.track import Track
 from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.sim_stack import PIPELINE_PROCESS
 from ros4crs import conversions
 from ros4crs.discovery import FASTDDS_PROFILE
 from ros4crs.node_support import STREAM_QOS
@@ -48,9 +49,14 @@ def wait_for(
 
 def log_text(log_dir: Path, full_name: str) -> str:
     """What a node launched by the Launcher has logged so far (``/car1/estimator`` ->
-    ``log_dir/car1_estimator.log``)."""
-    path = Path(log_dir) / (full_name.strip("/").replace("/", "_") + ".log")
-    return path.read_text(errors="replace") if path.exists() else ""
+    ``log_dir/car1_estimator.log``; a node of a car's shared pipeline process: that process's
+    log, ``car1_pipeline.log``)."""
+    namespace = full_name.strip("/").rpartition("/")[0]
+    for stem in (full_name.strip("/").replace("/", "_"), f"{namespace}_{PIPELINE_PROCESS}"):
+        path = Path(log_dir) / f"{stem}.log"
+        if path.exists():
+            return path.read_text(errors="replace")
+    return ""
 
 
 class Probe:

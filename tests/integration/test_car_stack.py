@@ -98,7 +98,8 @@ def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) ->
 def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm_codegen) -> None:
     out = tmp_path / "run"
     out.mkdir()
-    options = StackOptions("mhe", record="estimates")
+    # a process per node: the controller alone is killed
+    options = StackOptions("mhe", record="estimates", process_per_node=True)
     nodes = car_nodes(1, options, out / "bag", out, True, ports=(21221, 21321))
     launcher = Launcher(nodes, DOMAIN_CUTOFF, out / "logs")
     controller = next(n for n in nodes if n.name == "controller")

@@ -10,6 +10,7 @@ import pytest
 
 from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
 from crs_core.control.mpcc import Mpcc
+from crs_core.control.overload import OverloadSettings
 from crs_core.control.supervisor import STOP, Supervisor, SupervisorSettings
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
@@ -120,7 +121,8 @@ def test_a_fall_from_the_cars_speed_reaches_degraded_speed_at_the_ramp_rate():
 
 def test_stale_after_the_timeout_and_lost_stop_the_car_and_fresh_estimates_resume():
     controller = Recorder()
-    supervisor = Supervisor(controller, SupervisorSettings(stale_timeout=0.2))
+    quiet = OverloadSettings(estimate_gap=1.0)  # the overload watch's own test: test_overload
+    supervisor = Supervisor(controller, SupervisorSettings(stale_timeout=0.2, overload=quiet))
     first = supervisor(0.0)
     assert not first.driving and np.array_equal(first.command, STOP) and not controller.calls
     supervisor.observe(0.0, state(1.0), "ok")
