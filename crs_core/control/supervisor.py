@@ -300,6 +300,8 @@ class Supervisor:
         self._pending_events: list[SupervisorEvent] = []
         #: late ticks of the loop and the speed limit they call for
         self.overload = OverloadWatch(self.settings.overload)
+        self._watched_stamp = -math.inf  # the newest estimate's stamp the watch has seen
+        self._estimate_tick = -math.inf  # the tick that saw it arrive
 
     def observe(self, stamp: float, x: ArrayLike, status: str) -> None:
         """Take a state estimate: base state ``x`` (6,) at ``stamp`` (s) with its ``status``.
@@ -454,12 +456,14 @@ class Supervisor:
             )
 
     def _watch_overload(self, now: float, dt: float, events: list) -> None:
-        """Take this tick into the overload watch (its interval and the newest estimate's
-        age) and say when its limit changes; not before the first estimate (start-up)."""
+        """Take this tick into the overload watch (its interval, and how long since a tick saw
+        a new estimate) and say when its limit changes; not before the first estimate."""
         if self._latest is None:
             return
+        if self._latest[0] != self._watched_stamp:
+            self._watched_stamp, self._estimate_tick = self._latest[0], now
         before = self.overload.state
-        reason = self.overload.tick(now, dt, now - self._latest[0])
+        reason = self.overload.tick(now, dt, now - self._estimate_tick)
         state = self.overload.state
         if state == before:
             return
