@@ -169,7 +169,7 @@ def format_table(result: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _span(values: list[float], form: str) -> str:
+def span(values: list[float], form: str) -> str:
     """``a–b`` of the formatted smallest and largest value, ``a`` when they are the same."""
     if not values:
         return "–"
@@ -179,7 +179,7 @@ def _span(values: list[float], form: str) -> str:
 
 def _spans(items: list[dict[str, float]], keys: tuple[str, str], form: str, scale=1.0) -> str:
     """``span of the first key / span of the second`` over ``items``."""
-    return " / ".join(_span([scale * item[key] for item in items], form) for key in keys)
+    return " / ".join(span([scale * item[key] for item in items], form) for key in keys)
 
 
 def format_markdown(result: dict[str, Any]) -> str:
@@ -197,9 +197,9 @@ def format_markdown(result: dict[str, Any]) -> str:
         ]
         messages = [sum(run.get("viewer_messages", {}).values()) for run in result["runs_viz"]]
         notes.append(
-            f"The visualizer: {_span(cpu, '.1f')} % of one core for {result['cars']} car(s) "
-            f"({_span([c / result['cars'] for c in cpu], '.1f')} % per car), its viewer "
-            f"subscribed to every channel ({_span(messages, 'd')} messages in the run)."
+            f"The visualizer: {span(cpu, '.1f')} % of one core for {result['cars']} car(s) "
+            f"({span([c / result['cars'] for c in cpu], '.1f')} % per car), its viewer "
+            f"subscribed to every channel ({span(messages, 'd')} messages in the run)."
         )
     return "\n".join(
         [
@@ -229,7 +229,7 @@ def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
         cpu = run.get("cpu_percent_running") or run.get("cpu_percent") or {}
         pipelines.append([pipeline_cpu(cpu, car)])
         recorder += [cpu["/recorder"]] if "/recorder" in cpu else []
-    pipeline = _span([sum(p) for p in pipelines], ".1f") + " %"
+    pipeline = span([sum(p) for p in pipelines], ".1f") + " %"
     if len(pipelines) == 1:
         pipeline += " (" + " + ".join(f"{v:g}" for v in pipelines[0]) + ")"
     who = ", ".join(sorted({car.removeprefix("car") for _, car, _ in cars}))
@@ -237,9 +237,9 @@ def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
         who += f" ({result['repeats']} repeats)"
     if result.get("load_processes"):
         who += f", {result['load_processes']} busy processes"
-    laps_text = _span(laps, "d") + (f" in each of {len(cars)} car runs" if len(cars) > 1 else "")
+    laps_text = span(laps, "d") + (f" in each of {len(cars)} car runs" if len(cars) > 1 else "")
     if lap_times:
-        laps_text += f" ({_span(lap_times, '.2f')} s)"
+        laps_text += f" ({span(lap_times, '.2f')} s)"
     misses = [c.get("estimator_deadline_misses", 0) for _, _, c in cars]
     updates = [c.get("estimator_updates", 0) for _, _, c in cars]
     row = [
@@ -247,10 +247,10 @@ def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
         who,
         laps_text,
         f"{_spans(rmse, ('x', 'y'), '.2f', 1e3)} mm",
-        f"{_span(misses, 'd')} in {_span(updates, 'd')}",
+        f"{span(misses, 'd')} in {span(updates, 'd')}",
         f"{_spans(latency, ('median', 'p95'), '.0f')} ms",
         pipeline,
-        f"{_span(recorder, '.0f')} %",
+        f"{span(recorder, '.0f')} %",
     ]
     return "| " + " | ".join(row) + " |"
 
@@ -265,7 +265,7 @@ def _note(result: dict[str, Any], runs: list[dict[str, Any]]) -> str:
     memory = [m for run in runs for m in (run.get("peak_memory_mib") or {}).values()]
     return (
         f"{result['duration_s']:g} s per run, {result['estimator'].upper()}; node deaths: "
-        f"{deaths}; re-initialisations: {_span(reinit, 'd')}; yaw RMSE "
-        f"{_span([1e3 * r['yaw'] for r in rmse], '.1f')} mrad; peak memory per node "
-        f"{_span(memory, '.0f')} MiB."
+        f"{deaths}; re-initialisations: {span(reinit, 'd')}; yaw RMSE "
+        f"{span([1e3 * r['yaw'] for r in rmse], '.1f')} mrad; peak memory per node "
+        f"{span(memory, '.0f')} MiB."
     )

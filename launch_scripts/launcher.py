@@ -19,7 +19,7 @@ from typing import Any
 
 import yaml
 
-from ros4crs.discovery import set_discovery_environment
+from ros4crs.discovery import STATS_DIR_VARIABLE, set_discovery_environment
 
 
 @dataclass
@@ -110,6 +110,7 @@ class Launcher:
         env["ROS_DOMAIN_ID"] = str(self.domain_id)
         env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
         env["PYTHONUNBUFFERED"] = "1"
+        env[STATS_DIR_VARIABLE] = str(self.log_dir.resolve())  # the nodes' solver CPU at the end
         set_discovery_environment(env)  # the suite's Fast DDS profile, unless the user has one
         # node logs with local date and time (rcutils' default is raw epoch seconds)
         env.setdefault(

@@ -49,6 +49,7 @@ model).
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from collections.abc import Sequence
 from typing import Any
@@ -229,6 +230,9 @@ class ControllerNode(Node):
         #: the controller's call times of the last 30 s at 30 Hz, s (bounded: a node runs for hours)
         self.solve_times: deque[float] = deque(maxlen=900)
         self._calls = 0
+        #: CPU time of the ticks' decisions (the supervisor and the controller it calls), s
+        self.solver_cpu_seconds = 0.0
+        self._ticks = 0
         self.create_timer(1.0 / rate_hz, self._control)
 
     def _on_state(self, value: tuple[float, np.ndarray, str]) -> None:
@@ -242,13 +246,21 @@ class ControllerNode(Node):
         self._applied.take_pending()
         self._estimates.take_pending()  # act on the newest estimate that has arrived
         now = self.get_clock().now().nanoseconds * 1e-9
+        cpu_started = time.thread_time()
         step = self.supervisor(now)
+        self.solver_cpu_seconds += time.thread_time() - cpu_started
+        self._ticks += 1
         self._input_publisher.publish(conversions.car_input_msg(step.command, now, self.output))
         for event in step.events:
             self._log[event.kind](event.message)
         if step.solve_time is not None:
             self._record_solve_time(step.solve_time)
         self._publish_for_viewers(now, step.solve_time)
+
+    def timing_stats(self) -> dict[str, float]:
+        """What the controller's own computing cost so far (written out at the end of a run by
+        :func:`ros4crs.node_support.run_nodes`): ticks and the CPU time of their decisions, s."""
+        return {"ticks": self._ticks, "solver_cpu_s": round(self.solver_cpu_seconds, 4)}
 
     def _publish_for_viewers(self, now: float, solve_time: float | None) -> None:
         """The MPCC's plan, its progress reference and the call time, when someone listens (a

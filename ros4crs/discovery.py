@@ -22,6 +22,11 @@ from pathlib import Path
 FASTDDS_PROFILE = Path(__file__).with_name("fastdds_profile.xml")
 
 
+#: The environment variable naming the folder where nodes write their timing statistics when
+#: they stop (:func:`ros4crs.node_support.run_nodes`; the launcher sets it to its log folder).
+STATS_DIR_VARIABLE = "CRS_NODE_STATS"
+
+
 def set_discovery_environment(env: MutableMapping[str, str] = os.environ) -> None:
     """Discovery on this machine only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) and the
     suite's Fast DDS profile, unless ``env`` already sets them. Call before the DDS

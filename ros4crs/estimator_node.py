@@ -331,6 +331,14 @@ class EstimatorNode(Node):
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
 
+    def timing_stats(self) -> dict[str, float]:
+        """What the estimator's own computing cost so far (:func:`ros4crs.node_support.run_nodes`
+        writes it out at the end of a run): updates and their CPU time, s."""
+        return {
+            "updates": self.realtime.updates,
+            "solver_cpu_s": round(self.realtime.update_cpu_seconds, 4),
+        }
+
     def _publish_diagnostics(self) -> None:
         from chronos_msgs.msg import EstimatorDiagnostics
 

@@ -18,7 +18,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.signals import SignalHandlerOptions
 
 from crs_core.errors import FieldError
-from ros4crs.discovery import set_discovery_environment
+from ros4crs.discovery import STATS_DIR_VARIABLE, set_discovery_environment
 
 if TYPE_CHECKING:
     from crs_core.model import CarModel
@@ -382,10 +382,33 @@ def _run(makers: Sequence[tuple[str, Callable[[], Node]]], args: list[str]) -> i
             raise  # a real failure while running
         # the context was shut down (Ctrl-C, SIGTERM) under a running callback, e.g. mid-publish
     finally:
+        _write_timing_stats(makers, nodes)
         for node in reversed(nodes):
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _write_timing_stats(
+    makers: Sequence[tuple[str, Callable[[], Node]]], nodes: list[Node]
+) -> None:
+    """``<dir>/<ns>_<node>.stats.json`` of each node with a ``timing_stats()`` (the CPU of its
+    solver), when ``$CRS_NODE_STATS`` names a folder; a failure to write is logged, never
+    raised (the node is stopping)."""
+    folder = os.environ.get(STATS_DIR_VARIABLE)
+    if not folder:
+        return
+    import json
+
+    for (name, _), node in zip(makers, nodes, strict=False):
+        stats = getattr(node, "timing_stats", None)
+        if stats is None:
+            continue
+        path = Path(folder) / f"{name.strip('/').replace('/', '_')}.stats.json"
+        try:
+            path.write_text(json.dumps({"node": name, **stats()}))
+        except OSError as error:
+            print(f"{name}: could not write {path}: {error}", file=sys.stderr)
 
 
 def _reason(error: Exception) -> str:

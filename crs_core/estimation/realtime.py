@@ -205,6 +205,9 @@ class RealtimeEstimator:
         self.restarts = 0
         self.updates = 0
         self.deadline_misses = 0
+        #: CPU time of this thread spent in the estimator's updates so far, s (its own cost,
+        #: whatever else the machine does)
+        self.update_cpu_seconds = 0.0
         self._max_update_time = 0.0
         self._buffer: list[tuple[Measurement | InputSample, float | None]] = []
         self._buffered_measurement = False
@@ -294,13 +297,14 @@ class RealtimeEstimator:
         if t <= self._last_query:
             return UpdateResult(t, warnings=tuple(warnings))
         self._last_query = t
-        started = self._timer()
+        started, cpu_started = self._timer(), time.thread_time()
         try:
             estimate = self.estimator.estimate(t)
         except ValueError as error:  # e.g. a clock that jumped back: say so, keep running
             warnings.append(RealtimeWarning("status", f"no estimate at {t:.3f} s: {error}"))
             return UpdateResult(t, queried=True, warnings=tuple(warnings))
         elapsed = self._timer() - started
+        self.update_cpu_seconds += time.thread_time() - cpu_started
         self.updates += 1
         self._max_update_time = max(self._max_update_time, elapsed)
         if elapsed > self.period:
