@@ -487,18 +487,19 @@ def _seeds(seeds: Sequence[int]) -> str:
 
 def _solver_split(row: dict) -> str:
     """What of the acados peer's update is solver and what is Python, beside ours."""
-    solve, step, t = row["solve_ms"], row["step_ms"], row["time_ms"]
+
+    def pair(times: dict) -> str:
+        return f"{format_ms(times['median'])} / {format_ms(times['p95'])} ms"
+
     ours = row["ours"]
     return (
-        f"acados per update (median / p95): `solve()` {format_ms(solve['median'])} / "
-        f"{format_ms(solve['p95'])} ms; its step with the data set in and read back through "
-        f"ctypes and the marginalization {format_ms(step['median'])} / {format_ms(step['p95'])}"
-        f" ms; the whole update {format_ms(t['median'])} / {format_ms(t['p95'])} ms (the rest "
-        f"is our MHE's bookkeeping, which it shares). Ours (commanded model): Gauss-Newton step "
-        f"with marginalization {format_ms(ours['step_ms']['median'])} / "
-        f"{format_ms(ours['step_ms']['p95'])} ms, update {format_ms(ours['time_ms']['median'])}"
-        f" / {format_ms(ours['time_ms']['p95'])} ms. Fallbacks: acados {row['fallbacks']}, "
-        f"ours {ours['fallbacks']}."
+        f"acados per update (median / p95): `solve()` {pair(row['solve_ms'])}; its step (the "
+        "stage data assembled in numpy, set in and read back by a C helper, `solve()`, the "
+        f"marginalization in numpy) {pair(row['step_ms'])}; the whole update "
+        f"{pair(row['time_ms'])} (the rest is our MHE's bookkeeping, which it shares). Ours "
+        f"(commanded model): Gauss-Newton step with marginalization {pair(ours['step_ms'])}, "
+        f"update {pair(ours['time_ms'])}. Fallbacks: acados {row['fallbacks']}, ours "
+        f"{ours['fallbacks']}."
     )
 
 
