@@ -143,15 +143,11 @@ class _Helper:
         nx, blocks = self.nx, self._blocks
         blocks[:] = 0.0
         self._stage(self._capsule, self.N, k, nx, nx, blocks.ctypes.data)
-        square = [blocks[i * nx * nx : (i + 1) * nx * nx].reshape((nx, nx), order="F")
-                  for i in range(3)]  # fmt: skip
-        A, Q, R = (
-            square[0].copy(),
-            _symmetric_from_lower(square[1]),
-            _symmetric_from_lower(square[2]),
-        )
-        q, r, b = (blocks[3 * nx * nx + i * nx : 3 * nx * nx + (i + 1) * nx].copy()
-                   for i in range(3))  # fmt: skip
+        n2 = nx * nx
+        A = blocks[:n2].reshape((nx, nx), order="F").copy()
+        Q = _symmetric_from_lower(blocks[n2 : 2 * n2].reshape((nx, nx), order="F"))
+        R = _symmetric_from_lower(blocks[2 * n2 : 3 * n2].reshape((nx, nx), order="F"))
+        q, r, b = blocks[3 * n2 :].reshape(3, nx).copy()
         return A, Q, R, q, r, b
 
 
