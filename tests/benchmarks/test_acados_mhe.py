@@ -4,7 +4,7 @@ The peer solves our MHE's own problem, so beyond converging from the standard wr
 (standard drive, seed 1, 4 s, ``lh+imu+we``, 60 Hz, RMSE after 2 s, the bounds of the other
 peers) its estimates must be ours: one real-time iteration equals our Gauss-Newton step, its
 marginalization ours, and over the run the two agree once the start is behind them. Its solver
-is generated and compiled once (the first construction on a cold cache takes about 10 s).
+is generated and compiled once (the first construction on a cold cache took 10-17 s).
 """
 
 from __future__ import annotations
@@ -125,8 +125,8 @@ def test_the_c_helper_reads_what_acados_reads(peer):
 def test_acados_mhe_converges_and_agrees_with_ours(drive):
     """acados's MHE settles from the wrong start, with ours' estimates.
 
-    Measured: RMSE x 0.71 mm, y 0.70 mm, yaw 7.1 mrad (bounds 20 mm and 0.1 rad; ours 0.76,
-    0.72, 7.2); after 2 s the two agree to 2e-8; no fallback, every acados solve status 0.
+    Measured: RMSE x 0.71 mm, y 0.70 mm, yaw 7.1 mrad (bounds 20 mm and 0.1 rad), ours on the
+    commanded model the same to 4 digits; after 2 s the two agree to 2e-9; no fallback.
     """
     peer = AcadosMhe(CarModel(), SENSORS)
     ours = StepTimedMhe(CarModel(), SENSORS, MheSettings())
