@@ -351,3 +351,16 @@ def test_a_solve_time_budget_ends_the_iterations_of_a_call(track) -> None:
     np.testing.assert_allclose(hurried.plan[1], once.plan[1])
     assert hurried.status.qp_iterations == once.status.qp_iterations
     assert unhurried.status.qp_iterations > 3 * once.status.qp_iterations
+
+
+def test_non_finite_qp_data_never_reach_the_solver(track) -> None:
+    """A guess with a NaN makes non-finite QP data: the iteration fails with the name of the
+    first argument that holds one, and the QP solver is not called."""
+    controller = Mpcc(track)
+    controller(_start(track, 1.0))
+    Z, V = controller.plan
+    Z = Z.copy()
+    Z[3, 3] = math.nan
+    refs = controller._references(Z[:, controller._nxc])
+    result = controller._solve_qp(Z, V, refs)
+    assert not result.success and result.status.startswith("non-finite data in ")
