@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 
-from crs_core.settings import Settings, positive, within
+from crs_core.settings import Settings, non_negative, positive, within
 
 __all__ = ["OVERLOAD_STATES", "OverloadSettings", "OverloadWatch"]
 
@@ -49,6 +49,10 @@ class OverloadSettings(Settings):
         stopped on the track).
     hold : float
         The limit is lifted after this long without a late tick, s.
+    warm_up : float
+        Ticks this soon after the first one (the first estimate) are not judged, s: the MPCC's
+        cold start and the first calls of every compiled function make a start's ticks late on
+        any machine.
     """
 
     late_tick: float = positive(0.15)
@@ -57,6 +61,7 @@ class OverloadSettings(Settings):
     window: float = positive(4.0)
     stand_fraction: float = within(0.3, low=0.0, high=1.0)
     hold: float = positive(2.0)
+    warm_up: float = non_negative(1.0)
 
 
 class OverloadWatch:
@@ -78,6 +83,7 @@ class OverloadWatch:
         self.stands = 0
         self._late: deque[tuple[float, float]] = deque()  # (tick time, late interval s)
         self._last_late = -float("inf")
+        self._first: float | None = None
 
     @property
     def limit(self) -> float | None:
@@ -98,6 +104,10 @@ class OverloadWatch:
         s after the tick that saw the newest estimate arrive (0: this one); the reason it was
         late ('' if on time)."""
         s = self.settings
+        if self._first is None:
+            self._first = now
+        if now - self._first < s.warm_up:
+            return ""
         reason = ""
         if interval > s.late_tick:
             reason = f"the controller's tick came {interval * 1e3:.0f} ms after the last"

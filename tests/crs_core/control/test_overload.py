@@ -21,7 +21,7 @@ def test_on_time_ticks_with_fresh_estimates_set_no_limit():
 
 
 def test_one_late_tick_slows_the_car_until_the_loop_has_kept_its_period_for_hold():
-    settings = OverloadSettings(late_tick=0.1, hold=3.0, slow_speed=0.6)
+    settings = OverloadSettings(late_tick=0.1, hold=3.0, slow_speed=0.6, warm_up=0.0)
     watch = OverloadWatch(settings)
     now = 0.0
     for _ in range(30):
@@ -42,7 +42,7 @@ def test_one_late_tick_slows_the_car_until_the_loop_has_kept_its_period_for_hold
 
 
 def test_an_on_time_tick_without_a_new_estimate_for_long_is_late():
-    watch = OverloadWatch(OverloadSettings(estimate_gap=0.1))
+    watch = OverloadWatch(OverloadSettings(estimate_gap=0.1, warm_up=0.0))
     assert watch.tick(1.0, PERIOD, 0.09) == ""
     assert "no new state estimate for 120 ms" in watch.tick(1.0, PERIOD, 0.12)
     assert watch.state == "slow"
@@ -64,7 +64,7 @@ def test_an_estimate_that_lags_by_design_is_not_late():
 def test_a_loop_late_most_of_the_time_stands_the_car():
     """Ticks every 0.2 s (a starved process): after enough of the 2 s window is late the limit
     is 0; the late fraction counts each late tick's interval once."""
-    watch = OverloadWatch(OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25))
+    watch = OverloadWatch(OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, warm_up=0.0))
     now, states = 0.0, []
     for _ in range(4):
         now += 0.2
@@ -74,6 +74,15 @@ def test_a_loop_late_most_of_the_time_stands_the_car():
     assert watch.limit == 0.0 and watch.stands == 1
     assert watch.late_fraction(now) == pytest.approx(0.4)
     assert watch.late_fraction(now + 5.0) == 0.0  # the window forgets
+
+
+def test_the_first_second_is_not_judged():
+    """The start's ticks (a cold MPCC, first calls of compiled code) are late on any machine:
+    within ``warm_up`` of the first tick, no late tick counts."""
+    watch = OverloadWatch(OverloadSettings(warm_up=1.0))
+    assert watch.tick(10.0, 0.0, 0.0) == "" and watch.tick(10.5, 0.5, 0.0) == ""
+    assert watch.state == "ok" and watch.late_ticks == 0
+    assert "500 ms after the last" in watch.tick(11.0, 0.5, 0.0)
 
 
 def test_settings_are_checked():
@@ -132,7 +141,7 @@ def test_a_standing_car_is_not_backed_out_as_stuck():
     track = load_demo_track()
     start = track.start_state(0.0)
     recovery = StuckRecovery(track, 0.34)
-    overload = OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25)
+    overload = OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, warm_up=0.0)
     supervisor = Supervisor(Driver(), SupervisorSettings(overload=overload), recovery=recovery)
     now = 0.0
     for _ in range(60):  # 12 s of ticks 0.2 s apart with fresh estimates: late ticks
@@ -147,7 +156,7 @@ def test_a_standing_car_is_braked_not_controlled():
     """Once the cap has fallen to zero in the stand state, the controller is no longer called:
     the command is the stop command (it would otherwise steer on estimates gone astray)."""
     driver = Driver()
-    overload = OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25)
+    overload = OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, warm_up=0.0)
     supervisor = Supervisor(driver, SupervisorSettings(overload=overload))
     slow = np.array([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])
     now, commands = 0.0, []
