@@ -40,7 +40,6 @@ EXEMPT: dict[str, str] = {
     "crs_core/calibration/plots.py": "figures only, checked through the calibration command",
     # ROS nodes: started as processes by tests/integration (test_bridge, test_stack, test_replay);
     # what they share is tested in tests/ros4crs (node_support, settings_parameters, conversions).
-    "ros4crs/simulator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
     "ros4crs/estimator_node.py": "a ROS node, driven by tests/integration/test_stack.py",
     "ros4crs/replayer_node.py": "a ROS node, driven by tests/integration/test_replay.py",
     # Need a running graph; tests/integration/test_tools.py drives them.
