@@ -8,11 +8,13 @@ the loop: a tick that comes more than ``late_tick`` s after the one before, or t
 new estimate for more than ``estimate_gap`` s, is *late* (not the estimate's age: an estimator
 lags the data by design, up to 0.1 s for an EKF waiting for late Wi-Fi data). After a late tick
 the speed limit is ``slow_speed`` (slow enough that a gap of a few hundred milliseconds, a stale
-stop, or the car's motor cut-off costs centimetres); when late intervals fill more than ``stand_fraction`` of the
-last ``window`` s, the limit is 0: the controller brakes the car to a stand on its path. The
-limit is lifted after ``hold`` s without a late tick. The :class:`~crs_core.control.supervisor.
-Supervisor` ramps its speed cap to this limit; :attr:`OverloadWatch.late_ticks` and
-:attr:`OverloadWatch.episodes` say how starved a run was.
+stop, or the car's motor cut-off costs centimetres); when late intervals fill more than
+``stand_fraction`` of the last ``window`` s, the limit is 0: the controller brakes the car to a
+stand on its path. The limit is lifted after ``hold`` s without a late tick (from a stand first
+to ``slow_speed``), the hold doubling for each episode that follows the last lift within
+``memory`` s. The :class:`~crs_core.control.supervisor.Supervisor` ramps its speed cap to this
+limit; :attr:`OverloadWatch.late_ticks` and :attr:`OverloadWatch.episodes` say how starved a
+run was.
 """
 
 from __future__ import annotations
@@ -48,7 +50,14 @@ class OverloadSettings(Settings):
         Above this fraction of ``window`` spent in late intervals the limit is 0 (the car is
         stopped on the track).
     hold : float
-        The limit is lifted after this long without a late tick, s.
+        The limit is lifted after this long without a late tick, s; doubled for each episode
+        that begins within ``memory`` s of the last lift, up to ``hold_max``: a loop that is
+        starved again and again stays slow, where a fixed hold let the car speed up between
+        the gaps and meet the next one at racing speed.
+    hold_max : float
+        Longest hold, s.
+    memory : float
+        An episode this soon after the last lift counts as a repeat, s.
     warm_up : float
         Ticks this soon after the first one (the first estimate) are not judged, s: the MPCC's
         cold start and the first calls of every compiled function make a start's ticks late on
@@ -61,6 +70,8 @@ class OverloadSettings(Settings):
     window: float = positive(4.0)
     stand_fraction: float = within(0.3, low=0.0, high=1.0)
     hold: float = positive(2.0)
+    hold_max: float = positive(32.0)
+    memory: float = non_negative(20.0)
     warm_up: float = non_negative(1.0)
 
 
@@ -84,6 +95,9 @@ class OverloadWatch:
         self._late: deque[tuple[float, float]] = deque()  # (tick time, late interval s)
         self._last_late = -float("inf")
         self._first: float | None = None
+        self._lifted = -float("inf")  # when the limit was last lifted
+        #: the hold in force, s (``hold``, doubled for each repeated episode)
+        self.hold = self.settings.hold
 
     @property
     def limit(self) -> float | None:
@@ -120,10 +134,16 @@ class OverloadWatch:
         fraction = self.late_fraction(now)
         if reason and self.state == "ok":
             self.episodes += 1
+            repeat = now - self._lifted < s.memory
+            self.hold = min(2 * self.hold, s.hold_max) if repeat else s.hold
             self.state = "slow"
         if reason and self.state != "stand" and fraction > s.stand_fraction:
             self.stands += 1
             self.state = "stand"
-        elif self.state != "ok" and now - self._last_late >= s.hold:
-            self.state = "ok"
+        elif self.state != "ok" and now - self._last_late >= self.hold:
+            # from a stand, first to the slow limit for another hold
+            self.state = "slow" if self.state == "stand" else "ok"
+            self._last_late = now if self.state == "slow" else self._last_late
+            if self.state == "ok":
+                self._lifted = now
         return reason

@@ -468,7 +468,13 @@ class Supervisor:
         if state == before:
             return
         o = self.overload.settings
-        if state == "slow":
+        if before == "stand":
+            message = (
+                f"the loop kept its period for {self.overload.hold:g} s: driving again at "
+                f"{o.slow_speed:g} m/s"
+            )
+            events.append(SupervisorEvent("fed", message))
+        elif state == "slow":
             message = f"the loop is starved ({reason}): slowing to {o.slow_speed:g} m/s"
             events.append(SupervisorEvent("starved", message))
         elif state == "stand":
@@ -478,7 +484,9 @@ class Supervisor:
             )
             events.append(SupervisorEvent("standing", message))
         else:
-            message = f"the loop kept its period for {o.hold:g} s: overload limit lifted"
+            message = (
+                f"the loop kept its period for {self.overload.hold:g} s: overload limit lifted"
+            )
             events.append(SupervisorEvent("fed", message))
 
     def _outage(self, now: float, why: str, events: list) -> None:

@@ -64,7 +64,9 @@ def test_an_estimate_that_lags_by_design_is_not_late():
 def test_a_loop_late_most_of_the_time_stands_the_car():
     """Ticks every 0.2 s (a starved process): after enough of the 2 s window is late the limit
     is 0; the late fraction counts each late tick's interval once."""
-    watch = OverloadWatch(OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, warm_up=0.0))
+    watch = OverloadWatch(
+        OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, warm_up=0.0)
+    )
     now, states = 0.0, []
     for _ in range(4):
         now += 0.2
@@ -169,3 +171,49 @@ def test_a_standing_car_is_braked_not_controlled():
     supervisor.observe(now, slow, "ok")
     assert np.array_equal(supervisor(now + 0.2).command, [0.0, 0.0])
     assert len(driver.limits) == calls
+
+
+def test_a_repeated_episode_doubles_the_hold_and_a_stand_lifts_to_slow_first():
+    """Starved again within ``memory`` of the last lift: the hold doubles (2, 4, 8 s); from a
+    stand the limit goes to ``slow_speed`` for another hold before it is lifted."""
+    watch = OverloadWatch(OverloadSettings(late_tick=0.1, hold=2.0, memory=20.0, warm_up=0.0))
+    now = 0.0
+
+    def late() -> None:
+        nonlocal now
+        now += 0.15
+        watch.tick(now, 0.15, 0.0)
+
+    def on_time_until_ok() -> float:
+        nonlocal now
+        start = now
+        while watch.state != "ok":
+            now += PERIOD
+            watch.tick(now, PERIOD, 0.0)
+        return now - start
+
+    holds = []
+    for _ in range(3):
+        late()
+        holds.append(watch.hold)
+        on_time_until_ok()
+    assert holds == [2.0, 4.0, 8.0]
+    now += 30.0  # long after the last lift: a new episode starts from the base hold
+    watch.tick(now, PERIOD, 0.0)
+    late()
+    assert watch.hold == 2.0
+    stand = OverloadWatch(
+        OverloadSettings(late_tick=0.1, window=2.0, stand_fraction=0.25, hold=1.0, warm_up=0.0)
+    )
+    t = 0.0
+    for _ in range(5):
+        t += 0.2
+        stand.tick(t, 0.2, 0.0)
+    assert stand.state == "stand"
+    states = []
+    for _ in range(90):  # 3 s on time
+        t += PERIOD
+        stand.tick(t, PERIOD, 0.0)
+        states.append(stand.state)
+    assert states[0] == "stand" and "slow" in states and states[-1] == "ok"
+    assert states.index("ok") > states.index("slow")
