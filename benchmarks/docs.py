@@ -33,6 +33,7 @@ from benchmarks.model import format_markdown as model_markdown
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
+from benchmarks.stack_scale import format_markdown as stack_scale_markdown
 from benchmarks.sysid import format_markdown as sysid_markdown
 from benchmarks.workflow import format_table as workflow_table
 
@@ -83,6 +84,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "sysid": _headed("sysid", sysid_markdown),
     "stack": _headed("stack", stack_markdown),
     "stack_viz": _headed("stack", stack_markdown),
+    "stack_scale": _headed("stack", stack_scale_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),
