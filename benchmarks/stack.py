@@ -22,7 +22,13 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from launch_scripts.sim_stack import StackOptions, pipeline_cpu, rmse_text, run_stack
+from launch_scripts.sim_stack import (
+    PIPELINE_NODES,
+    StackOptions,
+    pipeline_cpu,
+    rmse_text,
+    run_stack,
+)
 from launch_scripts.visualizer import VizSettings
 
 #: A process that keeps one core busy until it is killed.
@@ -227,10 +233,11 @@ def _row(result: dict[str, Any], runs: list[dict[str, Any]], label: str) -> str:
     pipelines, recorder = [], []
     for run, car, _ in cars:
         cpu = run.get("cpu_percent_running") or run.get("cpu_percent") or {}
-        pipelines.append([pipeline_cpu(cpu, car)])
+        nodes = [cpu[f"/{car}/{n}"] for n in PIPELINE_NODES if f"/{car}/{n}" in cpu]
+        pipelines.append(nodes if nodes else [pipeline_cpu(cpu, car)])  # per node, or shared
         recorder += [cpu["/recorder"]] if "/recorder" in cpu else []
     pipeline = span([sum(p) for p in pipelines], ".1f") + " %"
-    if len(pipelines) == 1:
+    if len(pipelines) == 1 and len(pipelines[0]) > 1:
         pipeline += " (" + " + ".join(f"{v:g}" for v in pipelines[0]) + ")"
     who = ", ".join(sorted({car.removeprefix("car") for _, car, _ in cars}))
     if result["repeats"] > 1:

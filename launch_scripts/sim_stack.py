@@ -353,7 +353,6 @@ def launch_and_report(
     report["nodes"] = [spec.full_name for spec in nodes]
     report["node_deaths"] = [{"node": d.node, "returncode": d.returncode} for d in deaths]
     report.update(process_figures(launcher))
-    report["solver_cpu_percent"] = solver_cpu_percent(out / "logs", launcher.wall_at_stop)
     (out / "report.json").write_text(json.dumps(report, indent=2))
     return report
 
@@ -411,7 +410,8 @@ def run_watched(launcher: Launcher, duration: float) -> list:
 
 def process_figures(launcher: Launcher) -> dict[str, Any]:
     """``cpu_percent`` (whole run), ``cpu_percent_running`` (from the settle time on) and
-    ``peak_memory_mib`` per process of a finished :meth:`Launcher.run`."""
+    ``peak_memory_mib`` per process of a finished :meth:`Launcher.run`, and
+    ``solver_cpu_percent`` per car (:func:`solver_cpu_percent`)."""
     wall = max(launcher.wall_at_stop, 1e-9)
     figures: dict[str, Any] = {
         "cpu_percent": {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
@@ -423,6 +423,7 @@ def process_figures(launcher: Launcher) -> dict[str, Any]:
             for n, s in launcher.cpu_at_stop.items()
         }
     figures["peak_memory_mib"] = {n: round(m, 1) for n, m in launcher.memory_at_stop.items()}
+    figures["solver_cpu_percent"] = solver_cpu_percent(launcher.log_dir, launcher.wall_at_stop)
     return figures
 
 

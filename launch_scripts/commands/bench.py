@@ -64,7 +64,7 @@ def stack(args: argparse.Namespace) -> Outcome:
 
         if args.repeats != 1 or args.viz:
             raise ValueError("--cars: a list of counts runs each once, without --viz")
-        result = scale_benchmark(args.cars, args.estimator, args.duration, args.load, work)
+        result = scale_benchmark(list(args.cars), args.estimator, args.duration, args.load, work)
         figure = work / "stack_scale.png"
         plot(result, figure)
         text = f"{format_markdown(result)}\nplot: {figure}\nruns (reports, figures, bags): {work}"
@@ -75,22 +75,6 @@ def stack(args: argparse.Namespace) -> Outcome:
         args.cars[0], args.estimator, args.duration, args.repeats, args.load, work, viz=args.viz
     )
     return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
-
-
-def _car_counts(text: str) -> list[int]:
-    """``--cars`` of ``crs bench stack``: one count or a comma-separated list, each 1..8."""
-    counts = []
-    for part in text.split(","):
-        try:
-            count = int(part)
-        except ValueError:
-            raise argparse.ArgumentTypeError(
-                f"cars: expected 1..8 or a list like 1,2,4,6, got {text!r}"
-            ) from None
-        if not 1 <= count <= 8:
-            raise argparse.ArgumentTypeError(f"cars: each count must be 1..8, got {count}")
-        counts.append(count)
-    return counts
 
 
 def machines(args: argparse.Namespace) -> Outcome:
@@ -228,10 +212,12 @@ def _seeds(parser: argparse.ArgumentParser, what: str, default: int = 5, high: i
 
 
 def _stack_options(parser: argparse.ArgumentParser) -> None:
+    from benchmarks.link import parse_counts
+
     parser.add_argument(
         "--cars",
-        type=_car_counts,
-        default=[1],
+        type=argument_type(parse_counts("cars", 1, 8)),
+        default=(1,),
         help="cars, 1..8 (default 1); a list such as 1,2,4,6 runs the stack once with each and "
         "reports how its cost grows (JSON, Markdown table and a plot)",
     )

@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-import argparse
-
-import pytest
-
 from benchmarks.stack_scale import _scale_entry, format_markdown, plot
-from launch_scripts.commands.bench import _car_counts
 
 
 def _report(cars: int) -> dict:
@@ -63,10 +58,3 @@ def test_the_table_and_the_plot(tmp_path):
     assert "4.9 µs before, 5 µs after" in table
     plot(result, tmp_path / "scale.png")
     assert (tmp_path / "scale.png").stat().st_size > 10_000
-
-
-def test_car_counts_are_one_or_a_list_within_one_to_eight():
-    assert _car_counts("3") == [3] and _car_counts("1,2,4,6") == [1, 2, 4, 6]
-    for bad in ("0", "9", "1,x", ""):
-        with pytest.raises(argparse.ArgumentTypeError, match="cars"):
-            _car_counts(bad)

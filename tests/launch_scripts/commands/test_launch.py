@@ -65,7 +65,9 @@ def test_a_launch_that_races_too_few_laps_or_loses_a_node_fails_with_a_headline(
         (["bench", "link", "--presets", "clean,wifi"], "--presets: 'wifi' is not a preset"),
         (["bench", "link", "--loads", "0,17"], "--loads: 17 must be within [0, 16]"),
         (["bench", "link", "--cars", "1,1"], "--cars: '1,1' names a value twice"),
-        (["bench", "stack", "--cars", "1,2"], "--cars: '1,2' is not an integer"),
+        (["bench", "stack", "--cars", "1,x"], "--cars: 'x' is not an integer"),
+        (["bench", "stack", "--cars", "1,9"], "--cars: 9 must be within [1, 8]"),
+        (["bench", "stack", "--cars", "1,2", "--viz"], "--cars: a list of counts runs each once"),
         (["bench", "model", "--presets", "clean"], "unrecognized arguments: --presets clean"),
     ],
 )
