@@ -59,6 +59,7 @@ from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
+    PIPELINE_PROCESS,
     RECORD_SETS,
     StackOptions,
     analyse,
@@ -294,7 +295,12 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
         name, ns = f"car{i}", f"/car{i}"
         car = report["cars"][name]
         car["bridge_diagnostics"] = diagnostics.get(name)
-        car["bridge_final_log"] = _last_line(out / "logs" / f"car{i}_bridge.log", "stopping: ")
+        # the bridge's own log, or its car's shared pipeline process's (its logger's lines)
+        logs = [out / "logs" / f"car{i}_{stem}.log" for stem in ("bridge", PIPELINE_PROCESS)]
+        marker = f"[car{i}.bridge]: stopping: "
+        car["bridge_final_log"] = next(
+            (line for log in logs if (line := _last_line(log, marker)) is not None), None
+        )
         if emulate:
             car["laps_from"] = "emulator truth"
             car["emulator_summary"] = _last_line(
