@@ -183,6 +183,22 @@ def compile_functions(
     return {f.name(): CompiledFunction(f, library) for f in functions}
 
 
+def compile_library(
+    functions: Sequence[ca.Function],
+    library_name: str,
+    driver: str,
+    arguments: Sequence[str] = (),
+) -> ctypes.CDLL:
+    """The generated code of ``functions`` and ``driver`` (C that calls them, appended to the
+    same file) compiled into one cached library with ``arguments`` (include and link flags)
+    added, loaded. Its undefined symbols come from libraries already loaded into the global
+    scope. ``RuntimeError`` when the compiler fails or there is none."""
+    if not compiler_available():
+        raise RuntimeError("no C compiler (set CC or install gcc)")
+    flags = (*COMPILE_FLAGS, *arguments)
+    return ctypes.CDLL(str(_build_library(functions, library_name, flags, driver)))
+
+
 def external_functions(
     functions: Sequence[ca.Function], library_name: str, backend: str | None = None
 ) -> dict[str, ca.Function]:
@@ -197,7 +213,7 @@ def external_functions(
 
 
 def _build_library(
-    functions: Sequence[ca.Function], library_name: str, flags: Sequence[str]
+    functions: Sequence[ca.Function], library_name: str, flags: Sequence[str], driver: str = ""
 ) -> Path:
     with tempfile.TemporaryDirectory() as scratch:
         generator = ca.CodeGenerator(
@@ -206,7 +222,7 @@ def _build_library(
         for f in functions:
             generator.add(f)
         generator.generate(scratch + os.sep)
-        source = Path(scratch, f"{library_name}.c").read_text()
+        source = Path(scratch, f"{library_name}.c").read_text() + driver
     digest = hashlib.sha256((source + " ".join(flags)).encode()).hexdigest()[:20]
     target = cache_dir() / f"{library_name}_{digest}.so"
     if target.exists():

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -38,7 +39,7 @@ from numpy.typing import ArrayLike
 from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import compile_functions
 from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter, lag_decay
-from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, MpccProblem, MpccSettings
+from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, Iterate, MpccProblem, MpccSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
@@ -46,7 +47,8 @@ from crs_core.parameters import ParameterSet
 from crs_core.track import Track
 
 if TYPE_CHECKING:
-    from crs_core.control.mpcc_acados import AcadosIterate, AcadosRti
+    from crs_core.control.mpcc_acados import AcadosRti
+    from crs_core.control.mpcc_native import NativeRti
 
 __all__ = ["Mpcc", "MpccStatus"]
 
@@ -60,18 +62,6 @@ OFF_PLAN = (0.1, 0.25, 0.4)
 OFF_PLAN_ITERATIONS = 3
 #: Fractions of the QP's step tried after the full one (:meth:`Mpcc._step`).
 STEP_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
-
-
-@dataclass(frozen=True)
-class _Iterate:
-    """One SQP iteration's plan and how it went."""
-
-    Z: np.ndarray
-    V: np.ndarray
-    success: bool
-    violation: float
-    iterations: int
-    status: str
 
 
 @dataclass(frozen=True)
@@ -153,7 +143,10 @@ class Mpcc:
         s = self.settings
         #: acados's iteration of the problem (``solver="acados"``), else None
         self._acados = _acados_rti(self.problem) if s.solver == "acados" else None
-        self._rti = None if self._acados is not None else self.problem.real_time_iteration()
+        self._native = _native_rti(self.problem) if s.solver == "native" else None
+        in_casadi = self._acados is None and self._native is None
+        qp = "hpipm" if s.solver == "native" else None  # native's fallback: CasADi's HPIPM
+        self._rti = self.problem.real_time_iteration(qp) if in_casadi else None
         # the step check's rollouts and costs, compiled (in CasADi's VM they were a quarter of
         # a call: 0.38 ms per cost)
         checks = compile_functions(
@@ -510,9 +503,21 @@ class Mpcc:
             self._half_width,
         )
 
-    def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> _Iterate | AcadosIterate:
+    def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> Iterate:
         """One SQP iteration from the guess; the new plan and whether it is usable. Data that
         are not finite never reach the solver (a failed iterate, status ``non-finite data``)."""
+        if self._native is not None:
+            return self._native.iterate(
+                Z,
+                V,
+                refs,
+                self._weights,
+                self.p,
+                self._v_lower,
+                self._v_upper,
+                self._half_width,
+                self.settings.feasibility_tolerance,
+            )
         if self._acados is not None:
             return self._acados.iterate(
                 Z,
@@ -529,14 +534,14 @@ class Mpcc:
         data = self.qp_data(Z, V, refs)
         for name, value in zip(QP_ARGUMENTS, data, strict=True):
             if not value.is_regular():  # in C: a numpy copy of every nonzero took 1-1.4 ms
-                return _Iterate(Z, V, False, math.inf, -1, f"non-finite data in {name}")
+                return Iterate(Z, V, False, math.inf, -1, f"non-finite data in {name}")
         w_opt = rti.solver(**dict(zip(QP_ARGUMENTS, data, strict=True)))["x"]
         violation = float(rti.violation(w_opt, *data[2:7]))
         w = np.asarray(w_opt, dtype=float).ravel()
         stats = rti.solver.stats()
         N, nz, nv = self.problem.N, self.problem.nz, self.problem.nv
         stages = w[: N * (nz + nv)].reshape(N, nz + nv)
-        return _Iterate(
+        return Iterate(
             np.vstack((stages[:, :nz], w[N * (nz + nv) :])),
             stages[:, nz:],
             bool(np.all(np.isfinite(w))) and violation <= self.settings.feasibility_tolerance,
@@ -637,6 +642,25 @@ class Mpcc:
             return command.copy()
         speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
         return np.array([command[0], min(max(speed, 0.0), self.settings.velocity_max)])
+
+
+def _native_rti(problem: MpccProblem) -> NativeRti | None:
+    """The whole real-time iteration as one compiled call (built once into the cache); None,
+    with a warning, where acados's HPIPM is missing (the iteration then runs in CasADi)."""
+    from crs_core.acados_support import AcadosUnavailable
+
+    try:
+        from crs_core.control.mpcc_native import NativeRti
+
+        return NativeRti(problem)
+    except AcadosUnavailable as error:
+        warnings.warn(
+            f"MpccSettings(solver='native'): {error}; iterating with CasADi's HPIPM "
+            "(solver='hpipm') instead",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return None
 
 
 def _acados_rti(problem: MpccProblem) -> AcadosRti:

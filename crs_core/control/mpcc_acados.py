@@ -32,31 +32,18 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from crs_core.acados_support import acados_template, build_or_load
-from crs_core.control.mpcc_problem import FREE, MpccProblem
+from crs_core.control.mpcc_problem import FREE, Iterate, MpccProblem
 
-__all__ = ["QP_SOLVERS", "AcadosIterate", "AcadosRti"]
+__all__ = ["QP_SOLVERS", "AcadosRti"]
 
 #: acados QP solvers this module sets up (HPIPM on the stage structure, or condensed).
 QP_SOLVERS = ("PARTIAL_CONDENSING_HPIPM", "FULL_CONDENSING_HPIPM")
-
-
-@dataclass(frozen=True)
-class AcadosIterate:
-    """One SQP iteration's plan and how it went (the fields of ``Mpcc``'s iterate)."""
-
-    Z: np.ndarray
-    V: np.ndarray
-    success: bool
-    violation: float
-    iterations: int
-    status: str
 
 
 #: acados's return codes.
@@ -263,12 +250,12 @@ class AcadosRti:
         v_lower: np.ndarray,
         v_upper: np.ndarray,
         half_width: float,
-    ) -> AcadosIterate:
+    ) -> Iterate:
         """One SQP iteration from the guess: the new plan and whether it is usable (acados's
         status 0, finite, and within the input bounds and boundary rows to the tolerance)."""
         for name, value in (("Z", Z), ("V", V), ("refs", refs)):
             if not np.all(np.isfinite(value)):
-                return AcadosIterate(Z, V, False, math.inf, -1, f"non-finite data in {name}")
+                return Iterate(Z, V, False, math.inf, -1, f"non-finite data in {name}")
         self.load(Z, V, refs, weights, p, v_lower, v_upper, half_width)
         status = self.solve()
         plan_Z, plan_V = self.plan()
@@ -279,7 +266,7 @@ class AcadosRti:
             and bool(np.all(np.isfinite(plan_Z)) and np.all(np.isfinite(plan_V)))
             and violation <= self.tolerance
         )
-        return AcadosIterate(
+        return Iterate(
             plan_Z, plan_V, success, violation, iterations, STATUS.get(status, str(status))
         )
 

@@ -52,6 +52,7 @@ __all__ = [
     "INPUTS",
     "QP_ARGUMENTS",
     "SOLVERS",
+    "Iterate",
     "LeastSquares",
     "MpccProblem",
     "MpccSettings",
@@ -66,8 +67,9 @@ INPUTS = ("steer", "torque", "progress_speed", "slack")
 #: Bound standing for "free" (HPIPM takes finite bounds on every variable).
 FREE = 1e4
 #: Values of :attr:`MpccSettings.solver`: a CasADi QP plugin behind our own real-time
-#: iteration, or ``"acados"`` (its SQP-RTI with HPIPM, :mod:`~crs_core.control.mpcc_acados`).
-SOLVERS = (*QP_SOLVERS, "acados")
+#: iteration, ``"acados"`` (its SQP-RTI with HPIPM, :mod:`~crs_core.control.mpcc_acados`), or
+#: ``"native"`` (the iteration in one compiled call, :mod:`~crs_core.control.mpcc_native`).
+SOLVERS = (*QP_SOLVERS, "acados", "native")
 
 
 #: The integer fields of :class:`MpccSettings` (each >= 1).
@@ -118,10 +120,13 @@ class MpccSettings(Settings):
     brake_gain : float
         Safe stop: torque ``-brake_gain * v_x`` (within the limits) until the car stands.
     solver : str
-        CasADi QP plugin: ``"hpipm"`` (default, structure-exploiting interior point), or for
-        comparison ``"qrqp"``, ``"osqp"``, ``"qpoases"``; or ``"acados"``: the same problem's
-        real-time iteration by acados (SQP-RTI, HPIPM; :mod:`~crs_core.control.mpcc_acados`),
-        generated and compiled once into the compile cache (needs ``./run.sh setup``'s acados).
+        ``"native"`` (default): the whole real-time iteration as one compiled C call, HPIPM's
+        Riccati interior point on the stages (:mod:`~crs_core.control.mpcc_native`; needs
+        ``./run.sh setup``'s acados for its HPIPM build, else it warns and runs as
+        ``"hpipm"``). A CasADi QP plugin behind the iteration in CasADi (the reference):
+        ``"hpipm"``, or for comparison ``"qrqp"``, ``"osqp"``, ``"qpoases"``. ``"acados"``:
+        the same problem's real-time iteration by acados (SQP-RTI, HPIPM;
+        :mod:`~crs_core.control.mpcc_acados`). Each compiled once into the compile cache.
     qp_max_iter : int
         Iteration limit of the QP solver.
     cold_start_iterations : int
@@ -166,7 +171,7 @@ class MpccSettings(Settings):
     progress_speed_max: float = positive(4.0)
     max_failures: int = 5
     brake_gain: float = non_negative(1.0)
-    solver: str = "hpipm"
+    solver: str = "native"
     qp_max_iter: int = 50
     cold_start_iterations: int = 10
     feasibility_tolerance: float = non_negative(1e-6)
@@ -265,6 +270,32 @@ class LeastSquares:
         """Its Gauss-Newton Hessian and gradient at zero over the variables ``w``
         (:func:`gauss_newton`)."""
         return gauss_newton(self.residuals, self.weights, self.linear, w)
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One SQP iteration's plan and how it went (every backend's answer).
+
+    Attributes
+    ----------
+    Z, V : numpy.ndarray
+        The plan: stage states (N+1, nz) and inputs (N, nv).
+    success : bool
+        Finite and within the feasibility tolerance of every constraint.
+    violation : float
+        Largest constraint violation of the QP's solution.
+    iterations : int
+        The QP solver's iterations (-1 unknown).
+    status : str
+        The solver's own word on the solve.
+    """
+
+    Z: np.ndarray
+    V: np.ndarray
+    success: bool
+    violation: float
+    iterations: int
+    status: str
 
 
 @dataclass(frozen=True)
@@ -392,6 +423,17 @@ class MpccProblem:
             SX_OPTIONS,
         )
 
+    def horizon_linearization(self) -> tuple[ca.Function, ca.Function]:
+        """The linearisation of a whole horizon: ``mpcc_horizon(Z, V, REF, w, p)`` (the
+        stage linearisation over the first N columns of the guess and path points, its
+        outputs side by side per stage) and ``mpcc_terminal(z_N, ref_N, w)`` (the terminal
+        cost's Hessian and gradient)."""
+        stage = self._stage_linearization()
+        return (
+            stage.map("mpcc_horizon", "serial", self.N, [3, 4], []),
+            self._terminal_linearization(),
+        )
+
     def _terminal_linearization(self) -> ca.Function:
         z, ref, w = self.z_sym, self.ref_sym, self.w_sym
         H, g = self.terminal_least_squares.gauss_newton(z)
@@ -448,9 +490,8 @@ class MpccProblem:
         """
         N, nz, nv = self.N, self.nz, self.nv
         nw = nz + nv
-        stage = self._stage_linearization()
         compiled = external_functions(
-            [stage.map("mpcc_horizon", "serial", N, [3, 4], []), self._terminal_linearization()],
+            self.horizon_linearization(),
             f"mpcc_{self.model.tag}_{self.model.n_base_stations}bs_n{N}"
             f"_{round(1e6 / self.settings.rate_hz)}",
         )

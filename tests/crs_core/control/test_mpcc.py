@@ -14,7 +14,8 @@ from crs_core.control.mpcc_problem import QP_ARGUMENTS, MpccSettings
 
 @pytest.fixture(scope="module")
 def mpcc(track) -> Mpcc:
-    return Mpcc(track)
+    """The MPCC with its iteration in CasADi, whose QP data these tests read."""
+    return Mpcc(track, settings=MpccSettings(solver="hpipm"))
 
 
 def _start(track, speed: float = 1.0) -> np.ndarray:
@@ -208,7 +209,7 @@ def test_plans_stay_where_a_car_can_be_after_a_poor_guess(
     worst a slide or a spin, 15 rad/s when a 0.5 m/s cap meets a car at 2 m/s, which is why
     the supervisor ramps the cap; before, plans of 60-1800 m/s) and every command within its
     limits."""
-    controller = Mpcc(track, output=output)
+    controller = Mpcc(track, settings=MpccSettings(solver="hpipm"), output=output)
     model, p = controller.model, controller.p
     checked: list[bool] = []
     qp_data = controller.qp_data
@@ -353,10 +354,12 @@ def test_a_solve_time_budget_ends_the_iterations_of_a_call(track) -> None:
     assert unhurried.status.qp_iterations > 3 * once.status.qp_iterations
 
 
-def test_non_finite_qp_data_never_reach_the_solver(track) -> None:
+@pytest.mark.parametrize("solver", ["hpipm", "native"])
+def test_non_finite_qp_data_never_reach_the_solver(track, solver: str) -> None:
     """A guess with a NaN makes non-finite QP data: the iteration fails with the name of the
-    first argument that holds one, and the QP solver is not called."""
-    controller = Mpcc(track)
+    first argument that holds one (the native iteration: its linearisation), and the QP
+    solver is not called."""
+    controller = Mpcc(track, settings=MpccSettings(solver=solver))
     controller(_start(track, 1.0))
     Z, V = controller.plan
     Z = Z.copy()

@@ -35,8 +35,8 @@ def mpcc(track) -> Mpcc:
 
 @pytest.fixture(scope="module")
 def reference(track) -> Mpcc:
-    """Our MPCC with its own iteration (CasADi, HPIPM): the reference."""
-    return Mpcc(track)
+    """Our MPCC with its own iteration in CasADi (CasADi's HPIPM): the reference."""
+    return Mpcc(track, settings=MpccSettings(solver="hpipm"))
 
 
 def test_the_acados_mpcc_races_a_lap_on_the_true_state(mpcc: Mpcc, track) -> None:

@@ -1,0 +1,125 @@
+"""The MPCC's real-time iteration as one compiled call (``MpccSettings(solver="native")``, the
+default): it runs on acados's HPIPM build, solves the QP the CasADi iteration solves, reports
+the violation the CasADi check computes, races, and falls back with a warning without acados."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from crs_core import acados_support
+from crs_core.control.mpcc import Mpcc
+from crs_core.control.mpcc_problem import MpccSettings
+from crs_core.model import CarModel
+from sim.closed_loop import run_closed_loop
+from sim.sensors import SensorSuite
+from sim.simulator import Simulator
+
+try:
+    acados_support.acados_template()
+except acados_support.AcadosUnavailable as error:  # pragma: no cover - set-up dependent
+    pytest.skip(f"acados unavailable: {error}", allow_module_level=True)
+
+
+@pytest.fixture(scope="module")
+def native(track) -> Mpcc:
+    return Mpcc(track)
+
+
+@pytest.fixture(scope="module")
+def reference(track) -> Mpcc:
+    """The iteration in CasADi (CasADi's HPIPM): the reference."""
+    return Mpcc(track, settings=MpccSettings(solver="hpipm"))
+
+
+def _problems(reference: Mpcc, track, count: int):
+    """The guesses of ``count`` calls of the reference racing from the start on the model."""
+    reference.reset()
+    x = track.start_state(1.0)
+    numeric, p = reference.model.numeric, reference.p
+    for _ in range(count):
+        u = reference(x)
+        yield reference.last_guess
+        x = numeric.step(x, u, p, reference.settings.dt)
+
+
+def test_the_default_solver_is_native_on_acados_hpipm(native: Mpcc) -> None:
+    assert native.settings.solver == "native"
+    assert native._native is not None and native._rti is None
+    assert "acados" in native._native.hpipm_library
+
+
+def test_it_solves_the_qp_of_the_casadi_iteration(native: Mpcc, reference: Mpcc, track) -> None:
+    """Same guess, path linearisation and bounds: the same QP's solution (stage 0's state
+    eliminated instead of bounded, the states' never-binding bounds left out), to the two
+    HPIPMs' tolerances; the violation it reports is CasADi's check of its plan."""
+    rti = reference._rti
+    N, nz, nv = reference.problem.N, reference.problem.nz, reference.problem.nv
+    first_inputs = []
+    for Z, V, refs in _problems(reference, track, 40):
+        ours, theirs = native._solve_qp(Z, V, refs), reference._solve_qp(Z, V, refs)
+        assert ours.success and theirs.success
+        first_inputs.append(np.max(np.abs(ours.V[0, :2] - theirs.V[0, :2])))
+        assert np.max(np.abs(ours.Z - theirs.Z)) < 1e-2
+        np.testing.assert_array_equal(ours.Z[0], Z[0])
+        data = reference.qp_data(Z, V, refs)
+        w = np.concatenate((np.hstack((ours.Z[:N], ours.V)).ravel(), ours.Z[N]))
+        assert w.size == N * (nz + nv) + nz
+        checked = float(rti.violation(w, *data[2:7]))
+        assert ours.violation == pytest.approx(checked, abs=1e-9)
+        assert ours.iterations > 0
+    assert np.median(first_inputs) < 1e-4
+    assert max(first_inputs) < 5e-3
+
+
+def test_a_plan_beyond_its_bounds_is_refused(native: Mpcc, track) -> None:
+    """A feasibility tolerance below what the solve reaches refuses the plan (the violation
+    is checked in the compiled call, not trusted from the solver's status)."""
+    Z, V, refs = next(_problems(native, track, 1))
+    solved = native._native.iterate(
+        Z,
+        V,
+        refs,
+        native._weights,
+        native.p,
+        native._v_lower,
+        native._v_upper,
+        native._half_width,
+        1e-6,
+    )
+    assert solved.success
+    tight = native._v_upper.copy()
+    tight[0] = -native.settings.steer_max - 0.1  # an empty steering range: no plan within it
+    refused = native._native.iterate(
+        Z, V, refs, native._weights, native.p, native._v_lower, tight, native._half_width, 1e-6
+    )
+    assert not refused.success and refused.violation > 1e-3
+
+
+def test_the_native_mpcc_races_a_lap(native: Mpcc, track) -> None:
+    native.reset()
+    result = run_closed_loop(
+        Simulator(CarModel(), SensorSuite(), seed=5),
+        track,
+        lambda t, x: native(x),
+        native.stop,
+        30.0,
+        laps=1,
+        max_duration=12.0,
+        status_of=lambda: native.status.mode,
+    )
+    summary = result.summary()
+    assert summary["laps"] == 1
+    assert summary["boundary_violations"] == 0
+    assert summary["controller_modes"] == {"solved": result.t.size}
+
+
+def test_without_acados_it_warns_and_iterates_in_casadi(track, monkeypatch) -> None:
+    def unavailable():
+        raise acados_support.AcadosUnavailable("acados is not installed")
+
+    monkeypatch.setattr("crs_core.control.mpcc_native.acados_template", unavailable)
+    with pytest.warns(RuntimeWarning, match=r"solver='native'.*not installed.*solver='hpipm'"):
+        controller = Mpcc(track)
+    assert controller._native is None and controller._rti is not None
+    assert np.all(np.isfinite(controller(track.start_state(1.0))))
