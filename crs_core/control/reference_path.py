@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.interpolate import CubicSpline
+from scipy.interpolate import CubicSpline, PPoly
 
 from crs_core.errors import FieldError
 from crs_core.track import Track
@@ -78,11 +78,16 @@ class ReferencePath:
         speed = np.hypot(through_x(u, 1), through_y(u, 1))
         sigma = np.concatenate(([0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(u))))
         self.length = float(sigma[-1])
-        # x and y as one vector-valued spline, and its derivatives: a point costs three
-        # evaluations, not six (the MPCC evaluates the path several times a call)
+        # x, y and their first and second derivatives as one six-valued piecewise cubic (the
+        # derivatives' lower-degree coefficients padded with zeros): a point costs one
+        # evaluation, not six (the MPCC evaluates the path several times a call)
         points = np.column_stack((through_x(u), through_y(u)))
-        self._xy = CubicSpline(sigma, points, bc_type="periodic")
-        self._dxy, self._ddxy = self._xy.derivative(1), self._xy.derivative(2)
+        xy = CubicSpline(sigma, points, bc_type="periodic")
+        pieces = [
+            np.pad(d.c, ((4 - d.c.shape[0], 0), (0, 0), (0, 0)))
+            for d in (xy, xy.derivative(1), xy.derivative(2))
+        ]
+        self._curve = PPoly(np.concatenate(pieces, axis=2), xy.x, extrapolate="periodic")
         # arc length on the spline of each track sample, to map the track's projection
         self._sample_s, self._sample_sigma = s, np.interp(s, u, sigma)
 
@@ -97,15 +102,11 @@ class ReferencePath:
         theta = np.asarray(theta, dtype=float)
         if not np.all(np.isfinite(theta)):
             raise FieldError("theta", "arc length must be finite")
-        s = np.mod(theta, self.length)
-        xy, dxy, ddxy = self._xy(s), self._dxy(s), self._ddxy(s)
-        dx, dy, ddx, ddy = dxy[..., 0], dxy[..., 1], ddxy[..., 0], ddxy[..., 1]
+        curve = self._curve(np.mod(theta, self.length))
+        x, y, dx, dy, ddx, ddy = (curve[..., i] for i in range(6))
         speed = np.hypot(dx, dy)
         return PathPoint(
-            np.asarray(xy[..., 0]),
-            np.asarray(xy[..., 1]),
-            np.arctan2(dy, dx),
-            np.asarray((dx * ddy - dy * ddx) / speed**3),
+            np.asarray(x), np.asarray(y), np.arctan2(dy, dx), (dx * ddy - dy * ddx) / speed**3
         )
 
     def progress(self, x: float, y: float, near: float | None = None) -> float:
