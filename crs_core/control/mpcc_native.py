@@ -344,7 +344,7 @@ class NativeRti:
         return Iterate(
             self._Z.copy(),
             self._V.copy(),
-            violation <= tolerance,  # as "hpipm": an iteration limit at a feasible point counts
+            bool(violation <= tolerance),  # as "hpipm": a feasible iteration limit counts
             float(violation),
             int(iterations),
             STATUS.get(status, str(status)),

@@ -52,13 +52,14 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import compile_functions
 from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator, EstimatorSettings
+from crs_core.estimation.mhe_native import NativeGaussNewton
 from crs_core.estimation.mhe_problem import (
-    Band,
+    BandedGaussNewton,
+    StepOutcome,
     build_mhe_function,
     measurement_groups,
     offset_output_functions,
@@ -188,6 +189,17 @@ class MovingHorizonEstimator(Estimator):
             f"mhe_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
         )
         self._solve_blocks, self._cost = compiled["mhe_gn"], compiled["mhe_cost"]
+        #: the Gauss-Newton step: one compiled call, or (in CasADi's VM) numpy and LAPACK
+        self._step_solver: NativeGaussNewton | BandedGaussNewton
+        if self._solve_blocks.backend == "compiled":
+            self._step_solver = NativeGaussNewton(
+                blocks,
+                cost,
+                f"mhe_step_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
+                STEP_FRACTIONS,
+            )
+        else:
+            self._step_solver = BandedGaussNewton(self._solve_blocks, self._cost, STEP_FRACTIONS)
         self._predict = compiled["mhe_predict"]
         self._outputs = {
             g: compiled[f.name()] for g, f in zip(self.groups, offset_outputs, strict=True)
@@ -199,7 +211,6 @@ class MovingHorizonEstimator(Estimator):
         # per measurement row: its group and 1 / std, for vectorised weights
         self._row_group = np.concatenate([np.full(n, i) for i, n in enumerate(sizes)])
         self._row_inverse_std = 1.0 / np.concatenate([self._std[g] for g in self.groups])
-        self._band = Band(model.nx, s.horizon + 1)
         self._bounds = self._bound_data(model, s)
         self._q = s.noise.process_std_for(model.state_names)
         self._default_initial_weight = 1.0 / initial_std_for(s.initial_std, model.state_names) ** 2
@@ -465,70 +476,37 @@ class MovingHorizonEstimator(Estimator):
             return first, np.diag(weight)
         return first, self._arrival_information
 
-    def _total_cost(self, X: np.ndarray, data: tuple[np.ndarray, ...]) -> float:
-        cost = self._cost(X, self._U, self._DT, *data, self._p, self._bounds)[0]
-        return float(np.asarray(cost).ravel()[0]) + self._arrival_cost(X)
-
-    def _arrival_cost(self, X: np.ndarray) -> float:
-        first, information = self._arrival_terms()
-        d = X[:, first] - self._arrival
-        return float(d @ information @ d)
-
     def _gauss_newton_step(self) -> None:
-        M, nx = self.settings.horizon, self.model.nx
+        """One Gauss-Newton step of the window (compiled, :mod:`~crs_core.estimation.
+        mhe_native`, or in numpy, :class:`~crs_core.estimation.mhe_problem.BandedGaussNewton`),
+        and what follows from its outcome."""
+        solver = self._step_solver
         stamp = float(self._times[-1])
-        data = self._weights()
-        D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
-            self._X, self._U, self._DT, *data, self._p, self._bounds
-        )
-        if not np.isfinite(cost[0]) and self._drop_undefined(residuals):
-            data = self._weights()
-            D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._solve_blocks(
-                self._X, self._U, self._DT, *data, self._p, self._bounds
-            )
-        if not np.isfinite(cost[0]):
-            self._restart(stamp, "non-finite cost")
-            return
         first, information = self._arrival_terms()
-        D[:, first * nx : (first + 1) * nx] += information
-        G[:, first] += information @ (self._X[:, first] - self._arrival)
-        for j in range(first):  # unused nodes: keep them where they are
-            D[:, j * nx : (j + 1) * nx] = np.eye(nx)
-            G[:, j] = 0.0
-            if j < M:
-                upper[:, j * nx : (j + 1) * nx] = 0.0
-        ab = self._band.matrix(D, upper)
-        ab[-1] += 1e-9  # Levenberg-Marquardt floor against rank deficiency
-        factor, info = dpbtrf(ab)
-        if info != 0:
+
+        def step() -> int:
+            inputs = (self._X, self._U, self._DT, *self._weights(), self._p, self._bounds)
+            return solver.step(inputs, first, information, self._arrival)
+
+        outcome = step()
+        if outcome == StepOutcome.NON_FINITE_COST and self._drop_undefined(solver.residuals):
+            outcome = step()
+        if outcome == StepOutcome.NON_FINITE_COST:
+            self._restart(stamp, "non-finite cost")
+        elif outcome == StepOutcome.NOT_POSITIVE_DEFINITE:
             self._fallback_event(stamp, "normal equations not positive definite")
-            return
-        rhs = np.zeros((ab.shape[1], 1 + nx))
-        rhs[:, 0] = -G.ravel(order="F")
-        rhs[M * nx + np.arange(nx), 1 + np.arange(nx)] = 1.0  # unit vectors of the newest node
-        solution, info = dpbtrs(factor, rhs)
-        step = solution[:, 0].reshape((nx, M + 1), order="F")
-        if not np.all(np.isfinite(step)):
+        elif outcome == StepOutcome.NON_FINITE_STEP:
             self._restart(stamp, "non-finite step")
-            return
-        self._last_blocks = (
-            D[:, :nx].copy(),
-            upper[:, :nx].copy(),
-            stage0_block,
-            G[:, 0].copy(),
-            stage0_gradient,
-            self._X[:, 1].copy(),
-        )
-        before = float(cost[0]) + self._arrival_cost(self._X)
-        for fraction in STEP_FRACTIONS:
-            candidate = self._X + fraction * step
-            after = self._total_cost(candidate, data)
-            if math.isfinite(after) and after <= before * (1 + 1e-9) + 1e-12:
-                self._X = candidate
-                covariance = solution[M * nx :, 1:]
+        else:
+            self._last_blocks = solver.marginalization_blocks()
+            if outcome == StepOutcome.TAKEN:
+                self._X = np.array(solver.X)
+                covariance = solver.covariance
                 self._node_covariance = 0.5 * (covariance + covariance.T)
-                return
-        self._fallback_event(stamp, "Gauss-Newton step raised the cost; kept the prediction")
+            else:
+                self._fallback_event(
+                    stamp, "Gauss-Newton step raised the cost; kept the prediction"
+                )
 
     def _marginalize_first_node(self) -> None:
         """Fold node 0 (its arrival cost, measurements and first stage) into a prior on node 1.

@@ -17,8 +17,12 @@ Residuals (all in units of their standard deviation):
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
+
 import casadi as ca
 import numpy as np
+from scipy.linalg.lapack import dpbtrf, dpbtrs
 
 from crs_core.codegen import SX_OPTIONS
 from crs_core.integrators import rk4
@@ -184,3 +188,103 @@ class Band:
         ab[self.diag_rows, self.diag_cols] = diag_blocks.ravel(order="F")[self.diag_src]
         ab[self.off_rows, self.off_cols] = off_blocks.ravel(order="F")[self.off_src]
         return ab
+
+
+class StepOutcome:
+    """What a Gauss-Newton step of the window did (the codes both step solvers return)."""
+
+    TAKEN = 0
+    NON_FINITE_COST = 1
+    NOT_POSITIVE_DEFINITE = 2
+    NON_FINITE_STEP = 3
+    COST_RAISED = 4
+
+
+class BandedGaussNewton:
+    """One Gauss-Newton step of the MHE's window in numpy, its normal equations in LAPACK's
+    banded Cholesky (``dpbtrf``/``dpbtrs``): the reference of the compiled step
+    (:class:`~crs_core.estimation.mhe_native.NativeGaussNewton`, the same interface), used
+    where the functions run in CasADi's VM.
+
+    Parameters
+    ----------
+    blocks, cost : NumericFunction
+        The window's ``mhe_gn`` and ``mhe_cost`` (:func:`build_mhe_function`), callable.
+    step_fractions : sequence of float
+        The step lengths tried, in order, until the cost does not rise.
+    """
+
+    def __init__(self, blocks, cost, step_fractions: Sequence[float]) -> None:
+        self._blocks, self._cost = blocks, cost
+        self._fractions = tuple(step_fractions)
+        self.nx, self.nodes = blocks.function.size1_in(0), blocks.function.size2_in(0)
+        self._band = Band(self.nx, self.nodes)
+        #: the accepted window, the newest node's covariance (after a taken step), the
+        #: weighted measurement residuals (after a non-finite cost)
+        self.X = np.zeros((self.nx, self.nodes))
+        self.covariance = np.zeros((self.nx, self.nx))
+        self.residuals = np.zeros((0, self.nodes))
+        self._last: tuple[np.ndarray, ...] = ()
+
+    def step(
+        self,
+        inputs: Sequence[np.ndarray],
+        first: int,
+        information: np.ndarray,
+        mean: np.ndarray,
+    ) -> int:
+        """One step from the window ``inputs[0]`` (the ten inputs of ``mhe_gn``), the prior
+        ``information`` / ``mean`` on node ``first``; returns a :class:`StepOutcome` code."""
+        nx, M = self.nx, self.nodes - 1
+        X = np.asarray(inputs[0], dtype=float)
+        D, upper, G, cost, residuals, stage0_block, stage0_gradient = self._blocks(*inputs)
+        if not np.isfinite(cost[0]):
+            self.residuals = residuals
+            return StepOutcome.NON_FINITE_COST
+        D[:, first * nx : (first + 1) * nx] += information
+        G[:, first] += information @ (X[:, first] - mean)
+        for j in range(first):  # unused nodes: keep them where they are
+            D[:, j * nx : (j + 1) * nx] = np.eye(nx)
+            G[:, j] = 0.0
+            if j < M:
+                upper[:, j * nx : (j + 1) * nx] = 0.0
+        ab = self._band.matrix(D, upper)
+        ab[-1] += 1e-9  # Levenberg-Marquardt floor against rank deficiency
+        factor, info = dpbtrf(ab)
+        if info != 0:
+            return StepOutcome.NOT_POSITIVE_DEFINITE
+        rhs = np.zeros((ab.shape[1], 1 + nx))
+        rhs[:, 0] = -G.ravel(order="F")
+        rhs[M * nx + np.arange(nx), 1 + np.arange(nx)] = 1.0  # unit vectors of the newest node
+        solution, info = dpbtrs(factor, rhs)
+        step = solution[:, 0].reshape((nx, M + 1), order="F")
+        if not np.all(np.isfinite(step)):
+            return StepOutcome.NON_FINITE_STEP
+        self._last = (
+            D[:, :nx].copy(),
+            upper[:, :nx].copy(),
+            stage0_block,
+            G[:, 0].copy(),
+            stage0_gradient,
+            X[:, 1].copy(),
+        )
+
+        def total(candidate: np.ndarray) -> float:
+            d = candidate[:, first] - mean
+            cost = self._cost(candidate, *inputs[1:])[0]
+            return float(np.asarray(cost).ravel()[0]) + float(d @ information @ d)
+
+        before = total(X)
+        for fraction in self._fractions:
+            candidate = X + fraction * step
+            after = total(candidate)
+            if math.isfinite(after) and after <= before * (1 + 1e-9) + 1e-12:
+                self.X = candidate
+                self.covariance = solution[M * nx :, 1:]
+                return StepOutcome.TAKEN
+        return StepOutcome.COST_RAISED
+
+    def marginalization_blocks(self) -> tuple[np.ndarray, ...]:
+        """``(D0, O0, S0, g0, g0b, x1)`` of the last step (after the prior and the unused
+        nodes were folded in), as the marginalisation of node 0 takes them."""
+        return self._last
