@@ -506,28 +506,10 @@ class Mpcc:
     def _solve_qp(self, Z: np.ndarray, V: np.ndarray, refs: np.ndarray) -> Iterate:
         """One SQP iteration from the guess; the new plan and whether it is usable. Data that
         are not finite never reach the solver (a failed iterate, status ``non-finite data``)."""
-        if self._native is not None:
-            return self._native.iterate(
-                Z,
-                V,
-                refs,
-                self._weights,
-                self.p,
-                self._v_lower,
-                self._v_upper,
-                self._half_width,
-                self.settings.feasibility_tolerance,
-            )
-        if self._acados is not None:
-            return self._acados.iterate(
-                Z,
-                V,
-                refs,
-                self._weights,
-                self.p,
-                self._v_lower,
-                self._v_upper,
-                self._half_width,
+        compiled = self._native or self._acados
+        if compiled is not None:
+            return compiled.iterate(
+                Z, V, refs, self._weights, self.p, self._v_lower, self._v_upper, self._half_width
             )
         rti = self._rti
         assert rti is not None

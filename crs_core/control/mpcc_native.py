@@ -271,6 +271,8 @@ class NativeRti:
 
         acados_template()  # acados's BLASFEO and HPIPM in the process's global scope
         self.N, self.nz, self.nv = problem.N, problem.nz, problem.nv
+        #: largest constraint violation of a usable plan
+        self.tolerance = problem.settings.feasibility_tolerance
         include = os.path.join(acados.INCLUDE_DIR, "{}", "include")
         source = _DRIVER
         for key, value in (("N", self.N), ("nz", self.nz), ("nv", self.nv), ("free", FREE)):
@@ -322,11 +324,11 @@ class NativeRti:
         v_lower: np.ndarray,
         v_upper: np.ndarray,
         half_width: float,
-        tolerance: float,
     ) -> Iterate:
         """One SQP iteration from the guess ``Z`` (N+1, nz; its row 0 the fixed state),
         ``V`` (N, nv), the path linearised at ``refs`` (N+1, 4): the new plan, usable when
-        finite and within ``tolerance`` of every constraint (an iteration limit counts)."""
+        finite and within the settings' ``feasibility_tolerance`` of every constraint (an
+        iteration limit counts)."""
         arrays = [
             np.ascontiguousarray(a, dtype=float) for a in (Z, V, refs, weights, p, v_lower, v_upper)
         ]
@@ -344,7 +346,7 @@ class NativeRti:
         return Iterate(
             self._Z.copy(),
             self._V.copy(),
-            bool(violation <= tolerance),  # as "hpipm": a feasible iteration limit counts
+            bool(violation <= self.tolerance),  # as "hpipm": a feasible iteration limit counts
             float(violation),
             int(iterations),
             STATUS.get(status, str(status)),

@@ -73,8 +73,8 @@ def test_it_solves_the_qp_of_the_casadi_iteration(native: Mpcc, reference: Mpcc,
 
 
 def test_a_plan_beyond_its_bounds_is_refused(native: Mpcc, track) -> None:
-    """A feasibility tolerance below what the solve reaches refuses the plan (the violation
-    is checked in the compiled call, not trusted from the solver's status)."""
+    """An empty input range has no plan within it: the plan is refused on its violation,
+    checked in the compiled call, not trusted from the solver's status."""
     Z, V, refs = next(_problems(native, track, 1))
     solved = native._native.iterate(
         Z,
@@ -85,13 +85,12 @@ def test_a_plan_beyond_its_bounds_is_refused(native: Mpcc, track) -> None:
         native._v_lower,
         native._v_upper,
         native._half_width,
-        1e-6,
     )
     assert solved.success
     tight = native._v_upper.copy()
     tight[0] = -native.settings.steer_max - 0.1  # an empty steering range: no plan within it
     refused = native._native.iterate(
-        Z, V, refs, native._weights, native.p, native._v_lower, tight, native._half_width, 1e-6
+        Z, V, refs, native._weights, native.p, native._v_lower, tight, native._half_width
     )
     assert not refused.success and refused.violation > 1e-3
 
