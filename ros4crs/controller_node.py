@@ -61,6 +61,7 @@ from crs_core.analysis.statistics import summary
 from crs_core.control.command_delay import CommandDelay, CommandDelaySettings
 from crs_core.control.mpcc import OUTPUTS, Mpcc
 from crs_core.control.mpcc_problem import MpccSettings
+from crs_core.control.overload import OverloadSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
@@ -166,6 +167,7 @@ class ControllerNode(Node):
                 "degraded_speed": min(supervision["degraded_speed"], max_speed),
             },
             max_speed=max_speed,
+            overload=OverloadSettings(period=1.0 / rate_hz),
             steer_max=limits.steer_max,
             torque_min=limits.torque_min,
             torque_max=limits.torque_max,

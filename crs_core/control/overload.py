@@ -62,6 +62,15 @@ class OverloadSettings(Settings):
         Ticks this soon after the first one (the first estimate) are not judged, s: the MPCC's
         cold start and the first calls of every compiled function make a start's ticks late on
         any machine.
+    period : float
+        The loop's nominal period, s (0: its rate is not judged). A loop that keeps no gap
+        above ``late_tick`` can still be starved: on a machine carrying six cars the
+        controllers ran at half their rate, their estimates a third, and the cars raced on.
+    min_rate : float
+        A tick after which the loop made fewer than this fraction of its nominal ticks over the
+        last ``rate_window`` s is late (it slows the car; it does not count towards a stand).
+    rate_window : float
+        How far back the ticks are counted, s.
     """
 
     late_tick: float = positive(0.15)
@@ -73,6 +82,9 @@ class OverloadSettings(Settings):
     hold_max: float = positive(32.0)
     memory: float = non_negative(20.0)
     warm_up: float = non_negative(1.0)
+    period: float = non_negative(0.0)
+    min_rate: float = within(0.7, low=0.0, high=1.0)
+    rate_window: float = positive(1.0)
 
 
 class OverloadWatch:
@@ -95,6 +107,7 @@ class OverloadWatch:
         self._late: deque[tuple[float, float]] = deque()  # (tick time, late interval s)
         self._last_late = -float("inf")
         self._first: float | None = None
+        self._ticks: deque[float] = deque()  # tick times within rate_window
         self._lifted = -float("inf")  # when the limit was last lifted
         #: the hold in force, s (``hold``, doubled for each repeated episode)
         self.hold = self.settings.hold
@@ -105,6 +118,23 @@ class OverloadWatch:
         if self.state == "ok":
             return None
         return 0.0 if self.state == "stand" else self.settings.slow_speed
+
+    def _slow_rate(self, now: float) -> str:
+        """Why the loop's rate over the last ``rate_window`` s is too low ('' if it is not, or
+        if the window does not yet lie wholly after the warm-up)."""
+        s = self.settings
+        ticks = self._ticks
+        if s.period <= 0 or self._first is None:
+            return ""
+        if now - s.rate_window < self._first + s.warm_up:
+            return ""
+        nominal = s.rate_window / s.period
+        if len(ticks) >= s.min_rate * nominal:
+            return ""
+        return (
+            f"the controller ticked {len(ticks)} times in the last {s.rate_window:g} s, "
+            f"of {nominal:.0f}"
+        )
 
     def late_fraction(self, now: float) -> float:
         """The fraction of the last ``window`` s spent in late intervals."""
@@ -120,6 +150,10 @@ class OverloadWatch:
         s = self.settings
         if self._first is None:
             self._first = now
+        if s.period > 0:
+            self._ticks.append(now)
+            while self._ticks[0] <= now - s.rate_window:
+                self._ticks.popleft()
         if now - self._first < s.warm_up:
             return ""
         reason = ""
@@ -127,10 +161,12 @@ class OverloadWatch:
             reason = f"the controller's tick came {interval * 1e3:.0f} ms after the last"
         elif since_estimate > s.estimate_gap:
             reason = f"no new state estimate for {since_estimate * 1e3:.0f} ms"
+        else:
+            reason = self._slow_rate(now)
         if reason:
             self.late_ticks += 1
             self._last_late = now
-            self._late.append((now, min(interval, s.window)))
+            self._late.append((now, min(interval, s.window) if interval > s.late_tick else 0.0))
         fraction = self.late_fraction(now)
         if reason and self.state == "ok":
             self.episodes += 1

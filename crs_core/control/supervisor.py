@@ -555,7 +555,7 @@ class Supervisor:
         controller starts over from cold once it ends."""
         if self.recovery is None:
             return None
-        if self.overload.state == "stand":  # standing on purpose
+        if self.overload.state != "ok":  # standing on purpose, or starting from it slowly
             self.recovery.reset()
             return None
         was_active = self.recovery.active

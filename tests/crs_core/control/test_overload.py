@@ -3,6 +3,8 @@ on time again lifts the limit; and the supervisor ramps its cap to that limit.""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -135,8 +137,8 @@ def test_the_supervisor_ramps_to_the_overload_limit_and_back():
 
 
 def test_a_standing_car_is_not_backed_out_as_stuck():
-    """While the watch stands the car, the stuck recovery (a car standing while driven) stays
-    quiet: it would reverse a car that was stopped on purpose."""
+    """While the watch stands the car, or slows it after a stand, the stuck recovery (a car
+    standing while driven) stays quiet: it would reverse a car that was stopped on purpose."""
     from crs_core.control.recovery import StuckRecovery
     from crs_core.track import load_demo_track
 
@@ -151,6 +153,19 @@ def test_a_standing_car_is_not_backed_out_as_stuck():
         supervisor.observe(now - 0.01, start, "ok")
         supervisor(now)
     assert supervisor.overload.state == "stand"
+    assert recovery.count == 0 and not recovery.active
+    # on time again: the stand lifts to the slow limit; the car, still standing while it
+    # starts off slowly, is not taken for stuck either (it was reversed on a starved loop)
+    while supervisor.overload.state == "stand":
+        now += 1 / 30
+        supervisor.observe(now - 0.01, start, "ok")
+        supervisor(now)
+    assert supervisor.overload.state == "slow"
+    for _ in range(60):
+        now += 1 / 30
+        supervisor.observe(now - 0.01, start, "ok")
+        supervisor(now)
+    assert supervisor.overload.state == "slow"
     assert recovery.count == 0 and not recovery.active
 
 
@@ -217,3 +232,39 @@ def test_a_repeated_episode_doubles_the_hold_and_a_stand_lifts_to_slow_first():
         states.append(stand.state)
     assert states[0] == "stand" and "slow" in states and states[-1] == "ok"
     assert states.index("ok") > states.index("slow")
+
+
+def test_a_loop_at_half_its_rate_without_long_gaps_slows_the_car_but_does_not_stand_it():
+    """Ticks 67 ms apart (a 30 Hz loop at half its rate, none late by ``late_tick``): late by
+    the rate once the rate window lies past the warm-up, the car slowed, never stood; back at
+    full rate the limit is lifted after the hold."""
+    settings = OverloadSettings(period=PERIOD, warm_up=1.0, hold=2.0)
+    watch = OverloadWatch(settings)
+    now, reasons = 0.0, []
+    while now < 6.0:
+        now += 2 * PERIOD
+        reasons.append(watch.tick(now, 2 * PERIOD, 0.0))
+    assert all(r == "" for r in reasons[:14])  # warm-up, then the first full window
+    assert re.search(r"ticked 1[56] times in the last 1 s, of 30", reasons[-1])
+    assert watch.state == "slow" and watch.stands == 0
+    while now < 9.5:
+        now += PERIOD
+        watch.tick(now, PERIOD, 0.0)
+    assert watch.state == "ok"
+
+
+def test_a_loop_at_three_quarters_of_its_rate_is_not_late():
+    watch = OverloadWatch(OverloadSettings(period=PERIOD, warm_up=0.0))
+    now = 0.0
+    for _ in range(200):
+        now += PERIOD / 0.75
+        assert watch.tick(now, PERIOD / 0.75, 0.0) == ""
+    assert watch.state == "ok"
+
+
+def test_without_a_period_the_rate_is_not_judged():
+    watch = OverloadWatch(OverloadSettings(warm_up=0.0))
+    now = 0.0
+    for _ in range(100):
+        now += 0.12
+        assert watch.tick(now, 0.12, 0.0) == ""
