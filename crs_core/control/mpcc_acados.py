@@ -399,14 +399,23 @@ class _Helper:
     def load(self, Z: np.ndarray, V: np.ndarray, P: np.ndarray) -> None:
         Z, V = np.ascontiguousarray(Z, dtype=float), np.ascontiguousarray(V, dtype=float)
         N, nz = Z.shape[0] - 1, Z.shape[1]
-        self._load(self._capsule, N, nz, V.shape[1], P.shape[1], Z.ctypes, V.ctypes, P.ctypes)
+        self._load(
+            self._capsule,
+            N,
+            nz,
+            V.shape[1],
+            P.shape[1],
+            Z.ctypes.data,
+            V.ctypes.data,
+            P.ctypes.data,
+        )
 
     def set_bounds(self, lower: np.ndarray, upper: np.ndarray, N: int) -> None:
-        self._bounds(self._capsule, N, lower.ctypes, upper.ctypes)
+        self._bounds(self._capsule, N, lower.ctypes.data, upper.ctypes.data)
 
     def read(self, Z: np.ndarray, V: np.ndarray) -> None:
         N, nz = Z.shape[0] - 1, Z.shape[1]
-        self._read(self._capsule, N, nz, V.shape[1], Z.ctypes, V.ctypes)
+        self._read(self._capsule, N, nz, V.shape[1], Z.ctypes.data, V.ctypes.data)
 
     def qp_iterations(self) -> int:
         return int(self._iterations(self._capsule))

@@ -334,11 +334,11 @@ class NativeRti:
         ]
         status = self._iterate(
             self._memory,
-            *(a.ctypes for a in arrays),
+            *(a.ctypes.data for a in arrays),
             float(half_width),
-            self._Z.ctypes,
-            self._V.ctypes,
-            self._out.ctypes,
+            self._Z.ctypes.data,
+            self._V.ctypes.data,
+            self._out.ctypes.data,
         )
         iterations, _, violation = self._out
         if status < 0:

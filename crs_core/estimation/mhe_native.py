@@ -293,6 +293,8 @@ class NativeGaussNewton:
         ``information`` / ``mean`` on node ``first``; returns a
         :class:`~crs_core.estimation.mhe_problem.StepOutcome` code (:attr:`X`,
         :attr:`covariance` or :attr:`residuals` hold its results)."""
+        # addresses as integers: an array's ``.ctypes`` object passed as an argument leaves a
+        # reference cycle per call, garbage the long-stream memory test saw grow
         arrays = [np.asfortranarray(a, dtype=float) for a in inputs]
         for i, array in enumerate(arrays):
             self._inputs[i] = array.ctypes.data
@@ -303,14 +305,14 @@ class NativeGaussNewton:
                 self._memory,
                 self._inputs,
                 int(first),
-                information.ctypes,
-                mean.ctypes,
-                self._fractions.ctypes,
+                information.ctypes.data,
+                mean.ctypes.data,
+                self._fractions.ctypes.data,
                 self._fractions.size,
-                self.X.ctypes,
-                self.covariance.ctypes,
-                self.residuals.ctypes,
-                self._blocks.ctypes,
+                self.X.ctypes.data,
+                self.covariance.ctypes.data,
+                self.residuals.ctypes.data,
+                self._blocks.ctypes.data,
             )
         )
 
