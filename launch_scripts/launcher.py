@@ -21,6 +21,10 @@ import yaml
 
 from ros4crs.discovery import STATS_DIR_VARIABLE, set_discovery_environment
 
+#: The line each ROS node logs once it is made and about to spin
+#: (:func:`ros4crs.node_support.run_nodes`).
+READY_LINE = "running (pid"
+
 
 @dataclass
 class NodeSpec:
@@ -219,25 +223,61 @@ class Launcher:
             while time.monotonic() < deadline and any(p.poll() is None for p in running):
                 time.sleep(0.05)
 
+    def ready(self) -> bool:
+        """Whether every process has started: a ROS process's log holds a :data:`READY_LINE`
+        for each of its nodes, a plain process's log any output."""
+        for name in self.processes:
+            try:
+                text = self._logs[name].read_text(errors="replace")
+            except OSError:
+                return False
+            nodes = sum(spec.process_name == name and spec.arguments is None for spec in self.nodes)
+            if text.count(READY_LINE) < nodes or not text:
+                return False
+        return True
+
     def run(
-        self, duration: float | None, on_exit=None, until=None, settle_s: float | None = None
+        self,
+        duration: float | None,
+        on_exit=None,
+        until=None,
+        settle_s: float | None = None,
+        startup_limit: float | None = None,
     ) -> list[Exited]:
         """Start, watch until ``duration`` s passed, ``until()`` is true or Ctrl-C, then stop.
 
-        ``on_exit(exited)`` is called for every node that dies while running. With ``settle_s``
-        the CPU times are also taken that long after the start (:attr:`cpu_at_settle`), so
-        that the cost of the running stack can be told from its start-up. Returns all
-        processes that died before the stop.
+        ``on_exit(exited)`` is called for every node that dies while running. With
+        ``startup_limit`` the ``duration`` counts from the moment every process has started
+        (:meth:`ready`; at most ``startup_limit`` s after the launch, :attr:`startup_s`): a
+        loaded machine's slow imports do not eat the run. With ``settle_s`` the CPU times are
+        also taken that long after that moment (:attr:`cpu_at_settle`), so that the cost of the
+        running stack can be told from its start-up. Returns all processes that died before
+        the stop.
         """
         self.start()
         deaths: list[Exited] = []
-        started = time.monotonic()
+        launched = started = time.monotonic()
+        waiting = startup_limit is not None
+        #: when ``duration`` began to count (:func:`time.monotonic`), None while starting up
+        self.counting_since: float | None = None if waiting else launched
+        self.startup_s = 0.0
         self.cpu_at_settle: dict[str, float] | None = None
         self.wall_at_settle = 0.0
         try:
-            while duration is None or time.monotonic() - started < duration:
-                elapsed = time.monotonic() - started
-                if settle_s is not None and self.cpu_at_settle is None and elapsed >= settle_s:
+            while True:
+                now = time.monotonic()
+                if waiting and (self.ready() or now - launched >= (startup_limit or 0.0)):
+                    waiting, started = False, now
+                    self.startup_s, self.counting_since = now - launched, now
+                if not waiting and duration is not None and now - started >= duration:
+                    break
+                elapsed = now - launched
+                if (
+                    not waiting
+                    and settle_s is not None
+                    and self.cpu_at_settle is None
+                    and now - started >= settle_s
+                ):
                     self.cpu_at_settle, self.wall_at_settle = self.cpu_seconds(), elapsed
                 for exited in self.poll():
                     deaths.append(exited)
@@ -251,7 +291,7 @@ class Launcher:
         finally:
             self.cpu_at_stop = self.cpu_seconds()
             self.memory_at_stop = self.peak_memory_mib()
-            self.wall_at_stop = time.monotonic() - started
+            self.wall_at_stop = time.monotonic() - launched
             self.stop()
         return deaths
 

@@ -41,10 +41,14 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "estimates": (("input", "ground_truth", "estimate/"), ("/tf",)),
     "sensors": (("sensors/", "input", "ground_truth"), ()),
 }
-#: The CPU of the running stack (``cpu_percent_running``) is counted from this long after the
-#: start (at most a quarter of the run), s: before, the nodes import, discover each other and
-#: wait for the simulator's clock, which makes a short run's average look cheaper.
+#: The CPU of the running stack (``cpu_percent_running``) is counted from this long after every
+#: process has started (at most a quarter of the run), s: before, the nodes discover each other
+#: and wait for the simulator's clock, which makes a short run's average look cheaper.
 SETTLE_S = 10.0
+#: A launched run's duration counts from the moment all its processes have started, or from
+#: this long after the launch, s (imports and compiled code took 3-5 s an idle machine, more than
+#: twice that on a loaded one, and ate a short run's racing).
+STARTUP_LIMIT_S = 60.0
 #: ``report.json``'s ``bag_analysis`` of a part of a stack without the recorder.
 NO_BAG = "none on this machine: the recorder runs on another one (its report analyses the run)"
 #: The process a car's simulator or bridge, estimator and controller share (``/car1/pipeline``)
@@ -388,9 +392,10 @@ def run_folder(out: Path, domain_id: int | None) -> tuple[Path, Path, int]:
 
 
 def run_watched(launcher: Launcher, duration: float) -> list:
-    """Run the launcher for ``duration`` s with a progress line every 5 s, reporting any
-    process that dies, the CPU counted from :data:`SETTLE_S` (at most a quarter of the run)
-    on; the processes that died."""
+    """Run the launcher for ``duration`` s from the moment its processes have started
+    (:data:`STARTUP_LIMIT_S`) with a progress line every 5 s, reporting any process that dies,
+    the CPU counted from :data:`SETTLE_S` (at most a quarter of the run) on; the processes
+    that died."""
 
     def report_death(exited) -> None:
         print(
@@ -403,18 +408,21 @@ def run_watched(launcher: Launcher, duration: float) -> list:
         on_exit=report_death,
         until=_progress(launcher, duration),
         settle_s=min(SETTLE_S, duration / 4),
+        startup_limit=STARTUP_LIMIT_S,
     )
     print("[launch] stopped", flush=True)
     return deaths
 
 
 def process_figures(launcher: Launcher) -> dict[str, Any]:
-    """``cpu_percent`` (whole run), ``cpu_percent_running`` (from the settle time on) and
-    ``peak_memory_mib`` per process of a finished :meth:`Launcher.run`, and
-    ``solver_cpu_percent`` per car (:func:`solver_cpu_percent`)."""
+    """``startup_s`` (until every process had started), ``cpu_percent`` (whole run),
+    ``cpu_percent_running`` (from the settle time on) and ``peak_memory_mib`` per process of a
+    finished :meth:`Launcher.run`, and ``solver_cpu_percent`` per car
+    (:func:`solver_cpu_percent`)."""
     wall = max(launcher.wall_at_stop, 1e-9)
     figures: dict[str, Any] = {
-        "cpu_percent": {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()}
+        "startup_s": round(launcher.startup_s, 2),
+        "cpu_percent": {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()},
     }
     if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
         running = launcher.wall_at_stop - launcher.wall_at_settle
@@ -428,17 +436,23 @@ def process_figures(launcher: Launcher) -> dict[str, Any]:
 
 
 def _progress(launcher: Launcher, duration: float, every: float = 5.0):
-    """An ``until`` callback for :meth:`Launcher.run` that prints a progress line every
-    ``every`` s (and never stops the run)."""
-    started, due = time.monotonic(), [every]
+    """An ``until`` callback for :meth:`Launcher.run` that says when every process has started
+    and then prints a progress line every ``every`` s (and never stops the run)."""
+    due = [0.0]
 
     def tick() -> bool:
-        elapsed = time.monotonic() - started
+        since = launcher.counting_since
+        if since is None:
+            return False
+        total = len(launcher.processes)
+        if not due[0]:
+            print(f"[launch] {total} processes started in {launcher.startup_s:.1f} s", flush=True)
+            due[0] = every
+        elapsed = time.monotonic() - since
         if elapsed >= due[0]:
             running = sum(p.poll() is None for p in launcher.processes.values())
-            total = len(launcher.processes)
             print(
-                f"[launch] {elapsed:3.0f} / {duration:g} s: {running} of {total} nodes running",
+                f"[launch] {elapsed:3.0f} / {duration:g} s: {running} of {total} processes running",
                 flush=True,
             )
             due[0] += every

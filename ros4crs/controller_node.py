@@ -175,6 +175,7 @@ class ControllerNode(Node):
         )
         if isinstance(limits, MpccSettings):
             controller: Mpcc | PathFollower = Mpcc(track, model, limits, output=self.output)
+            controller.warm_up()
         else:
             parameters = model.parameters
             wheelbase = parameters.value("lf") + parameters.value("lr")

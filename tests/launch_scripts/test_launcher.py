@@ -95,3 +95,33 @@ def test_nodes_that_name_one_process_run_in_it(tmp_path) -> None:
 def test_a_plain_process_shares_no_process() -> None:
     with pytest.raises(ValueError, match="shares no process"):
         NodeSpec("emulator", "chronos_bridge.emulator_process", arguments=[], process="pipeline")
+
+
+SLOW_STARTER = """
+import sys, time
+time.sleep(float(sys.argv[1]))
+print("up", flush=True)
+while True:
+    time.sleep(0.01)
+"""
+
+
+def test_a_run_counts_its_duration_from_the_moment_every_process_has_started(tmp_path) -> None:
+    """Slow imports (a loaded machine) do not eat the run: with a start-up limit the duration
+    counts once the slowest process has started (a plain process: its first output), and
+    from the limit on when one never does."""
+    script = tmp_path / "starter.py"
+    script.write_text(SLOW_STARTER)
+    specs = [
+        NodeSpec("quick", "cProfile", arguments=[str(script), "0"]),
+        NodeSpec("slow", "cProfile", arguments=[str(script), "1.5"]),
+    ]
+    launcher = Launcher(specs, 150, tmp_path / "logs")
+    assert launcher.run(0.5, startup_limit=30.0) == []
+    assert 1.5 <= launcher.startup_s < 30.0
+    assert launcher.wall_at_stop >= launcher.startup_s + 0.5
+
+    silent = [NodeSpec("silent", "cProfile", arguments=[str(script), "1000"])]
+    launcher = Launcher(silent, 150, tmp_path / "logs_silent")
+    assert launcher.run(0.2, startup_limit=1.0) == []
+    assert launcher.startup_s >= 1.0 and launcher.wall_at_stop >= 1.2

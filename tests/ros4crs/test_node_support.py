@@ -1,12 +1,15 @@
 """The start-up contract of :func:`ros4crs.node_support.run`: every node refuses a bad parameter
 at start-up in one line naming it, with exit code 2; so is a bad ``CRS_EXECUTOR``.
 
-Each case starts the node process as the launcher does (``python -m <module> --ros-args ...``);
-the processes run in parallel (each needs a second or two to import) and never reach DDS.
+The cases run one after the other in one Python process, each through its module's ``main``
+with the arguments the launcher gives (``<module> --ros-args -r __ns:=/car1 ...``), which is what
+``python -m <module>`` runs: a process per case cost a second or two of imports each, 30 s of
+the suite. The executor case starts a real node process. None reaches DDS.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -120,35 +123,47 @@ CASES = [
 ]
 
 
+#: Runs each case of ``argv[1]`` (JSON ``[module, [arguments]]``) through its module's ``main``
+#: and prints ``[exit code, stderr]`` per case as JSON (a raised exception: its traceback).
+RUNNER = """
+import contextlib, importlib, json, sys, tempfile, traceback
+results = []
+for module, arguments in json.loads(sys.argv[1]):
+    err = tempfile.TemporaryFile("w+")  # a real file: the nodes may ask for its descriptor
+    with contextlib.redirect_stderr(err):
+        try:
+            code = importlib.import_module("ros4crs." + module).main(
+                [module, "--ros-args", "-r", "__ns:=/car1", *arguments]
+            )
+        except BaseException:
+            code = None
+            err.write(traceback.format_exc())
+    err.seek(0)
+    results.append([code, err.read()])
+print(json.dumps(results))
+"""
+
+
 @pytest.fixture(scope="module")
 def outcomes(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[tuple[int, str, str]]]:
-    """The temporary folder, and (exit code, stderr, expected line) per case, run in parallel."""
+    """The temporary folder, and (exit code, stderr, expected line) per case."""
     tmp = tmp_path_factory.mktemp("startup")
     (tmp / "bad.yaml").write_text("parameters:\n  m: heavy\n")
     env = {**os.environ, "ROS_DOMAIN_ID": "171", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
-    processes = []
-    for module, arguments, expected in CASES:
-        command = [
-            sys.executable,
-            "-m",
-            f"ros4crs.{module}",
-            "--ros-args",
-            "-r",
-            "__ns:=/car1",
-            *[a.format(tmp=tmp) for a in arguments],
-        ]
-        process = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env
-        )
-        processes.append((process, expected.format(tmp=tmp)))
-    out = []
-    for process, expected in processes:
-        try:
-            _, err = process.communicate(timeout=120)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            _, err = process.communicate()
-        out.append((process.returncode, err, expected))
+    cases = [(module, [a.format(tmp=tmp) for a in arguments]) for module, arguments, _ in CASES]
+    result = subprocess.run(
+        [sys.executable, "-c", RUNNER, json.dumps(cases)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    results = json.loads(result.stdout.splitlines()[-1])
+    out = [
+        (code, err, expected.format(tmp=tmp))
+        for (code, err), (_, _, expected) in zip(results, CASES, strict=True)
+    ]
     return tmp, out
 
 
