@@ -113,7 +113,8 @@ class CompiledFunction(NumericFunction):
 
     def __init__(self, function: ca.Function, library: ctypes.CDLL) -> None:
         super().__init__(function)
-        self._library = library  # keep the shared object loaded
+        #: the loaded shared object (kept loaded while the function lives)
+        self.library = library
         entry = getattr(library, self.name)
         entry.restype = ctypes.c_int
         entry.argtypes = [ctypes.c_void_p] * 4 + [ctypes.c_int]
@@ -165,6 +166,7 @@ def compile_functions(
     functions: Sequence[ca.Function],
     library_name: str,
     backend: str | None = None,
+    driver: str = "",
 ) -> dict[str, NumericFunction]:
     """Numeric callables for ``functions``, keyed by function name.
 
@@ -176,10 +178,14 @@ def compile_functions(
         Stem of the generated C file (a valid C identifier).
     backend : {"compiled", "vm", None}
         ``None`` picks ``$CRS_CODEGEN`` if set, else ``compiled`` when a compiler exists.
+    driver : str
+        C that calls the generated functions, compiled into the same library (reached through
+        :attr:`CompiledFunction.library`; unused in the VM): one compile, not a second library
+        of the same generated code.
     """
     if _backend(backend) == "vm":
         return {f.name(): VMFunction(f) for f in functions}
-    library = ctypes.CDLL(str(_build_library(functions, library_name, COMPILE_FLAGS)))
+    library = ctypes.CDLL(str(_build_library(functions, library_name, COMPILE_FLAGS, driver)))
     return {f.name(): CompiledFunction(f, library) for f in functions}
 
 

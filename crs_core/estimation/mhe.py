@@ -53,7 +53,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from crs_core.codegen import compile_functions
+from crs_core.codegen import CompiledFunction, compile_functions
 from crs_core.errors import FieldError
 from crs_core.estimation.base import Estimator, EstimatorSettings
 from crs_core.estimation.mhe_native import NativeGaussNewton
@@ -187,16 +187,14 @@ class MovingHorizonEstimator(Estimator):
         compiled = compile_functions(
             [blocks, cost, model.step_function(self._substeps, "mhe_predict"), *offset_outputs],
             f"mhe_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
+            driver=NativeGaussNewton.driver(blocks),
         )
         self._solve_blocks, self._cost = compiled["mhe_gn"], compiled["mhe_cost"]
         #: the Gauss-Newton step: one compiled call, or (in CasADi's VM) numpy and LAPACK
         self._step_solver: NativeGaussNewton | BandedGaussNewton
-        if self._solve_blocks.backend == "compiled":
+        if isinstance(self._solve_blocks, CompiledFunction):
             self._step_solver = NativeGaussNewton(
-                blocks,
-                cost,
-                f"mhe_step_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
-                STEP_FRACTIONS,
+                self._solve_blocks.library, blocks, STEP_FRACTIONS
             )
         else:
             self._step_solver = BandedGaussNewton(self._solve_blocks, self._cost, STEP_FRACTIONS)

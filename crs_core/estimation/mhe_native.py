@@ -7,8 +7,8 @@ nodes folded in, the block-tridiagonal normal equations factorised block by bloc
 (:math:`L_j L_j^\top = D_j - B_j B_j^\top`, :math:`B_j = O_{j-1}^\top L_{j-1}^{-\top}`), the step
 by forward and back substitution, the newest node's covariance
 :math:`(L_M L_M^\top)^{-1}`, and the backtracking test on the cost (the generated
-``mhe_cost``), with no Python per node. The library is compiled once per problem into the
-compile cache beside the MHE's other functions.
+``mhe_cost``), with no Python per node. Its C (:meth:`NativeGaussNewton.driver`) is compiled
+into the library of the MHE's generated functions.
 """
 
 from __future__ import annotations
@@ -18,8 +18,6 @@ from collections.abc import Sequence
 
 import casadi as ca
 import numpy as np
-
-from crs_core.codegen import compile_library
 
 __all__ = ["NativeGaussNewton"]
 
@@ -224,34 +222,36 @@ class NativeGaussNewton:
 
     Parameters
     ----------
-    blocks, cost : casadi.Function
-        The window's ``mhe_gn`` and ``mhe_cost``
-        (:func:`~crs_core.estimation.mhe_problem.build_mhe_function`).
-    library_name : str
-        Stem of the compiled library (with the MHE's model and horizon in it).
+    library : ctypes.CDLL
+        The compiled library of the window's ``mhe_gn`` and ``mhe_cost``
+        (:func:`~crs_core.estimation.mhe_problem.build_mhe_function`) with :meth:`driver`
+        (:func:`~crs_core.codegen.compile_functions`).
+    blocks : casadi.Function
+        The window's ``mhe_gn`` (its sizes).
     step_fractions : sequence of float
         The step lengths tried, in order, until the cost does not rise.
 
     Raises
     ------
     RuntimeError
-        No C compiler, or the library does not build.
+        The step's memory could not be allocated.
     """
 
+    @staticmethod
+    def driver(blocks: ca.Function) -> str:
+        """The step's C for the window of ``mhe_gn`` ``blocks``, to be compiled with it."""
+        source = _DRIVER
+        sizes = (("nx", blocks.size1_in(0)), ("M", blocks.size2_in(0) - 1))
+        for key, value in (*sizes, ("ny", blocks.size1_out(4))):
+            source = source.replace("{" + key + "}", str(value))
+        return source
+
     def __init__(
-        self,
-        blocks: ca.Function,
-        cost: ca.Function,
-        library_name: str,
-        step_fractions: Sequence[float],
+        self, library: ctypes.CDLL, blocks: ca.Function, step_fractions: Sequence[float]
     ) -> None:
         self.nx = blocks.size1_in(0)
         self.nodes = blocks.size2_in(0)
         self.ny = blocks.size1_out(4)
-        source = _DRIVER
-        for key, value in (("nx", self.nx), ("M", self.nodes - 1), ("ny", self.ny)):
-            source = source.replace("{" + key + "}", str(value))
-        library = compile_library([blocks, cost], library_name, source)
         pointer = ctypes.c_void_p
         create = library.crs_gn_create
         create.restype = pointer
