@@ -281,7 +281,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "200 ms, then coasts): always (car's default; about 4 %% slower laps), after_outage "
         "(sim's default: from the first outage on), never (racing commands)",
     )
-    add_duration(sub, 40.0, "wall-clock time")
+    add_duration(sub, 40.0, "wall-clock time from the moment every process has started")
     add_out(sub, "output folder", required=True)
     add_domain(sub, "", "$ROS_DOMAIN_ID, else 42")
     sub.add_argument(
