@@ -187,7 +187,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     report = run_car_stack(
         2,
         StackOptions("mhe", record="estimates"),
-        14.0,  # of racing: the run counts from the moment every process has started
+        16.0,  # of racing (the run counts from the moment every process has started)
         tmp_path / "run",
         True,
         domain_id=DOMAIN_TWO_EMULATED,
