@@ -43,8 +43,10 @@ def split_stack(
     domain: int,
     estimator: str = "mhe",
     port: int = PORT,
+    after_start_up: bool = False,
 ) -> Iterator[dict[str, subprocess.Popen]]:
     """The two parts of :data:`PARTS` launched in ``pair``'s namespaces for ``duration`` s
+    (from the moment each part's processes have started with ``after_start_up``)
     (``crs launch sim --nodes ... --zenoh-listen/--zenoh-connect``, ROS domain ``domain`` in
     each, reports in ``out/A`` and ``out/B``, their output in ``out/A.txt`` and ``out/B.txt``);
     yields the processes by part, and kills any still running when the block ends. A listens
@@ -59,6 +61,7 @@ def split_stack(
             argv = [sys.executable, "-m", "launch_scripts.cli", "launch", "sim"]
             argv += ["--estimator", estimator, "--nodes", nodes, *joins[part]]
             argv += ["--duration", f"{duration:g}", "--out", str(out / part)]
+            argv += ["--after-start-up"] if after_start_up else []
             with (out / f"{part}.txt").open("w") as log:
                 processes[part] = subprocess.Popen(
                     pair.command(pair.a if part == "A" else pair.b, argv),

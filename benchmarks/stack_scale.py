@@ -107,6 +107,7 @@ def _scale_entry(count: int, report: dict[str, Any]) -> dict[str, Any]:
         "recorder_cpu_percent": running.get("/recorder"),
         "node_deaths": report.get("node_deaths", []),
         "total_cpu_percent": round(sum(running.values()), 1),
+        "startup_s": report.get("startup_s"),
     }
 
 
@@ -144,9 +145,15 @@ def format_markdown(result: dict[str, Any]) -> str:
         ]
         lines.append("| " + " | ".join(cells) + " |")
     before, after = result["yardstick"]["before"], result["yardstick"]["after"]
+    startups = [e["startup_s"] for e in result["scales"] if e.get("startup_s") is not None]
+    counted = (
+        f"from the moment its processes had started (start-up {span(startups, '.1f')} s)"
+        if startups
+        else "(start-up included)"
+    )
     lines += [
         "",
-        f"{result['duration_s']:g} s per run (start-up included), "
+        f"{result['duration_s']:g} s per run {counted}, "
         f"{result['estimator'].upper()}, {result['load_processes']} busy processes beside it; "
         f"the host's yardstick (one compiled model step) {before['median_us']:g} µs before, "
         f"{after['median_us']:g} µs after. Pipeline CPU once running (10 s on), % of one core; "

@@ -240,6 +240,7 @@ def run_car_stack(
         out,
         duration,
         f"{len(nodes)} processes, {cars} {what}",
+        options.after_start_up,
         (lambda: analyse_car_run(bag, cars, out, emulate)) if recorded else None,
         {
             "mode": "emulated" if emulate else "real",

@@ -24,6 +24,8 @@ from ros4crs.discovery import STATS_DIR_VARIABLE, set_discovery_environment
 #: The line each ROS node logs once it is made and about to spin
 #: (:func:`ros4crs.node_support.run_nodes`).
 READY_LINE = "running (pid"
+#: How long after the launch :meth:`Launcher.run` looks for every process to have started, s.
+READY_WATCH_S = 120.0
 
 
 @dataclass
@@ -246,37 +248,41 @@ class Launcher:
     ) -> list[Exited]:
         """Start, watch until ``duration`` s passed, ``until()`` is true or Ctrl-C, then stop.
 
-        ``on_exit(exited)`` is called for every node that dies while running. With
-        ``startup_limit`` the ``duration`` counts from the moment every process has started
-        (:meth:`ready`; at most ``startup_limit`` s after the launch, :attr:`startup_s`): a
-        loaded machine's slow imports do not eat the run. With ``settle_s`` the CPU times are
-        also taken that long after that moment (:attr:`cpu_at_settle`), so that the cost of the
-        running stack can be told from its start-up. Returns all processes that died before
-        the stop.
+        ``on_exit(exited)`` is called for every node that dies while running. The moment every
+        process has started (:meth:`ready`) is noted as :attr:`startup_s`, s after the launch
+        (None if it never came in :data:`READY_WATCH_S`). ``duration`` counts from the launch,
+        or with ``startup_limit`` from that moment, at most ``startup_limit`` s after the
+        launch: a loaded machine's slow imports do not eat the run. With ``settle_s`` the CPU
+        times are also taken that long after ``duration`` began to count
+        (:attr:`cpu_at_settle`), so that the cost of the running stack can be told from its
+        start-up. Returns all processes that died before the stop.
         """
         self.start()
         deaths: list[Exited] = []
-        launched = started = time.monotonic()
-        waiting = startup_limit is not None
+        launched = time.monotonic()
+        self.startup_s: float | None = None
         #: when ``duration`` began to count (:func:`time.monotonic`), None while starting up
-        self.counting_since: float | None = None if waiting else launched
-        self.startup_s = 0.0
+        self.counting_since: float | None = None if startup_limit is not None else launched
         self.cpu_at_settle: dict[str, float] | None = None
         self.wall_at_settle = 0.0
         try:
             while True:
                 now = time.monotonic()
-                if waiting and (self.ready() or now - launched >= (startup_limit or 0.0)):
-                    waiting, started = False, now
-                    self.startup_s, self.counting_since = now - launched, now
-                if not waiting and duration is not None and now - started >= duration:
-                    break
                 elapsed = now - launched
+                if self.startup_s is None and elapsed < READY_WATCH_S and self.ready():
+                    self.startup_s = elapsed
+                if self.counting_since is None and (
+                    self.startup_s is not None or elapsed >= (startup_limit or 0.0)
+                ):
+                    self.counting_since = now
+                counted = None if self.counting_since is None else now - self.counting_since
+                if counted is not None and duration is not None and counted >= duration:
+                    break
                 if (
-                    not waiting
+                    counted is not None
                     and settle_s is not None
                     and self.cpu_at_settle is None
-                    and now - started >= settle_s
+                    and counted >= settle_s
                 ):
                     self.cpu_at_settle, self.wall_at_settle = self.cpu_seconds(), elapsed
                 for exited in self.poll():

@@ -45,9 +45,9 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: process has started (at most a quarter of the run), s: before, the nodes discover each other
 #: and wait for the simulator's clock, which makes a short run's average look cheaper.
 SETTLE_S = 10.0
-#: A launched run's duration counts from the moment all its processes have started, or from
-#: this long after the launch, s (imports and compiled code took 3-5 s an idle machine, more than
-#: twice that on a loaded one, and ate a short run's racing).
+#: With :attr:`StackOptions.after_start_up` a run's duration counts from the moment all its
+#: processes have started, or from this long after the launch, s (their start-up took 3-5 s on
+#: an idle machine, 15 s beside two busy loops, and ate a short run's racing).
 STARTUP_LIMIT_S = 60.0
 #: ``report.json``'s ``bag_analysis`` of a part of a stack without the recorder.
 NO_BAG = "none on this machine: the recorder runs on another one (its report analyses the run)"
@@ -155,6 +155,10 @@ class StackOptions:
         Every node in a process of its own (for debugging: a node's own log, profile and CPU
         figure); by default a car's simulator or bridge, estimator and controller share one
         (:data:`PIPELINE_PROCESS`, :mod:`ros4crs.composed`), the topics on the wire the same.
+    after_start_up : bool
+        A run's duration counts from the moment every process has started (at most
+        :data:`STARTUP_LIMIT_S` after the launch), not from the launch: a loaded machine's
+        start-up does not eat a short run (the tests' way; ``crs launch --after-start-up``).
     """
 
     estimator: str
@@ -171,6 +175,7 @@ class StackOptions:
     part: StackPart = field(default_factory=StackPart)
     viz: VizSettings | None = None
     process_per_node: bool = False
+    after_start_up: bool = False
 
     def pipeline_process(self) -> str:
         """The process a car's pipeline nodes share (``""``: each its own)."""
@@ -310,6 +315,7 @@ def run_stack(
         out,
         duration,
         f"{len(nodes)} nodes, {cars} car(s)",
+        options.after_start_up,
         (lambda: analyse(bag, cars, track)) if recorded else None,
         {
             "estimator": options.estimator,
@@ -332,10 +338,12 @@ def launch_and_report(
     out: Path,
     duration: float,
     what: str,
+    after_start_up: bool,
     analyse_run: Callable[[], dict[str, Any]] | None,
     settings: dict[str, Any],
 ) -> dict[str, Any]:
-    """Launch ``nodes`` (ROS domain ``domain``, logs in OUT/logs) for ``duration`` s, announced
+    """Launch ``nodes`` (ROS domain ``domain``, logs in OUT/logs) for ``duration`` s (from the
+    moment every process has started with ``after_start_up``, :func:`run_watched`), announced
     as ``what`` and the ``settings`` estimator, controller and output; then OUT/report.json:
     ``analyse_run()`` (None: a part of the stack without the recorder, no bag here: no cars,
     and ``bag_analysis`` :data:`NO_BAG`), the ``settings``, the nodes that died and CPU and
@@ -347,7 +355,7 @@ def launch_and_report(
         f"({settings['output']} commands) for {duration:g} s",
         flush=True,
     )
-    deaths = run_watched(launcher, duration)
+    deaths = run_watched(launcher, duration, after_start_up)
     if analyse_run is None:
         report: dict[str, Any] = {"cars": {}, "bag_analysis": NO_BAG}
     else:
@@ -391,11 +399,11 @@ def run_folder(out: Path, domain_id: int | None) -> tuple[Path, Path, int]:
     return out, bag, domain
 
 
-def run_watched(launcher: Launcher, duration: float) -> list:
-    """Run the launcher for ``duration`` s from the moment its processes have started
-    (:data:`STARTUP_LIMIT_S`) with a progress line every 5 s, reporting any process that dies,
-    the CPU counted from :data:`SETTLE_S` (at most a quarter of the run) on; the processes
-    that died."""
+def run_watched(launcher: Launcher, duration: float, after_start_up: bool = False) -> list:
+    """Run the launcher for ``duration`` s (from the moment its processes have started with
+    ``after_start_up``, :data:`STARTUP_LIMIT_S`) with a line when they have and a progress line
+    every 5 s, reporting any process that dies, the CPU counted from :data:`SETTLE_S` (at most
+    a quarter of the run) on; the processes that died."""
 
     def report_death(exited) -> None:
         print(
@@ -408,7 +416,7 @@ def run_watched(launcher: Launcher, duration: float) -> list:
         on_exit=report_death,
         until=_progress(launcher, duration),
         settle_s=min(SETTLE_S, duration / 4),
-        startup_limit=STARTUP_LIMIT_S,
+        startup_limit=STARTUP_LIMIT_S if after_start_up else None,
     )
     print("[launch] stopped", flush=True)
     return deaths
@@ -421,7 +429,7 @@ def process_figures(launcher: Launcher) -> dict[str, Any]:
     (:func:`solver_cpu_percent`)."""
     wall = max(launcher.wall_at_stop, 1e-9)
     figures: dict[str, Any] = {
-        "startup_s": round(launcher.startup_s, 2),
+        "startup_s": None if launcher.startup_s is None else round(launcher.startup_s, 2),
         "cpu_percent": {n: round(100 * s / wall, 1) for n, s in launcher.cpu_at_stop.items()},
     }
     if launcher.cpu_at_settle is not None and launcher.wall_at_stop > launcher.wall_at_settle:
@@ -437,17 +445,17 @@ def process_figures(launcher: Launcher) -> dict[str, Any]:
 
 def _progress(launcher: Launcher, duration: float, every: float = 5.0):
     """An ``until`` callback for :meth:`Launcher.run` that says when every process has started
-    and then prints a progress line every ``every`` s (and never stops the run)."""
-    due = [0.0]
+    and prints a progress line every ``every`` s of the run (and never stops it)."""
+    said, due = [False], [every]
 
     def tick() -> bool:
+        total = len(launcher.processes)
+        if not said[0] and launcher.startup_s is not None:
+            print(f"[launch] {total} processes started in {launcher.startup_s:.1f} s", flush=True)
+            said[0] = True
         since = launcher.counting_since
         if since is None:
             return False
-        total = len(launcher.processes)
-        if not due[0]:
-            print(f"[launch] {total} processes started in {launcher.startup_s:.1f} s", flush=True)
-            due[0] = every
         elapsed = time.monotonic() - since
         if elapsed >= due[0]:
             running = sum(p.poll() is None for p in launcher.processes.values())

@@ -63,7 +63,7 @@ def test_emulated_car_drives_a_lap_through_the_bridge(tmp_path, warm_codegen) ->
     viewer.start()
     report = run_car_stack(
         1,
-        StackOptions("mhe", viz=viz),
+        StackOptions("mhe", after_start_up=True, viz=viz),
         12.0,  # of racing: the run counts from the moment every process has started
         tmp_path / "run",
         True,
@@ -186,7 +186,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
     the two links stay apart."""
     report = run_car_stack(
         2,
-        StackOptions("mhe", record="estimates"),
+        StackOptions("mhe", after_start_up=True, record="estimates"),
         16.0,  # of racing (the run counts from the moment every process has started)
         tmp_path / "run",
         True,

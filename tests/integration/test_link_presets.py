@@ -26,7 +26,7 @@ def _race(tmp_path, preset: str, duration: float) -> tuple[dict, dict]:
     out = tmp_path / preset
     report = run_car_stack(
         1,
-        StackOptions("mhe", record="estimates"),
+        StackOptions("mhe", after_start_up=True, record="estimates"),
         duration,
         out,
         True,
@@ -64,7 +64,7 @@ def test_bad_wifi_reaches_the_estimator_once_in_order_and_right(tmp_path, warm_c
     out = tmp_path / "bad"
     report = run_car_stack(
         1,
-        StackOptions("mhe"),
+        StackOptions("mhe", after_start_up=True),
         12.0,
         out,
         True,

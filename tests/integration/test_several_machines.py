@@ -56,7 +56,10 @@ def _output(folder: Path, part: str) -> str:
 
 
 def test_two_machines_race_over_the_zenoh_link_and_survive_a_pulled_cable(tmp_path) -> None:
-    with netns_pair() as pair, split_stack(pair, tmp_path, DURATION_S, DOMAIN, port=PORT) as parts:
+    with (
+        netns_pair() as pair,
+        split_stack(pair, tmp_path, DURATION_S, DOMAIN, port=PORT, after_start_up=True) as parts,
+    ):
         wait_for(
             lambda: all("processes started" in _output(tmp_path, part) for part in PARTS),
             120.0,

@@ -38,7 +38,7 @@ def test_a_recorded_bag_names_the_hidden_effect_and_closes_the_gap(tmp_path, war
     car = CarTruth(truth, (parse_effect(f"gyro_bias={GYRO_BIAS}"),))
     report = run_car_stack(
         1,
-        StackOptions("mhe", car=car),
+        StackOptions("mhe", after_start_up=True, car=car),
         RACE_S,
         tmp_path / "race",
         True,

@@ -109,7 +109,7 @@ while True:
 def test_a_run_counts_its_duration_from_the_moment_every_process_has_started(tmp_path) -> None:
     """Slow imports (a loaded machine) do not eat the run: with a start-up limit the duration
     counts once the slowest process has started (a plain process: its first output), and
-    from the limit on when one never does."""
+    from the limit on when one never does; without, from the launch."""
     script = tmp_path / "starter.py"
     script.write_text(SLOW_STARTER)
     specs = [
@@ -124,4 +124,9 @@ def test_a_run_counts_its_duration_from_the_moment_every_process_has_started(tmp
     silent = [NodeSpec("silent", "cProfile", arguments=[str(script), "1000"])]
     launcher = Launcher(silent, 150, tmp_path / "logs_silent")
     assert launcher.run(0.2, startup_limit=1.0) == []
-    assert launcher.startup_s >= 1.0 and launcher.wall_at_stop >= 1.2
+    assert launcher.startup_s is None and launcher.wall_at_stop >= 1.2
+
+    launcher = Launcher(specs, 150, tmp_path / "logs_from_launch")
+    assert launcher.run(2.5) == []
+    assert launcher.startup_s is not None and 1.5 <= launcher.startup_s < 2.5
+    assert launcher.wall_at_stop < launcher.startup_s + 2.5

@@ -202,7 +202,7 @@ def test_a_part_without_the_recorder_reports_its_processes_and_no_bag(
     """No bag to analyse: the settings, the processes launched, their deaths, CPU and memory,
     and the summary says there was no analysis."""
     monkeypatch.setattr(sim_stack, "warm_compile_cache", lambda *args, **kwargs: 0.0)
-    monkeypatch.setattr(sim_stack, "run_watched", lambda launcher, duration: [])
+    monkeypatch.setattr(sim_stack, "run_watched", lambda launcher, duration, after: [])
     figures = {"cpu_percent": {"/car1/estimator": 40.0}, "peak_memory_mib": {}}
     monkeypatch.setattr(sim_stack, "process_figures", lambda launcher: figures)
     part = StackPart(("estimator", "controller"), ZenohSettings("client", connect=("tcp/h:1",)))
