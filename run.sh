@@ -187,14 +187,14 @@ warm_compile() {
     "$VENV/bin/python" -m launch_scripts.warm_cache || die "compiling the model functions failed"
 }
 
-# The suite on two workers (pytest-xdist, --dist loadgroup, the groups of tests/conftest.py): one
+# The suite on two workers (pytest-xdist, --dist loadfile, scheduled as tests/conftest.py says): one
 # worker runs the integration tests (ROS 2 stacks racing in real time) one after the other, first,
 # while the other runs the rest; a test module's tests stay on one worker, so its fixtures are
 # built once. ARGS (files, -k, -x, -m, ...) go to pytest. Exit code: pytest's; 1 when no test was
 # collected (pytest's 5).
 run_tests() {
     local rc=0
-    "$VENV/bin/python" -m pytest -q -n 2 --dist loadgroup "$@" || rc=$?
+    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile "$@" || rc=$?
     exit_tests "$rc"
 }
 

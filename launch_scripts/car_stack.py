@@ -59,6 +59,7 @@ from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
+    HOLD_SAFE_OVER_A_LINK,
     PIPELINE_PROCESS,
     RECORD_SETS,
     StackOptions,
@@ -78,9 +79,6 @@ HOST_PORT = CarLinkSettings.port
 EMULATOR_PORT = 20311
 #: The bridge's own topic the recorder adds to the car's record set.
 DIAGNOSTICS_TOPIC = "bridge/diagnostics"
-#: The controllers' ``hold_safe`` over UDP unless the :class:`StackOptions` give one: over
-#: Wi-Fi the first outage can come at any time (:mod:`crs_core.control.contingency`).
-HOLD_SAFE = "always"
 
 
 @dataclass(frozen=True)
@@ -141,7 +139,8 @@ def car_nodes(
     link: EmulatedLink = EmulatedLink(),
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller as ``options`` say
-    (:class:`StackOptions`; ``hold_safe`` by default :data:`HOLD_SAFE`; the emulated cars'
+    (:class:`StackOptions`; ``hold_safe`` by default
+    :data:`~launch_scripts.sim_stack.HOLD_SAFE_OVER_A_LINK`; the emulated cars'
     truth ``options.car``), the emulator when ``emulate`` (started last: its car waits for
     references anyway; its truth log in ``out``), and one recorder into the bag ``bag``.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
@@ -199,11 +198,14 @@ def car_nodes(
 
 
 def _over_udp(options: StackOptions) -> StackOptions:
-    """``options`` as the car stack runs them: ``hold_safe`` :data:`HOLD_SAFE` unless given;
+    """``options`` as the car stack runs them: ``hold_safe``
+    :data:`~launch_scripts.sim_stack.HOLD_SAFE_OVER_A_LINK` unless given;
     a ``track_file`` refused (the cars race DEMO_TRACK, where the emulator starts)."""
     if options.track_file is not None:
         raise ValueError("track_file: the car stack races DEMO_TRACK (where the emulator starts)")
-    return options if options.hold_safe is not None else replace(options, hold_safe=HOLD_SAFE)
+    if options.hold_safe is not None:
+        return options
+    return replace(options, hold_safe=HOLD_SAFE_OVER_A_LINK)
 
 
 def run_car_stack(

@@ -41,6 +41,11 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "estimates": (("input", "ground_truth", "estimate/"), ("/tf",)),
     "sensors": (("sensors/", "input", "ground_truth"), ()),
 }
+#: The controllers' ``hold_safe`` where their commands may cross a link (UDP to the car, Zenoh
+#: to another machine) unless :attr:`StackOptions.hold_safe` gives one: the first outage can
+#: come at any time (:mod:`crs_core.control.contingency`; a cable pulled as the simulated car
+#: entered a bend at 1.6 m/s let it coast off the track and out of the Lighthouse's view).
+HOLD_SAFE_OVER_A_LINK = "always"
 #: The CPU of the running stack (``cpu_percent_running``) is counted from this long after every
 #: process has started (at most a quarter of the run), s: before, the nodes discover each other
 #: and wait for the simulator's clock, which makes a short run's average look cheaper.
@@ -136,8 +141,9 @@ class StackOptions:
         the car stack races DEMO_TRACK (where the emulator starts) and refuses it.
     hold_safe : {"after_outage", "always", "never"} or None
         The controllers' ``hold_safe`` (:data:`crs_core.control.supervisor.HOLD_SAFE_MODES`).
-        None: the stack's default, the node's own (``after_outage``) for simulated cars and
-        ``always`` over UDP (the first outage can come at any time there).
+        None: the stack's default, :data:`HOLD_SAFE_OVER_A_LINK` where the commands may cross
+        a link (over UDP, or a part of the stack with a Zenoh link: the first outage can come
+        at any time there), else the node's own (``after_outage``).
     onboard : bool
         Simulated cars only: the simulators run the car's onboard loop also for torque commands
         (its steering servo then moves the wheels, as on the emulator and a real car, which
@@ -259,10 +265,13 @@ def car_control_nodes(
 ) -> list[NodeSpec]:
     """A car's estimator (with ``estimator_parameters``) and controller, in every stack, with
     the parameter ``files``; the default torque stack passes the controller no ``output`` (the
-    node's default), and no ``hold_safe`` unless ``options`` give it."""
+    node's default), and no ``hold_safe`` unless ``options`` give it or the part of the stack
+    has a Zenoh link (:data:`HOLD_SAFE_OVER_A_LINK`)."""
     commands: dict[str, Any] = {"output": options.output} if options.output == "velocity" else {}
     if options.hold_safe is not None:
         commands["hold_safe"] = options.hold_safe
+    elif options.part.zenoh is not None:
+        commands["hold_safe"] = HOLD_SAFE_OVER_A_LINK
     estimator = {"estimator": options.estimator, "blind_start": options.blind_start}
     return [
         NodeSpec(

@@ -46,10 +46,13 @@ def test_bad_options_are_refused(arguments: dict, message: str):
 
 
 def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_path: Path):
-    """Over Wi-Fi an outage can come at any time: the car stack's controllers plan hold-safe
-    commands from the start; the simulated stack's keep the node's default (after the first
-    outage) unless asked (``crs launch --hold-safe``)."""
+    """Over Wi-Fi or a Zenoh link an outage can come at any time: the car stack's controllers,
+    and those of a part of the simulated stack joined to the others by Zenoh, plan hold-safe
+    commands from the start; the simulated stack's on one machine keep the node's default
+    (after the first outage) unless asked (``crs launch --hold-safe``)."""
     from launch_scripts.car_stack import car_nodes
+    from launch_scripts.stack_part import StackPart
+    from ros4crs.zenoh.session import ZenohSettings
 
     def controllers(nodes) -> list[dict]:
         return [spec.parameters for spec in nodes if spec.name == "controller"]
@@ -60,6 +63,9 @@ def test_car_controllers_plan_hold_safe_and_simulated_ones_only_when_told(tmp_pa
     assert "hold_safe" not in controllers(stack_nodes(1, mhe, tmp_path / "bag"))[0]
     told = stack_nodes(1, StackOptions("mhe", hold_safe="never"), tmp_path / "bag")
     assert controllers(told)[0]["hold_safe"] == "never"
+    far = StackPart(("estimator", "controller"), ZenohSettings("client", connect=("tcp/a:1",)))
+    linked = stack_nodes(1, StackOptions("mhe", part=far), tmp_path / "bag")
+    assert controllers(linked)[0]["hold_safe"] == "always"
 
 
 def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
