@@ -2,9 +2,9 @@
 # Chronos/CRS in Python: the one entry point.
 #   ./run.sh                  set up .venv (if needed) and run the main job into ${OUT:-out/demo}:
 #                             the simulator report (crs demo) and the ROS 2 stack (crs launch sim)
-#   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS... on two
-#                             workers, the integration tests one by one on one of them; see
-#                             run_tests)
+#   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...: the
+#                             tests that start no stack on two workers, then the integration
+#                             tests alone; see run_tests)
 #   ./run.sh setup            only set up .venv
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
 # The set-up installs requirements.lock with --no-deps, acados (requirements-acados.lock) into
@@ -187,15 +187,31 @@ warm_compile() {
     "$VENV/bin/python" -m launch_scripts.warm_cache || die "compiling the model functions failed"
 }
 
-# The suite on two workers (pytest-xdist, --dist loadfile, scheduled as tests/conftest.py says): one
-# worker runs the integration tests (ROS 2 stacks racing in real time) one after the other, first,
-# while the other runs the rest; a test module's tests stay on one worker, so its fixtures are
-# built once. ARGS (files, -k, -x, -m, ...) go to pytest. Exit code: pytest's; 1 when no test was
-# collected (pytest's 5).
+# The suite in two phases, ARGS (files, -k, -x, ...) given to both: first the tests that start
+# no stack, on two workers (pytest-xdist; a test module's tests stay on one worker, so its
+# fixtures are built once); then the integration tests (ROS 2 stacks racing in real time, whose
+# timing the other phase would disturb), alone. ARGS choosing a marker themselves (-m) run as
+# one pytest, on one worker. Exit code: the first phase's failure, else the second's; 1 when
+# no test was collected (pytest's 5).
 run_tests() {
-    local rc=0
-    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile "$@" || rc=$?
-    exit_tests "$rc"
+    local rc_unit=0 rc_integration=0 arg
+    for arg in "$@"; do
+        if [ "$arg" = "-m" ] || [[ "$arg" == -m?* ]]; then
+            "$VENV/bin/python" -m pytest -q "$@" || rc_unit=$?
+            exit_tests "$rc_unit"
+        fi
+    done
+    "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile -m "not integration" "$@" || rc_unit=$?
+    case "$rc_unit" in
+        0 | 1 | 5) ;;
+        *) exit "$rc_unit" ;; # interrupted, an internal or a usage error: the second phase would too
+    esac
+    "$VENV/bin/python" -m pytest -q -m integration "$@" || rc_integration=$?
+    # a phase that collected nothing counts only when the other did not either
+    [ "$rc_unit" -ne 5 ] || exit_tests "$rc_integration"
+    [ "$rc_unit" -eq 0 ] || exit "$rc_unit"
+    [ "$rc_integration" -ne 5 ] || exit 0
+    exit "$rc_integration"
 }
 
 # Exits with pytest's status $1, treating 5 (no test collected) as a failure.

@@ -89,10 +89,11 @@ def test_two_machines_race_over_the_zenoh_link_and_survive_a_pulled_cable(tmp_pa
     assert max(rmse["x"], rmse["y"]) <= 1.1 * reference, (rmse, reference)
 
     # the pulled cable: the car's motor cut 200 ms after the last far command and it stood;
-    # the far controller saw the outage; then it raced again
+    # the far controller (planning commands safe to hold from the start, as over a link) saw
+    # the outage as a degraded estimate and slowed; then it raced again
     assert "motors cut" in log_text(tmp_path / "A" / "logs", "/car1/simulator")
     controller = log_text(tmp_path / "B" / "logs", "/car1/controller")
-    assert "link outage" in controller, controller
+    assert "state estimate degraded: slowing" in controller, controller
     speed = x[:, 3]
     during = speed[(t > cut_wall + 1.5) & (t < restored_wall)]
     after = speed[t > restored_wall + 5.0]
