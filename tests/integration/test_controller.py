@@ -47,7 +47,7 @@ def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
     commands torque; 0.2 s after they stop (its ``stale_timeout``) it commands zero torque (the
     steering of its plan), and says so in its log; when estimates return it drives again."""
     state = _start_state()
-    with _controller(tmp_path, {"stale_timeout": 0.2}) as (launcher, _, inputs, publisher):
+    with _controller(tmp_path, {"stale_timeout": 0.2}) as (launcher, probe, inputs, publisher):
 
         def publish_for(seconds: float) -> None:
             end = time.monotonic() + seconds
@@ -58,6 +58,8 @@ def test_controller_stops_the_car_when_the_estimate_goes_stale(tmp_path):
         def torques_since(t0: float) -> list[float]:
             return [msg.torque for received, msg in inputs if received > t0]
 
+        # the node warms its MPCC up before it subscribes (estimates sent earlier are lost)
+        wait_for(lambda: probe.subscribers_of("/car1/estimate/state"), 30.0, "the controller")
         publish_for(1.0)
         driving = wait_for(lambda: torques_since(time.time() - 0.5), 5.0, "inputs while fresh")
         assert max(driving) > 0.05
