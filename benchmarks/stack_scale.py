@@ -147,9 +147,7 @@ def format_markdown(result: dict[str, Any]) -> str:
     before, after = result["yardstick"]["before"], result["yardstick"]["after"]
     startups = [e["startup_s"] for e in result["scales"] if e.get("startup_s") is not None]
     counted = (
-        f"from the moment its processes had started (start-up {span(startups, '.1f')} s)"
-        if startups
-        else "(start-up included)"
+        f"(start-up included: {span(startups, '.1f')} s)" if startups else "(start-up included)"
     )
     lines += [
         "",
