@@ -181,15 +181,17 @@ def test_motors_cut_200_ms_after_the_last_command_and_drive_again(tmp_path, warm
 
 
 def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_codegen) -> None:
-    """Two cars racing with the MPCC and the MHE: nine processes on two cores (about 145 % of
-    them since the sensor readings travel in batches; 160-190 % before). Each car completes a
-    lap without leaving the track (its footprint, from the emulator's truth) or losing its
-    estimate, its estimate within a few mm of the truth and its bridge decoding every datagram;
-    the two links stay apart."""
+    """Two cars, each with the MHE and the path follower (1 m/s), over their own links: nine
+    processes on two cores. Each car completes a lap without leaving the track (its footprint,
+    from the emulator's truth) or losing its estimate, its estimate within a few mm of the truth
+    and its bridge decoding every datagram; the two links stay apart. (Racing both with the
+    MPCC took 189-192 % of the two cores on a slow day, the host's yardstick 13.8 µs: starved
+    loops, motor cuts and cars 11-14 cm over the border. Whether several racing cars fit a
+    machine is ``crs bench stack``'s question, issue 38's.)"""
     report = run_car_stack(
         2,
-        StackOptions("mhe", after_start_up=True, record="estimates"),
-        16.0,  # of racing (the run counts from the moment every process has started)
+        StackOptions("mhe", controller="path", after_start_up=True, record="estimates"),
+        16.0,  # of driving (the run counts from the moment every process has started)
         tmp_path / "run",
         True,
         domain_id=DOMAIN_TWO_EMULATED,
@@ -206,12 +208,7 @@ def test_two_emulated_cars_on_their_own_ports_and_namespaces(tmp_path, warm_code
         with np.load(tmp_path / "run" / f"truth_car{i}.npz") as log:
             outside = off_track(log["t"], log["x"], track)
         assert car["laps_completed"] >= 1, (i, car["lap_times_s"])
-        # on the track: no corner of the footprint more than 5 cm over the border (a wheel over
-        # the line; the MPCC's margin lets a corner touch it by design). On a slow host (the
-        # yardstick 13.8 µs, twice the docs' day) the nine processes took 192 % of the two
-        # cores and a corner of car2 went 4 cm over for 0.25 s; the cars that left the track
-        # before went 0.24 m and more
-        assert outside["max_outside_m"] <= 0.05, (i, outside)
+        assert outside["seconds"] == 0.0, (i, outside)
         assert car["estimator_reinitializations"] == 0, i
         rmse = car["estimation_rmse"]
         assert rmse["x"] < 0.008 and rmse["y"] < 0.008 and rmse["yaw"] < 0.03, (i, rmse)
