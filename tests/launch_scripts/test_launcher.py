@@ -98,7 +98,8 @@ def test_a_plain_process_shares_no_process() -> None:
 
 
 SLOW_STARTER = """
-import sys, time
+import signal, sys, time
+signal.signal(signal.SIGINT, lambda *_: sys.exit(0))  # the launcher's stop: at once
 time.sleep(float(sys.argv[1]))
 print("up", flush=True)
 while True:
