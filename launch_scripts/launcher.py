@@ -109,6 +109,8 @@ class Launcher:
         self.nodes, self.domain_id, self.log_dir = nodes, domain_id, Path(log_dir)
         self.processes: dict[str, subprocess.Popen] = {}
         self._logs: dict[str, Path] = {}
+        #: per process, the ROS nodes in it (each logs a :data:`READY_LINE`; 0: a plain process)
+        self._ros_nodes: dict[str, int] = {}
         self.exited: list[Exited] = []
 
     def environment(self) -> dict[str, str]:
@@ -136,6 +138,7 @@ class Launcher:
         for process, specs in groups.items():
             log = self.log_dir / f"{_stem(process)}.log"
             spec = specs[0]
+            self._ros_nodes[process] = sum(node.arguments is None for node in specs)
             if spec.arguments is not None:
                 self._spawn(process, [sys.executable, "-m", spec.module, *spec.arguments], log, env)
                 continue
@@ -233,8 +236,7 @@ class Launcher:
                 text = self._logs[name].read_text(errors="replace")
             except OSError:
                 return False
-            nodes = sum(spec.process_name == name and spec.arguments is None for spec in self.nodes)
-            if text.count(READY_LINE) < nodes or not text:
+            if text.count(READY_LINE) < self._ros_nodes[name] or not text:
                 return False
         return True
 

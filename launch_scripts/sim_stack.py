@@ -46,8 +46,9 @@ RECORD_SETS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 #: come at any time (:mod:`crs_core.control.contingency`; a cable pulled as the simulated car
 #: entered a bend at 1.6 m/s let it coast off the track and out of the Lighthouse's view).
 HOLD_SAFE_OVER_A_LINK = "always"
-#: The CPU of the running stack (``cpu_percent_running``) is counted from this long after every
-#: process has started (at most a quarter of the run), s: before, the nodes discover each other
+#: The CPU of the running stack (``cpu_percent_running``) is counted from this long after the
+#: run's duration began to count (the launch, or with ``after_start_up`` the moment every process
+#: had started; at most a quarter of the run), s: before, the nodes import, discover each other
 #: and wait for the simulator's clock, which makes a short run's average look cheaper.
 SETTLE_S = 10.0
 #: With :attr:`StackOptions.after_start_up` a run's duration counts from the moment all its
