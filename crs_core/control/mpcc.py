@@ -30,7 +30,7 @@ import math
 import time
 import warnings
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -39,7 +39,14 @@ from numpy.typing import ArrayLike
 from crs_core.analysis.angles import wrap_angle
 from crs_core.codegen import compile_functions
 from crs_core.control.contingency import ContingencySettings, HoldSafetyFilter, lag_decay
-from crs_core.control.mpcc_problem import FREE, QP_ARGUMENTS, Iterate, MpccProblem, MpccSettings
+from crs_core.control.mpcc_problem import (
+    FREE,
+    QP_ARGUMENTS,
+    Iterate,
+    MpccProblem,
+    MpccSettings,
+    SqpStep,
+)
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
@@ -62,6 +69,7 @@ OFF_PLAN = (0.1, 0.25, 0.4)
 OFF_PLAN_ITERATIONS = 3
 #: Fractions of the QP's step tried after the full one (:meth:`Mpcc._step`).
 STEP_FRACTIONS = (1.0, 0.5, 0.25, 0.125)
+_FRACTIONS = np.array(STEP_FRACTIONS)
 
 
 @dataclass(frozen=True)
@@ -143,7 +151,7 @@ class Mpcc:
         s = self.settings
         #: acados's iteration of the problem (``solver="acados"``), else None
         self._acados = _acados_rti(self.problem) if s.solver == "acados" else None
-        self._native = _native_rti(self.problem) if s.solver == "native" else None
+        self._native = _native_rti(self.problem, self.path) if s.solver == "native" else None
         in_casadi = self._acados is None and self._native is None
         qp = "hpipm" if s.solver == "native" else None  # native's fallback: CasADi's HPIPM
         self._rti = self.problem.real_time_iteration(qp) if in_casadi else None
@@ -297,36 +305,42 @@ class Mpcc:
         stages = min(max(stages, 1), self.problem.N // 2)
         cold = self._Z is None
         iterations_now = self.settings.cold_start_iterations if cold else 1
-        Z, V = self._guess(z0, stages)
-        if not cold and self._off_plan(z0, stages):
-            iterations_now = OFF_PLAN_ITERATIONS
-            Z, V = min((Z, V), self._driving_guess(z0), key=lambda g: self._merit(*g))
-        refs = self._references(Z[:, self._nxc])
-        self.last_guess = (Z.copy(), V.copy(), refs)
-        iterations, reason = 0, ""
+        Z: np.ndarray | None = None  # None: the iteration rolls V out (and checks it moves)
+        if cold:
+            Z, V = self._driving_guess(z0)
+        else:
+            V = self._shifted_inputs(stages)
+            if self._off_plan(z0, stages):
+                iterations_now = OFF_PLAN_ITERATIONS
+                guesses = (self._moving_guess(z0, V), self._driving_guess(z0))
+                Z, V = min(guesses, key=lambda g: self._merit(*g))
+        iterations, reason, contour = 0, "", math.nan
         budget, iteration_time = self.settings.solve_time_budget, 0.0
         for iteration in range(iterations_now):
             iteration_started = time.perf_counter()
-            if iteration:
-                if budget and iteration_started + iteration_time - started > budget:
-                    break
-                refs = self._references(Z[:, self._nxc])
+            if iteration and budget and iteration_started + iteration_time - started > budget:
+                break
             try:
-                solution = self._solve_qp(Z, V, refs)
+                step = self._sqp_iteration(z0, Z, V)
             except (RuntimeError, ValueError) as error:  # a solver that raised has failed
                 reason = f"QP solver error: {error}"
                 break
+            if not iteration:
+                self.last_guess = (step.guess[0].copy(), step.guess[1].copy(), step.refs)
+            solution, contour = step.qp, step.contour
+            Z, V = solution.Z, solution.V
             if not solution.success:
                 reason = (
                     f"QP not solved (status {solution.status}, constraint violation "
                     f"{solution.violation:.3g})"
                 )
                 break
-            Z, V = self._step(z0, Z, V, solution.V)
             iterations += solution.iterations
             iteration_time = time.perf_counter() - iteration_started
+        if Z is None:  # the first iteration raised before it rolled the inputs out
+            Z, V = self._moving_guess(z0, V)
         if not reason or (iterations_now > 1 and iterations):  # earlier iterations count
-            return self._accept(Z, V, z0, refs, iterations, started)
+            return self._accept(Z, V, z0, contour, iterations, started)
         return self._fall_back(Z, V, z0, started, reason)
 
     # --- steps ---------------------------------------------------------------------------
@@ -397,14 +411,17 @@ class Mpcc:
             or abs(z0[3] - planned[3]) > speed
         )
 
-    def _guess(self, z0: np.ndarray, stages: int = 1) -> tuple[np.ndarray, np.ndarray]:
-        """The previous plan's inputs shifted by ``stages`` and rolled out from ``z0``; a
-        cold start, or a plan in which the car stands, is replaced by :meth:`_driving_guess`."""
-        if self._Z is not None and self._V is not None:
-            V = np.vstack((self._V[stages:], np.repeat(self._V[-1:], stages, axis=0)))
-            Z = self._rolled_out(z0, V)
-            if np.max(Z[:, 3]) >= self.settings.kinematic_speed:
-                return Z, V
+    def _shifted_inputs(self, stages: int) -> np.ndarray:
+        """The plan's inputs shifted by ``stages``, the last held."""
+        _, V = self._kept_plan()
+        return np.vstack((V[stages:], np.repeat(V[-1:], stages, axis=0)))
+
+    def _moving_guess(self, z0: np.ndarray, V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``V`` rolled out from ``z0``; where the car stands in it (no stage reaches
+        ``kinematic_speed``), :meth:`_driving_guess` instead."""
+        Z = self._rolled_out(z0, V)
+        if np.max(Z[:, 3]) >= self.settings.kinematic_speed:
+            return Z, V
         return self._driving_guess(z0)
 
     def _driving_guess(self, z0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -431,6 +448,30 @@ class Mpcc:
             theta[k + 1] = self.path.progress(car[0], car[1], theta[k])
         V[:, 2] = np.clip(np.diff(theta) / dt, 0.0, limit)
         return self._rolled_out(z0, V), V
+
+    def _sqp_iteration(self, z0: np.ndarray, Z: np.ndarray | None, V: np.ndarray) -> SqpStep:
+        """One SQP iteration from the inputs ``V`` (``Z`` their rollout from ``z0``, or None
+        for the iteration to roll them out and take :meth:`_driving_guess` where the car
+        stands in them): the path at the guess's progress, the QP, :meth:`_step`. With the
+        native solver all of it is one compiled call
+        (:meth:`~crs_core.control.mpcc_native.NativeRti.sqp`, the same rule in C)."""
+        native = self._native
+        if native is not None:
+            arguments = (self._weights, self.p, self._v_lower, self._v_upper, self._half_width)
+            standing = self.settings.kinematic_speed if Z is None else None
+            step = native.sqp(z0, V, *arguments, _FRACTIONS, standing)
+            if step is None:
+                _, V = self._driving_guess(z0)
+                step = native.sqp(z0, V, *arguments, _FRACTIONS)
+            assert step is not None
+            return step
+        if Z is None:
+            Z, V = self._moving_guess(z0, V)
+        refs = self._references(Z[:, self._nxc])
+        solution = self._solve_qp(Z, V, refs)
+        plan = self._step(z0, Z, V, solution.V) if solution.success else (Z, V)
+        contour = float(np.asarray(self.problem.contouring_error(z0, refs[0])).ravel()[0])
+        return SqpStep((Z, V), refs, replace(solution, Z=plan[0], V=plan[1]), contour)
 
     def _step(
         self, z0: np.ndarray, Z: np.ndarray, V: np.ndarray, V_qp: np.ndarray
@@ -552,7 +593,7 @@ class Mpcc:
         torque = min(max(-s.brake_gain * vx, s.torque_min), 0.0) if vx > 0.05 else 0.0
         return np.array([0.0, torque])
 
-    def _accept(self, Z, V, z0, refs, iterations, started) -> np.ndarray:
+    def _accept(self, Z, V, z0, contour: float, iterations, started) -> np.ndarray:
         s = self.settings
         V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
         V[:, 1] = np.clip(V[:, 1], s.torque_min, s.torque_max)
@@ -561,13 +602,12 @@ class Mpcc:
         self._Z, self._V, self._failures = Z, V, 0
         self._command = V[0, :2].copy()
         self._progress_speed = float(V[0, 2])
-        contour = float(np.asarray(self.problem.contouring_error(z0, refs[0])).ravel()[0])
         self.status = MpccStatus(
             "solved",
             time.perf_counter() - started,
             iterations,
             float(z0[self._nxc]),
-            contour,
+            float(contour),
             float(np.max(V[:, 3])),
             0,
         )
@@ -634,7 +674,7 @@ class Mpcc:
         return np.array([command[0], min(max(speed, 0.0), self.settings.velocity_max)])
 
 
-def _native_rti(problem: MpccProblem) -> NativeRti | None:
+def _native_rti(problem: MpccProblem, path: ReferencePath) -> NativeRti | None:
     """The whole real-time iteration as one compiled call (built once into the cache); None,
     with a warning, where acados's HPIPM is missing (the iteration then runs in CasADi)."""
     from crs_core.acados_support import AcadosUnavailable
@@ -642,7 +682,7 @@ def _native_rti(problem: MpccProblem) -> NativeRti | None:
     try:
         from crs_core.control.mpcc_native import NativeRti
 
-        return NativeRti(problem)
+        return NativeRti(problem, path)
     except AcadosUnavailable as error:
         warnings.warn(
             f"MpccSettings(solver='native'): {error}; iterating with CasADi's HPIPM "

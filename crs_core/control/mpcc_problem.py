@@ -57,6 +57,7 @@ __all__ = [
     "MpccProblem",
     "MpccSettings",
     "RtiFunctions",
+    "SqpStep",
     "gauss_newton",
 ]
 
@@ -299,6 +300,30 @@ class Iterate:
 
 
 @dataclass(frozen=True)
+class SqpStep:
+    """One SQP iteration of a call: its guess, and the QP with the step check after it.
+
+    Attributes
+    ----------
+    guess : tuple of numpy.ndarray
+        The guess: stage states (N+1, nz), its inputs (N, nv) rolled out from the car's stage
+        state.
+    refs : numpy.ndarray
+        The path at the guess's progress states (N+1, 4: X, Y, heading, theta).
+    qp : Iterate
+        How the QP went; its ``Z``, ``V`` the plan after the step check (the guess's when the
+        QP is not usable).
+    contour : float
+        The contouring error of the car's stage state, m.
+    """
+
+    guess: tuple[np.ndarray, np.ndarray]
+    refs: np.ndarray
+    qp: Iterate
+    contour: float
+
+
+@dataclass(frozen=True)
 class RtiFunctions:
     """The CasADi functions of one real-time iteration.
 
@@ -400,7 +425,7 @@ class MpccProblem:
             "mpcc_terminal_cost", [z, ref, w], [terminal_cost], SX_OPTIONS
         )
 
-    def _stage_linearization(self) -> ca.Function:
+    def stage_linearization(self) -> ca.Function:
         """Per stage at the guess ``(z, v)``: dynamics ``z+ = A z + B v + c``, the cost's
         Gauss-Newton Hessian and its gradient at zero over ``[z; v]``, and the contouring
         error's row ``e_c = C z + e0``."""
@@ -428,13 +453,13 @@ class MpccProblem:
         stage linearisation over the first N columns of the guess and path points, its
         outputs side by side per stage) and ``mpcc_terminal(z_N, ref_N, w)`` (the terminal
         cost's Hessian and gradient)."""
-        stage = self._stage_linearization()
+        stage = self.stage_linearization()
         return (
             stage.map("mpcc_horizon", "serial", self.N, [3, 4], []),
-            self._terminal_linearization(),
+            self.terminal_linearization(),
         )
 
-    def _terminal_linearization(self) -> ca.Function:
+    def terminal_linearization(self) -> ca.Function:
         z, ref, w = self.z_sym, self.ref_sym, self.w_sym
         H, g = self.terminal_least_squares.gauss_newton(z)
         return ca.Function(

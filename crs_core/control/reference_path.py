@@ -109,6 +109,14 @@ class ReferencePath:
             np.asarray(x), np.asarray(y), np.arctan2(dy, dx), (dx * ddy - dy * ddx) / speed**3
         )
 
+    @property
+    def pieces(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The curve as a piecewise cubic in the arc length: breakpoints ``(n + 1,)`` (m, from 0
+        to :attr:`length`) and coefficients ``(4, n, 6)`` (highest power first) of ``x, y``
+        and their first and second derivatives, for compiled code that evaluates the path
+        (:mod:`~crs_core.control.mpcc_native`)."""
+        return self._curve.x.copy(), self._curve.c.copy()
+
     def progress(self, x: float, y: float, near: float | None = None) -> float:
         """Arc length of the centreline point closest to ``(x, y)``, m.
 

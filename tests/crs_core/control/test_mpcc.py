@@ -47,7 +47,7 @@ def test_the_qp_solution_satisfies_the_constraints_it_is_accepted_with(mpcc: Mpc
     solution = mpcc._solve_qp(Z, V, refs)
     assert solution.success and solution.violation <= 1e-6
     problem, s = mpcc.problem, mpcc.settings
-    stage = problem._stage_linearization()
+    stage = problem.stage_linearization()
     for k in range(problem.N):
         A, B, c, _, _, C, e0 = (
             np.asarray(o) for o in stage(Z[k], V[k], refs[k], s.weights(), mpcc.p)
@@ -118,12 +118,15 @@ def test_failed_solves_serve_the_shifted_plan_then_stop(track) -> None:
     x = _start(track, 1.0)
     controller(x)
     _, plan_V = controller.plan
-    real_solve = controller._solve_qp
+    real_iteration = controller._sqp_iteration
 
-    def failing(Z, V, refs):
-        return dataclasses.replace(real_solve(Z, V, refs), success=False, status="test")
+    def failing(z0, Z, V):
+        step = real_iteration(z0, Z, V)
+        Z, V = step.guess
+        refused = dataclasses.replace(step.qp, Z=Z, V=V, success=False, status="test")
+        return dataclasses.replace(step, qp=refused)
 
-    controller._solve_qp = failing  # type: ignore[method-assign]
+    controller._sqp_iteration = failing  # type: ignore[method-assign]
     u = controller(x)
     assert controller.status.mode == "fallback"
     assert u == pytest.approx(plan_V[1, :2])  # the previous plan's next input
@@ -132,7 +135,7 @@ def test_failed_solves_serve_the_shifted_plan_then_stop(track) -> None:
     u = controller(x)
     assert controller.status.mode == "stop" and "3 failed" in controller.status.reason
     assert _within_limits(u, controller.settings)
-    controller._solve_qp = real_solve  # type: ignore[method-assign]
+    controller._sqp_iteration = real_iteration  # type: ignore[method-assign]
     controller(x)
     assert controller.status.mode == "solved"
 

@@ -72,6 +72,45 @@ def test_it_solves_the_qp_of_the_casadi_iteration(native: Mpcc, reference: Mpcc,
     assert max(first_inputs) < 5e-3
 
 
+def test_its_whole_iteration_is_the_python_iterations(native: Mpcc, track) -> None:
+    """One compiled call per SQP iteration (rollout, path, QP, step check) gives the guess,
+    path points, plan and contouring error of the Python steps around the same QP: the
+    rollout (:meth:`Mpcc._rolled_out`), the path (:meth:`ReferencePath.evaluate`), the step
+    check (:meth:`Mpcc._step`) on the model's nonlinear merit."""
+    from crs_core.control.mpcc import _FRACTIONS
+
+    arguments = (native._weights, native.p, native._v_lower, native._v_upper, native._half_width)
+    nxc, steps = native._nxc, 0
+    for Z, V, _ in _problems(native, track, 60):
+        z0 = Z[0]
+        rolled = native._rolled_out(z0, V)
+        refs = native._references(rolled[:, nxc])
+        solution = native._native.iterate(rolled, V, refs, *arguments)
+        plan = native._step(z0, rolled, V, solution.V)
+        step = native._native.sqp(z0, V, *arguments, _FRACTIONS)
+        assert step is not None and step.qp.success == solution.success
+        np.testing.assert_allclose(step.guess[0], rolled, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(step.refs, refs, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(step.qp.Z, plan[0], rtol=0, atol=1e-7)
+        np.testing.assert_allclose(step.qp.V, plan[1], rtol=0, atol=1e-7)
+        contour = float(np.asarray(native.problem.contouring_error(z0, refs[0])).ravel()[0])
+        assert step.contour == pytest.approx(contour, abs=1e-12)
+        steps += not np.array_equal(plan[1], V)
+    assert steps > 40  # the QP's step taken, not the guess kept
+
+
+def test_a_standing_guess_is_answered_before_the_qp(native: Mpcc, track) -> None:
+    from crs_core.control.mpcc import _FRACTIONS
+
+    Z, V, _ = next(_problems(native, track, 1))
+    arguments = (native._weights, native.p, native._v_lower, native._v_upper, native._half_width)
+    z0 = Z[0].copy()
+    z0[3:6] = 0.0
+    still = np.zeros_like(V)
+    assert native._native.sqp(z0, still, *arguments, _FRACTIONS, standing=0.3) is None
+    assert native._native.sqp(z0, still, *arguments, _FRACTIONS) is not None
+
+
 def test_a_plan_beyond_its_bounds_is_refused(native: Mpcc, track) -> None:
     """An empty input range has no plan within it: the plan is refused on its violation,
     checked in the compiled call, not trusted from the solver's status."""

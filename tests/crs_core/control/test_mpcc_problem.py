@@ -58,7 +58,7 @@ def test_stage_dynamics_linearisation_matches_finite_differences() -> None:
     rng = np.random.default_rng(0)
     z = np.concatenate(([0.3, -0.2, 0.4, 1.2, 0.05, 0.8, 0.1], rng.normal(0, 0.1, 4)))
     v = np.array([0.15, 0.4, 1.1, 0.0])
-    stage = problem._stage_linearization()
+    stage = problem.stage_linearization()
     A, B, c = (np.asarray(o) for o in stage(z, v, np.zeros(4), MpccSettings().weights(), p)[:3])
     f = problem.dynamics
 
