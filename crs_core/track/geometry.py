@@ -238,6 +238,9 @@ class Track:
         float or numpy.ndarray
             ``s`` modulo ``length``, m; a float for a scalar input.
         """
+        if isinstance(s, float | int):  # a scalar without numpy's per-call cost (a car's pose)
+            value = float(s) % self.length
+            return 0.0 if value >= self.length else value
         wrapped = np.mod(np.asarray(s, dtype=float), self.length)
         # np.mod can return ``length`` itself for tiny negative inputs.
         wrapped = np.where(wrapped >= self.length, 0.0, wrapped)
@@ -276,7 +279,7 @@ class Track:
         sw = np.asarray(self.wrap_s(s_arr), dtype=float)
         x = np.interp(sw, self._s_closed, self._x_closed)
         y = np.interp(sw, self._s_closed, self._y_closed)
-        heading = np.asarray(wrap_angle(np.interp(sw, self._s_closed, self._heading_closed)))
+        heading = np.asarray(self._heading_at(sw))
         curvature = np.interp(sw, self._s_closed, self._curvature_closed)
         return x, y, heading, curvature
 
@@ -326,8 +329,7 @@ class Track:
             if best[3] in (0, segments.size - 1) or best[2] > 0.5 * self.width:
                 best = self._closest_on_segments(px, py, self._global_candidates(px, py))
         s_best, lateral = best[0], best[1]
-        _, _, heading, _ = self.interpolate(s_best)
-        return Projection(s=s_best, lateral_error=lateral, heading=float(heading))
+        return Projection(s=s_best, lateral_error=lateral, heading=float(self._heading_at(s_best)))
 
     def progress_unwrapped(self, s_sequence: ArrayLike) -> NDArray[np.float64]:
         """Unwrap a sequence of arc lengths into continuous progress.
@@ -350,6 +352,11 @@ class Track:
         return np.unwrap(s_arr, period=self.length)
 
     # ------------------------------------------------------------------ helpers
+    def _heading_at(self, wrapped: ArrayLike) -> NDArray[np.float64] | float:
+        """Track heading (rad, in ``[-pi, pi)``) at arc length(s) already in ``[0, length)``:
+        the unwrapped heading interpolated linearly."""
+        return wrap_angle(np.interp(wrapped, self._s_closed, self._heading_closed))
+
     def _unwrapped_index(self, s: float) -> int:
         """Index (counting on past ``N`` for later laps) of the segment holding arc length s."""
         laps = math.floor(s / self.length)
