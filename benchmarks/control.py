@@ -120,16 +120,35 @@ def _accuracy(result: ClosedLoopResult) -> dict[str, Any]:
     }
 
 
+def _lockstep(
+    replays: dict[str, tuple[Callable[[np.ndarray], Any], Callable[[], float], np.ndarray]],
+) -> dict[str, dict[str, float]]:
+    """Each controller called again on the states of its own race (``(call, last call's time,
+    states)``; reset before), one call of each in turn: every controller meets the same host
+    speed, which drifted up to twofold within one run here, so the ratio of their times holds
+    where the races' own times, minutes apart, do not. The calls repeat the races' exactly
+    (a controller's call depends only on the state and its own plan)."""
+    count = min(len(states) for _, _, states in replays.values())
+    times: dict[str, list[float]] = {name: [] for name in replays}
+    for k in range(count):
+        for name, (call, last_time, states) in replays.items():
+            call(states[k])
+            times[name].append(last_time())
+    return {name: _stats_ms(np.asarray(t[1:])) for name, t in times.items()}
+
+
 def _acados_races(
     track: Track,
     settings: MpccSettings,
     mpcc: Mpcc,
     problems: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
     laps: int,
+    our_states: np.ndarray,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """acados's own race (bare: its ``solve()`` timed), the first-command differences of its
-    one iteration to ours on ``problems``, and the race of the MPCC with acados as its
-    iteration (the whole call timed)."""
+    one iteration to ours on ``problems``, the race of the MPCC with acados as its
+    iteration (the whole call timed), and the three timed again in lockstep (:func:`_lockstep`;
+    ours on ``our_states``, the states of its race)."""
     racer = AcadosRacer(mpcc)
     truth = CarModel()
     result = run_closed_loop(
@@ -166,6 +185,15 @@ def _acados_races(
     }
     backend = Mpcc(track, settings=dataclasses.replace(settings, solver="acados"))
     raced, times = _race(backend, track, laps=laps)
+    for controller in (mpcc, racer, backend):
+        controller.reset()
+    bare["lockstep"] = _lockstep(
+        {
+            "ours": (mpcc, lambda: mpcc.status.solve_time_s, our_states),
+            "acados": (racer, lambda: racer.solve_times[-1], result.truth),
+            "ours_acados_backend": (backend, lambda: backend.status.solve_time_s, raced.truth),
+        }
+    )
     return bare, {
         "name": "our MPCC with acados's iteration (MpccSettings(solver='acados'); the whole "
         "Mpcc.__call__ timed)",
@@ -233,7 +261,7 @@ def control_benchmark(
     acados: dict[str, Any] | None = None
     backend: dict[str, Any] | None = None
     try:
-        acados, backend = _acados_races(track, settings, mpcc, problems, laps)
+        acados, backend = _acados_races(track, settings, mpcc, problems, laps, timed.truth)
     except AcadosUnavailable as error:
         say(f"acados unavailable: {error}")
         acados = {"unavailable": str(error)}
@@ -322,20 +350,21 @@ def control_benchmark(
         "peers": {"acados": acados},
         "acados_backend": backend,
         "ours_accuracy": _accuracy(timed),
-        "ratios": (
-            {
-                "acados/ours": round(acados["solve_ms"]["median"] / solve["median"], 3),
-                "acados/ours_acados_backend": round(
-                    acados["solve_ms"]["median"] / backend["solve_ms"]["median"], 3
-                ),
-            }
-            if backend is not None and acados is not None
-            else None
-        ),
+        "ratios": _ratios(acados) if backend is not None and acados is not None else None,
         "qp_solvers": solvers,
         "closed_loop": closed_loop,
         "mhe_vs_true_lap_ratio": round(mhe_mean / true_mean, 4) if true_mean and mhe_mean else None,
         "wall_time_s": round(time.perf_counter() - started, 1),
+    }
+
+
+def _ratios(acados: dict[str, Any]) -> dict[str, float]:
+    """acados's bare solve over ours (the whole call), with our iteration and with acados's,
+    from the lockstep timing (medians; >= 1: ours at most as slow)."""
+    medians = {name: row["median"] for name, row in acados["lockstep"].items()}
+    return {
+        "acados/ours": round(medians["acados"] / medians["ours"], 3),
+        "acados/ours_acados_backend": round(medians["acados"] / medians["ours_acados_backend"], 3),
     }
 
 
@@ -392,12 +421,21 @@ def _acados_lines(result: dict[str, Any]) -> list[str]:
         )
     ratios = result.get("ratios") or {}
     difference = acados["first_command_difference_to_ours"]
+    lockstep = acados.get("lockstep")
+    timed_in = (
+        "in lockstep (each on the states of its own race, one call of each in turn, so that "
+        f"all meet the same host speed): ours {format_ms(lockstep['ours']['median'])} ms, "
+        f"acados's solve() {format_ms(lockstep['acados']['median'])} ms, ours with acados's "
+        f"iteration {format_ms(lockstep['ours_acados_backend']['median'])} ms"
+        if lockstep
+        else "in the races above"
+    )
     lines += [
         "",
         (
-            f"**acados / ours = {ratios['acados/ours']:g}** (medians; ≥ 1: ours at most as "
-            f"slow), {ratios['acados/ours_acados_backend']:g} against ours with acados's "
-            "iteration. "
+            f"**acados / ours = {ratios['acados/ours']:g}** (medians {timed_in}; ≥ 1: ours "
+            f"at most as slow), {ratios['acados/ours_acados_backend']:g} against ours with "
+            "acados's iteration. "
             if "acados/ours" in ratios
             else ""
         )

@@ -26,6 +26,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+from typing import Any
 
 import numpy as np
 
@@ -460,7 +461,8 @@ class NativeRti:
         self._iterate.argtypes = [pointer] * 8 + [double] + [pointer] * 3
         self._sqp = library.crs_rti_sqp
         self._sqp.restype = integer
-        self._sqp.argtypes = [pointer] * 7 + [double] * 3 + [pointer, integer] + [pointer] * 5
+        arguments: list[type[ctypes._SimpleCData[Any]]] = [pointer] * 7 + [double] * 3
+        self._sqp.argtypes = [*arguments, pointer, integer, *[pointer] * 5]
         hpipm = library.crs_rti_hpipm_library
         hpipm.restype = ctypes.c_char_p
         #: the file HPIPM's solver was loaded from (acados's build)

@@ -352,7 +352,7 @@ class Track:
         return np.unwrap(s_arr, period=self.length)
 
     # ------------------------------------------------------------------ helpers
-    def _heading_at(self, wrapped: ArrayLike) -> NDArray[np.float64] | float:
+    def _heading_at(self, wrapped: float | NDArray[np.float64]) -> NDArray[np.float64] | float:
         """Track heading (rad, in ``[-pi, pi)``) at arc length(s) already in ``[0, length)``:
         the unwrapped heading interpolated linearly."""
         return wrap_angle(np.interp(wrapped, self._s_closed, self._heading_closed))

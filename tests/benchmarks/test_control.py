@@ -145,6 +145,9 @@ class _FakeMpcc:
     def reset(self) -> None:
         pass
 
+    def __call__(self, x) -> np.ndarray:
+        return np.zeros(2)
+
     def _solve_qp(self, Z, V, refs) -> SimpleNamespace:
         return SimpleNamespace(success=True, V=V + 0.01)
 
@@ -170,7 +173,11 @@ class _FakeRacer:
         self.statuses = [0, 0, 0, 0]
         self.qp_iterations = [9, 8, 8, 7]
 
+    def reset(self) -> None:
+        pass
+
     def __call__(self, x) -> np.ndarray:
+        self.solve_times.append(0.001)
         return np.zeros(2)
 
     def stop(self, x=None, reason="") -> np.ndarray:
@@ -178,6 +185,8 @@ class _FakeRacer:
 
 
 class _FakeRace:
+    truth = np.zeros((6, 6))
+
     def summary(self) -> dict[str, Any]:
         return {
             "laps": 2,
@@ -229,7 +238,10 @@ def test_the_benchmark_runs_to_its_table_on_fake_races(monkeypatch: pytest.Monke
     assert acados["first_command_difference_to_ours"]["median"] == pytest.approx(0.009)
     assert result["acados_backend"]["solve_ms"]["median"] == 2.0
     assert result["ratios"] == {"acados/ours": 0.5, "acados/ours_acados_backend": 0.5}
-    assert "**acados / ours = 0.5** (medians;" in table
+    assert acados["lockstep"]["ours"]["median"] == 2.0 and acados["lockstep"]["ours"]["calls"] == 5
+    assert "**acados / ours = 0.5** (medians in lockstep (each on the states of its own race" in (
+        table
+    )
     assert "acados's whole call from Python (state, shift, path, data in and out): 1.2 ms" in table
     assert _row(table, "acados SQP-RTI + HPIPM, own race, solve() only")[1:] == [
         "1", "1.45", "1.49", "1.5", "6.80, 6.50", "6.650 s", "35.4 mm", "0.170 m", "0",
