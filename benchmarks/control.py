@@ -423,8 +423,8 @@ def _acados_lines(result: dict[str, Any]) -> list[str]:
     difference = acados["first_command_difference_to_ours"]
     lockstep = acados.get("lockstep")
     timed_in = (
-        "in lockstep (each on the states of its own race, one call of each in turn, so that "
-        f"all meet the same host speed): ours {format_ms(lockstep['ours']['median'])} ms, "
+        "timed in lockstep, each on the states of its own race and one call of each in turn "
+        f"so that all meet the same host speed: ours {format_ms(lockstep['ours']['median'])} ms, "
         f"acados's solve() {format_ms(lockstep['acados']['median'])} ms, ours with acados's "
         f"iteration {format_ms(lockstep['ours_acados_backend']['median'])} ms"
         if lockstep
@@ -433,7 +433,7 @@ def _acados_lines(result: dict[str, Any]) -> list[str]:
     lines += [
         "",
         (
-            f"**acados / ours = {ratios['acados/ours']:g}** (medians {timed_in}; ≥ 1: ours "
+            f"**acados / ours = {ratios['acados/ours']:g}** (medians, {timed_in}; ≥ 1: ours "
             f"at most as slow), {ratios['acados/ours_acados_backend']:g} against ours with "
             "acados's iteration. "
             if "acados/ours" in ratios
