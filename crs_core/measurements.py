@@ -22,6 +22,7 @@ import math
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -50,6 +51,7 @@ def lighthouse_sensor(station: int, plane: int) -> str:
     return f"lighthouse/{station}/{plane}"
 
 
+@lru_cache(maxsize=256)  # a stream names a handful of sensors, each many times a second
 def parse_lighthouse(sensor: str) -> tuple[int, int] | None:
     """``(station, plane)`` of a Lighthouse sensor name, else ``None``."""
     match = _LIGHTHOUSE.fullmatch(sensor)

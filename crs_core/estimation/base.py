@@ -32,6 +32,7 @@ import time
 from collections import Counter
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -47,6 +48,7 @@ from crs_core.settings import Settings
 SENSOR_GROUPS = ("lh", "imu", "gyro", "we", "pose")
 
 
+@lru_cache(maxsize=256)  # called for every measurement, on a handful of names
 def sensor_group(sensor: str) -> str:
     """Group of a stream sensor name: ``lighthouse/0/1`` -> ``lh``, ``wheel_encoders`` -> ``we``."""
     if parse_lighthouse(sensor):
