@@ -59,13 +59,13 @@ from crs_core.analysis.metrics import lap_statistics
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
 from launch_scripts.sim_stack import (
-    HOLD_SAFE_OVER_A_LINK,
     PIPELINE_PROCESS,
     RECORD_SETS,
     StackOptions,
     analyse,
     car_control_nodes,
     check_cars,
+    controller_hold_safe,
     launch_and_report,
     recorder_node,
     run_folder,
@@ -140,8 +140,9 @@ def car_nodes(
 ) -> list[NodeSpec]:
     """Process specs: per car (``/car1``...) bridge, estimator, controller as ``options`` say
     (:class:`StackOptions`; ``hold_safe`` by default
-    :data:`~launch_scripts.sim_stack.HOLD_SAFE_OVER_A_LINK`; the emulated cars'
-    truth ``options.car``), the emulator when ``emulate`` (started last: its car waits for
+    :data:`~launch_scripts.sim_stack.HOLD_SAFE_OVER_A_LINK`, as over every link; the emulated
+    cars' truth ``options.car``; a ``track_file`` refused: the cars race DEMO_TRACK, where the
+    emulator starts), the emulator when ``emulate`` (started last: its car waits for
     references anyway; its truth log in ``out``), and one recorder into the bag ``bag``.
     ``car_ips``: one real car per address (not with ``emulate``). ``ports``: the bridge's and
     the emulator's port of car 1 (car N: + N - 1). ``link``: the emulators' link impairment.
@@ -156,7 +157,8 @@ def car_nodes(
         raise ValueError("--car-params: only for emulated cars (a real car is what it is)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
-    options = _over_udp(options)
+    if options.track_file is not None:
+        raise ValueError("track_file: the car stack races DEMO_TRACK (where the emulator starts)")
     check_cars(cars)
     per_car, global_topics = RECORD_SETS[options.record]
     files = options.files()
@@ -190,22 +192,11 @@ def car_nodes(
                 "bridge", "ros4crs.bridge_node", ns, bridge, process=options.pipeline_process()
             ),
             # what the car applied, not what was sent (late, lost or cut over Wi-Fi)
-            *car_control_nodes(ns, options, files, input_topic="input/applied"),
+            *car_control_nodes(ns, options, files, over_udp=True, input_topic="input/applied"),
         ]
         topics += [f"{ns}/{topic}" for topic in (*per_car, DIAGNOSTICS_TOPIC)]
     nodes += [recorder_node(bag, topics), *options.visualizer(cars)]
     return options.part.launched([*nodes, *emulators], "car")
-
-
-def _over_udp(options: StackOptions) -> StackOptions:
-    """``options`` as the car stack runs them: ``hold_safe``
-    :data:`~launch_scripts.sim_stack.HOLD_SAFE_OVER_A_LINK` unless given;
-    a ``track_file`` refused (the cars race DEMO_TRACK, where the emulator starts)."""
-    if options.track_file is not None:
-        raise ValueError("track_file: the car stack races DEMO_TRACK (where the emulator starts)")
-    if options.hold_safe is not None:
-        return options
-    return replace(options, hold_safe=HOLD_SAFE_OVER_A_LINK)
 
 
 def run_car_stack(
@@ -225,7 +216,6 @@ def run_car_stack(
     no bag analysis, :func:`launch_scripts.sim_stack.launch_and_report`)."""
     out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(cars, options, bag, out, emulate, car_ips, ports, link)
-    options = _over_udp(options)
     estimator = options.estimator
     warm_compile_cache(
         estimator,
@@ -250,7 +240,7 @@ def run_car_stack(
             "estimator": estimator,
             "controller": options.controller,
             "output": options.output,
-            "hold_safe": options.hold_safe,
+            "hold_safe": controller_hold_safe(options, over_udp=True),
             "duration_s": duration,
             "recorded": options.record,
             "seed": options.seed,

@@ -261,18 +261,33 @@ def check_cars(cars: int) -> None:
         raise ValueError("cars: must be >= 1")
 
 
+def controller_hold_safe(options: StackOptions, over_udp: bool = False) -> str | None:
+    """The controllers' ``hold_safe``: the ``options``' own, else :data:`HOLD_SAFE_OVER_A_LINK`
+    where their commands cross a link (``over_udp`` to a car, or the part's Zenoh link), else
+    None (the node's default, ``after_outage``)."""
+    if options.hold_safe is not None:
+        return options.hold_safe
+    if over_udp or options.part.zenoh is not None:
+        return HOLD_SAFE_OVER_A_LINK
+    return None
+
+
 def car_control_nodes(
-    ns: str, options: StackOptions, files: dict[str, str], **estimator_parameters: Any
+    ns: str,
+    options: StackOptions,
+    files: dict[str, str],
+    *,
+    over_udp: bool = False,
+    **estimator_parameters: Any,
 ) -> list[NodeSpec]:
     """A car's estimator (with ``estimator_parameters``) and controller, in every stack, with
     the parameter ``files``; the default torque stack passes the controller no ``output`` (the
-    node's default), and no ``hold_safe`` unless ``options`` give it or the part of the stack
-    has a Zenoh link (:data:`HOLD_SAFE_OVER_A_LINK`)."""
+    node's default), and ``hold_safe`` as :func:`controller_hold_safe` says (``over_udp``: the
+    commands go to a car over UDP)."""
     commands: dict[str, Any] = {"output": options.output} if options.output == "velocity" else {}
-    if options.hold_safe is not None:
-        commands["hold_safe"] = options.hold_safe
-    elif options.part.zenoh is not None:
-        commands["hold_safe"] = HOLD_SAFE_OVER_A_LINK
+    hold_safe = controller_hold_safe(options, over_udp)
+    if hold_safe is not None:
+        commands["hold_safe"] = hold_safe
     estimator = {"estimator": options.estimator, "blind_start": options.blind_start}
     return [
         NodeSpec(
