@@ -37,10 +37,10 @@ def bridge_benchmark(
     options = StackOptions(estimator, onboard=True, seed=seed)
     print("[bench] direct simulator (crs launch sim)", flush=True)
     sim = run_stack(1, options, duration, work_dir / "sim", domain_id)
-    from ros4crs.bag_replay import read_receive_times
+    from ros4crs.bag_replay import read_car
 
     sim["cars"]["car1"].setdefault("latency_ms", {})["sensor_to_input_chain"] = input_chain_latency(
-        read_receive_times(work_dir / "sim" / "bag", "/car1")
+        read_car(work_dir / "sim" / "bag", "/car1").receive_times
     )
     print("[bench] emulated car over UDP (crs launch car --emulate)", flush=True)
     car = run_car_stack(1, options, duration, work_dir / "emulated", True, None, domain_id)

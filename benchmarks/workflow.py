@@ -42,6 +42,7 @@ from crs_core.model import CarModel
 from crs_core.model.bicycle import cornering_stiffness, grip_used, peak_slip
 from crs_core.model.effects import effect_text, parse_effect
 from crs_core.track import load_demo_track
+from crs_core.yaml_io import load_yaml
 from ros4crs.bag_dataset import dataset_from_bag
 
 #: The emulated car's parameters: the defaults times these (tyres and motor off by 10-20 %).
@@ -141,7 +142,7 @@ def parameter_recovery(params: Path) -> dict[str, Any]:
     ``prior_std`` the identification writes), the relative error and the error in sigmas; the
     worst relative error of the parameters that differ from the defaults, whether all of them
     are within :data:`RECOVERED_WITHIN` and whether all are within two sigmas."""
-    identified = yaml.safe_load(params.read_text())["parameters"]
+    identified = load_yaml(params.read_text())["parameters"]
     defaults = CarModel().parameters
     changed = truth_parameters()
     rows = {}

@@ -100,6 +100,7 @@ from crs_core.model.chronos import (
 from crs_core.model.lighthouse import RECORDED_BASE_STATION, RECORDED_PHOTODIODES, BaseStation
 from crs_core.parameters import ParameterSet
 from crs_core.stream_file import read_stream, write_stream
+from crs_core.yaml_io import load_yaml
 
 #: Row names of ``y.npy``.
 Y_CHANNELS = (
@@ -208,7 +209,7 @@ class Geometry:
         be read, is not YAML, has no ``geometry``) or the block's field."""
         path = Path(path)
         try:
-            document = yaml.safe_load(path.read_text())
+            document = load_yaml(path.read_text())
         except OSError as error:
             raise FieldError(str(path), f"cannot read it ({error.strerror or error})") from None
         except yaml.YAMLError as error:
@@ -339,7 +340,7 @@ class Dataset:
         geometry = Geometry()
         if (folder / "dataset.yaml").exists():
             try:
-                meta = yaml.safe_load((folder / "dataset.yaml").read_text()) or {}
+                meta = load_yaml((folder / "dataset.yaml").read_text()) or {}
             except yaml.YAMLError as error:
                 problem = str(error).splitlines()[0]
                 raise FieldError("dataset.yaml", f"not valid YAML ({problem})") from None

@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from crs_core.errors import FieldError
+from crs_core.yaml_io import load_yaml
 
 
 @dataclass(frozen=True)
@@ -171,7 +172,7 @@ class ParameterSet(Mapping[str, Parameter]):
         if path.is_dir():
             raise FieldError(str(path), "is a folder, not a parameter YAML file")
         try:
-            document = yaml.safe_load(path.read_text())
+            document = load_yaml(path.read_text())
         except yaml.YAMLError as error:
             mark = getattr(error, "problem_mark", None)
             where = f" at line {mark.line + 1}" if mark is not None else ""

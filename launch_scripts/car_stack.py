@@ -273,7 +273,7 @@ def _truth(out: Path, car: int) -> tuple[np.ndarray, np.ndarray]:
 
 def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str, Any]:
     """``report.json``'s per-car part (see the module docstring)."""
-    from ros4crs.bag_replay import read_car, read_receive_times
+    from ros4crs.bag_replay import read_car
 
     track = load_demo_track()
     truths = {}
@@ -282,10 +282,11 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
             t, x = _truth(out, i)
             if t.size >= 2:
                 truths[f"car{i}"] = (t, x)
-    report = analyse(bag, cars, track, truths)
+    contents_of = {f"car{i}": read_car(bag, f"/car{i}") for i in range(1, cars + 1)}
+    report = analyse(bag, cars, track, truths, contents_of)
     diagnostics = last_diagnostics(bag, cars)
     for i in range(1, cars + 1):
-        name, ns = f"car{i}", f"/car{i}"
+        name = f"car{i}"
         car = report["cars"][name]
         car["bridge_diagnostics"] = diagnostics.get(name)
         # the bridge's own log, or its car's shared pipeline process's (its logger's lines)
@@ -303,12 +304,12 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
             if log_path.is_file():
                 with np.load(log_path) as log:
                     car["motor_cutoffs"] = cutoffs(log)
-                    times = read_receive_times(bag, ns)
+                    times = contents_of[name].receive_times
                     car["latency_ms"].update(command_latencies(times, log))
                     car["latency_ms"]["sensor_to_input_chain"] = input_chain_latency(times)
         else:
             car["laps_from"] = "estimates (no truth from a real car)"
-            estimates = read_car(bag, ns).estimates
+            estimates = contents_of[name].estimates
             if len(estimates) >= 2:
                 stamps = np.array([t for t, _ in estimates])
                 states = np.array([x for _, x in estimates])

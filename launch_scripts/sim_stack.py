@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -29,6 +29,9 @@ from launch_scripts.stack_plot import plot
 from launch_scripts.visualizer import VizSettings, visualizer_node
 from launch_scripts.warm_cache import warm_compile_cache
 from sim.closed_loop import off_track
+
+if TYPE_CHECKING:
+    from ros4crs.bag_replay import BagContents
 
 #: What ``crs launch --record`` records, per car (relative topics) and globally. ``all``:
 #: everything, so the bag replays the estimator offline to its estimates exactly
@@ -547,19 +550,22 @@ def analyse(
     cars: int,
     track: Track | None = None,
     truths: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
+    contents_of: dict[str, BagContents] | None = None,
 ) -> dict[str, Any]:
     """Per car: laps, lap times, estimation RMSE, deadline misses, latencies.
 
     The truth is the bag's ``ground_truth`` (the simulator's), unless ``truths`` gives it per
     car (``{"car1": (stamps (n,), states (n, 6))}``, e.g. a car emulator's log; a car missing
-    from it has no truth)."""
-    from ros4crs.bag_replay import read_car, read_receive_times
+    from it has no truth). ``contents_of`` (per car name): what the caller already read of the
+    bag; the cars missing from it are read here."""
+    from ros4crs.bag_replay import read_car
 
     track = track or load_demo_track()
     report: dict[str, Any] = {"cars": {}}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
-        contents = read_car(bag, ns)
+        known = (contents_of or {}).get(ns.strip("/"))
+        contents = known if known is not None else read_car(bag, ns)
         car: dict[str, Any] = {"laps_completed": 0, "lap_times_s": []}
         if truths is not None:
             truth = truths.get(ns.strip("/"))
@@ -590,7 +596,7 @@ def analyse(
         car["outcome"] = outcome(car)
         car["estimator_reinitializations"] = contents.reinitializations
         car["malformed_messages"] = contents.malformed
-        car["latency_ms"] = latencies(read_receive_times(bag, ns))
+        car["latency_ms"] = latencies(contents.receive_times)
         report["cars"][ns.strip("/")] = car
     return report
 

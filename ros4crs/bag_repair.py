@@ -42,6 +42,8 @@ from rosbags.rosbag2.metadata import parse_qos
 from rosbags.rosbag2.storage_mcap import decompress
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 
+from crs_core.yaml_io import load_yaml
+
 if sys.version_info >= (3, 14):  # the zstd module rosbags itself uses
     from compression import zstd
 else:
@@ -543,7 +545,7 @@ def _natural_key(path: Path) -> list:
 def _load_metadata(bag: Path) -> dict | None:
     """The ``rosbag2_bagfile_information`` of ``metadata.yaml`` (None if missing/unreadable)."""
     try:
-        info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        info = load_yaml((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     except (OSError, yaml.YAMLError, TypeError, KeyError):
         return None
     return info if isinstance(info, dict) else None

@@ -31,6 +31,8 @@ from ros4crs.bag_repair import open_bag
 from ros4crs.interfaces import typestore
 
 _FAMILY_OF_TOPIC = {topic: family for family, topic in conversions.TOPICS.items()}
+#: The kinds of message whose receive times :attr:`BagContents.receive_times` keeps.
+_RECEIVE_KINDS = ("sensor", "estimate", "input")
 
 
 class ReplayIncompleteWarning(UserWarning):
@@ -67,6 +69,12 @@ class BagContents:
     velocity_references: int = 0
     #: The topic (relative to the car) the inputs were read from.
     input_topic: str = "input"
+    #: ``(header stamp, recorder receive time)`` in s per kind, ``sensor`` (a
+    #: ``sensors/batch`` message: each reading's stamp with the batch's receive time),
+    #: ``estimate`` (``estimate/state``) and ``input`` (the commands sent, ``input``).
+    receive_times: dict[str, list[tuple[float, float]]] = field(
+        default_factory=lambda: {kind: [] for kind in _RECEIVE_KINDS}
+    )
 
 
 def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -> BagContents:
@@ -88,23 +96,40 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
+    receive_times: dict[str, list[tuple[float, float]]] = {k: [] for k in _RECEIVE_KINDS}
     malformed = velocity_references = 0
     diagnostics = None
     wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
-    for connection, _, data in reader.messages(wanted) if wanted else ():
+    for connection, received, data in reader.messages(wanted) if wanted else ():
         relative = connection.topic[len(prefix) :]
         family = _FAMILY_OF_TOPIC.get(relative)
+        sent_command = family == "input"  # its receive time is kept whatever the inputs are
         if family in ("input", "applied_input"):
             family = "input" if relative == input_topic else None
-        if family is None:
+        if family is None and not sent_command:
             continue
         msg = store.deserialize_cdr(bytes(data), connection.msgtype)
+        kind = (
+            "input"
+            if sent_command
+            else "sensor"
+            if relative.startswith("sensors/")
+            else "estimate"
+            if family == "state"
+            else None
+        )
         try:
+            if kind is not None and family != "batch":
+                stamp = conversions.seconds_from_stamp(msg.header.stamp)
+                receive_times[kind].append((stamp, received * 1e-9))
             if family in conversions.SENSOR_PARSERS:
                 measurements.append(conversions.SENSOR_PARSERS[family](msg))
             elif family == "batch":
                 readings = conversions.batch_from_msg(msg)
                 measurements.extend(readings.measurements)
+                receive_times["sensor"].extend(
+                    (m.stamp, received * 1e-9) for m in readings.measurements
+                )
                 malformed += len(readings.rejected)
             elif family == "input":
                 command = conversions.input_from_msg(msg)
@@ -133,37 +158,13 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
         queries=queries,
         velocity_references=velocity_references,
         input_topic=input_topic,
+        receive_times=receive_times,
     )
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)
         contents.updates = int(diagnostics.updates)
         contents.reinitializations = int(diagnostics.reinitializations)
     return contents
-
-
-def read_receive_times(bag: str | Path, namespace: str) -> dict[str, list[tuple[float, float]]]:
-    """``(header stamp, recorder receive time)`` in s for sensors, estimates and inputs (for a
-    ``sensors/batch`` message, each reading's stamp with the batch's receive time)."""
-    store = typestore()
-    prefix = namespace.rstrip("/") + "/"
-    kinds = {"sensors/": "sensor", "estimate/state": "estimate", "input": "input"}
-    out: dict[str, list[tuple[float, float]]] = {kind: [] for kind in kinds.values()}
-    with open_bag(bag) as reader:
-        wanted = [c for c in reader.connections if c.topic.startswith(prefix)]
-        for connection, received, data in reader.messages(wanted) if wanted else ():
-            relative = connection.topic[len(prefix) :]
-            kind = next((k for key, k in kinds.items() if relative.startswith(key)), None)
-            if kind == "input" and relative != "input":  # input/applied: reported by the car
-                continue
-            if kind is None:
-                continue
-            msg = store.deserialize_cdr(bytes(data), connection.msgtype)
-            if relative == conversions.TOPICS["batch"]:
-                readings = conversions.batch_from_msg(msg).measurements
-                out[kind].extend((m.stamp, received * 1e-9) for m in readings)
-                continue
-            out[kind].append((conversions.seconds_from_stamp(msg.header.stamp), received * 1e-9))
-    return out
 
 
 def replay_estimator(

@@ -2,7 +2,7 @@
 
 Every function takes ``times``: per topic kind (``"sensor"``, ``"estimate"``, ``"input"``) a
 list of ``(stamp, receive time)`` pairs, s (the message's header stamp and the recorder's
-receive time, as :func:`ros4crs.bag_replay.read_receive_times` reads them from a bag), and
+receive time, as :attr:`ros4crs.bag_replay.BagContents.receive_times` holds them), and
 matches each message to the newest one upstream of it with :func:`numpy.searchsorted`. Each
 latency is reported in ms as the median and p95 (:func:`crs_core.analysis.statistics.summary`,
 2 decimals), or ``{}`` when nothing matched. :data:`LATENCY_DEFINITIONS` says in words what

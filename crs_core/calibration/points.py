@@ -43,6 +43,7 @@ from crs_core.analysis.angles import wrap_angle
 from crs_core.errors import FieldError
 from crs_core.model.lighthouse import RECORDED_PHOTODIODES
 from crs_core.model.sensors import N_PHOTODIODES
+from crs_core.yaml_io import load_yaml
 
 FORMAT = "chronos-lighthouse-points/1"
 
@@ -140,7 +141,7 @@ def load_points(path: str | Path) -> CalibrationPoints:
         problem = "is a folder" if path.is_dir() else "does not exist"
         raise FieldError("POINTS_FILE", f"{path} {problem}")
     try:
-        data = yaml.safe_load(path.read_text())
+        data = load_yaml(path.read_text())
     except yaml.YAMLError as error:
         problem = str(error).splitlines()[0]
         raise FieldError("POINTS_FILE", f"{path} is not valid YAML ({problem})") from None

@@ -35,6 +35,7 @@ from crs_core.discrepancy.sweep_lag import SweepLag
 from crs_core.discrepancy.workflow import DiscrepancyResult
 from crs_core.identification.report import write_params_yaml
 from crs_core.model import CarModel
+from crs_core.yaml_io import load_yaml
 
 #: Units of the regime regressors of :func:`crs_core.discrepancy.residuals.regime_regressors`.
 REGRESSOR_UNITS = {
@@ -114,7 +115,7 @@ def write_final_params(result: DiscrepancyResult, path: Path) -> Path:
     write_params_yaml(result.final, path)
     text = path.read_text()
     comments = [line for line in text.splitlines() if line.startswith("#")][1:]
-    document = yaml.safe_load(text)
+    document = load_yaml(text)
     entries = document["parameters"]
     delay = _named_delay(result)
     if delay is not None and DELAY_EFFECT not in entries:

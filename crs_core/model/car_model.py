@@ -31,6 +31,7 @@ from crs_core.model.chronos import (
 from crs_core.model.effects import EFFECTS, Effect
 from crs_core.model.lighthouse import BaseStation
 from crs_core.parameters import ParameterSet
+from crs_core.yaml_io import load_yaml
 
 #: Largest RK4 substep (s). Measured with :func:`crs_core.model.stability.largest_stable_step`
 #: over speeds 0..3 m/s and full steering: the fastest Jacobian eigenvalue is about -380 1/s
@@ -96,7 +97,7 @@ def effects_in_file(path: str | Path) -> list[str]:
     """The effects whose parameters a parameter YAML names (so that its model can be rebuilt);
     none for a file that cannot be read (the parameter loader says what is wrong with it)."""
     try:
-        document = yaml.safe_load(Path(path).read_text())
+        document = load_yaml(Path(path).read_text())
     except (OSError, yaml.YAMLError):
         return []
     entries = document.get("parameters") if isinstance(document, dict) else None

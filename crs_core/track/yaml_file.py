@@ -28,6 +28,7 @@ from crs_core.track.geometry import (
     _as_float_array,
     _check_arc_length,
 )
+from crs_core.yaml_io import load_yaml
 
 __all__ = ["DEMO_TRACK_PATH", "load_demo_track", "read_track"]
 
@@ -80,7 +81,7 @@ def read_track(path: str | Path) -> Track:
     path = Path(path)
     with path.open("r", encoding="utf-8") as stream:
         try:
-            document = yaml.safe_load(stream)
+            document = load_yaml(stream)
         except yaml.YAMLError as exc:
             raise FieldError(str(path), f"not valid YAML ({exc})") from None
     if not isinstance(document, dict) or not isinstance(document.get("track"), dict):

@@ -20,7 +20,6 @@ from ros4crs.bag_replay import (
     Query,
     ReplayIncompleteWarning,
     read_car,
-    read_receive_times,
     replay_estimator,
 )
 from ros4crs.interfaces import typestore
@@ -96,8 +95,9 @@ def test_the_applied_inputs_instead_of_the_commands(bag: Path) -> None:
     assert contents.velocity_references == 0 and contents.input_topic == "input/applied"
 
 
-def test_receive_times_pair_each_stamp_with_its_arrival(bag: Path) -> None:
-    times = read_receive_times(bag, "/car1")
+@pytest.mark.parametrize("input_topic", ["input", "input/applied"])
+def test_receive_times_pair_each_stamp_with_its_arrival(bag: Path, input_topic: str) -> None:
+    times = read_car(bag, "/car1", input_topic=input_topic).receive_times
 
     def offsets(kind: str) -> list[tuple[float, float]]:
         return [(round(s - T0, 6), round(r - T0, 6)) for s, r in times[kind]]
