@@ -48,7 +48,7 @@ import ipaddress
 import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -67,10 +67,14 @@ from launch_scripts.sim_stack import (
     check_cars,
     controller_hold_safe,
     launch_and_report,
+    read_cars,
     recorder_node,
     run_folder,
 )
 from launch_scripts.warm_cache import warm_compile_cache
+
+if TYPE_CHECKING:
+    from ros4crs.bag_replay import BagContents
 
 #: The bridge of car N listens on ``HOST_PORT + N - 1`` (the bridge's default port first, the
 #: firmware's default host port).
@@ -226,6 +230,12 @@ def run_car_stack(
     )
     recorded = options.part.runs("recorder")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
+    contents_of: dict[str, BagContents] = {}  # the bag read once, for the report and the figure
+
+    def analyse_run() -> dict[str, Any]:
+        contents_of.update(read_cars(bag, cars))
+        return analyse_car_run(bag, cars, out, emulate, contents_of)
+
     report = launch_and_report(
         nodes,
         domain,
@@ -233,7 +243,7 @@ def run_car_stack(
         duration,
         f"{len(nodes)} processes, {cars} {what}",
         options.after_start_up,
-        (lambda: analyse_car_run(bag, cars, out, emulate)) if recorded else None,
+        analyse_run if recorded else None,
         {
             "mode": "emulated" if emulate else "real",
             "car_ips": car_ips or [],
@@ -259,7 +269,8 @@ def run_car_stack(
                 truths[i] = StateTrack(t, x, np.full_like(x, np.nan))
         if truths:
             title = f"ROS 2 stack against {cars} emulated car(s) over UDP: {estimator.upper()} "
-            plot(bag, cars, out, estimator, None, truths, title + "vs the emulator's truth")
+            title += "vs the emulator's truth"
+            plot(bag, cars, out, estimator, None, truths, title, contents_of)
     return report
 
 
@@ -271,10 +282,11 @@ def _truth(out: Path, car: int) -> tuple[np.ndarray, np.ndarray]:
         return log["t"], log["x"]
 
 
-def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str, Any]:
-    """``report.json``'s per-car part (see the module docstring)."""
-    from ros4crs.bag_replay import read_car
-
+def analyse_car_run(
+    bag: Path, cars: int, out: Path, emulate: bool, contents_of: dict[str, BagContents]
+) -> dict[str, Any]:
+    """``report.json``'s per-car part (see the module docstring) from ``contents_of``, what the
+    bag holds of each car (:func:`~launch_scripts.sim_stack.read_cars`)."""
     track = load_demo_track()
     truths = {}
     if emulate:
@@ -282,7 +294,6 @@ def analyse_car_run(bag: Path, cars: int, out: Path, emulate: bool) -> dict[str,
             t, x = _truth(out, i)
             if t.size >= 2:
                 truths[f"car{i}"] = (t, x)
-    contents_of = {f"car{i}": read_car(bag, f"/car{i}") for i in range(1, cars + 1)}
     report = analyse(bag, cars, track, truths, contents_of)
     diagnostics = last_diagnostics(bag, cars)
     for i in range(1, cars + 1):

@@ -337,6 +337,12 @@ def run_stack(
         car_effects=options.car.effects,
     )
     recorded = options.part.runs("recorder")
+    contents_of: dict[str, BagContents] = {}  # the bag read once, for the report and the figure
+
+    def analyse_run() -> dict[str, Any]:
+        contents_of.update(read_cars(bag, cars))
+        return analyse(bag, cars, track, contents_of=contents_of)
+
     report = launch_and_report(
         nodes,
         domain,
@@ -344,7 +350,7 @@ def run_stack(
         duration,
         f"{len(nodes)} nodes, {cars} car(s)",
         options.after_start_up,
-        (lambda: analyse(bag, cars, track)) if recorded else None,
+        analyse_run if recorded else None,
         {
             "estimator": options.estimator,
             "controller": options.controller,
@@ -356,7 +362,7 @@ def run_stack(
         },
     )
     if recorded:
-        plot(bag, cars, out, options.estimator, track)
+        plot(bag, cars, out, options.estimator, track, contents_of=contents_of)
     return report
 
 
@@ -543,6 +549,13 @@ def summary(report: dict[str, Any], out: Path) -> str:
     else:
         lines.append(f"report: {out / 'report.json'}, {out / 'path.png'}, bag {out / 'bag'}")
     return "\n".join(lines)
+
+
+def read_cars(bag: Path, cars: int) -> dict[str, BagContents]:
+    """What the bag holds of each of ``cars`` (``car1``, ...), one pass of the bag per car."""
+    from ros4crs.bag_replay import read_car
+
+    return {f"car{i}": read_car(bag, f"/car{i}") for i in range(1, cars + 1)}
 
 
 def analyse(

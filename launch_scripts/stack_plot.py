@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,6 +19,9 @@ from crs_core.analysis.figures import (
 )
 from crs_core.analysis.metrics import band_statistics, interpolate_pose, pose_errors
 from crs_core.track import Track, load_demo_track
+
+if TYPE_CHECKING:
+    from ros4crs.bag_replay import BagContents
 
 #: Topics (relative to the car's namespace) of the published estimate and of the truth.
 ESTIMATE_TOPIC, TRUTH_TOPIC = "estimate/state", "ground_truth"
@@ -40,33 +45,36 @@ def read_states(bag: Path, topic: str) -> StateTrack:
     """Every ``CarState`` on ``topic`` (absolute, e.g. ``/car1/estimate/state``) with its
     covariance; messages with a non-finite state are skipped."""
     from ros4crs.bag_repair import open_bag
-    from ros4crs.conversions import state_from_msg
+    from ros4crs.conversions import state_from_msg, state_sigma_from_msg
     from ros4crs.interfaces import typestore
 
     store = typestore()
-    stamps, states, sigmas = [], [], []
+    states, sigmas = [], []
     with open_bag(bag) as reader:  # a cut-off bag up to its last complete message
         connections = [c for c in reader.connections if c.topic == topic]
         # (an empty list would mean every message to rosbags)
         for connection, _, data in reader.messages(connections) if connections else ():
             msg = store.deserialize_cdr(bytes(data), connection.msgtype)
             try:
-                stamp, x = state_from_msg(msg)
+                state = state_from_msg(msg)
+                sigma = state_sigma_from_msg(msg)
             except ValueError:
                 continue
-            covariance = np.asarray(msg.covariance, dtype=float).reshape(6, 6)
-            variance = np.diag(covariance).copy()
-            if not np.any(covariance) or not np.all(np.isfinite(variance)):
-                variance[:] = np.nan
-            stamps.append(stamp)
-            states.append(x)
-            sigmas.append(np.sqrt(np.clip(variance, 0.0, None)))
+            states.append(state)
+            sigmas.append(sigma)
+    return state_track(states, sigmas)
+
+
+def state_track(
+    states: Sequence[tuple[float, np.ndarray]], sigmas: Sequence[np.ndarray] | None = None
+) -> StateTrack:
+    """A :class:`StateTrack` of ``(stamp, state)`` pairs in any order and their standard
+    deviations (None: unknown, NaN)."""
+    stamps = np.asarray([t for t, _ in states], dtype=float)
+    x = np.asarray([state for _, state in states], dtype=float).reshape(-1, 6)
+    sigma = np.full_like(x, np.nan) if sigmas is None else np.asarray(sigmas, dtype=float)
     order = np.argsort(stamps, kind="stable")
-    return StateTrack(
-        np.asarray(stamps, dtype=float)[order],
-        np.asarray(states, dtype=float).reshape(-1, 6)[order],
-        np.asarray(sigmas, dtype=float).reshape(-1, 6)[order],
-    )
+    return StateTrack(stamps[order], x[order], sigma.reshape(-1, 6)[order])
 
 
 def estimate_errors(estimates: StateTrack, truth: StateTrack) -> tuple[np.ndarray, np.ndarray]:
@@ -90,11 +98,14 @@ def plot(
     track: Track | None = None,
     truths: dict[int, StateTrack] | None = None,
     title: str | None = None,
+    contents_of: dict[str, BagContents] | None = None,
 ) -> None:
     """``path.png``: every car's truth and estimate on the track (with a zoomed inset), and the
     x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
     ±2σ band of the covariance the estimator published. ``truths`` (per car number) replaces
-    the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the figure's title."""
+    the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the figure's title;
+    ``contents_of`` (per car name) what the caller already read of the bag (the cars missing
+    from it are read here)."""
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -102,9 +113,15 @@ def plot(
     track = track or load_demo_track()
     runs = {}
     for i in range(1, cars + 1):
-        estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")
+        contents = (contents_of or {}).get(f"car{i}")
+        if contents is not None:
+            estimates = state_track(contents.estimates, contents.estimate_sigmas)
+        else:
+            estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")
         if truths is not None:
             truth = truths.get(i) or StateTrack(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
+        elif contents is not None:
+            truth = state_track(contents.truth)
         else:
             truth = read_states(bag, f"/car{i}/{TRUTH_TOPIC}")
         if estimates.t.size and truth.t.size:

@@ -69,6 +69,9 @@ class BagContents:
     velocity_references: int = 0
     #: The topic (relative to the car) the inputs were read from.
     input_topic: str = "input"
+    #: The standard deviations (6,) of each of ``estimates``
+    #: (:func:`~ros4crs.conversions.state_sigma_from_msg`).
+    estimate_sigmas: list[np.ndarray] = field(default_factory=list)
     #: ``(header stamp, recorder receive time)`` in s per kind, ``sensor`` (a
     #: ``sensors/batch`` message: each reading's stamp with the batch's receive time),
     #: ``estimate`` (``estimate/state``) and ``input`` (the commands sent, ``input``).
@@ -96,6 +99,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
+    estimate_sigmas: list[np.ndarray] = []
     receive_times: dict[str, list[tuple[float, float]]] = {k: [] for k in _RECEIVE_KINDS}
     malformed = velocity_references = 0
     diagnostics = None
@@ -138,7 +142,9 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
                 else:  # a velocity reference is no model input (as in the estimator node)
                     velocity_references += 1
             elif family == "state":
-                estimates.append(conversions.state_from_msg(msg))
+                estimate = conversions.state_from_msg(msg)
+                estimate_sigmas.append(conversions.state_sigma_from_msg(msg))
+                estimates.append(estimate)
             elif family == "ground_truth":
                 truth.append(conversions.state_from_msg(msg))
             elif family == "diagnostics":
@@ -158,6 +164,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
         queries=queries,
         velocity_references=velocity_references,
         input_topic=input_topic,
+        estimate_sigmas=estimate_sigmas,
         receive_times=receive_times,
     )
     if diagnostics is not None:

@@ -371,6 +371,16 @@ def state_from_msg(msg: Any) -> tuple[float, np.ndarray]:
     return seconds_from_stamp(msg.header.stamp), x
 
 
+def state_sigma_from_msg(msg: Any) -> np.ndarray:
+    """``chronos_msgs/CarState`` -> the states' standard deviations (6,), from the diagonal of
+    its covariance; NaN where the covariance is all zeros (unknown) or not finite."""
+    covariance = np.asarray(msg.covariance, dtype=float).reshape(6, 6)
+    variance = np.diag(covariance).copy()
+    if not np.any(covariance) or not np.all(np.isfinite(variance)):
+        variance[:] = np.nan
+    return np.sqrt(np.clip(variance, 0.0, None))
+
+
 def status_from_msg(msg: Any) -> tuple[float, np.ndarray, str]:
     """``chronos_msgs/CarState`` -> (stamp, state (6,), status ``ok`` | ``degraded`` | ``lost``)."""
     names = {code: name for name, code in STATUS_CODES.items()}

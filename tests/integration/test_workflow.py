@@ -47,7 +47,7 @@ def test_a_recorded_bag_names_the_hidden_effect_and_closes_the_gap(tmp_path, war
         tmp_path / "race",
         True,
         domain_id=DOMAIN_WORKFLOW,
-        ports=(21231, 21331),
+        ports=(21241, 21341),
     )
     assert report["node_deaths"] == [] and report["cars"]["car1"]["laps_completed"] >= 1
     assert report["car_truth"]["effects"] == [f"gyro_bias.gyro_bias={GYRO_BIAS!r}"]

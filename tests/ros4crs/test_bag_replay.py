@@ -49,7 +49,11 @@ def _messages() -> list[tuple[str, Any, float]]:
         ("/car1/input", conversions.car_input_msg([0.1, 0.4], T0 + 0.12), 0.125),
         ("/car1/input", conversions.car_input_msg([0.1, 1.5], T0 + 0.14, "velocity"), 0.145),
         ("/car1/input/applied", conversions.car_input_msg([0.05, 0.3], T0 + 0.13), 0.17),
-        ("/car1/estimate/state", conversions.car_state_msg(np.arange(6.0), T0 + 0.2), 0.21),
+        (
+            "/car1/estimate/state",
+            conversions.car_state_msg(np.arange(6.0), T0 + 0.2, np.diag(np.arange(1.0, 7.0))),
+            0.21,
+        ),
         ("/car1/ground_truth", conversions.car_state_msg(np.ones(6), T0 + 0.2), 0.2),
         ("/car2/sensors/imu", _imu(0.1, yaw_rate=-1.0), 0.11),
         ("/car1/note", conversions.car_input_msg([0.0, 0.0], T0), 0.3),  # not a known topic
@@ -84,6 +88,8 @@ def test_one_car_is_read_in_stamp_order_and_bad_messages_are_counted(bag: Path) 
     ((stamp, x),) = contents.estimates
     assert stamp == pytest.approx(T0 + 0.2, abs=1e-6)
     np.testing.assert_array_equal(x, np.arange(6.0))
+    (sigma,) = contents.estimate_sigmas  # the square roots of the covariance's diagonal
+    np.testing.assert_allclose(sigma, np.sqrt(np.arange(1.0, 7.0)))
     ((_, truth),) = contents.truth
     np.testing.assert_array_equal(truth, np.ones(6))
     assert contents.queries == [] and contents.deadline_misses == 0
