@@ -21,6 +21,10 @@ from pathlib import Path
 
 __all__ = ["warm_compile_cache"]
 
+#: What this process has warmed already: (estimator, controller, output, parameter text,
+#: car effects, cache folder) of each call (a second call finds the same files in the cache).
+_warmed: set[tuple] = set()
+
 
 def warm_compile_cache(
     estimator: str,
@@ -59,6 +63,15 @@ def warm_compile_cache(
     from crs_core.model.effects import effect_spec
     from crs_core.track import load_demo_track
 
+    from crs_core.codegen import cache_dir
+
+    parameters = None  # a file that cannot be read: CarModel.from_file says why below
+    if params_file is not None and Path(params_file).is_file():
+        parameters = Path(params_file).read_text()
+    key = (estimator, controller, output, parameters, tuple(car_effects), str(cache_dir()))
+    if key in _warmed:
+        print(f"{label} compiled model functions ready (warmed earlier in this process)")
+        return 0.0
     print(f"{label} preparing the compiled model functions (compiled once, then cached)")
     started = time.perf_counter()
     model = CarModel.from_file(params_file)
@@ -71,6 +84,7 @@ def warm_compile_cache(
     # the simulator's truth model with the onboard loop
     CarEmulator(model=CarModel(effect_spec(car_effects)))
     elapsed = time.perf_counter() - started
+    _warmed.add(key)
     print(f"{label} compiled model functions ready in {elapsed:.1f} s")
     return elapsed
 
