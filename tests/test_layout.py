@@ -52,8 +52,6 @@ EXEMPT: dict[str, str] = {
     "sim/mocap_recording.py": "a full simulation, used by the calibration tests",
     # Needs a dataset on disk; covered by test_output_folder.py and the crs_core model tests.
     "launch_scripts/commands/consistency.py": "needs a dataset on disk, covered elsewhere",
-    # Compiles the model functions (~30 s); ./run.sh setup runs it.
-    "launch_scripts/warm_cache.py": "compiles the model functions, run by ./run.sh setup",
     # Runs of minutes without a cheap public function; their docs tables are checked by
     # tests/benchmarks/test_docs.py.
     "benchmarks/contingency.py": "minutes-long runs, docs table checked by test_docs.py",
