@@ -55,6 +55,7 @@ def warm_compile_cache(
         parameter values do not change the compiled code).
     """
     from chronos_bridge.emulator import CarEmulator
+    from crs_core.codegen import cache_dir
     from crs_core.control.mpcc import Mpcc
     from crs_core.control.mpcc_problem import MpccSettings
     from crs_core.estimation import EkfSettings, MheSettings, make_estimator
@@ -62,8 +63,6 @@ def warm_compile_cache(
     from crs_core.model import CarModel
     from crs_core.model.effects import effect_spec
     from crs_core.track import load_demo_track
-
-    from crs_core.codegen import cache_dir
 
     parameters = None  # a file that cannot be read: CarModel.from_file says why below
     if params_file is not None and Path(params_file).is_file():
