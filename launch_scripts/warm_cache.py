@@ -36,7 +36,8 @@ def warm_compile_cache(
 ) -> float:
     """Build (and so compile and cache) the estimator's, the controller's and the simulated
     car's functions with the nodes' default settings, with a line before and after on stdout;
-    returns the time taken, s.
+    returns the time taken, s. A call this process has made before (the same arguments, the
+    same parameter file's text and cache folder) builds nothing, says so and returns 0.
 
     Parameters
     ----------
