@@ -113,15 +113,13 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
         if family is None and not sent_command:
             continue
         msg = store.deserialize_cdr(bytes(data), connection.msgtype)
-        kind = (
-            "input"
-            if sent_command
-            else "sensor"
-            if relative.startswith("sensors/")
-            else "estimate"
-            if family == "state"
-            else None
-        )
+        kind = None  # of its receive time
+        if sent_command:
+            kind = "input"
+        elif relative.startswith("sensors/"):
+            kind = "sensor"
+        elif family == "state":
+            kind = "estimate"
         try:
             if kind is not None and family != "batch":
                 stamp = conversions.seconds_from_stamp(msg.header.stamp)
