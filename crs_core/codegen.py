@@ -167,6 +167,7 @@ def compile_functions(
     library_name: str,
     backend: str | None = None,
     driver: str = "",
+    arguments: Sequence[str] = (),
 ) -> dict[str, NumericFunction]:
     """Numeric callables for ``functions``, keyed by function name.
 
@@ -182,27 +183,22 @@ def compile_functions(
         C that calls the generated functions, compiled into the same library (reached through
         :attr:`CompiledFunction.library`; unused in the VM): one compile, not a second library
         of the same generated code.
+    arguments : sequence of str
+        Compiler arguments added to :data:`COMPILE_FLAGS` (include and link flags a driver
+        needs); its undefined symbols come from libraries already loaded into the global scope.
+
+    Raises
+    ------
+    RuntimeError
+        The compiled backend was asked for and there is no compiler, or it failed.
     """
     if _backend(backend) == "vm":
         return {f.name(): VMFunction(f) for f in functions}
-    library = ctypes.CDLL(str(_build_library(functions, library_name, COMPILE_FLAGS, driver)))
-    return {f.name(): CompiledFunction(f, library) for f in functions}
-
-
-def compile_library(
-    functions: Sequence[ca.Function],
-    library_name: str,
-    driver: str,
-    arguments: Sequence[str] = (),
-) -> ctypes.CDLL:
-    """The generated code of ``functions`` and ``driver`` (C that calls them, appended to the
-    same file) compiled into one cached library with ``arguments`` (include and link flags)
-    added, loaded. Its undefined symbols come from libraries already loaded into the global
-    scope. ``RuntimeError`` when the compiler fails or there is none."""
     if not compiler_available():
         raise RuntimeError("no C compiler (set CC or install gcc)")
     flags = (*COMPILE_FLAGS, *arguments)
-    return ctypes.CDLL(str(_build_library(functions, library_name, flags, driver)))
+    library = ctypes.CDLL(str(_build_library(functions, library_name, flags, driver)))
+    return {f.name(): CompiledFunction(f, library) for f in functions}
 
 
 def external_functions(

@@ -156,10 +156,17 @@ class Mpcc:
         qp = "hpipm" if s.solver == "native" else None  # native's fallback: CasADi's HPIPM
         self._rti = self.problem.real_time_iteration(qp) if in_casadi else None
         # the step check's rollouts and costs, compiled (in CasADi's VM they were a quarter of
-        # a call: 0.38 ms per cost)
-        checks = compile_functions(
-            [self.problem.dynamics.mapaccum("mpcc_rollout", self.problem.N), self.problem.merit()],
-            "mpcc_checks",
+        # a call: 0.38 ms per cost); the native iteration's library holds them already
+        checks = (
+            self._native.checks
+            if self._native is not None
+            else compile_functions(
+                [
+                    self.problem.dynamics.mapaccum("mpcc_rollout", self.problem.N),
+                    self.problem.merit(),
+                ],
+                "mpcc_checks",
+            )
         )
         self._rollout, self._merit_function = checks["mpcc_rollout"], checks["mpcc_merit"]
         self._parameter_columns = np.tile(self.p[:, None], (1, self.problem.N))

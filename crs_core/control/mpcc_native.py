@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from crs_core.acados_support import AcadosUnavailable, acados_template
-from crs_core.codegen import compile_library
+from crs_core.codegen import CompiledFunction, compile_functions
 from crs_core.control.mpcc_problem import FREE, Iterate, MpccProblem, SqpStep
 from crs_core.control.reference_path import ReferencePath
 
@@ -440,17 +440,25 @@ class NativeRti:
             problem.terminal_linearization(),
             problem.merit(),
             problem.dynamics,
+            problem.dynamics.mapaccum("mpcc_rollout", self.N),
         ]
         try:
-            library = compile_library(
+            compiled = compile_functions(
                 functions,
                 f"mpcc_native_{problem.model.tag}_{problem.model.n_base_stations}bs_n{self.N}"
                 f"_{round(1e6 / problem.settings.rate_hz)}",
+                "compiled",
                 source,
                 ("-I" + include.format("hpipm"), "-I" + include.format("blasfeo"), "-D_GNU_SOURCE"),
             )
         except RuntimeError as error:
             raise AcadosUnavailable(f"the native MPCC iteration does not build: {error}") from error
+        #: the horizon's rollout (``mpcc_rollout``) and the plan's cost (``mpcc_merit``) from
+        #: the same library: the functions of the Python steps around the call
+        self.checks = {name: compiled[name] for name in ("mpcc_rollout", "mpcc_merit")}
+        merit = compiled["mpcc_merit"]
+        assert isinstance(merit, CompiledFunction)  # the compiled backend was asked for
+        library = merit.library
         pointer, double, integer = ctypes.c_void_p, ctypes.c_double, ctypes.c_int
         create = library.crs_rti_create
         create.restype, create.argtypes = pointer, [integer, integer, pointer, pointer]
