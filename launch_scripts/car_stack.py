@@ -234,7 +234,7 @@ def run_car_stack(
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
-        return analyse_car_run(bag, cars, out, emulate, contents_of)
+        return analyse_car_run(contents_of, bag, cars, out, emulate)
 
     report = launch_and_report(
         nodes,
@@ -270,7 +270,7 @@ def run_car_stack(
         if truths:
             title = f"ROS 2 stack against {cars} emulated car(s) over UDP: {estimator.upper()} "
             title += "vs the emulator's truth"
-            plot(bag, cars, out, estimator, None, truths, title, contents_of)
+            plot(contents_of, cars, out, estimator, None, truths, title)
     return report
 
 
@@ -283,7 +283,7 @@ def _truth(out: Path, car: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def analyse_car_run(
-    bag: Path, cars: int, out: Path, emulate: bool, contents_of: dict[str, BagContents]
+    contents_of: dict[str, BagContents], bag: Path, cars: int, out: Path, emulate: bool
 ) -> dict[str, Any]:
     """``report.json``'s per-car part (see the module docstring) from ``contents_of``, what the
     bag holds of each car (:func:`~launch_scripts.sim_stack.read_cars`)."""
@@ -294,7 +294,7 @@ def analyse_car_run(
             t, x = _truth(out, i)
             if t.size >= 2:
                 truths[f"car{i}"] = (t, x)
-    report = analyse(bag, cars, track, truths, contents_of)
+    report = analyse(contents_of, cars, track, truths)
     diagnostics = last_diagnostics(bag, cars)
     for i in range(1, cars + 1):
         name = f"car{i}"

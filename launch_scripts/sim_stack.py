@@ -341,7 +341,7 @@ def run_stack(
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
-        return analyse(bag, cars, track, contents_of=contents_of)
+        return analyse(contents_of, cars, track)
 
     report = launch_and_report(
         nodes,
@@ -362,7 +362,7 @@ def run_stack(
         },
     )
     if recorded:
-        plot(bag, cars, out, options.estimator, track, contents_of=contents_of)
+        plot(contents_of, cars, out, options.estimator, track)
     return report
 
 
@@ -559,26 +559,22 @@ def read_cars(bag: Path, cars: int) -> dict[str, BagContents]:
 
 
 def analyse(
-    bag: Path,
+    contents_of: dict[str, BagContents],
     cars: int,
     track: Track | None = None,
     truths: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
-    contents_of: dict[str, BagContents] | None = None,
 ) -> dict[str, Any]:
-    """Per car: laps, lap times, estimation RMSE, deadline misses, latencies.
+    """Per car: laps, lap times, estimation RMSE, deadline misses, latencies, from
+    ``contents_of``, what the bag holds of each car (:func:`read_cars`).
 
     The truth is the bag's ``ground_truth`` (the simulator's), unless ``truths`` gives it per
     car (``{"car1": (stamps (n,), states (n, 6))}``, e.g. a car emulator's log; a car missing
-    from it has no truth). ``contents_of`` (per car name): what the caller already read of the
-    bag; the cars missing from it are read here."""
-    from ros4crs.bag_replay import read_car
-
+    from it has no truth)."""
     track = track or load_demo_track()
     report: dict[str, Any] = {"cars": {}}
     for i in range(1, cars + 1):
         ns = f"/car{i}"
-        known = (contents_of or {}).get(ns.strip("/"))
-        contents = known if known is not None else read_car(bag, ns)
+        contents = contents_of[ns.strip("/")]
         car: dict[str, Any] = {"laps_completed": 0, "lap_times_s": []}
         if truths is not None:
             truth = truths.get(ns.strip("/"))

@@ -23,9 +23,6 @@ from crs_core.track import Track, load_demo_track
 if TYPE_CHECKING:
     from ros4crs.bag_replay import BagContents
 
-#: Topics (relative to the car's namespace) of the published estimate and of the truth.
-ESTIMATE_TOPIC, TRUTH_TOPIC = "estimate/state", "ground_truth"
-
 
 @dataclass
 class StateTrack:
@@ -39,30 +36,6 @@ class StateTrack:
     t: np.ndarray
     x: np.ndarray
     sigma: np.ndarray
-
-
-def read_states(bag: Path, topic: str) -> StateTrack:
-    """Every ``CarState`` on ``topic`` (absolute, e.g. ``/car1/estimate/state``) with its
-    covariance; messages with a non-finite state are skipped."""
-    from ros4crs.bag_repair import open_bag
-    from ros4crs.conversions import state_from_msg, state_sigma_from_msg
-    from ros4crs.interfaces import typestore
-
-    store = typestore()
-    states, sigmas = [], []
-    with open_bag(bag) as reader:  # a cut-off bag up to its last complete message
-        connections = [c for c in reader.connections if c.topic == topic]
-        # (an empty list would mean every message to rosbags)
-        for connection, _, data in reader.messages(connections) if connections else ():
-            msg = store.deserialize_cdr(bytes(data), connection.msgtype)
-            try:
-                state = state_from_msg(msg)
-                sigma = state_sigma_from_msg(msg)
-            except ValueError:
-                continue
-            states.append(state)
-            sigmas.append(sigma)
-    return state_track(states, sigmas)
 
 
 def state_track(
@@ -91,21 +64,20 @@ def estimate_errors(estimates: StateTrack, truth: StateTrack) -> tuple[np.ndarra
 
 
 def plot(
-    bag: Path,
+    contents_of: dict[str, BagContents],
     cars: int,
     out: Path,
     estimator: str = "",
     track: Track | None = None,
     truths: dict[int, StateTrack] | None = None,
     title: str | None = None,
-    contents_of: dict[str, BagContents] | None = None,
 ) -> None:
     """``path.png``: every car's truth and estimate on the track (with a zoomed inset), and the
     x, y and yaw estimation error over time (mm, mrad; against the simulator's truth) inside the
-    ±2σ band of the covariance the estimator published. ``truths`` (per car number) replaces
-    the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the figure's title;
-    ``contents_of`` (per car name) what the caller already read of the bag (the cars missing
-    from it are read here)."""
+    ±2σ band of the covariance the estimator published, from ``contents_of``, what the bag
+    holds of each car (:func:`~launch_scripts.sim_stack.read_cars`). ``truths`` (per car
+    number) replaces the bag's ``ground_truth`` (e.g. a car emulator's log); ``title`` the
+    figure's title."""
     from matplotlib.figure import Figure
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -113,17 +85,12 @@ def plot(
     track = track or load_demo_track()
     runs = {}
     for i in range(1, cars + 1):
-        contents = (contents_of or {}).get(f"car{i}")
-        if contents is not None:
-            estimates = state_track(contents.estimates, contents.estimate_sigmas)
-        else:
-            estimates = read_states(bag, f"/car{i}/{ESTIMATE_TOPIC}")
+        contents = contents_of[f"car{i}"]
+        estimates = state_track(contents.estimates, contents.estimate_sigmas)
         if truths is not None:
             truth = truths.get(i) or StateTrack(np.zeros(0), np.zeros((0, 6)), np.zeros((0, 6)))
-        elif contents is not None:
-            truth = state_track(contents.truth)
         else:
-            truth = read_states(bag, f"/car{i}/{TRUTH_TOPIC}")
+            truth = state_track(contents.truth)
         if estimates.t.size and truth.t.size:
             runs[i] = (estimates, truth, *estimate_errors(estimates, truth))
     t0 = min((run[0].t[0] for run in runs.values()), default=0.0)

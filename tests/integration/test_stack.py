@@ -14,7 +14,7 @@ import pytest
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
-from launch_scripts.sim_stack import StackOptions, analyse, stack_nodes
+from launch_scripts.sim_stack import StackOptions, analyse, read_cars, stack_nodes
 from tests.integration.stack_probe import (
     LapWatch,
     assert_clean_run,
@@ -81,7 +81,7 @@ def test_full_stack_drives_a_lap_with_the_mhe_in_the_loop(tmp_path, warm_codegen
     for log in (tmp_path / "logs").glob("*.log"):
         assert "FATAL" not in log.read_text(errors="replace"), log.read_text(errors="replace")
 
-    report = analyse(bag, 1)["cars"]["car1"]
+    report = analyse(read_cars(bag, 1), 1)["cars"]["car1"]
     cpu = {n: round(100 * s / launcher.wall_at_stop, 1) for n, s in launcher.cpu_at_stop.items()}
     print(f"report: {report}\ncpu %: {cpu}\nwall: {launcher.wall_at_stop:.1f} s")
     assert_tracked_lap(report)  # a lap, RMSE under RMSE_POSITION_M and RMSE_YAW_RAD

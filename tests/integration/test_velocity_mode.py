@@ -12,7 +12,7 @@ import pytest
 
 from crs_core.track import load_demo_track
 from launch_scripts.launcher import NodeSpec
-from launch_scripts.sim_stack import StackOptions, analyse, stack_nodes
+from launch_scripts.sim_stack import StackOptions, analyse, read_cars, stack_nodes
 from ros4crs import conversions
 from ros4crs.bag_replay import read_car
 from tests.integration.stack_probe import (
@@ -70,7 +70,7 @@ def test_velocity_mode_stack_drives_a_lap(tmp_path, warm_codegen):
 
     contents = read_car(bag, "/car1")
     assert contents.inputs == [] and contents.velocity_references > 100
-    report = analyse(bag, 1, track)["cars"]["car1"]
+    report = analyse(read_cars(bag, 1), 1, track)["cars"]["car1"]
     print(f"report: {report}")
     assert_tracked_lap(report)  # a lap, RMSE under RMSE_POSITION_M and RMSE_YAW_RAD
 

@@ -12,7 +12,9 @@ import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from crs_core.analysis.angles import wrap_angle
-from launch_scripts.stack_plot import estimate_errors, plot, read_states
+from launch_scripts.sim_stack import read_cars
+from launch_scripts.stack_plot import estimate_errors, plot, state_track
+from ros4crs.bag_replay import read_car
 from ros4crs.interfaces import typestore
 
 CAR_STATE = "chronos_msgs/msg/CarState"
@@ -78,20 +80,25 @@ def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def test_read_states_reads_the_covariance(bag: Path):
+def _estimates(bag: Path, car: str):
+    contents = read_car(bag, car)
+    return state_track(contents.estimates, contents.estimate_sigmas)
+
+
+def test_the_estimates_track_reads_the_covariance(bag: Path):
     """Stamps sorted, σ from the covariance diagonal, NaN where the covariance is all zeros."""
-    estimates = read_states(bag, "/car1/estimate/state")
+    estimates = _estimates(bag, "/car1")
     assert estimates.t.size == 480 and np.all(np.diff(estimates.t) > 0)
     assert estimates.sigma == pytest.approx(np.tile(SIGMA, (480, 1)))
-    assert np.all(np.isnan(read_states(bag, "/car2/estimate/state").sigma))
-    assert read_states(bag, "/car3/estimate/state").t.size == 0
+    assert np.all(np.isnan(_estimates(bag, "/car2").sigma))
+    assert _estimates(bag, "/car3").t.size == 0
 
 
 def test_estimate_errors_wrap_the_yaw_and_stay_within_the_truth(bag: Path):
     """Errors in mm / mrad against the interpolated truth (no spike where the yaw wraps), NaN
     before the first truth stamp."""
-    estimates = read_states(bag, "/car1/estimate/state")
-    errors, sigmas = estimate_errors(estimates, read_states(bag, "/car1/ground_truth"))
+    estimates = _estimates(bag, "/car1")
+    errors, sigmas = estimate_errors(estimates, state_track(read_car(bag, "/car1").truth))
     inside = (estimates.t >= T0 + 0.1) & (estimates.t <= T0 + 0.1 + 7.78)
     assert np.all(np.isnan(errors[~inside])) and np.isfinite(errors[inside]).all()
     # linear interpolation of a circle: the chord is off by < 0.05 mm at 50 Hz
@@ -104,6 +111,6 @@ def test_plot_writes_path_png(bag: Path, tmp_path: Path):
     for cars in (2, 1):
         out = tmp_path / str(cars)
         out.mkdir()
-        plot(bag, cars, out, "ekf")
+        plot(read_cars(bag, cars), cars, out, "ekf")
         data = (out / "path.png").read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 20_000
