@@ -29,6 +29,7 @@ from benchmarks.control import format_table as control_table
 from benchmarks.discrepancy import format_markdown as discrepancy_markdown
 from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
+from benchmarks.middleware_floor import format_markdown as floor_markdown
 from benchmarks.model import format_markdown as model_markdown
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
@@ -85,6 +86,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "stack": _headed("stack", stack_markdown),
     "stack_viz": _headed("stack", stack_markdown),
     "stack_scale": _headed("stack", stack_scale_markdown),
+    "middleware_floor": _headed("floor", floor_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),

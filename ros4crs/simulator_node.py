@@ -58,6 +58,9 @@ from sim.onboard import OnboardSettings
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
 
+#: Ground truth published per second unless ``truth_rate_hz`` says otherwise.
+DEFAULT_TRUTH_RATE_HZ = 50.0
+
 
 def parse_effects(text: str) -> dict[str, dict[str, float] | None]:
     """``"steering_lag=0.05,gyro_bias"`` -> the ``effects`` mapping of ``CarModel``.
@@ -97,7 +100,9 @@ class SimulatorNode(Node):
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
         self.rate_factor = declare(self, "rate_factor", 1.0, "simulated s per wall s", positive)
         tick_hz = declare(self, "tick_hz", 250.0, "how often the engine advances, Hz", positive)
-        truth_hz = declare(self, "truth_rate_hz", 50.0, "ground-truth rate, Hz", positive)
+        truth_hz = declare(
+            self, "truth_rate_hz", DEFAULT_TRUTH_RATE_HZ, "ground-truth rate, Hz", positive
+        )
         initial = declare_initial_state(self, "x, y, yaw, vx, vy, omega")
         self.duration = declare(self, "duration", 0.0, "stop after (s); 0 = never", non_negative)
         self.wait_for_subscribers = declare(

@@ -77,6 +77,14 @@ def stack(args: argparse.Namespace) -> Outcome:
     return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
 
 
+def floor(args: argparse.Namespace) -> Outcome:
+    from benchmarks.middleware_floor import floor_benchmark, format_markdown
+
+    work = _runs(args, "floor")
+    result = _with_machine(floor_benchmark(args.duration, args.repeats, work))
+    return result, f"{format_markdown(result)}\nruns of the real stack: {work}"
+
+
 def machines(args: argparse.Namespace) -> Outcome:
     from benchmarks.several_machines import format_table, machines_benchmark
 
@@ -243,6 +251,16 @@ def _stack_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _floor_options(parser: argparse.ArgumentParser) -> None:
+    add_duration(parser, 20.0, "wall-clock time of each run")
+    parser.add_argument(
+        "--repeats",
+        type=bounded_number("repeats", "", 0, 20, int),
+        default=3,
+        help="repeats (default 3)",
+    )
+
+
 def _bridge_options(parser: argparse.ArgumentParser) -> None:
     add_estimator(parser)
     add_seed(parser, "noise seed")
@@ -341,6 +359,15 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, deadline "
         "misses, re-initialisations, latencies, and CPU and peak memory per node; --load K busy "
         "processes beside it; the runs go to <out without .json>_runs/",
+    ),
+    "floor": (
+        floor,
+        _floor_options,
+        "what rclpy itself costs one car's pipeline: stand-in processes with the stack's "
+        "topics, message types, QoS and rates that compute nothing (with the pipeline's own "
+        "subscriptions, and publishing only) beside a raw stand-in recorder, and the real "
+        "one-car stack in the same run; CPU per process and the host's yardstick; "
+        "~repeats x (3 x duration + 30 s)",
     ),
     "machines": (
         machines,
