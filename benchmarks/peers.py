@@ -114,7 +114,7 @@ class FilterpyEkf(Estimator):
         self.model = model
         self.settings = settings or EkfSettings()
         self._p = model.parameters.vector()
-        self._q = self.settings.noise.process_std_for(model.state_names)
+        self._q = self.settings.noise.process_std_for(model)
         self._functions = compile_functions(
             self._build_functions(), self._library_name(model), backend
         )
@@ -304,7 +304,7 @@ class DoMpcMhe(Estimator):
         self._slot = {g: slice(offsets[i], offsets[i + 1]) for i, g in enumerate(self.groups)}
         self._ny = int(offsets[-1])
         self._inverse_variance = {g: 1.0 / s.noise.measurement_std(g) ** 2 for g in self.groups}
-        self._q = s.noise.process_std_for(model.state_names)
+        self._q = s.noise.process_std_for(model)
         extra = np.full(model.nx - 6, 0.05)
         self._default_initial_weight = 1.0 / np.concatenate([initial_std, extra]) ** 2
         self._arrival_weight = 1.0 / np.concatenate([arrival_std, extra]) ** 2

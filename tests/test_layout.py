@@ -77,6 +77,9 @@ STRAY: dict[str, str] = {
     # The tests of the package ros4crs/viz_page/ (its __init__.py: the page server) and of the
     # page's static files beside it.
     "tests/ros4crs/test_viz_page.py": "the ros4crs.viz_page package: page server and files",
+    # Online parameters (crs_core.model.online, tested beside it) estimated by the EKF and the
+    # MHE on simulated cars: the estimators and the model together, not one module.
+    "tests/crs_core/estimation/test_online.py": "online parameters through the EKF and the MHE",
 }
 
 

@@ -42,7 +42,8 @@ from crs_core.estimation.health import HealthMonitor, HealthSettings
 from crs_core.estimation.initialization import InitializationSettings, PoseInitializer
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import InputSample, Measurement, parse_lighthouse, sensor_size
-from crs_core.settings import Settings
+from crs_core.model.online import DEFAULT_REVERSION_S
+from crs_core.settings import Settings, positive
 
 #: Sensor groups an estimator can be told to use.
 SENSOR_GROUPS = ("lh", "imu", "gyro", "we", "pose")
@@ -110,6 +111,13 @@ class EstimatorSettings(Settings):
         Thresholds of the status words and of re-initialisation.
     initialization : InitializationSettings
         How a blind start (or re-initialisation) builds its state from Lighthouse fixes.
+    online_parameters : tuple of str
+        Model parameters (``Cm1``, an effect's ``gyro_bias``, ...) or ``grip`` estimated online
+        as slowly varying states (:mod:`crs_core.model.online`); an effect whose parameter is
+        named is switched on from 0 if the model lacks it. Empty: none.
+    online_reversion_s : float
+        Relaxation time of the online parameters to their priors, s: their random walk's
+        standard deviation per sqrt(s) is the prior's times ``sqrt(2 / online_reversion_s)``.
     """
 
     noise: EstimatorNoise = field(default_factory=EstimatorNoise)
@@ -117,6 +125,8 @@ class EstimatorSettings(Settings):
     time_offsets: Mapping[str, float] = field(default_factory=dict)
     health: HealthSettings = field(default_factory=HealthSettings)
     initialization: InitializationSettings = field(default_factory=InitializationSettings)
+    online_parameters: tuple[str, ...] = ()
+    online_reversion_s: float = positive(DEFAULT_REVERSION_S)
 
     def _check_relations(self) -> None:
         if len(self.initial_std) != 6 or not all(
@@ -137,6 +147,22 @@ class EstimatorSettings(Settings):
 
 
 @dataclass(frozen=True)
+class OnlineValue:
+    """An online parameter's estimate: its value and standard deviation (in the parameter's
+    unit), and whether the recent data inform it (its standard deviation below
+    :data:`INFORMED_FRACTION` of its prior's)."""
+
+    value: float
+    std: float
+    informed: bool
+
+
+#: An online parameter is informed while its standard deviation is below this share of its
+#: prior's (uninformed, it relaxes to the prior's).
+INFORMED_FRACTION = 0.7
+
+
+@dataclass(frozen=True)
 class Estimate:
     """State estimate at ``stamp`` (s).
 
@@ -153,6 +179,9 @@ class Estimate:
         ``ok``, ``degraded`` or ``lost`` (:mod:`~crs_core.estimation.health`).
     reason : str
         Why, when the status is not ``ok``.
+    parameters : mapping of str to OnlineValue
+        The online parameters of the estimation model (:mod:`crs_core.model.online`) by name;
+        empty without them and while lost.
     """
 
     stamp: float
@@ -160,6 +189,7 @@ class Estimate:
     covariance: np.ndarray
     status: str = "ok"
     reason: str = ""
+    parameters: Mapping[str, OnlineValue] = field(default_factory=dict)
 
     @property
     def summary(self) -> str:
@@ -349,7 +379,8 @@ class Estimator:
         if self._initializer is not None and not self._initialize(t):
             estimate = self._lost_estimate(t)
         else:
-            x, covariance = self._estimate(t)
+            full_x, full_covariance = self._estimate(t)
+            x, covariance = full_x[:6].copy(), full_covariance[:6, :6].copy()
             problem = self._implausible(x, t)
             if problem:
                 self.diagnostics.reinitializations += 1
@@ -365,11 +396,28 @@ class Estimator:
                     self._reset_state(t, estimate.x, None)
             else:
                 status, reason = self._health.status(t)
-                estimate = Estimate(t, x, covariance, status, reason)
+                online = self._online_values(full_x, full_covariance)
+                estimate = Estimate(t, x, covariance, status, reason, online)
         self._last_estimate = estimate
         self.diagnostics.status, self.diagnostics.reason = estimate.status, estimate.reason
         self.diagnostics.last_solve_time_s = time.perf_counter() - start
         return estimate
+
+    def _online_values(self, x: np.ndarray, covariance: np.ndarray) -> dict[str, OnlineValue]:
+        """The online parameters from the tail of the full state ``x`` and its covariance."""
+        online = self.model.online
+        if not len(online) or x.size != self.model.nx:
+            return {}
+        first = self.model.nx - len(online)
+        std = np.sqrt(np.clip(np.diag(covariance)[first:], 0.0, None))
+        return {
+            entry.name: OnlineValue(
+                float(x[first + k]),
+                float(std[k]),
+                bool(std[k] < INFORMED_FRACTION * entry.prior_std),
+            )
+            for k, entry in enumerate(online.entries)
+        }
 
     def _initialize(self, t: float) -> bool:
         """Feed the initializer the data up to ``t``; on a fix, restart from it."""
@@ -433,7 +481,8 @@ class Estimator:
 
     # --- to implement -----------------------------------------------------------------
     def _estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
-        """Process the queue up to ``t``; the base state at ``t`` (6,) and its covariance."""
+        """Process the queue up to ``t``; the state at ``t`` and its covariance: the model's
+        whole state (``nx``), or the base state alone (6,) for an estimator that keeps no more."""
         raise NotImplementedError
 
     def _reset_state(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None) -> None:

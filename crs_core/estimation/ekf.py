@@ -137,7 +137,7 @@ class EkfSteps:
             build_ekf_functions(model), f"ekf_{model.tag}_{model.n_base_stations}bs"
         )
         self._p = model.parameters.vector()
-        self._q = noise.process_std_for(model.state_names)
+        self._q = noise.process_std_for(model)
         self._noise = noise
         # chi-square quantile: chdtri inverts the upper tail (lighter to import than scipy.stats)
         self._gates = {m: chdtri(m, 1.0 - gate_probability) for m in range(1, 9)}
@@ -191,7 +191,7 @@ class ExtendedKalmanFilter(Estimator):
         super().__init__(sensors, model, settings)
         self.settings: EkfSettings = settings
         self._steps = EkfSteps(model, settings.noise, settings.gate_probability)
-        self._initial_std = initial_std_for(settings.initial_std, model.state_names)
+        self._initial_std = initial_std_for(settings.initial_std, model)
         self._cap = RejectionCap(settings.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
 
@@ -261,8 +261,7 @@ class ExtendedKalmanFilter(Estimator):
         event is predicted from the state kept after the last event at or before it."""
         self.process(t)
         if t >= self._t:
-            x, P = self._steps.predict(self._x, self._P, self._u, t - self._t)
-            return x[:6].copy(), P[:6, :6].copy()
+            return self._steps.predict(self._x, self._P, self._u, t - self._t)
         k = bisect.bisect_right(self._history, t, key=lambda h: h[0]) - 1
         if k < 0:
             oldest = self._history[0][0] if self._history else self._t
@@ -270,5 +269,4 @@ class ExtendedKalmanFilter(Estimator):
                 "t", f"{t:.3f} s is before the oldest state the EKF keeps ({oldest:.3f} s)"
             )
         stamp, x, P, u = self._history[k]
-        x, P = self._steps.predict(x, P, u, t - stamp)
-        return x[:6].copy(), P[:6, :6].copy()
+        return self._steps.predict(x, P, u, t - stamp)

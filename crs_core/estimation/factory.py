@@ -58,6 +58,8 @@ def make_estimator(
     model = model or CarModel()
     if model.estimated_inputs:
         raise FieldError("model", "give the commanded model; inputs='estimated' builds the other")
+    if settings.online_parameters:
+        model = model.with_online(settings.online_parameters, settings.online_reversion_s)
 
     if inputs == "commanded":
         return _new_estimator(model, sensors, settings)
@@ -82,5 +84,10 @@ def input_free_model(model: CarModel) -> CarModel:
     """The input-free twin of ``model``: same parameters, stations and sensor effects."""
     effects = [e.name for e in model.effects if e.name not in COMMAND_EFFECTS]
     return CarModel(
-        effects, model.n_base_stations, parameters=model.parameters, estimated_inputs=True
+        effects,
+        model.n_base_stations,
+        parameters=model.parameters,
+        estimated_inputs=True,
+        online_parameters=model.online.names,
+        online_reversion_s=model.online.reversion_s,
     )

@@ -210,8 +210,14 @@ class MovingHorizonEstimator(Estimator):
         self._row_group = np.concatenate([np.full(n, i) for i, n in enumerate(sizes)])
         self._row_inverse_std = 1.0 / np.concatenate([self._std[g] for g in self.groups])
         self._bounds = self._bound_data(model, s)
-        self._q = s.noise.process_std_for(model.state_names)
-        self._default_initial_weight = 1.0 / initial_std_for(s.initial_std, model.state_names) ** 2
+        self._q = s.noise.process_std_for(model)
+        self._default_initial_weight = 1.0 / initial_std_for(s.initial_std, model) ** 2
+        # the arrival cost's discount per node on each state: the online parameters' past is
+        # forgotten by their random walk, not by the discount (it halved their information
+        # every 14 nodes, and they were left with what one window of data says)
+        self._node_discount = np.where(
+            np.arange(model.nx) < model.nx - len(model.online), s.discount, 1.0
+        )
         self._max_catch_up = s.max_catch_up or s.horizon
         self._cap = RejectionCap(s.max_consecutive_rejections)
         self._forward = ForwardReadOut(model, s.noise)
@@ -221,7 +227,7 @@ class MovingHorizonEstimator(Estimator):
     def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
         names = model.state_names[6:]
         check_effect_state_names(s.extra_state_bounds, "extra_state_bounds")
-        table = {**EXTRA_STATE_BOUNDS, **s.extra_state_bounds}
+        table = {**EXTRA_STATE_BOUNDS, **model.online.bounds, **s.extra_state_bounds}
         extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]
         return np.concatenate(
             [
@@ -401,8 +407,7 @@ class MovingHorizonEstimator(Estimator):
             if k >= due - solves:
                 for _ in range(self.settings.iterations):
                     self._gauss_newton_step()
-        x, covariance = self._read_out(t)
-        return x[:6].copy(), covariance[:6, :6].copy()
+        return self._read_out(t)
 
     def _read_out(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """State and covariance at ``t``: the newest node carried forward over the data since
@@ -470,7 +475,7 @@ class MovingHorizonEstimator(Estimator):
         """Index of the first node in use and the information of its prior."""
         first = self.settings.horizon + 1 - self._active
         if self._arrival_information is None:  # start-up: the initial guess, discounted
-            weight = self.settings.discount ** (self._active - 1) * self._initial_weight
+            weight = self._node_discount ** (self._active - 1) * self._initial_weight
             return first, np.diag(weight)
         return first, self._arrival_information
 
@@ -514,7 +519,8 @@ class MovingHorizonEstimator(Estimator):
         from its linearization point. Minimising over ``d0`` leaves ``1/2 d1^T L d1 + b^T d1``
         with ``L = S0 - O0^T D0^-1 O0`` and ``b = g1 - O0^T D0^-1 g0``: the prior mean is
         ``x1_lin - L^-1 b`` and its information ``L`` (the EKF prediction in information form),
-        aged by one discount factor like every other term.
+        aged by one discount factor like every other term (not the online parameters: their
+        random walk ages them).
         """
         if self._last_blocks is None:  # no solve yet or it failed: keep the current prior
             self._arrival = self._X[:, 1].copy()
@@ -526,7 +532,8 @@ class MovingHorizonEstimator(Estimator):
         information = 0.5 * (information + information.T)
         information += np.eye(information.shape[0]) / self.settings.arrival_floor_std**2
         self._arrival = x1_lin - np.linalg.solve(information, b)
-        self._arrival_information = self.settings.discount * information
+        scale = np.sqrt(self._node_discount)
+        self._arrival_information = scale[:, None] * information * scale[None, :]
         self._last_blocks = None
 
     def _drop_undefined(self, residuals: np.ndarray) -> bool:

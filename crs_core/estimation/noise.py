@@ -10,8 +10,9 @@ import numpy as np
 
 from crs_core.errors import FieldError
 from crs_core.measurements import parse_lighthouse
-from crs_core.model.car_model import ESTIMATED_INPUT_STATES
+from crs_core.model.car_model import ESTIMATED_INPUT_STATES, CarModel
 from crs_core.model.effects import EFFECTS
+from crs_core.model.online import STATE_PREFIX as ONLINE_STATE_PREFIX
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
 #: initial standard deviation. Actuator lags follow their command closely (small noise); the
@@ -96,18 +97,19 @@ class EstimatorNoise:
         }
         return np.array(table[sensor], dtype=float)
 
-    def process_std_for(self, state_names: tuple[str, ...]) -> np.ndarray:
-        """Process noise per state of a model with these state names (base six first).
+    def process_std_for(self, model: CarModel) -> np.ndarray:
+        """Process noise per state of ``model`` (base six first; an online parameter's is its
+        random walk, :mod:`crs_core.model.online`).
 
         Entries for effect states this model lacks are allowed (one setting serves the
         commanded and the input-free model); names no model has are refused.
         """
         check_effect_state_names(self.extra_process_std, "noise.extra_process_std")
+        defaults = {name: std for name, (std, _) in EXTRA_STATE_DEFAULTS.items()}
+        defaults |= model.online.process_std
         extra = [
-            self.extra_process_std.get(
-                name, EXTRA_STATE_DEFAULTS.get(name, EXTRA_STATE_FALLBACK)[0]
-            )
-            for name in state_names[6:]
+            self.extra_process_std.get(name, defaults.get(name, EXTRA_STATE_FALLBACK[0]))
+            for name in model.state_names[6:]
         ]
         return np.array([*self.process_std, *extra], dtype=float)
 
@@ -118,14 +120,17 @@ def check_effect_state_names(names: Iterable[str], field: str) -> None:
     serves the commanded and the input-free model."""
     known = {name for effect in EFFECTS.values() for name, _ in effect.states}
     known |= {name for name, _ in ESTIMATED_INPUT_STATES}
-    unknown = set(names) - known
+    unknown = {name for name in names if not name.startswith(ONLINE_STATE_PREFIX)} - known
     if unknown:
         raise FieldError(
             field, f"{sorted(unknown)} are not effect states (known: {', '.join(sorted(known))})"
         )
 
 
-def initial_std_for(base_std: tuple[float, ...], state_names: tuple[str, ...]) -> np.ndarray:
-    """Initial standard deviation per state: ``base_std`` for the six, defaults for the rest."""
-    extra = [EXTRA_STATE_DEFAULTS.get(n, EXTRA_STATE_FALLBACK)[1] for n in state_names[6:]]
+def initial_std_for(base_std: tuple[float, ...], model: CarModel) -> np.ndarray:
+    """Initial standard deviation per state of ``model``: ``base_std`` for the six, defaults
+    for the rest (an online parameter's: its prior's)."""
+    defaults = {name: std for name, (_, std) in EXTRA_STATE_DEFAULTS.items()}
+    defaults |= model.online.prior_std
+    extra = [defaults.get(n, EXTRA_STATE_FALLBACK[1]) for n in model.state_names[6:]]
     return np.array([*base_std, *extra], dtype=float)

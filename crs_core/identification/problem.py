@@ -267,7 +267,7 @@ class FieProblem:
         dt = np.diff(data.t)
 
         # dynamics defects, one mapped RK4 step per substep count, weighted by Q_k^{-1/2}
-        q_std = s.noise.process_std_for(model.state_names) * s.process_scale
+        q_std = s.noise.process_std_for(model) * s.process_scale
         keys = [
             (int(c), substeps_for(float(np.max(d))))
             for c, d in zip(data.segment_count, data.segment_dt, strict=True)

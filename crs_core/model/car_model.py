@@ -30,6 +30,7 @@ from crs_core.model.chronos import (
 )
 from crs_core.model.effects import EFFECTS, Effect
 from crs_core.model.lighthouse import BaseStation
+from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
 from crs_core.parameters import ParameterSet
 from crs_core.yaml_io import load_yaml
 
@@ -128,6 +129,11 @@ class CarModel:
         and the command ``u`` is ignored. Effects on the command or the actuators
         (``steering_offset``, ``input_delay``, ``steering_lag``, ``motor_lag``) cannot be
         combined with it: without commands they are not defined.
+    online_parameters : sequence of str
+        Parameters (or ``"grip"``) carried as slowly varying states after all others,
+        ``online_<name>``, for an estimator to estimate online (:mod:`crs_core.model.online`).
+    online_reversion_s : float
+        Their relaxation time to the prior, s.
 
     Attributes
     ----------
@@ -148,6 +154,8 @@ class CarModel:
         parameters: ParameterSet | None = None,
         estimated_inputs: bool = False,
         base_stations: Sequence[BaseStation] | None = None,
+        online_parameters: Sequence[str] = (),
+        online_reversion_s: float = DEFAULT_REVERSION_S,
     ) -> None:
         if base_stations is not None:
             n_base_stations = len(base_stations)
@@ -184,9 +192,11 @@ class CarModel:
                 raise KeyError(f"parameters lack {sorted(missing)}")
             defaults = defaults.updated({n: parameters.value(n) for n in defaults.names})
         self.parameters = defaults.updated(effect_values)
+        self.online = OnlineParameters(online_parameters, self.parameters, online_reversion_s)
         extra_states = tuple(st for e in self.effects for st in e.states)
         if self.estimated_inputs:
             extra_states += ESTIMATED_INPUT_STATES
+        extra_states += tuple((e.state_name, e.unit) for e in self.online.entries)
         self.state_names = STATE_NAMES + tuple(name for name, _ in extra_states)
         self.state_units = STATE_UNITS + tuple(unit for _, unit in extra_states)
         self.nx, self.nu, self.np = len(self.state_names), 2, len(self.parameters)
@@ -196,7 +206,8 @@ class CarModel:
         """Pickle by the constructor arguments (the CasADi graph is rebuilt, not serialised):
         a model crosses into worker processes."""
         names = [e.name for e in self.effects]
-        return (CarModel, (names, self.n_base_stations, self.parameters, self.estimated_inputs))
+        arguments = (names, self.n_base_stations, self.parameters, self.estimated_inputs)
+        return (CarModel, (*arguments, None, self.online.names, self.online.reversion_s))
 
     # --- symbolic model ------------------------------------------------------------------
     def _build_symbolic(self) -> None:
@@ -205,11 +216,16 @@ class CarModel:
         p = ca.SX.sym("p", self.np)
         index = {name: i for i, name in enumerate(self.parameters.names)}
 
-        def P(name: str) -> ca.SX:
+        def parameter(name: str) -> ca.SX:
             return p[index[name]]
 
+        # the online parameters' states stand in for the parameters in every expression
+        P = self.online.access(x[self.nx - len(self.online) :], parameter)
         self.x_sym, self.u_sym, self.p_sym = x, u, p
         xdot, applied = self._rhs(x, u, P)
+        if len(self.online):
+            online_states = x[self.nx - len(self.online) :]
+            xdot = ca.vertcat(xdot, self.online.derivative(online_states, parameter))
         outputs = {
             "imu": sensors.imu(x, applied, P),
             "wheel_encoders": sensors.wheel_encoders(x, applied, P),
@@ -228,7 +244,8 @@ class CarModel:
         self.applied_input_expression = applied
 
     def _rhs(self, x: ca.SX, u: ca.SX, P) -> tuple[ca.SX, ca.SX]:
-        """State derivative and applied input for augmented state ``x`` and command ``u``."""
+        """State derivative (without the online parameters') and applied input for augmented
+        state ``x`` and command ``u``."""
         for effect in self.effects:
             u = effect.command(u, P)
         derivatives = []
@@ -273,6 +290,23 @@ class CarModel:
         spec = {**dict.fromkeys(effects_in_file(path)), **given}
         model = cls(spec, n_base_stations)
         return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path))
+
+    def with_online(self, names: Sequence[str], reversion_s: float) -> CarModel:
+        """This model with online parameters ``names`` (:mod:`crs_core.model.online`); an
+        effect one of them belongs to is switched on, its parameters at 0 (the base model),
+        when this model lacks it."""
+        owners = {p.name: e.name for e in EFFECTS.values() for p in e.parameters}
+        added = {
+            owners[name]: dict.fromkeys((p.name for p in EFFECTS[owners[name]].parameters), 0.0)
+            for name in names
+            if name not in self.parameters.names and name in owners
+        }
+        spec: dict[str, Mapping[str, float] | None] = {e.name: None for e in self.effects}
+        spec |= added
+        stations = self.n_base_stations
+        widened = CarModel(spec, stations, estimated_inputs=self.estimated_inputs).parameters
+        parameters = widened.updated({n: self.parameters.value(n) for n in self.parameters.names})
+        return CarModel(spec, stations, parameters, self.estimated_inputs, None, names, reversion_s)
 
     @cached_property
     def dynamics_function(self) -> ca.Function:
@@ -319,12 +353,15 @@ class CarModel:
         extra = [value for e in self.effects for value in e.initial_states(command)]
         if self.estimated_inputs:
             extra += command
+        extra += self.online.initial_values(self.parameters)
         return np.array(base + extra)
 
     @property
     def tag(self) -> str:
         """Short identifier of the model structure (effects, input mode) for generated code."""
         parts = [e.name for e in self.effects] + (["estinputs"] if self.estimated_inputs else [])
+        if len(self.online):
+            parts.append("online_" + "_".join(self.online.names))
         return "_".join(parts) or "base"
 
     @cached_property
@@ -335,7 +372,8 @@ class CarModel:
     def __repr__(self) -> str:
         names = ", ".join(e.name for e in self.effects) or "none"
         inputs = "; inputs estimated" if self.estimated_inputs else ""
-        return f"CarModel(effects: {names}; stations: {self.n_base_stations}{inputs})"
+        online = f"; online: {', '.join(self.online.names)}" if len(self.online) else ""
+        return f"CarModel(effects: {names}; stations: {self.n_base_stations}{inputs}{online})"
 
 
 class NumericModel:

@@ -53,7 +53,7 @@ def test_prediction_follows_the_model_and_adds_the_process_noise(model: CarModel
     np.testing.assert_allclose(
         np.ravel(x), model.numeric.step(X, U, model.parameters.vector(), h), rtol=0, atol=1e-12
     )
-    q = EstimatorNoise().process_std_for(model.state_names)
+    q = EstimatorNoise().process_std_for(model)
     np.testing.assert_allclose(np.array(P), np.diag(np.square(q)) * h, rtol=1e-12, atol=0)
     x0, P0 = steps.predict(X, np.eye(6), U, 0.0)  # no time: nothing changes
     np.testing.assert_array_equal(x0, X)

@@ -12,5 +12,5 @@ def test_effect_states_get_noise_by_name():
     """``steering_lag`` adds ``steer_applied``: its process noise is set by name."""
     noise = EstimatorNoise(extra_process_std={"steer_applied": 0.3})
     model = CarModel(["steering_lag"])
-    assert noise.process_std_for(model.state_names)[-1] == 0.3
-    assert math.isclose(EstimatorNoise().process_std_for(model.state_names)[-1], 1e-3)
+    assert noise.process_std_for(model)[-1] == 0.3
+    assert math.isclose(EstimatorNoise().process_std_for(model)[-1], 1e-3)

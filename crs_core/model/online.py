@@ -1,0 +1,164 @@
+r"""Parameters an estimator carries as slowly varying states ("online parameters").
+
+A chosen model parameter :math:`\theta` (``Cm1``, an effect's ``gyro_bias``, ...) or the grip
+factor :math:`g` (``grip``: both axles' tyre peaks ``Df`` and ``Dr`` scaled together, which
+racing data inform through the cornering stiffness where they do not tell ``D`` from ``B``)
+becomes one more state of the estimation model, after the effect states, with the dynamics
+
+.. math::
+
+    \dot\theta = -(\theta - \theta_0) / T, \qquad
+    \text{process noise } \sigma = \sigma_0 \sqrt{2 / T},
+
+an Ornstein-Uhlenbeck process around the prior :math:`\theta_0` (the parameter's value in the
+model's parameter vector; 1 for the grip factor) whose stationary standard deviation is the
+prior's :math:`\sigma_0`. Data that inform the parameter move it as fast as the random walk
+lets them; a parameter the data do not inform relaxes to its prior with its prior's
+uncertainty within a few ``T`` instead of drifting along a flat direction. Everywhere else in
+the model (dynamics and sensors) the state takes the parameter's place.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+
+from crs_core.errors import FieldError
+from crs_core.model.effects import EFFECTS
+from crs_core.parameters import ParameterSet
+
+#: The grip factor's name and the tyre peaks it scales.
+GRIP = "grip"
+GRIP_SCALES = ("Df", "Dr")
+#: The grip factor's prior standard deviation (-) and soft bounds.
+GRIP_PRIOR_STD = 0.1
+GRIP_BOUNDS = (0.3, 1.5)
+#: Default relaxation time T of an online parameter to its prior, s.
+DEFAULT_REVERSION_S = 120.0
+#: Prefix of an online parameter's state name (``online_Cm1``).
+STATE_PREFIX = "online_"
+
+
+@dataclass(frozen=True)
+class OnlineParameter:
+    """One online parameter: its prior, prior standard deviation, unit and soft bounds."""
+
+    name: str
+    prior: float
+    prior_std: float
+    unit: str
+    lower: float
+    upper: float
+
+    @property
+    def state_name(self) -> str:
+        return STATE_PREFIX + self.name
+
+
+def parse_online_names(text: str) -> tuple[str, ...]:
+    """``"Cm1,gyro_bias,grip"`` -> the names, in order, each once (empty items refused)."""
+    names = [item.strip() for item in text.split(",")]
+    if not text.strip() or any(not name for name in names):
+        raise FieldError("online_parameters", f"a comma-separated list of names, got {text!r}")
+    duplicates = sorted({name for name in names if names.count(name) > 1})
+    if duplicates:
+        raise FieldError("online_parameters", f"{', '.join(duplicates)} named twice")
+    return tuple(names)
+
+
+class OnlineParameters:
+    """The online parameters of a model, in state order, and how they enter its expressions.
+
+    Parameters
+    ----------
+    names : sequence of str
+        Parameter names of ``parameters`` or ``"grip"``.
+    parameters : ParameterSet
+        The model's parameters (the priors, units, prior standard deviations and bounds).
+    reversion_s : float
+        :math:`T`, s.
+    """
+
+    def __init__(self, names: Sequence[str], parameters: ParameterSet, reversion_s: float) -> None:
+        if not reversion_s > 0 or not math.isfinite(reversion_s):
+            raise FieldError(
+                "online_reversion_s", f"must be a finite number > 0, got {reversion_s}"
+            )
+        self.reversion_s = float(reversion_s)
+        entries = []
+        for name in names:
+            if name == GRIP:
+                low, high = GRIP_BOUNDS
+                entries.append(OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", low, high))
+                continue
+            if name not in parameters.names:
+                owner = [e.name for e in EFFECTS.values() if name in {p.name for p in e.parameters}]
+                hint = (
+                    f"a parameter of the effect {owner[0]}, which the model does not have"
+                    if owner
+                    else f"known: {', '.join((*parameters.names, GRIP))}"
+                )
+                raise FieldError("online_parameters", f"no parameter {name!r} ({hint})")
+            p = parameters[name]
+            entries.append(OnlineParameter(name, p.value, p.prior_std, p.unit, p.lower, p.upper))
+        clash = [e.name for e in entries if e.name in GRIP_SCALES]
+        if clash and GRIP in names:
+            raise FieldError(
+                "online_parameters",
+                f"{', '.join(clash)} and grip together: grip scales {' and '.join(GRIP_SCALES)}",
+            )
+        self.entries: tuple[OnlineParameter, ...] = tuple(entries)
+        self.names = tuple(e.name for e in entries)
+        self.state_names = tuple(e.state_name for e in entries)
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    @property
+    def process_std(self) -> dict[str, float]:
+        """Random-walk standard deviation per sqrt(s) of each state, by state name."""
+        rate = math.sqrt(2.0 / self.reversion_s)
+        return {e.state_name: e.prior_std * rate for e in self.entries}
+
+    @property
+    def prior_std(self) -> dict[str, float]:
+        """Initial (and stationary) standard deviation of each state, by state name."""
+        return {e.state_name: e.prior_std for e in self.entries}
+
+    @property
+    def bounds(self) -> dict[str, tuple[float, float]]:
+        """Soft bounds of each state, by state name."""
+        return {e.state_name: (e.lower, e.upper) for e in self.entries}
+
+    def access(self, states: ca.SX, P: Callable[[str], ca.SX]) -> Callable[[str], ca.SX]:
+        """The parameter access of the model with these online ``states`` (one per entry) in
+        place of the parameters: ``P`` for every other name."""
+        index = {name: k for k, name in enumerate(self.names)}
+        grip = index.get(GRIP)
+
+        def online_access(name: str) -> ca.SX:
+            if name in index:
+                return states[index[name]]
+            if grip is not None and name in GRIP_SCALES:
+                return P(name) * states[grip]
+            return P(name)
+
+        return online_access
+
+    def derivative(self, states: ca.SX, P: Callable[[str], ca.SX]) -> ca.SX:
+        """:math:`-(\\theta - \\theta_0) / T` per state, the priors read through ``P``."""
+        priors = [1.0 if e.name == GRIP else P(e.name) for e in self.entries]
+        return ca.vertcat(
+            *[-(states[k] - prior) / self.reversion_s for k, prior in enumerate(priors)]
+        )
+
+    def initial_values(self, parameters: ParameterSet) -> list[float]:
+        """The states at their priors."""
+        return [1.0 if e.name == GRIP else parameters.value(e.name) for e in self.entries]
+
+    def values_of(self, states: Iterable[float]) -> dict[str, float]:
+        """``{name: value}`` of the online states (the last ``len(self)`` of a model state)."""
+        return dict(zip(self.names, (float(v) for v in states), strict=True))
