@@ -257,3 +257,33 @@ def _track_near(points: np.ndarray) -> Track | None:
         & (points[1] < track.y.max() + margin)
     )
     return track if inside.mean() > 0.8 else None
+
+
+def write_online_figure(result: OfflineEstimates, path: Path, title: str) -> Path:
+    """One panel per online parameter: its estimate with the ±2σ band over the run, the prior
+    dashed; the stretches where the data informed it drawn solid, the others faint."""
+    online = result.online
+    t = result.t - result.t[0]
+    figure = Figure(figsize=(9.0, 2.2 * len(online.names) + 0.6), layout="constrained")
+    axes = figure.subplots(len(online.names), 1, sharex=True, squeeze=False)[:, 0]
+    priors = result.estimator.model.online.priors
+    for ax, name, value, std, informed in zip(
+        axes, online.names, online.value, online.std, online.informed, strict=True
+    ):
+        ax.fill_between(t, value - 2 * std, value + 2 * std, color="C0", alpha=0.2, lw=0)
+        ax.plot(t, np.where(informed, value, np.nan), color="C0", lw=1.2, label="informed")
+        ax.plot(
+            t,
+            np.where(informed, np.nan, value),
+            color="C0",
+            lw=1.0,
+            alpha=0.4,
+            label="not informed",
+        )
+        ax.axhline(priors[name][0], color="0.4", ls="--", lw=0.8, label="prior")
+        ax.set_ylabel(name)
+    axes[0].legend(loc="upper right", fontsize="small", ncol=3)
+    axes[-1].set_xlabel("time since the first stamp [s]")
+    figure.suptitle(f"{title}: online parameters (±2σ)", fontsize="medium")
+    figure.savefig(path, dpi=110)
+    return path

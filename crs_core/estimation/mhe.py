@@ -462,7 +462,10 @@ class MovingHorizonEstimator(Estimator):
         first = M + 1 - self._active
         ages = np.arange(M, -1, -1, dtype=float)  # node j has age M - j
         node_discount = s.discount**ages
-        wp = np.sqrt(s.discount ** ages[1:] / self._DT[0])[None, :] / self._q[:, None]
+        # the online parameters' random walk is not discounted with the data (its own
+        # reversion forgets their past): a discounted walk let them wander in the window
+        stage_discount = self._node_discount[:, None] ** ages[None, 1:]
+        wp = np.sqrt(stage_discount / self._DT[0][None, :]) / self._q[:, None]
         wp[:, :first] = 0.0
         count = np.maximum(self._count, 1)
         row_count = self._count[self._row_group]

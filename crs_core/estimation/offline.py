@@ -47,6 +47,7 @@ from crs_core.estimation.base import (
 )
 from crs_core.estimation.factory import KINDS, make_estimator
 from crs_core.estimation.mhe import MheSettings
+from crs_core.estimation.online_track import OnlineTrack
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.model.car_model import effects_in_file
@@ -156,6 +157,8 @@ class OfflineEstimates:
         sample counts) and timing.
     estimator : Estimator
         The estimator after the run (on the dataset's clock).
+    online : OnlineTrack
+        The online parameters at the same stamps (none without them).
     """
 
     t: np.ndarray
@@ -165,6 +168,7 @@ class OfflineEstimates:
     reasons: np.ndarray
     diagnostics: dict[str, Any]
     estimator: Estimator = field(repr=False)
+    online: OnlineTrack = field(default_factory=lambda: OnlineTrack.empty(0))
 
     @property
     def status_codes(self) -> np.ndarray:
@@ -172,16 +176,23 @@ class OfflineEstimates:
         return np.array([STATUS_CODES[s] for s in self.status], dtype=np.int8)
 
     def save_npz(self, path: str | Path) -> Path:
-        """Write ``t``, ``x``, ``status`` (codes), ``covariance_diag`` and ``state_names``."""
+        """Write ``t``, ``x``, ``status`` (codes), ``covariance_diag`` and ``state_names``, and
+        with online parameters ``online_names``, ``online_value``, ``online_std`` and
+        ``online_informed`` (each (P, N))."""
         path = Path(path)
-        np.savez_compressed(
-            path,
-            t=self.t,
-            x=self.x,
-            status=self.status_codes,
-            covariance_diag=self.covariance_diag,
-            state_names=np.array(STATE_NAMES),
-        )
+        arrays: dict[str, Any] = {
+            "t": self.t,
+            "x": self.x,
+            "status": self.status_codes,
+            "covariance_diag": self.covariance_diag,
+            "state_names": np.array(STATE_NAMES),
+        }
+        if self.online.names:
+            arrays["online_names"] = np.array(self.online.names)
+            arrays["online_value"] = self.online.value
+            arrays["online_std"] = self.online.std
+            arrays["online_informed"] = self.online.informed
+        np.savez_compressed(path, **arrays)
         return path
 
 
@@ -282,6 +293,7 @@ def estimate_dataset(
     estimator.reset(t_start, start_x, start_cov)
     n = len(stamps)
     x, variances, times = np.zeros((6, n)), np.zeros((6, n)), np.zeros(n)
+    online = OnlineTrack.empty(n, estimator.model.online.names)
     status, reasons = np.empty(n, dtype=object), np.empty(n, dtype=object)
     k_event, report_every = 0, max(1, n // 200)
     wall = time.perf_counter()
@@ -294,6 +306,7 @@ def estimate_dataset(
         times[k] = time.perf_counter() - started
         x[:, k], variances[:, k] = estimate.x, np.diag(estimate.covariance)
         status[k], reasons[k] = estimate.status, estimate.reason
+        online.set(k, estimate.parameters)
         if progress is not None and (k % report_every == 0 or k == n - 1):
             progress((k + 1) / n)
     wall = time.perf_counter() - wall
@@ -330,7 +343,9 @@ def estimate_dataset(
         "wall_time_s": wall,
         "time_per_sample_ms": summary(times * 1e3),
     }
-    return OfflineEstimates(stamps, x, variances, status, reasons, diagnostics, estimator)
+    if online.names:
+        diagnostics["online_parameters"] = online.final_summary()
+    return OfflineEstimates(stamps, x, variances, status, reasons, diagnostics, estimator, online)
 
 
 def data_span(dataset: Dataset, with_inputs: bool = True) -> tuple[float, float]:
@@ -367,6 +382,21 @@ def query_stamps(at: Any, start: float, end: float) -> np.ndarray:
             f"({start:.3f} .. {end:.3f} s)",
         )
     return stamps
+
+
+def stamps_within(at: Any, start: float, end: float) -> tuple[np.ndarray, int]:
+    """The stamps of ``at`` (checked as :func:`query_stamps` checks them) within the data from
+    ``start`` to ``end`` (s), and how many lay outside; :class:`~crs_core.errors.FieldError`
+    (field ``at``) when none is inside."""
+    stamps = query_stamps(at, -math.inf, math.inf)
+    inside = stamps[(stamps >= start) & (stamps <= end)]
+    if not inside.size:
+        raise FieldError(
+            "at",
+            f"{stamps[0]:.3f} .. {stamps[-1]:.3f} s: no stamp lies inside the data "
+            f"({start:.3f} .. {end:.3f} s)",
+        )
+    return inside, int(stamps.size - inside.size)
 
 
 def rate_stamps(dataset: Dataset, rate_hz: float) -> np.ndarray:

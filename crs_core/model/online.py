@@ -129,6 +129,11 @@ class OnlineParameters:
         return {e.state_name: e.prior_std for e in self.entries}
 
     @property
+    def priors(self) -> dict[str, tuple[float, float]]:
+        """Each parameter's prior value and standard deviation, by parameter name."""
+        return {e.name: (e.prior, e.prior_std) for e in self.entries}
+
+    @property
     def bounds(self) -> dict[str, tuple[float, float]]:
         """Soft bounds of each state, by state name."""
         return {e.state_name: (e.lower, e.upper) for e in self.entries}

@@ -48,18 +48,26 @@ def estimate(args: argparse.Namespace) -> None:
     """``crs estimate``: an estimator over a dataset; estimates, diagnostics and a figure."""
     from tqdm import tqdm
 
+    from crs_core.estimation import EkfSettings, MheSettings
     from crs_core.estimation.offline import (
         data_span,
         dataset_model,
         estimate_dataset,
-        query_stamps,
         rate_stamps,
         reference_comparison,
+        stamps_within,
     )
-    from launch_scripts.estimate_report import format_summary, write_figure
+    from crs_core.model.online import parse_online_names
+    from launch_scripts.estimate_report import format_summary, write_figure, write_online_figure
 
     x0 = parse_x0(args.x0)
     rate = parse_rate(args.rate)
+    online = ()
+    if args.online_params is not None:
+        try:
+            online = parse_online_names(args.online_params)
+        except FieldError as error:
+            raise error.renamed("--online-params") from None
     if args.sensors != "auto":
         try:
             parse_sensor_set(args.sensors)
@@ -70,9 +78,15 @@ def estimate(args: argparse.Namespace) -> None:
     if args.at is not None:  # checked before --out is touched
         try:
             span = data_span(dataset, with_inputs=args.inputs != "estimated")
-            at = query_stamps(_stamps(args.at), *span)
+            at, outside = stamps_within(_stamps(args.at), *span)
         except FieldError as error:
             raise error.renamed("--at") from None
+        if outside:
+            print(
+                f"warning: --at: {outside} of {outside + len(at)} stamps lie outside the data "
+                f"({span[0]:.3f} .. {span[1]:.3f} s) and are left out",
+                file=sys.stderr,
+            )
     elif args.output_rate is not None:
         at = rate_stamps(dataset, args.output_rate)
     try:
@@ -84,6 +98,15 @@ def estimate(args: argparse.Namespace) -> None:
         raise ValueError(f"--params: {error.args[0]}") from None
     except OSError as error:
         raise ValueError(f"--params: cannot read {args.params} ({error.strerror})") from None
+    settings = (
+        MheSettings(rate_hz=rate or MheSettings().rate_hz, online_parameters=online)
+        if args.estimator == "mhe"
+        else EkfSettings(online_parameters=online)
+    )
+    try:  # the model with its online parameters, before --out is touched
+        model.with_online(online, settings.online_reversion_s)
+    except FieldError as error:
+        raise error.renamed("--online-params") from None
     out = prepare_output(Path(args.out), "estimate", args.overwrite)
     name = Path(args.dataset).resolve().name
     with tqdm(total=1000, desc=f"estimate {name}", file=sys.stderr, disable=None) as bar:
@@ -93,9 +116,9 @@ def estimate(args: argparse.Namespace) -> None:
                 args.estimator,
                 args.sensors,
                 model=model,
+                settings=settings,
                 inputs=args.inputs,
                 x0=x0,
-                rate_hz=rate,
                 progress=lambda fraction: bar.update(round(1000 * fraction) - bar.n),
                 at=at,
             )
@@ -120,7 +143,16 @@ def estimate(args: argparse.Namespace) -> None:
     )
     write_figure(result, dataset, out / "estimate.png", title)
     print(format_summary(name, result.diagnostics, comparison, duration))
-    print(f"wrote {out / 'estimates.npz'}, diagnostics.json, estimate.png")
+    written = "diagnostics.json, estimate.png"
+    if online:
+        priors = result.estimator.model.online.priors
+        result.online.write_csv(out / "online_parameters.csv", result.t - result.t[0], priors)
+        write_online_figure(result, out / "online_parameters.png", name)
+        for parameter, final in result.diagnostics["online_parameters"].items():
+            state = "informed" if final["informed"] else "not informed by the data"
+            print(f"  {parameter}: {final['value']:.6g} ± {final['std']:.2g} at the end ({state})")
+        written += ", online_parameters.csv, online_parameters.png"
+    print(f"wrote {out / 'estimates.npz'}, {written}")
 
 
 def _stamps(path: Path) -> np.ndarray:
@@ -160,6 +192,13 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "--rate", metavar="HZ", help="MHE grid rate, Hz (default 60; the EKF has no grid)"
     )
     sub.add_argument(
+        "--online-params",
+        metavar="NAMES",
+        help="parameters estimated online beside the state, comma-separated: model parameters "
+        "(Cm1, an effect's gyro_bias, ...) or grip (both tyre peaks scaled together); writes "
+        "online_parameters.csv (t, name, value, std) and online_parameters.png",
+    )
+    sub.add_argument(
         "--params",
         type=Path,
         help="parameter YAML applied to the model (default: the Chronos parameters with the "
@@ -170,8 +209,9 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "--at",
         type=Path,
         metavar="TIMES.npy",
-        help="estimate at these stamps (s, the recording's clock; strictly increasing, within "
-        "the data; e.g. a motion-capture clock) instead of the recording's samples",
+        help="estimate at these stamps (s, the recording's clock; strictly increasing; e.g. a "
+        "motion-capture clock) instead of the recording's samples; stamps outside the data are "
+        "left out with a warning",
     )
     when.add_argument(
         "--output-rate",

@@ -212,3 +212,15 @@ def test_estimates_at_other_stamps(drive: Dataset):
     assert ours["rmse_settled"]["x"] == pytest.approx(theirs["rmse_settled"]["x"], abs=2e-3)
     with pytest.raises(FieldError, match=r"^output_rate: must be finite and > 0 Hz"):
         rate_stamps(drive, 0.0)
+
+
+def test_stamps_outside_the_data_are_left_out_and_counted():
+    from crs_core.estimation.offline import stamps_within
+
+    inside, outside = stamps_within([0.5, 1.0, 2.0, 3.013], 0.0, 3.0)
+    np.testing.assert_array_equal(inside, [0.5, 1.0, 2.0])
+    assert outside == 1
+    with pytest.raises(FieldError, match=r"^at: 4\.000 \.\. 5\.000 s: no stamp lies inside"):
+        stamps_within([4.0, 5.0], 0.0, 3.0)
+    with pytest.raises(FieldError, match="strictly increasing"):
+        stamps_within([1.0, 1.0], 0.0, 3.0)

@@ -77,6 +77,9 @@ def test_estimate_prints_a_short_summary(estimate_run):
         (["--rate", "inf"], "--rate: must be a finite number of Hz > 0"),
         (["--sensors", "lh+sonar"], "--sensors: 'lh+sonar' must combine"),
         (["--sensors", "pose"], "sensors: the dataset has no data for pose"),
+        (["--online-params", "Cm1,,grip"], "--online-params: a comma-separated list"),
+        (["--online-params", "Cm9"], "--online-params: no parameter 'Cm9' (known: "),
+        (["--online-params", "Df,grip"], "--online-params: Df and grip together"),
     ],
 )
 def test_estimate_bad_arguments_are_one_line_errors(
@@ -103,8 +106,8 @@ def test_estimate_missing_dataset_or_unwritable_out(
 
 
 def test_estimate_a_bag_at_a_fixed_rate_and_at_given_stamps(tmp_path: Path, crs, crs_refuses):
-    """A bag is a recording too (its car named); --output-rate and --at choose the stamps, which
-    must lie within the data."""
+    """A bag is a recording too (its car named); --output-rate and --at choose the stamps; those
+    outside the data are left out with a warning that counts them, and none inside is refused."""
     from tests.ros4crs.bag_builders import simulated_run, two_car_bag
 
     bag = two_car_bag(simulated_run(), tmp_path / "bag")
@@ -121,8 +124,40 @@ def test_estimate_a_bag_at_a_fixed_rate_and_at_given_stamps(tmp_path: Path, crs,
     code, _, warned = crs([*base, "--at", str(tmp_path / "at.npy"), "--out", str(tmp_path / "at")])
     assert code == 0, warned
     np.testing.assert_array_equal(np.load(tmp_path / "at" / "estimates.npz")["t"], stamps)
+    # one stamp 13 ms past the end (a motion-capture clock): estimated at the others
+    np.save(tmp_path / "past.npy", np.append(stamps, saved["t"][-1] + 0.013 + 0.02))
+    past = [*base, "--at", str(tmp_path / "past.npy"), "--out", str(tmp_path / "past")]
+    code, _, warned = crs(past)
+    assert code == 0 and "warning: --at: 1 of 11 stamps lie outside the data" in warned, warned
+    np.testing.assert_array_equal(np.load(tmp_path / "past" / "estimates.npz")["t"], stamps)
     np.save(tmp_path / "late.npy", saved["t"][-2:] + 10.0)
     late = [*base, "--at", str(tmp_path / "late.npy"), "--out", str(tmp_path / "late")]
-    assert "--at: " in crs_refuses(late) and "reaches outside the data" in crs_refuses(late)
+    assert "--at: " in crs_refuses(late) and "no stamp lies inside the data" in crs_refuses(late)
     both = [*base, "--at", "x.npy", "--output-rate", "5", "--out", str(tmp_path / "both")]
     assert "not allowed with argument" in crs_refuses(both)
+
+
+def test_online_parameters_are_written_with_their_priors_first(small_dataset: Path, tmp_path: Path):
+    """--online-params: a CSV of t, name, value, std (each parameter's prior first, then a row
+    per parameter per estimate), the figure, and the final values in the diagnostics."""
+    import csv
+
+    out = tmp_path / "online"
+    argv = ["estimate", str(small_dataset), "--estimator", "ekf", "--x0", "0,0,0"]
+    argv += ["--online-params", "Cm1,gyro_bias", "--out", str(out)]
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(argv) == 0
+    rows = list(csv.DictReader((out / "online_parameters.csv").open()))
+    assert list(rows[0]) == ["t", "name", "value", "std"]
+    assert [(r["t"], r["name"]) for r in rows[:2]] == [("0.0000", "Cm1"), ("0.0000", "gyro_bias")]
+    assert float(rows[1]["value"]) == 0.0 and float(rows[1]["std"]) == 0.25  # the prior
+    n = Dataset.load(small_dataset).t.size
+    assert len(rows) == 2 + 2 * n
+    report = json.loads((out / "diagnostics.json").read_text())
+    assert set(report["online_parameters"]) == {"Cm1", "gyro_bias"}
+    with np.load(out / "estimates.npz") as data:
+        assert list(data["online_names"]) == ["Cm1", "gyro_bias"]
+        assert data["online_value"].shape == (2, n)
+    assert (out / "online_parameters.png").read_bytes()[:4] == b"\x89PNG"
+    assert "gyro_bias: " in printed.getvalue() and "online_parameters.csv" in printed.getvalue()
