@@ -26,6 +26,7 @@ from tqdm import tqdm
 from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
+from sim.drift import DriftSchedule, drifted_vector
 from sim.onboard import MODES, OnboardLoop, OnboardSettings
 from sim.result import SimulationResult
 from sim.sensors import SensorSpec, SensorSuite
@@ -66,6 +67,10 @@ class Simulator:
     onboard : OnboardSettings, optional
         Run the car's onboard low-level loop (steering actuator, steering and velocity PIDs;
         :mod:`sim.onboard`). Default ``None``: commands act on the model directly.
+    drift : DriftSchedule, optional
+        Changes of the truth over time, counted from the first command the car applies
+        (:mod:`sim.drift`); the effects it changes are switched on (at 0) where ``model``
+        lacks them.
     """
 
     def __init__(
@@ -74,6 +79,7 @@ class Simulator:
         sensors: SensorSuite | None = None,
         seed: int = 0,
         onboard: OnboardSettings | None = None,
+        drift: DriftSchedule | None = None,
     ):
         if onboard is not None and not isinstance(onboard, OnboardSettings):
             raise FieldError("onboard", f"must be an OnboardSettings or None, got {onboard!r}")
@@ -81,7 +87,8 @@ class Simulator:
             raise FieldError("onboard", "the input-free model takes no commands")
         if int(seed) < 0:  # numpy's seeds are not negative
             raise FieldError("seed", f"must be >= 0, got {seed!r}")
-        self.model = model
+        self.model = drift.model_for(model) if drift is not None else model
+        self.drift = drift
         self.sensors = sensors or SensorSuite()
         self.seed = int(seed)
         self.onboard = onboard
@@ -160,6 +167,9 @@ class SimulationSession:
         model, sensors, seed = simulator.model, simulator.sensors, simulator.seed
         self._numeric = model.numeric
         self._p = model.parameters.vector()
+        self._initial_p = self._p.copy()
+        #: When the car applied its first command (the drift's origin), s; None before.
+        self.first_command_time: float | None = None
         self._delay = model.input_delay()
         self._x = model.initial_state(np.asarray(x0, dtype=float))
         self._u = np.zeros(2)
@@ -250,6 +260,8 @@ class SimulationSession:
 
     def _apply(self, payload: object) -> None:
         """A command reaches the car (or, with the onboard loop, its controllers)."""
+        if self.first_command_time is None:
+            self.first_command_time = self._now
         if self.onboard is None:
             self._u = payload
             return
@@ -294,8 +306,21 @@ class SimulationSession:
             self.measurements.extend(new)
         return new
 
+    @property
+    def drifted(self) -> dict[str, float]:
+        """The parameters the drift schedule changes, as they are now (empty without one)."""
+        schedule = self.simulator.drift
+        if schedule is None:
+            return {}
+        names = self.simulator.model.parameters.names
+        return {name: float(self._p[names.index(name)]) for name in schedule.parameters}
+
     def _integrate_to(self, t: float) -> None:
         if t > self._now:
+            schedule = self.simulator.drift
+            if schedule is not None and self.first_command_time is not None:
+                since = self._now - self.first_command_time
+                self._p = drifted_vector(schedule, self.simulator.model, since, self._initial_p)
             self._x = self._numeric.step(self._x, self._u, self._p, t - self._now)
             self._now = t
             if not self.keep_history:  # only the current state
