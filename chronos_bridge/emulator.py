@@ -68,6 +68,7 @@ from crs_core.measurements import Measurement
 from crs_core.model import CarModel
 from crs_core.settings import Settings, non_negative
 from sim.cutoff import MotorCutoff
+from sim.drift import DriftSchedule
 from sim.onboard import OnboardSettings
 from sim.sensors import SensorSuite
 from sim.simulator import SimulationSession, Simulator
@@ -154,6 +155,8 @@ class CarEmulator:
         Unix time (s) at ``now = 0`` of the emulator's clock, for ``Packet.timestamp``.
     timestamps : bool
         Stamp the car's packets (True, a synchronised car) or leave the stamp out.
+    drift : DriftSchedule, optional
+        Changes of the car's truth while it races (:mod:`sim.drift`).
 
     Counters: ``steps``, ``states_sent``, ``pings_sent``, ``ping_replies`` (the host's
     answers), ``commands`` (valid references applied), ``rejected`` (a ``Counter`` by reason:
@@ -171,6 +174,7 @@ class CarEmulator:
         battery: BatteryModel | None = None,
         unix_offset: float = DEFAULT_UNIX_OFFSET,
         timestamps: bool = True,
+        drift: DriftSchedule | None = None,
     ) -> None:
         if x0 is None:
             from crs_core.track import load_demo_track
@@ -190,7 +194,9 @@ class CarEmulator:
             raise FieldError("onboard.rate_hz", f"must be 250, got {self.onboard_settings.rate_hz}")
         if not math.isfinite(unix_offset):
             raise FieldError("unix_offset", f"must be finite, got {unix_offset!r}")
-        self.simulator = Simulator(self.model, sensors, seed, onboard=self.onboard_settings)
+        self.simulator = Simulator(
+            self.model, sensors, seed, onboard=self.onboard_settings, drift=drift
+        )
         self.session: SimulationSession = self.simulator.session(
             np.asarray(x0, dtype=float), keep_history=False
         )

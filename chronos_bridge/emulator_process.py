@@ -63,6 +63,7 @@ from chronos_bridge.impairment import (
 from crs_core.errors import FieldError, parse_finite
 from crs_core.model import CarModel
 from crs_core.model.effects import effect_spec, parse_effect
+from sim.drift import DriftSchedule, load_drift
 
 PROG = "crs car-emulator"
 DESCRIPTION = (
@@ -99,6 +100,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         metavar="NAME[.PARAM][=VALUE]",
         help="a hidden effect of the emulated car (repeatable), e.g. steering_lag=0.05",
+    )
+    parser.add_argument(
+        "--drift",
+        metavar="FILE.yaml",
+        help="the car changes while it races, as this schedule says (sim.drift: a list of "
+        "{parameter or effect, at_s or from_s/to_s, factor or value}, seconds since the car "
+        "applied its first command); --truth-out records the changed parameters",
     )
     parser.add_argument(
         "--duration", help="stop after this many s (default: run until SIGINT/SIGTERM)"
@@ -173,6 +181,7 @@ def options(args: argparse.Namespace) -> dict:
             raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
     return {
         "model": _car_model(args.params, args.effect or []),
+        "drift": _drift(args.drift, _car_model(args.params, args.effect or [])),
         "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),
         "bind": (str(bind), _port("--port", args.port, allow_zero=True)),
         "seed": seed,
@@ -201,11 +210,25 @@ def _car_model(params: str | None, effects: list[str]) -> CarModel:
         raise FieldError("--params", str(message)) from None
 
 
+def _drift(path: str | None, model: CarModel) -> DriftSchedule | None:
+    """``--drift``: the schedule, checked against the emulated car (errors name the option)."""
+    if path is None:
+        return None
+    try:
+        schedule = load_drift(path)
+        schedule.model_for(model)
+    except FieldError as error:
+        raise FieldError(f"--drift: {error.field}", error.reason) from None
+    return schedule
+
+
 def _describe_car(args: argparse.Namespace) -> str:
     """``params FILE, effects a, b`` for the start-up line of a car that is not the default."""
     parts = [f"params {args.params}"] if args.params is not None else []
     if args.effect:
         parts.append("effects " + ", ".join(args.effect))
+    if args.drift is not None:
+        parts.append(f"drift {args.drift}")
     return "; ".join(parts)
 
 
@@ -257,6 +280,15 @@ class TruthLog:
         self.pause_last_command_t: list[float] = []
         self.resume_t: list[float] = []
         self.link: dict[str, object] = {}
+        #: With a drift schedule: each changed parameter at every step, by name.
+        self.drifted: dict[str, list[float]] = {}
+
+    def record_step(self, stamp: float, x: object, drifted: dict[str, float]) -> None:
+        """One step: its stamp, the true base state and the drifted parameters' values."""
+        self.t.append(stamp)
+        self.x.append(x)
+        for name, value in drifted.items():
+            self.drifted.setdefault(name, []).append(value)
 
     def record_link(self, channels: dict[str, ImpairedChannel], until: float) -> None:
         """The outage windows (started before ``until``, the loop's clock) and counters of
@@ -285,6 +317,7 @@ class TruthLog:
                 )
             },
             **{name: np.asarray(value) for name, value in self.link.items()},
+            **{f"drift_{name}": np.asarray(v, dtype=float) for name, v in self.drifted.items()},
         }
         partial = path.with_name(path.name + ".partial.npz")
         np.savez(partial, **arrays)
@@ -318,6 +351,7 @@ def run(args: argparse.Namespace) -> int:
     emulator = CarEmulator(
         model=opts["model"],
         seed=opts["seed"],
+        drift=opts["drift"],
         unix_offset=time.time() - start,
         timestamps=opts["timestamps"],
     )
@@ -327,7 +361,7 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
         flush=True,
     )
-    if args.params is not None or args.effect:
+    if args.params is not None or args.effect or args.drift is not None:
         print(f"{PROG}: car {_describe_car(args)}", file=sys.stderr, flush=True)
     if not (link.up.clean and link.down.clean):
         print(
@@ -377,8 +411,9 @@ def run(args: argparse.Namespace) -> int:
                     flush=True,
                 )
             if opts["truth_out"] is not None:
-                log.t.append(emulator.unix_offset + now)
-                log.x.append(emulator.truth().copy())
+                log.record_step(
+                    emulator.unix_offset + now, emulator.truth().copy(), emulator.session.drifted
+                )
             for datagram in datagrams:
                 up.send(datagram, now)
             send_errors += _send(sock, up.due(now), host)

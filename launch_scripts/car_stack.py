@@ -70,6 +70,7 @@ from launch_scripts.sim_stack import (
     read_cars,
     recorder_node,
     run_folder,
+    write_online_parameters,
 )
 from launch_scripts.warm_cache import warm_compile_cache
 
@@ -234,6 +235,7 @@ def run_car_stack(
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
+        write_online_parameters(contents_of, out, options.params_file)
         return analyse_car_run(contents_of, bag, cars, out, emulate)
 
     report = launch_and_report(

@@ -80,31 +80,40 @@ class CarTruth:
         Their parameter YAML (None: the stack's ``params_file``).
     effects : tuple
         Their hidden effects, parsed (:func:`crs_core.model.effects.parse_effect`).
+    drift_file : Path or None
+        A schedule of changes to their truth while they race (:mod:`sim.drift`; None: none).
     """
 
     params_file: Path | None = None
     effects: tuple[tuple[str, str | None, float | None], ...] = ()
+    drift_file: Path | None = None
 
     def simulator_parameters(self) -> dict[str, str]:
-        """The simulator node's ``params_file`` and ``effects`` for this truth (none: its
-        defaults)."""
+        """The simulator node's ``params_file``, ``effects`` and ``drift_file`` for this truth
+        (none: its defaults)."""
         out = {"params_file": str(Path(self.params_file).resolve())} if self.params_file else {}
         if self.effects:
             out["effects"] = ",".join(effect_text(e) for e in self.effects)
+        if self.drift_file:
+            out["drift_file"] = str(Path(self.drift_file).resolve())
         return out
 
     def described(self) -> dict[str, Any]:
-        """For a report: the parameter file and the effects (None / [] : the stack's model)."""
+        """For a report: the parameter file, the effects and the drift schedule (None / [] /
+        None: the stack's model, unchanging)."""
         return {
             "params_file": str(self.params_file) if self.params_file else None,
             "effects": [effect_text(e) for e in self.effects],
+            "drift_file": str(self.drift_file) if self.drift_file else None,
         }
 
     def emulator_arguments(self) -> list[str]:
-        """``crs car-emulator``'s ``--params`` and ``--effect`` for this truth."""
+        """``crs car-emulator``'s ``--params``, ``--effect`` and ``--drift`` for this truth."""
         out = ["--params", str(Path(self.params_file).resolve())] if self.params_file else []
         for effect in self.effects:
             out += ["--effect", effect_text(effect)]
+        if self.drift_file:
+            out += ["--drift", str(Path(self.drift_file).resolve())]
         return out
 
 
@@ -169,6 +178,9 @@ class StackOptions:
         A run's duration counts from the moment every process has started (at most
         :data:`STARTUP_LIMIT_S` after the launch), not from the launch: a loaded machine's
         start-up does not eat a short run (the tests' way; ``crs launch --after-start-up``).
+    online_parameters : tuple of str
+        Parameters every car's estimator estimates online (:mod:`crs_core.model.online`;
+        published on ``estimate/parameters``, written to ``online_parameters_carN.csv``).
     """
 
     estimator: str
@@ -186,6 +198,7 @@ class StackOptions:
     viz: VizSettings | None = None
     process_per_node: bool = False
     after_start_up: bool = False
+    online_parameters: tuple[str, ...] = ()
 
     def pipeline_process(self) -> str:
         """The process a car's pipeline nodes share (``""``: each its own)."""
@@ -291,7 +304,12 @@ def car_control_nodes(
     hold_safe = controller_hold_safe(options, over_udp)
     if hold_safe is not None:
         commands["hold_safe"] = hold_safe
-    estimator = {"estimator": options.estimator, "blind_start": options.blind_start}
+    estimator: dict[str, Any] = {
+        "estimator": options.estimator,
+        "blind_start": options.blind_start,
+    }
+    if options.online_parameters:
+        estimator["online_parameters"] = ",".join(options.online_parameters)
     return [
         NodeSpec(
             "estimator",
@@ -341,6 +359,7 @@ def run_stack(
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
+        write_online_parameters(contents_of, out, options.params_file)
         return analyse(contents_of, cars, track)
 
     report = launch_and_report(
@@ -556,6 +575,34 @@ def read_cars(bag: Path, cars: int) -> dict[str, BagContents]:
     from ros4crs.bag_replay import read_car
 
     return {f"car{i}": read_car(bag, f"/car{i}") for i in range(1, cars + 1)}
+
+
+def write_online_parameters(
+    contents_of: dict[str, BagContents], out: Path, params_file: Path | None
+) -> list[Path]:
+    """``out/online_parameters_carN.csv`` (``t, name, value, std``) of each car whose
+    estimator published online parameters: ``t`` in s since the car's first command, each
+    parameter's prior first (the model of ``params_file``'s)."""
+    from crs_core.estimation.online_track import OnlineTrack
+    from crs_core.model import CarModel
+    from crs_core.model.online import DEFAULT_REVERSION_S
+
+    written = []
+    for car, contents in contents_of.items():
+        messages = contents.online_parameters
+        if not messages or not contents.inputs:
+            continue
+        names = tuple(messages[0][1])
+        track = OnlineTrack.empty(len(messages), names)
+        for k, (_, parameters) in enumerate(messages):
+            track.set(k, parameters)
+        model = CarModel.from_file(params_file).with_online(names, DEFAULT_REVERSION_S)
+        origin = contents.inputs[0].stamp
+        stamps = np.array([stamp for stamp, _ in messages]) - origin
+        path = out / f"online_parameters_{car}.csv"
+        prior_t = min(0.0, float(stamps[0]))  # estimates before the first command: earlier
+        written.append(track.write_csv(path, stamps, model.online.priors, prior_t))
+    return written
 
 
 def analyse(

@@ -24,7 +24,7 @@ import numpy as np
 from rosbags.rosbag2 import Reader
 
 from crs_core.errors import FieldError
-from crs_core.estimation.base import Estimate, Estimator
+from crs_core.estimation.base import Estimate, Estimator, OnlineValue
 from crs_core.measurements import InputSample, Measurement, from_start, in_stamp_order
 from ros4crs import conversions
 from ros4crs.bag_repair import open_bag
@@ -78,6 +78,8 @@ class BagContents:
     receive_times: dict[str, list[tuple[float, float]]] = field(
         default_factory=lambda: {kind: [] for kind in _RECEIVE_KINDS}
     )
+    #: ``estimate/parameters``: each message's stamp and its online parameters by name.
+    online_parameters: list[tuple[float, dict[str, OnlineValue]]] = field(default_factory=list)
 
 
 def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -> BagContents:
@@ -99,6 +101,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
     store = typestore()
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
+    online: list[tuple[float, dict[str, OnlineValue]]] = []
     estimate_sigmas: list[np.ndarray] = []
     receive_times: dict[str, list[tuple[float, float]]] = {k: [] for k in _RECEIVE_KINDS}
     malformed = velocity_references = 0
@@ -149,6 +152,8 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
                 diagnostics = msg
             elif family == "query":
                 queries.append(Query(*conversions.query_from_msg(msg)))
+            elif family == "parameters":
+                online.append(conversions.online_parameters_from_msg(msg))
         except ValueError:
             malformed += 1
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
@@ -164,6 +169,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
         input_topic=input_topic,
         estimate_sigmas=estimate_sigmas,
         receive_times=receive_times,
+        online_parameters=online,
     )
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)

@@ -45,7 +45,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from crs_core.errors import FieldError
-from crs_core.estimation.base import Estimate
+from crs_core.estimation.base import Estimate, OnlineValue
 from crs_core.estimation.lighthouse_pose import PoseFix
 from crs_core.measurements import (
     InputSample,
@@ -69,6 +69,7 @@ TOPICS = {
     "odometry": "estimate/odometry",
     "diagnostics": "estimate/diagnostics",
     "query": "estimate/query",
+    "parameters": "estimate/parameters",
     "plan": "controller/plan",
     "reference": "controller/reference",
     "solve_time": "controller/solve_time",
@@ -434,6 +435,44 @@ def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
     transform.transform.translation.y = float(x[1])
     _fill_yaw(transform.transform.rotation, x[2])
     return TFMessage(transforms=[transform])
+
+
+def online_parameters_msg(estimate: Estimate) -> Any:
+    """``chronos_msgs/OnlineParameters`` of an estimate's online parameters."""
+    from chronos_msgs.msg import OnlineParameters
+
+    parameters = estimate.parameters
+    msg = OnlineParameters(
+        names=list(parameters),
+        values=[p.value for p in parameters.values()],
+        stds=[p.std for p in parameters.values()],
+        informed=[p.informed for p in parameters.values()],
+    )
+    fill_stamp(msg.header.stamp, estimate.stamp)
+    return msg
+
+
+def online_parameters_from_msg(msg: Any) -> tuple[float, dict[str, OnlineValue]]:
+    """``chronos_msgs/OnlineParameters`` -> (stamp, value, std and informed by name); a
+    message whose lists differ in length, or with a value or std that is not finite (a std
+    below 0), is refused naming the field."""
+    names = list(msg.names)
+    if len(set(names)) != len(names) or not all(names):
+        raise FieldError("names", f"must be distinct, non-empty names, got {names}")
+    for field in ("values", "stds", "informed"):
+        if len(getattr(msg, field)) != len(names):
+            raise FieldError(
+                field, f"has {len(getattr(msg, field))} entries for {len(names)} names"
+            )
+    values = _finite("values", list(msg.values), len(names))
+    stds = _finite("stds", list(msg.stds), len(names))
+    if np.any(stds < 0):
+        raise FieldError("stds", "must be >= 0")
+    online = {
+        name: OnlineValue(float(v), float(s), bool(i))
+        for name, v, s, i in zip(names, values, stds, msg.informed, strict=True)
+    }
+    return seconds_from_stamp(msg.header.stamp), online
 
 
 def query_msg(stamp: float, start: bool, newest: dict[str, float], oldest: dict[str, float]) -> Any:

@@ -52,7 +52,11 @@ late update does not make the next one later still; default 2), ``inputs`` (auto
 estimated), ``stations``, ``params_file`` (model parameter YAML, optional), ``track_file`` (CRS
 track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track's start),
 ``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse), ``time_offsets``
-(per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger).
+(per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger),
+``online_parameters`` (parameters estimated online beside the state, e.g. "Cm1,gyro_bias,grip";
+:mod:`crs_core.model.online`; default none): with them, each published estimate is followed by
+``estimate/parameters`` (``chronos_msgs/OnlineParameters``: value, standard deviation and whether
+informed, per parameter).
 """
 
 from __future__ import annotations
@@ -63,6 +67,7 @@ from typing import Any
 import numpy as np
 from rclpy.node import Node
 
+from crs_core.errors import FieldError
 from crs_core.estimation import (
     INPUT_MODES,
     KINDS,
@@ -76,6 +81,7 @@ from crs_core.estimation import (
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.estimation.realtime import RealtimeEstimator, RealtimeSettings
 from crs_core.measurements import Measurement
+from crs_core.model.online import parse_online_names
 from ros4crs import conversions
 from ros4crs.node_support import (
     LOG_QOS,
@@ -137,6 +143,14 @@ class EstimatorNode(Node):
         blind_start = declare(self, "blind_start", False, "start from the Lighthouse")
         if blind_start and not parse_sensor_set(sensors) & {"lh", "pose"}:
             raise ParameterError("blind_start", "needs lh (Lighthouse) or pose among the sensors")
+        online_text = declare(
+            self,
+            "online_parameters",
+            "",
+            "parameters estimated online, e.g. Cm1,gyro_bias,grip (empty: none)",
+            parsed_with(lambda text: parse_online_names(text) if text.strip() else ()),
+        )
+        online_names = parse_online_names(online_text) if online_text.strip() else ()
         stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
         model = declare_model(self, n_base_stations=stations)
         initial = np.asarray(declare_initial_state(self, "initial estimate"))
@@ -155,11 +169,15 @@ class EstimatorNode(Node):
                 rate_hz=self.rate_hz,
                 time_offsets=offsets,
                 catch_up_solves=solves,
+                online_parameters=online_names,
             )
             if kind == "mhe"
-            else EkfSettings(time_offsets=offsets)
+            else EkfSettings(time_offsets=offsets, online_parameters=online_names)
         )
-        self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
+        try:
+            self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)
+        except FieldError as error:  # an online parameter the model does not have
+            raise ParameterError(error.field, error.reason) from None
         self.fixes = (
             LighthouseFixes(
                 LighthousePoseSolver(model, settings.noise.lighthouse_std),
@@ -181,6 +199,7 @@ class EstimatorNode(Node):
             CarState,
             EstimatorDiagnostics,
             EstimatorQuery,
+            OnlineParameters,
             SensorBatch,
         )
         from tf2_msgs.msg import TFMessage
@@ -225,6 +244,11 @@ class EstimatorNode(Node):
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
         self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
+        self._parameters = (
+            self.create_publisher(OnlineParameters, conversions.TOPICS["parameters"], LOG_QOS)
+            if online_names
+            else None
+        )
         self._fix_publisher = self.create_publisher(
             PoseWithCovarianceStamped, conversions.TOPICS["lighthouse_fix"], 10
         )
@@ -330,6 +354,8 @@ class EstimatorNode(Node):
         )
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
+        if self._parameters is not None and estimate.parameters:
+            self._parameters.publish(conversions.online_parameters_msg(estimate))
 
     def timing_stats(self) -> dict[str, float]:
         """What the estimator's own computing cost so far (:func:`ros4crs.node_support.run_nodes`

@@ -25,7 +25,8 @@ its compiler), ``onboard``
 ``sensor_messages`` and ``batch_period`` (:mod:`ros4crs.sensor_output`; the period in simulated
 time), ``command_timeout`` (s of simulated time without a command that cut the drive motor, as
 the car's firmware does after 200 ms (:mod:`sim.cutoff`): torque 0, the steering held, until the
-next command; 0 = hold the last command for ever).
+next command; 0 = hold the last command for ever), ``drift_file`` (a schedule of changes to the
+simulated car while it races, :mod:`sim.drift`; empty: none).
 """
 
 from __future__ import annotations
@@ -38,9 +39,11 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 
+from crs_core.errors import FieldError
 from crs_core.model.effects import effect_spec, parse_effect
 from ros4crs import conversions
 from ros4crs.node_support import (
+    ParameterError,
     declare,
     declare_initial_state,
     declare_model,
@@ -54,6 +57,7 @@ from ros4crs.node_support import (
 )
 from ros4crs.sensor_output import declare_sensor_output
 from sim.cutoff import DISCONNECT_THRESHOLD_S, MotorCutoff
+from sim.drift import load_drift
 from sim.onboard import OnboardSettings
 from sim.sensors import Blackout, SensorSuite, parse_blackout
 from sim.simulator import Simulator
@@ -130,14 +134,25 @@ class SimulatorNode(Node):
         self._now = 0.0
         self._steer = 0.0
         self._cut_log = throttled_warning(self)
+        drift_file = declare(
+            self,
+            "drift_file",
+            "",
+            "YAML schedule of changes to the car's truth (empty: none)",
+            parsed_with(lambda path: load_drift(path) if path else None),
+        )
+        drift = load_drift(drift_file) if drift_file else None
         sensors = SensorSuite(blackouts=blackouts)
         model = declare_model(self, effects, n_base_stations=stations)
         onboard = OnboardSettings() if self.onboard else None
         if onboard is not None and noise_free:
             onboard = onboard.ideal()
-        simulator = Simulator(
-            model, sensors.ideal() if noise_free else sensors, seed, onboard=onboard
-        )
+        try:
+            simulator = Simulator(
+                model, sensors.ideal() if noise_free else sensors, seed, onboard, drift
+            )
+        except FieldError as error:  # the schedule names a parameter the car lacks
+            raise ParameterError("drift_file", f"{error.field}: {error.reason}") from None
         self.session = simulator.session(np.asarray(initial, dtype=float), keep_history=False)
         self._warn_mode = throttled_warning(self)
         #: Commands refused for their mode (velocity references without the onboard loop).

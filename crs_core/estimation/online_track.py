@@ -68,16 +68,21 @@ class OnlineTrack:
         return out
 
     def write_csv(
-        self, path: str | Path, t: np.ndarray, priors: Mapping[str, tuple[float, float]]
+        self,
+        path: str | Path,
+        t: np.ndarray,
+        priors: Mapping[str, tuple[float, float]],
+        prior_t: float | None = None,
     ) -> Path:
         """``t, name, value, std``: each parameter's prior (``priors``: value and std by name,
-        :attr:`~crs_core.model.online.OnlineParameters.priors`) at ``t[0]``, then one row per
-        parameter per estimate that carried it; ``t`` in seconds since the run's origin."""
+        :attr:`~crs_core.model.online.OnlineParameters.priors`) at ``prior_t`` (default
+        ``t[0]``), then one row per parameter per estimate that carried it; ``t`` (the
+        estimates' times) in seconds since the run's origin."""
         path = Path(path)
         with path.open("w", newline="") as stream:
             writer = csv.writer(stream)
             writer.writerow(CSV_COLUMNS)
-            start = float(t[0]) if len(t) else 0.0
+            start = prior_t if prior_t is not None else (float(t[0]) if len(t) else 0.0)
             for name in self.names:
                 value, std = priors[name]
                 writer.writerow((f"{start:.4f}", name, repr(float(value)), repr(float(std))))

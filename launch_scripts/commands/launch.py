@@ -10,6 +10,7 @@ from pathlib import Path
 from chronos_bridge.impairment import SPEC_HELP
 from crs_core.control.supervisor import HOLD_SAFE_MODES
 from crs_core.errors import FieldError
+from crs_core.model.online import DEFAULT_REVERSION_S, parse_online_names
 from launch_scripts.arguments import (
     ZENOH_OPEN,
     Command,
@@ -38,6 +39,7 @@ from launch_scripts.stack_part import (
 from launch_scripts.visualizer import VizSettings, add_serving_options
 from ros4crs.zenoh.admission import check_listening
 from ros4crs.zenoh.session import MODES
+from sim.drift import load_drift
 
 
 def launch(args: argparse.Namespace) -> None:
@@ -84,10 +86,21 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
         **{field: getattr(args, field) for field in same_name},
         params_file=args.params,
         track_file=args.track,
-        car=CarTruth(args.car_params, tuple(args.car_effect or ())),
+        car=CarTruth(args.car_params, tuple(args.car_effect or ()), args.car_drift),
         part=_stack_part(args),
+        online_parameters=_online_names(args.online_params),
         viz=_viz_settings(args),
     )
+
+
+def _online_names(text: str | None) -> tuple[str, ...]:
+    """``--online-params``: the names (checked against the model before the launch)."""
+    if text is None:
+        return ()
+    try:
+        return parse_online_names(text)
+    except FieldError as error:
+        raise error.renamed("--online-params") from None
 
 
 #: ``crs launch``'s visualizer options, by the :class:`VizSettings` field they set.
@@ -143,13 +156,26 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
         )
     if args.params is not None:
         build_model([], 1, args.params)
-    car_truth = args.car_params is not None or args.car_effect
+    car_truth = args.car_params is not None or args.car_effect or args.car_drift is not None
     if car_truth and args.scenario == "car" and not args.emulate:
         raise ValueError(
             "--car-params: only for simulated or emulated cars (a real car is what it is)"
         )
     if car_truth:
-        build_model(args.car_effect or [], 1, args.car_params or args.params, "--car-params")
+        model = build_model(
+            args.car_effect or [], 1, args.car_params or args.params, "--car-params"
+        )
+        if args.car_drift is not None:
+            try:
+                load_drift(args.car_drift).model_for(model)
+            except FieldError as error:
+                raise error.within("--car-drift") from None
+    if args.online_params is not None:
+        online = _online_names(args.online_params)
+        try:
+            build_model([], 1, args.params).with_online(online, DEFAULT_REVERSION_S)
+        except FieldError as error:
+            raise error.renamed("--online-params") from None
     prepare_output(Path(args.out), "launch", args.overwrite)
 
 
@@ -330,6 +356,21 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "e.g. steering_lag=0.05; the stack's model does not have it",
         dest="car_effect",
         flag="--car-effect",
+    )
+    sub.add_argument(
+        "--car-drift",
+        type=Path,
+        metavar="FILE.yaml",
+        help="sim, car --emulate: the simulated or emulated cars change while they race, as this "
+        "schedule says (drift: a list of {parameter or effect, at_s or from_s/to_s, factor or "
+        "value}, seconds since the car applied its first command; docs/online.md)",
+    )
+    sub.add_argument(
+        "--online-params",
+        metavar="NAMES",
+        help="parameters every estimator estimates online, comma-separated (e.g. "
+        "Cm1,gyro_bias,grip): published on estimate/parameters and written to "
+        "OUT/online_parameters_carN.csv (docs/online.md)",
     )
     sub.add_argument(
         "--record",
