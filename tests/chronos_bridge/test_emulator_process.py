@@ -230,6 +230,22 @@ def test_a_car_that_is_not_the_default(tmp_path: Path) -> None:
     assert weak < 0.75 * default
 
 
+def test_a_drifting_car_logs_its_drifted_parameters(tmp_path: Path) -> None:
+    """--drift: the motor constant halves 0.3 s after the first command; the truth log has it
+    at every step, the start value before and half of it after."""
+    drift = tmp_path / "drift.yaml"
+    drift.write_text("drift:\n  - {parameter: Cm1, at_s: 0.3, factor: 0.5}\n")
+    _, errors = _speed_after_commands(tmp_path / "drift.npz", "--drift", str(drift))
+    assert f"drift {drift}" in errors
+    truth = np.load(tmp_path / "drift.npz")
+    cm1 = truth["drift_Cm1"]
+    assert cm1.size == truth["t"].size
+    first_command = truth["command_read_t"][0]
+    before = cm1[truth["t"] < first_command + 0.25]
+    after = cm1[truth["t"] > first_command + 0.35]
+    assert np.allclose(before, before[0]) and np.allclose(after, 0.5 * before[0])
+
+
 @pytest.mark.parametrize(
     ("options", "message"),
     [
@@ -237,6 +253,8 @@ def test_a_car_that_is_not_the_default(tmp_path: Path) -> None:
         (["--effect", "steering_lag=fast"], "--effect: effect 'steering_lag': 'fast' is not a"),
         (["--params", "nowhere.yaml"], "--params: 'nowhere.yaml' is not a file"),
         (["--params", "BAD"], "--params: BAD: unknown parameter"),
+        (["--drift", "nowhere.yaml"], "--drift: drift: cannot read nowhere.yaml"),
+        (["--drift", "DRIFT"], "--drift: drift[0].parameter: the car has no parameter 'warp'"),
     ],
 )
 def test_car_option_errors_name_the_option(
@@ -246,7 +264,9 @@ def test_car_option_errors_name_the_option(
 
     bad = tmp_path / "bad.yaml"
     bad.write_text("parameters:\n  warp_drive: 1.0\n")
-    options = [str(bad) if o == "BAD" else o for o in options]
+    drift = tmp_path / "drift.yaml"
+    drift.write_text("drift:\n  - {parameter: warp, at_s: 1, factor: 2}\n")
+    options = [{"BAD": str(bad), "DRIFT": str(drift)}.get(o, o) for o in options]
     message = message.replace("BAD", str(bad))
     err = refused(["car-emulator", "--host", "127.0.0.1", "--host-port", "9", *options])
     assert err.startswith(f"crs car-emulator: error: {message}"), err

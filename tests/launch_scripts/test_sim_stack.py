@@ -91,6 +91,7 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
     assert car.described() == {
         "params_file": str(truth),
         "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
+        "drift_file": None,
     }
 
 
@@ -109,3 +110,47 @@ def test_the_car_stack_takes_the_shared_options_as_it_runs_them(tmp_path: Path):
     assert specs(StackOptions("mhe", onboard=True)) == specs(StackOptions("mhe"))
     with pytest.raises(ValueError, match=r"^track_file: the car stack races DEMO_TRACK"):
         car_nodes(1, StackOptions("mhe", track_file=tmp_path / "t.yaml"), tmp_path, tmp_path, True)
+
+
+def test_online_parameters_reach_the_estimators_and_the_drift_the_simulators(tmp_path: Path):
+    from launch_scripts.sim_stack import CarTruth
+
+    drift = tmp_path / "drift.yaml"
+    options = StackOptions("mhe", online_parameters=("Cm1", "grip"), car=CarTruth(drift_file=drift))
+    parameters = {s.name: s.parameters for s in stack_nodes(1, options, tmp_path / "bag")}
+    assert parameters["estimator"]["online_parameters"] == "Cm1,grip"
+    assert parameters["simulator"]["drift_file"] == str(drift.resolve())
+    plain = {s.name: s.parameters for s in stack_nodes(1, StackOptions("mhe"), tmp_path / "b")}
+    assert "online_parameters" not in plain["estimator"] and "drift_file" not in plain["simulator"]
+    assert CarTruth(drift_file=drift).emulator_arguments() == ["--drift", str(drift.resolve())]
+
+
+def test_the_run_folder_gets_each_cars_online_parameters_from_its_first_command(tmp_path: Path):
+    """t counts from the car's first command; each parameter's prior first (the stack model's),
+    then a row per parameter per message."""
+    import csv
+
+    import numpy as np
+
+    from crs_core.estimation.base import OnlineValue
+    from crs_core.measurements import InputSample
+    from crs_core.model import CarModel
+    from launch_scripts.sim_stack import write_online_parameters
+    from ros4crs.bag_replay import BagContents
+
+    contents = BagContents([], [InputSample(10.0, np.zeros(2))], [], [], 0)
+    contents.online_parameters = [
+        (10.5, {"Cm1": OnlineValue(0.9, 0.05, True)}),
+        (10.6, {"Cm1": OnlineValue(0.88, 0.04, True)}),
+    ]
+    silent = BagContents([], [InputSample(10.0, np.zeros(2))], [], [], 0)
+    written = write_online_parameters({"car1": contents, "car2": silent}, tmp_path, None)
+    assert written == [tmp_path / "online_parameters_car1.csv"]
+    rows = list(csv.reader(written[0].open()))
+    prior = CarModel().parameters["Cm1"]
+    assert rows == [
+        ["t", "name", "value", "std"],
+        ["0.0000", "Cm1", repr(prior.value), repr(prior.prior_std)],
+        ["0.5000", "Cm1", "0.9", "0.05"],
+        ["0.6000", "Cm1", "0.88", "0.04"],
+    ]

@@ -14,6 +14,7 @@ from rclpy.serialization import deserialize_message, serialize_message
 
 from chronos_msgs.msg import SensorBatch
 from crs_core.errors import FieldError
+from crs_core.estimation.base import Estimate, OnlineValue
 from crs_core.measurements import InputSample, Measurement
 from ros4crs import conversions
 from ros4crs.interfaces import typestore
@@ -64,6 +65,29 @@ def _query(field: str = "newest") -> Any:
     return msg
 
 
+def _online(**changes: Any) -> Any:
+    """An OnlineParameters message of Cm1 and grip, ``changes`` set on it."""
+    estimate = Estimate(
+        3.0,
+        np.zeros(6),
+        np.eye(6),
+        parameters={"Cm1": OnlineValue(0.9, 0.05, True), "grip": OnlineValue(1.0, 0.1, False)},
+    )
+    msg = conversions.online_parameters_msg(estimate)
+    for name, value in changes.items():
+        setattr(msg, name, value)
+    return msg
+
+
+def test_online_parameters_round_trip() -> None:
+    stamp, parameters = conversions.online_parameters_from_msg(_online())
+    assert stamp == 3.0
+    assert parameters == {
+        "Cm1": OnlineValue(0.9, 0.05, True),
+        "grip": OnlineValue(1.0, 0.1, False),
+    }
+
+
 @pytest.mark.parametrize(
     ("convert", "msg", "field", "reason"),
     [
@@ -84,6 +108,20 @@ def _query(field: str = "newest") -> Any:
         (conversions.status_from_msg, _state(status=7), "status", "must be 0 (ok)"),
         (conversions.query_from_msg, _query(), "newest", "1 stamps for 2 streams"),
         (conversions.query_from_msg, _query("oldest"), "oldest", "1 stamps for 2 streams"),
+        (conversions.online_parameters_from_msg, _online(stds=[0.1]), "stds", "has 1 entries"),
+        (
+            conversions.online_parameters_from_msg,
+            _online(values=[0.9, math.nan]),
+            "values",
+            "contains NaN",
+        ),
+        (conversions.online_parameters_from_msg, _online(stds=[0.1, -1.0]), "stds", "must be >= 0"),
+        (
+            conversions.online_parameters_from_msg,
+            _online(names=["Cm1", "Cm1"]),
+            "names",
+            "must be distinct",
+        ),
     ],
 )
 def test_a_malformed_message_is_refused_naming_the_field(

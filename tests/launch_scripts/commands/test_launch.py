@@ -134,3 +134,24 @@ def test_launch_viz_passes_where_the_visualizer_serves(
     assert seen[-1].viz == VizSettings("0.0.0.0", 18701)
     assert main(["launch", "sim", "--out", str(tmp_path / "b")]) == 0
     assert seen[-1].viz is None
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--online-params", "Cm1,,grip"], "--online-params: a comma-separated list"),
+        (["--online-params", "warp"], "--online-params: no parameter 'warp'"),
+        (["--car-drift", "DRIFT"], "--car-drift.drift[0].at_s: must be a finite number"),
+        (["--car-drift", "MISSING"], "--car-drift.drift: cannot read"),
+    ],
+)
+def test_online_and_drift_options_are_refused_with_one_line(
+    argv: list[str], message: str, tmp_path: Path, crs_refuses
+):
+    drift = tmp_path / "drift.yaml"
+    drift.write_text("drift:\n  - {parameter: Cm1, at_s: soon, factor: 0.9}\n")
+    argv = [{"DRIFT": str(drift), "MISSING": str(tmp_path / "none.yaml")}.get(a, a) for a in argv]
+    out = tmp_path / "out"
+    err = crs_refuses(["launch", "sim", *argv, "--out", str(out)])
+    assert message in err, err
+    assert not out.exists()
