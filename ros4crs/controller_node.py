@@ -1,31 +1,31 @@
 """Controller node: races a track (the DEMO_TRACK by default) with the ``crs_core`` MPCC, or
 follows its centreline with the path follower.
 
-Subscribes to ``estimate/state`` and publishes ``input`` at ``rate_hz`` (default 30 Hz for the
-MPCC, the paper's, 50 Hz for the path follower). What to send at each tick is decided by a
-:class:`~crs_core.control.supervisor.Supervisor` (stale / degraded / lost estimates, the speed
+Subscribes to ``estimate/state`` (and ``estimate/parameters``: an estimator's online parameters,
+which the MPCC's model follows at its ``parameter_rate``, :mod:`crs_core.model.online`; one at its
+bound slows the car as a degraded estimate does) and publishes ``input`` at ``rate_hz`` (default 30
+Hz for the MPCC, the paper's, 50 Hz for the path follower). What to send at each tick is decided by
+a :class:`~crs_core.control.supervisor.Supervisor` (stale / degraded / lost estimates, the speed
 cap's ramp, the prediction over the commands sent, the check of every command); the node converts
-messages, reads parameters and logs what the supervisor reports. When the newest estimate is
-older than ``stale_timeout``, ``lost`` (or none arrived yet), the car gets zero torque and
-straight wheels and rolls to a stop (said once per episode; the MPCC keeps its plan through a gap
-of up to half its horizon); while it is ``degraded`` the speed cap ramps down at ``speed_ramp``
-to ``degraded_speed``, and back up at ``speed_rise`` once the status has stayed ok as long as it
-was degraded (``ok_hold`` at most). With ``recover`` (default, torque commands) a car that has
-stood for half a second while driven is reversed towards facing along the track
-(:mod:`crs_core.control.recovery`: the MPCC never reverses, and a car stopped at the track's edge
-facing out has no forward way back). After an outage of the link (``hold_safe`` ``after_outage``,
-default) the MPCC plans commands safe to hold through the next one for ``caution_memory`` s
-(:mod:`crs_core.control.contingency`). The MPCC's iterations in one call end within
-``solve_budget`` s (default 0.08 s: the bridge repeats a command for 0.1 s, so the car never goes
-without one while the controller thinks; ten cold-start iterations took 292 ms under load, and
-the car cut its motors). With ``predict`` (default) the estimate, tens of ms old when it
-arrives, is carried forward to the time the command acts with the model and the commands sent
-since its stamp: the tick plus the command delay, measured by matching the car's reports of the
+messages, reads parameters and logs what the supervisor reports. When the newest estimate is older
+than ``stale_timeout``, ``lost`` (or none arrived yet), the car gets zero torque and straight wheels
+and rolls to a stop (said once per episode; the MPCC keeps its plan through a gap of up to half its
+horizon); while it is ``degraded`` the speed cap ramps down at ``speed_ramp`` to ``degraded_speed``,
+and back up at ``speed_rise`` once the status has stayed ok as long as it was degraded (``ok_hold``
+at most). With ``recover`` (default, torque commands) a car that has stood for half a second while
+driven is reversed towards facing along the track (:mod:`crs_core.control.recovery`: the MPCC never
+reverses, and a car stopped at the track's edge facing out has no forward way back). After an outage
+of the link (``hold_safe`` ``after_outage``, default) the MPCC plans commands safe to hold through
+the next one for ``caution_memory`` s (:mod:`crs_core.control.contingency`). The MPCC's iterations
+in one call end within ``solve_budget`` s (default 0.08 s: the bridge repeats a command for 0.1 s,
+so the car never goes without one while the controller thinks; ten cold-start iterations took 292 ms
+under load, and the car cut its motors). With ``predict`` (default) the estimate, tens of ms old
+when it arrives, is carried forward to the time the command acts with the model and the commands
+sent since its stamp: the tick plus the command delay, measured by matching the car's reports of the
 drive power it applies (``input/applied``) to the commands' torques
-(:mod:`crs_core.control.command_delay`; ``command_delay`` s until measured, and in velocity
-mode or in the simulator, which report none). A controller that raises, or a command that is
-not finite or out of its limits, is answered by a stop command and a throttled error; the node
-keeps running.
+(:mod:`crs_core.control.command_delay`; ``command_delay`` s until measured, and in velocity mode or
+in the simulator, which report none). A controller that raises, or a command that is not finite or
+out of its limits, is answered by a stop command and a throttled error; the node keeps running.
 
 With ``output`` velocity (MPCC only) it publishes ``MODE_VELOCITY`` commands ``[delta, v_x]`` for
 a car that tracks its speed on board (the MPCC's planned speed a short lead ahead; the simulator
@@ -65,6 +65,7 @@ from crs_core.control.overload import OverloadSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
+from crs_core.estimation.base import OnlineValue
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_OUT_QOS,
@@ -206,7 +207,7 @@ class ControllerNode(Node):
         from nav_msgs.msg import Path
         from std_msgs.msg import Float64
 
-        from chronos_msgs.msg import CarInput, CarState
+        from chronos_msgs.msg import CarInput, CarState, OnlineParameters
 
         self._plan_publisher = self.create_publisher(Path, conversions.TOPICS["plan"], 1)
         self._reference_publisher = self.create_publisher(Path, conversions.TOPICS["reference"], 1)
@@ -230,6 +231,14 @@ class ControllerNode(Node):
             self._on_state,
             "state estimate",
         )
+        self._online_parameters = CheckedSubscription(
+            self,
+            OnlineParameters,
+            conversions.TOPICS["parameters"],
+            conversions.online_parameters_from_msg,
+            self._on_parameters,
+            "online parameters",
+        )
         #: the controller's call times of the last 30 s at 30 Hz, s (bounded: a node runs for hours)
         self.solve_times: deque[float] = deque(maxlen=900)
         self._calls = 0
@@ -241,6 +250,9 @@ class ControllerNode(Node):
     def _on_state(self, value: tuple[float, np.ndarray, str]) -> None:
         self.supervisor.observe(*value)
 
+    def _on_parameters(self, value: tuple[float, dict[str, OnlineValue]]) -> None:
+        self.supervisor.observe_parameters({n: p.value for n, p in value[1].items()})
+
     def _on_applied(self, applied: conversions.CarCommand) -> None:
         if applied.mode == "torque":
             self.supervisor.applied(applied.stamp, float(applied.u[1]))
@@ -248,6 +260,7 @@ class ControllerNode(Node):
     def _control(self) -> None:
         self._applied.take_pending()
         self._estimates.take_pending()  # act on the newest estimate that has arrived
+        self._online_parameters.take_pending()
         now = self.get_clock().now().nanoseconds * 1e-9
         cpu_started = time.thread_time()
         step = self.supervisor(now)

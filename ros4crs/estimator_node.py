@@ -244,7 +244,7 @@ class EstimatorNode(Node):
             EstimatorDiagnostics, conversions.TOPICS["diagnostics"], 10
         )
         self._queries = self.create_publisher(EstimatorQuery, conversions.TOPICS["query"], LOG_QOS)
-        self._parameters = (
+        self._online_publisher = (
             self.create_publisher(OnlineParameters, conversions.TOPICS["parameters"], LOG_QOS)
             if online_names
             else None
@@ -354,8 +354,8 @@ class EstimatorNode(Node):
         )
         self._odometry.publish(conversions.odometry_msg(estimate, self.body_frame))
         self._tf.publish(conversions.transform_msg(estimate, self.body_frame))
-        if self._parameters is not None and estimate.parameters:
-            self._parameters.publish(conversions.online_parameters_msg(estimate))
+        if self._online_publisher is not None and estimate.parameters:
+            self._online_publisher.publish(conversions.online_parameters_msg(estimate))
 
     def timing_stats(self) -> dict[str, float]:
         """What the estimator's own computing cost so far (:func:`ros4crs.node_support.run_nodes`

@@ -152,6 +152,8 @@ class SimulatorNode(Node):
                 model, sensors.ideal() if noise_free else sensors, seed, onboard, drift
             )
         except FieldError as error:  # the schedule names a parameter the car lacks
+            if not error.field.startswith("drift"):
+                raise
             raise ParameterError("drift_file", f"{error.field}: {error.reason}") from None
         self.session = simulator.session(np.asarray(initial, dtype=float), keep_history=False)
         self._warn_mode = throttled_warning(self)

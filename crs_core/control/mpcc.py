@@ -30,6 +30,7 @@ import math
 import time
 import warnings
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -50,6 +51,7 @@ from crs_core.control.mpcc_problem import (
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.reference_path import ReferencePath
 from crs_core.model import CarModel
+from crs_core.model.online import model_values
 from crs_core.parameters import ParameterSet
 from crs_core.track import Track
 
@@ -194,6 +196,21 @@ class Mpcc:
         self.reset()
 
     # --- public --------------------------------------------------------------------------
+    def use_parameters(self, online: Mapping[str, float], elapsed: float) -> dict[str, float]:
+        """Move the prediction model toward the online parameter estimates ``online`` (by name,
+        :func:`~crs_core.model.online.model_values`), each by at most ``parameter_rate`` of its
+        model value per second over ``elapsed`` s (no recompilation: the parameters are an
+        argument of the generated functions). Returns the values now in use, by name."""
+        names = self._values.names
+        used = {}
+        for name, target in model_values(self._values, online).items():
+            k = names.index(name)
+            step = self.settings.parameter_rate * abs(self._values.value(name)) * max(elapsed, 0.0)
+            self.p[k] = float(np.clip(target, self.p[k] - step, self.p[k] + step))
+            used[name] = float(self.p[k])
+        self._parameter_columns[:] = self.p[:, None]
+        return used
+
     def reset(self) -> None:
         """Forget the plan and the commands in flight (the next call starts cold)."""
         self._Z: np.ndarray | None = None

@@ -149,6 +149,10 @@ class MpccSettings(Settings):
         past it (judged by the previous one's time) is not started; the first always is.
         0: no limit (offline studies stay deterministic). A real-time loop sets one: ten
         cold-start iterations took 292 ms on a loaded machine, past the car's 200 ms cut-off.
+    parameter_rate : float
+        Online parameters (:meth:`~crs_core.control.mpcc.Mpcc.use_parameters`) move the
+        prediction model's parameters by at most this share of their own model value per
+        second, 1/s: an estimate that jumps does not jerk the plan.
     """
 
     horizon: int = 40
@@ -180,6 +184,7 @@ class MpccSettings(Settings):
     velocity_max: float = non_negative(5.0)
     kinematic_speed: float = non_negative(0.3)
     solve_time_budget: float = non_negative(0.0)
+    parameter_rate: float = non_negative(0.05)
 
     def _check_relations(self) -> None:
         for name in _COUNTS:

@@ -49,7 +49,7 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -61,6 +61,7 @@ from crs_core.control.overload import OverloadSettings, OverloadWatch
 from crs_core.control.recovery import StuckRecovery
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
+from crs_core.model.online import at_bound, model_values
 from crs_core.settings import Settings, non_negative, positive
 
 __all__ = [
@@ -276,6 +277,11 @@ class Supervisor:
         self._mpcc = controller if isinstance(controller, Mpcc) else None
         self._numeric = model.numeric if model is not None else None
         self._p = model.parameters.vector() if model is not None else None
+        self._model_parameters = model.parameters if model is not None else None
+        #: the newest online parameter estimates (by name; empty: none)
+        self.online: dict[str, float] = {}
+        #: the online parameters at their bound in the newest estimates
+        self.at_bound: tuple[str, ...] = ()
         #: the model inputs of the commands sent in the last ``stale_timeout`` s: (time, input)
         self._sent: deque[tuple[float, np.ndarray]] = deque()
         self._latest: tuple[float, np.ndarray, str] | None = None
@@ -320,6 +326,35 @@ class Supervisor:
             raise ValueError(f"status: must be one of {', '.join(STATUSES)}, got {status!r}")
         self._latest = (stamp, state, status)
 
+    def observe_parameters(self, values: Mapping[str, float]) -> None:
+        """Take the estimator's newest online parameter estimates (by name): the MPCC's model
+        moves toward them at its ``parameter_rate``, the prediction to when a command acts
+        uses them, and one at its bound makes the car slow down as for a degraded estimate."""
+        for name, value in values.items():
+            if not math.isfinite(value):
+                raise ValueError(f"{name}: must be finite, got {value!r}")
+        self.online = dict(values)
+        parameters = self._model_parameters
+        self.at_bound = tuple(
+            name for name, value in values.items()
+            if parameters is not None and at_bound(name, value, parameters)
+        )  # fmt: skip
+
+    def _use_online(self, dt: float) -> None:
+        """The MPCC's and the prediction's parameters toward :attr:`online`."""
+        if not self.online:
+            return
+        if self._mpcc is not None:
+            used = self._mpcc.use_parameters(self.online, dt)
+        elif self._model_parameters is not None:
+            used = model_values(self._model_parameters, self.online)
+        else:
+            return
+        if self._p is not None and self._model_parameters is not None:
+            names = self._model_parameters.names
+            for name, value in used.items():
+                self._p[names.index(name)] = value
+
     def __call__(self, now: float) -> SupervisorStep:
         """Decide the command to send at ``now`` (s) and record it as sent."""
         dt = 0.0 if self._last_tick is None else max(now - self._last_tick, 0.0)
@@ -346,6 +381,7 @@ class Supervisor:
                 if self._mpcc is None:
                     self._reset_controller()
             self._stale = False
+            self._use_online(dt)
             x = self.predicted(now)
             self._update_cap(now, dt, float(x[3]), events)
             s = self.settings
@@ -504,13 +540,18 @@ class Supervisor:
             )
         self.cautious_until = now + self.settings.caution_memory
 
+    def _degraded_reason(self) -> str:
+        if self.at_bound:
+            return f"online parameter {', '.join(self.at_bound)} at its bound"
+        return "state estimate degraded"
+
     def _update_cap(self, now: float, dt: float, speed: float, events: list) -> None:
         """Ramp the speed cap for a fresh estimate of status ``self._latest[2]``; the car's
         (predicted) speed ``speed`` (m/s) is where a fall starts when it is below the cap."""
         if self._latest is None:
             raise ValueError("no estimate observed yet")
         s = self.settings
-        status = self._latest[2]
+        status = "degraded" if self.at_bound else self._latest[2]
         if status == "degraded":
             self._ok_since = None
             if self._limited:
@@ -522,7 +563,7 @@ class Supervisor:
                 events.append(
                     SupervisorEvent(
                         "degraded",
-                        f"state estimate degraded: slowing to {s.degraded_speed:g} m/s "
+                        f"{self._degraded_reason()}: slowing to {s.degraded_speed:g} m/s "
                         f"(at {s.ramp_rate:g} m/s^2)",
                     )
                 )

@@ -21,7 +21,7 @@ the model (dynamics and sensors) the state takes the parameter's place.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
@@ -167,3 +167,31 @@ class OnlineParameters:
     def values_of(self, states: Iterable[float]) -> dict[str, float]:
         """``{name: value}`` of the online states (the last ``len(self)`` of a model state)."""
         return dict(zip(self.names, (float(v) for v in states), strict=True))
+
+
+def model_values(parameters: ParameterSet, online: Mapping[str, float]) -> dict[str, float]:
+    """The values of ``parameters`` the online estimates ``online`` (by name) stand for: a
+    parameter's own value, and for ``grip`` both tyre peaks scaled from their values in
+    ``parameters``; names ``parameters`` lacks (an effect a controller's model does not have)
+    are left out."""
+    values: dict[str, float] = {}
+    for name, value in online.items():
+        if name == GRIP:
+            for peak in GRIP_SCALES:
+                values[peak] = parameters.value(peak) * float(value)
+        elif name in parameters.names:
+            values[name] = float(value)
+    return values
+
+
+def at_bound(name: str, value: float, parameters: ParameterSet, share: float = 0.02) -> bool:
+    """Whether online parameter ``name`` at ``value`` lies within ``share`` of its range of
+    its soft bound (:attr:`OnlineParameters.bounds`; a name ``parameters`` lacks: never)."""
+    if name == GRIP:
+        lower, upper = GRIP_BOUNDS
+    elif name in parameters.names:
+        lower, upper = parameters[name].lower, parameters[name].upper
+    else:
+        return False
+    margin = share * (upper - lower)
+    return bool(value <= lower + margin or value >= upper - margin)

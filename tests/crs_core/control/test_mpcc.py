@@ -370,3 +370,23 @@ def test_non_finite_qp_data_never_reach_the_solver(track, solver: str) -> None:
     refs = controller._references(Z[:, controller._nxc])
     result = controller._solve_qp(Z, V, refs)
     assert not result.success and result.status.startswith("non-finite data in ")
+
+
+def test_online_parameters_move_the_model_at_the_parameter_rate():
+    """Cm1 and grip toward their estimates by at most parameter_rate of their value per second;
+    a name the model does not have (gyro_bias) changes nothing; the values in use returned."""
+    from crs_core.control.mpcc import Mpcc
+    from crs_core.control.mpcc_problem import MpccSettings
+    from crs_core.track import load_demo_track
+
+    mpcc = Mpcc(load_demo_track(), settings=MpccSettings(parameter_rate=0.05, solver="hpipm"))
+    values = mpcc.model.parameters
+    used = mpcc.use_parameters(
+        {"Cm1": 0.5 * values.value("Cm1"), "grip": 0.99, "gyro_bias": 1.0}, 1.0
+    )
+    assert used["Cm1"] == pytest.approx(0.95 * values.value("Cm1"))  # 5 % in 1 s, not 50 %
+    assert used["Df"] == pytest.approx(0.99 * values.value("Df"))  # within the step
+    assert used["Dr"] == pytest.approx(0.99 * values.value("Dr"))
+    assert set(used) == {"Cm1", "Df", "Dr"}
+    index = values.names.index("Cm1")
+    assert mpcc.p[index] == used["Cm1"]

@@ -351,3 +351,35 @@ def test_an_unknown_hold_safe_mode_names_the_field():
     with pytest.raises(FieldError) as caught:
         SupervisorSettings(hold_safe="sometimes")
     assert caught.value.field == "hold_safe"
+
+
+def test_an_online_parameter_at_its_bound_slows_the_car_and_names_it():
+    """grip 0.3 (its lower bound) in an ok estimate: the cap falls as for a degraded one, the
+    event names the parameter; back inside its bounds, the car speeds up again."""
+    supervisor = Supervisor(Recorder(), SupervisorSettings(ramp_rate=1.5), model=CarModel())
+    messages = []
+    for now in np.arange(0.0, 3.0, DT):
+        supervisor.observe(now - 0.02, state(2.0), "ok")
+        supervisor.observe_parameters({"grip": 0.3 if 1.0 <= now < 2.0 else 0.95})
+        messages += [e.message for e in supervisor(now).events]
+    assert any("online parameter grip at its bound: slowing" in m for m in messages), messages
+    assert any(m.startswith("state estimate ok") for m in messages), messages
+    with pytest.raises(ValueError, match="grip: must be finite"):
+        supervisor.observe_parameters({"grip": math.nan})
+
+
+def test_the_prediction_follows_the_online_parameters():
+    """A weaker motor (Cm1 online at 60 %) predicts less speed gained over the commands sent
+    (without an MPCC the supervisor's own model takes them at once)."""
+
+    def speed_after(cm1: float | None) -> float:
+        supervisor = Supervisor(Recorder(lambda k: np.array([0.0, 1.0])), model=CarModel())
+        if cm1 is not None:
+            supervisor.observe_parameters({"Cm1": cm1, "gyro_bias": 0.01})  # not in its model
+        supervisor.observe(0.0, state(1.0), "ok")
+        for now in np.arange(0.0, 0.3, DT):
+            supervisor(now)
+        return float(supervisor.predicted(0.3)[3])
+
+    weak = 0.6 * CarModel().parameters.value("Cm1")
+    assert speed_after(weak) < speed_after(None) - 0.05
