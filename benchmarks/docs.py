@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from benchmarks.adaptation import format_markdown as adaptation_markdown
 from benchmarks.bridge import format_markdown as bridge_markdown
 from benchmarks.calibration import format_markdown as calibration_markdown
 from benchmarks.contingency import format_table as contingency_table
@@ -87,6 +88,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "stack_viz": _headed("stack", stack_markdown),
     "stack_scale": _headed("stack", stack_scale_markdown),
     "middleware_floor": _headed("floor", floor_markdown),
+    "adaptation": _headed("adaptation", adaptation_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),

@@ -208,7 +208,9 @@ def lap_statistics(
     Returns
     -------
     dict
-        JSON-ready: ``laps_completed``; ``lap_times_s`` (s, rounded to ms); ``distance_m``,
+        JSON-ready: ``laps_completed``; ``lap_times_s`` (s, rounded to ms); ``crossings_s``,
+        the stamps of the start/finish line crossings (s, each lap runs from one to the next);
+        ``distance_m``,
         the progress along the centreline since the first sample (m, rounded to mm);
         ``max_lateral_error_m`` and ``rms_lateral_error_m``, the distance from the centreline
         (m, rounded to 0.1 mm).
@@ -229,6 +231,7 @@ def lap_statistics(
     return {
         "laps_completed": counter.laps_completed,
         "lap_times_s": [round(v, 3) for v in counter.lap_times],
+        "crossings_s": counter.crossing_stamps,
         "distance_m": round(counter.progress - (s_start or 0.0), 3),
         "max_lateral_error_m": round(float(lateral_arr.max()), 4),
         "rms_lateral_error_m": round(float(np.sqrt(np.mean(lateral_arr**2))), 4),

@@ -77,6 +77,43 @@ def stack(args: argparse.Namespace) -> Outcome:
     return _with_machine(result), f"{format_table(result)}\nruns (reports, figures, bags): {work}"
 
 
+def adaptation(args: argparse.Namespace) -> Outcome:
+    from benchmarks.adaptation import adaptation_benchmark, format_markdown
+
+    work = _runs(args, "adaptation")
+    schedules = tuple(args.schedules.split(","))
+    result = adaptation_benchmark(work, args.duration, args.repeats, schedules, args.seed)
+    return _with_machine(result), f"{format_markdown(result)}\nruns: {work}"
+
+
+def _adaptation_options(parser: argparse.ArgumentParser) -> None:
+    from benchmarks.adaptation import SCHEDULES
+
+    add_duration(parser, 120.0, "wall-clock time of each race")
+    parser.add_argument(
+        "--repeats",
+        type=bounded_number("repeats", "", 0, 20, int),
+        default=3,
+        help="races per schedule and mode (default 3)",
+    )
+    parser.add_argument(
+        "--schedules",
+        type=argument_type(lambda text: _known_names("schedules", tuple(SCHEDULES), text)),
+        default=",".join(SCHEDULES),
+        help=f"comma-separated, of {', '.join(SCHEDULES)} (default all)",
+    )
+    add_seed(parser, "noise and link seed of the first repeat")
+
+
+def _known_names(option: str, known: tuple[str, ...], text: str) -> str:
+    """``text``, a comma-separated list of names out of ``known``."""
+    names = [name.strip() for name in text.split(",")]
+    unknown = [name for name in names if name not in known]
+    if unknown or not text.strip():
+        raise ValueError(f"--{option}: one or more of {', '.join(known)}, got {text!r}")
+    return ",".join(names)
+
+
 def floor(args: argparse.Namespace) -> Outcome:
     from benchmarks.middleware_floor import floor_benchmark, format_markdown
 
@@ -359,6 +396,15 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "the launched ROS 2 stack (crs launch sim) per car: laps, estimation RMSE, deadline "
         "misses, re-initialisations, latencies, and CPU and peak memory per node; --load K busy "
         "processes beside it; the runs go to <out without .json>_runs/",
+    ),
+    "adaptation": (
+        adaptation,
+        _adaptation_options,
+        "a car that changes while it races (sim.drift: the issue's schedule and one of ours), "
+        "emulated behind a typical Wi-Fi link, raced with and without Cm1, gyro_bias and grip "
+        "estimated online: laps, flying laps before and after the grip change, contouring "
+        "error, time off the track, cut-offs, RMSE, and each online parameter against the "
+        "truth (within tolerance, inside ±2σ); ~repeats x 4 x (duration + 25 s)",
     ),
     "floor": (
         floor,
