@@ -554,6 +554,12 @@ def summary(report: dict[str, Any], out: Path) -> str:
         if outside and outside["episodes"]:
             line += f"; LEFT THE TRACK ({outside['seconds']:.1f} s outside)"
         lines.append(line)
+        online = c.get("online_parameters")
+        if online:
+            lines.append(
+                "  online at the end: "
+                + ", ".join(f"{n} {p['value']:.4g} ± {p['std']:.2g}" for n, p in online.items())
+            )
     deaths = report.get("node_deaths") or []
     lines.append(
         "node deaths: " + (", ".join(f"{d['node']} ({d['returncode']})" for d in deaths) or "none")
@@ -653,6 +659,11 @@ def analyse(
         car["estimator_reinitializations"] = contents.reinitializations
         car["malformed_messages"] = contents.malformed
         car["latency_ms"] = latencies(contents.receive_times)
+        if contents.online_parameters:  # the last estimate's
+            car["online_parameters"] = {
+                name: {"value": p.value, "std": p.std, "informed": p.informed}
+                for name, p in contents.online_parameters[-1][1].items()
+            }
         report["cars"][ns.strip("/")] = car
     return report
 

@@ -154,3 +154,15 @@ def test_the_run_folder_gets_each_cars_online_parameters_from_its_first_command(
         ["0.5000", "Cm1", "0.9", "0.05"],
         ["0.6000", "Cm1", "0.88", "0.04"],
     ]
+
+
+def test_the_summary_gives_each_cars_online_parameters_at_the_end(tmp_path: Path):
+    from launch_scripts.sim_stack import summary
+
+    car = {
+        "laps_completed": 3,
+        "lap_times_s": [6.8, 6.5, 6.6],
+        "online_parameters": {"Cm1": {"value": 0.83502, "std": 0.0223, "informed": True}},
+    }
+    text = summary({"cars": {"car1": car}, "cpu_percent": {}}, tmp_path)
+    assert "  online at the end: Cm1 0.835 ± 0.022" in text.splitlines()
