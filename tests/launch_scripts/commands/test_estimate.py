@@ -143,21 +143,23 @@ def test_online_parameters_are_written_with_their_priors_first(small_dataset: Pa
     import csv
 
     out = tmp_path / "online"
-    argv = ["estimate", str(small_dataset), "--estimator", "ekf", "--x0", "0,0,0"]
-    argv += ["--online-params", "Cm1,gyro_bias", "--out", str(out)]
+    # the names and input mode of tests/crs_core/estimation/test_online.py: its compiled EKF
+    argv = ["estimate", str(small_dataset), "--estimator", "ekf", "--inputs", "commanded"]
+    argv += ["--x0", "0,0,0", "--online-params", "Cm1,gyro_bias,grip", "--out", str(out)]
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):
         assert main(argv) == 0
     rows = list(csv.DictReader((out / "online_parameters.csv").open()))
     assert list(rows[0]) == ["t", "name", "value", "std"]
-    assert [(r["t"], r["name"]) for r in rows[:2]] == [("0.0000", "Cm1"), ("0.0000", "gyro_bias")]
+    assert [r["name"] for r in rows[:3]] == ["Cm1", "gyro_bias", "grip"]
+    assert {r["t"] for r in rows[:3]} == {"0.0000"}
     assert float(rows[1]["value"]) == 0.0 and float(rows[1]["std"]) == 0.25  # the prior
     n = Dataset.load(small_dataset).t.size
-    assert len(rows) == 2 + 2 * n
+    assert len(rows) == 3 + 3 * n
     report = json.loads((out / "diagnostics.json").read_text())
-    assert set(report["online_parameters"]) == {"Cm1", "gyro_bias"}
+    assert set(report["online_parameters"]) == {"Cm1", "gyro_bias", "grip"}
     with np.load(out / "estimates.npz") as data:
-        assert list(data["online_names"]) == ["Cm1", "gyro_bias"]
-        assert data["online_value"].shape == (2, n)
+        assert list(data["online_names"]) == ["Cm1", "gyro_bias", "grip"]
+        assert data["online_value"].shape == (3, n)
     assert (out / "online_parameters.png").read_bytes()[:4] == b"\x89PNG"
     assert "gyro_bias: " in printed.getvalue() and "online_parameters.csv" in printed.getvalue()
