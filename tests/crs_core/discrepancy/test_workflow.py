@@ -24,7 +24,7 @@ def summary() -> dict:
     settings = DiscrepancySettings(
         identification=FieSettings(fit=("Cm1", "Df", "Dr", "Iz"), process_scale=0.1),
         candidates=("gyro_bias", "steering_offset", "wheel_radius_error"),
-        workers=2,
+        workers=1,
     )
     return find_discrepancy(train, CarModel(), validation, settings).summary()
 

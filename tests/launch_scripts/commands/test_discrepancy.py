@@ -48,6 +48,8 @@ def test_names_a_hidden_steering_offset_in_recordings_without_metadata(recording
             "steering_offset,gyro_bias,steering_gain",
             "--process-scale",
             "0.1",
+            "--workers",  # the suite's other worker has the second core
+            "1",
         ]
     )
     assert code == 0, stderr
