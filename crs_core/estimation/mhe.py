@@ -218,6 +218,11 @@ class MovingHorizonEstimator(Estimator):
         self._node_discount = np.where(
             np.arange(model.nx) < model.nx - len(model.online), s.discount, 1.0
         )
+        # ... and of the process terms of stage j (age M - 1 - j), square-rooted: the online
+        # parameters' random walk is not discounted with the data either (a discounted walk let
+        # them wander in the window)
+        stage_ages = np.arange(s.horizon - 1, -1, -1, dtype=float)
+        self._process_discount = np.sqrt(self._node_discount[:, None] ** stage_ages[None, :])
         self._max_catch_up = s.max_catch_up or s.horizon
         self._cap = RejectionCap(s.max_consecutive_rejections)
         self._forward = ForwardReadOut(model, s.noise)
@@ -462,10 +467,7 @@ class MovingHorizonEstimator(Estimator):
         first = M + 1 - self._active
         ages = np.arange(M, -1, -1, dtype=float)  # node j has age M - j
         node_discount = s.discount**ages
-        # the online parameters' random walk is not discounted with the data (its own
-        # reversion forgets their past): a discounted walk let them wander in the window
-        stage_discount = self._node_discount[:, None] ** ages[None, 1:]
-        wp = np.sqrt(stage_discount / self._DT[0][None, :]) / self._q[:, None]
+        wp = self._process_discount / np.sqrt(self._DT[0])[None, :] / self._q[:, None]
         wp[:, :first] = 0.0
         count = np.maximum(self._count, 1)
         row_count = self._count[self._row_group]
