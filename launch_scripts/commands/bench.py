@@ -90,12 +90,7 @@ def _adaptation_options(parser: argparse.ArgumentParser) -> None:
     from benchmarks.adaptation import SCHEDULES
 
     add_duration(parser, 120.0, "wall-clock time of each race")
-    parser.add_argument(
-        "--repeats",
-        type=bounded_number("repeats", "", 0, 20, int),
-        default=3,
-        help="races per schedule and mode (default 3)",
-    )
+    _repeats(parser, 3, "races per schedule and mode")
     parser.add_argument(
         "--schedules",
         type=argument_type(lambda text: _known_names("schedules", tuple(SCHEDULES), text)),
@@ -256,6 +251,16 @@ def _seeds(parser: argparse.ArgumentParser, what: str, default: int = 5, high: i
     )
 
 
+def _repeats(parser: argparse.ArgumentParser, default: int, what: str) -> None:
+    """``--repeats``: an integer in ``[1, 20]``."""
+    parser.add_argument(
+        "--repeats",
+        type=bounded_number("repeats", "", 0, 20, int),
+        default=default,
+        help=f"{what} (default {default})",
+    )
+
+
 def _stack_options(parser: argparse.ArgumentParser) -> None:
     from benchmarks.link import parse_counts
 
@@ -268,12 +273,7 @@ def _stack_options(parser: argparse.ArgumentParser) -> None:
     )
     add_estimator(parser)
     add_duration(parser, 40.0, "wall-clock time per repeat")
-    parser.add_argument(
-        "--repeats",
-        type=bounded_number("repeats", "", 0, 20, int),
-        default=1,
-        help="runs (default 1)",
-    )
+    _repeats(parser, 1, "runs")
     parser.add_argument(
         "--load",
         type=bounded_number("load", "", -1, 16, int),
@@ -290,12 +290,7 @@ def _stack_options(parser: argparse.ArgumentParser) -> None:
 
 def _floor_options(parser: argparse.ArgumentParser) -> None:
     add_duration(parser, 20.0, "wall-clock time of each run")
-    parser.add_argument(
-        "--repeats",
-        type=bounded_number("repeats", "", 0, 20, int),
-        default=3,
-        help="repeats (default 3)",
-    )
+    _repeats(parser, 3, "repeats")
 
 
 def _bridge_options(parser: argparse.ArgumentParser) -> None:
