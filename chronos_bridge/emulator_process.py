@@ -179,9 +179,10 @@ def options(args: argparse.Namespace) -> dict:
         duration = parse_finite(args.duration)
         if duration is None or not duration > 0:
             raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
+    model = _car_model(args.params, args.effect or [])
     return {
-        "model": _car_model(args.params, args.effect or []),
-        "drift": _drift(args.drift, _car_model(args.params, args.effect or [])),
+        "model": model,
+        "drift": _drift(args.drift, model),
         "host": (str(host), _port("--host-port", args.host_port, allow_zero=False)),
         "bind": (str(bind), _port("--port", args.port, allow_zero=True)),
         "seed": seed,

@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import yaml
 
 from crs_core.errors import FieldError
@@ -69,17 +68,7 @@ class DriftSchedule:
     def model_for(self, model: CarModel) -> CarModel:
         """``model`` with the effects the schedule changes switched on (at 0) where it lacks
         them; a parameter the model does not have is refused, naming the change."""
-        spec: dict[str, Mapping[str, float] | None] = {e.name: None for e in model.effects}
-        for change in self.changes:
-            if change.effect is not None and change.effect not in spec:
-                zeros = {p.name: 0.0 for p in EFFECTS[change.effect].parameters}
-                spec[change.effect] = zeros
-        if len(spec) == len(model.effects):
-            widened = model
-        else:
-            defaults = CarModel(spec, model.n_base_stations).parameters
-            values = {n: model.parameters.value(n) for n in model.parameters.names}
-            widened = CarModel(spec, model.n_base_stations, defaults.updated(values))
+        widened = model.with_effects_at_zero(c.effect for c in self.changes if c.effect)
         for k, change in enumerate(self.changes):
             if change.parameter not in widened.parameters.names:
                 raise FieldError(
@@ -165,16 +154,3 @@ def _number(entry: Mapping[str, Any], key: str, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise FieldError(f"{where}.{key}", f"must be a finite number, got {value!r}")
     return float(value)
-
-
-def drifted_vector(
-    schedule: DriftSchedule, model: CarModel, t: float, initial: np.ndarray
-) -> np.ndarray:
-    """The parameter vector of ``model`` at ``t`` (s since the first command) from its
-    ``initial`` vector."""
-    names = model.parameters.names
-    start = {name: initial[names.index(name)] for name in schedule.parameters}
-    vector = initial.copy()
-    for name, value in schedule.values_at(t, start).items():
-        vector[names.index(name)] = value
-    return vector

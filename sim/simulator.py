@@ -26,7 +26,7 @@ from tqdm import tqdm
 from crs_core.errors import FieldError
 from crs_core.measurements import InputSample, Measurement, lighthouse_sensor
 from crs_core.model import CarModel
-from sim.drift import DriftSchedule, drifted_vector
+from sim.drift import DriftSchedule
 from sim.onboard import MODES, OnboardLoop, OnboardSettings
 from sim.result import SimulationResult
 from sim.sensors import SensorSpec, SensorSuite
@@ -167,7 +167,11 @@ class SimulationSession:
         model, sensors, seed = simulator.model, simulator.sensors, simulator.seed
         self._numeric = model.numeric
         self._p = model.parameters.vector()
-        self._initial_p = self._p.copy()
+        names = model.parameters.names
+        schedule = simulator.drift
+        #: where each parameter the drift schedule changes sits in the vector, and its start
+        self._drift_index = {n: names.index(n) for n in (schedule.parameters if schedule else ())}
+        self._drift_start = {n: float(self._p[k]) for n, k in self._drift_index.items()}
         #: When the car applied its first command (the drift's origin), s; None before.
         self.first_command_time: float | None = None
         self._delay = model.input_delay()
@@ -309,18 +313,15 @@ class SimulationSession:
     @property
     def drifted(self) -> dict[str, float]:
         """The parameters the drift schedule changes, as they are now (empty without one)."""
-        schedule = self.simulator.drift
-        if schedule is None:
-            return {}
-        names = self.simulator.model.parameters.names
-        return {name: float(self._p[names.index(name)]) for name in schedule.parameters}
+        return {name: float(self._p[k]) for name, k in self._drift_index.items()}
 
     def _integrate_to(self, t: float) -> None:
         if t > self._now:
             schedule = self.simulator.drift
             if schedule is not None and self.first_command_time is not None:
                 since = self._now - self.first_command_time
-                self._p = drifted_vector(schedule, self.simulator.model, since, self._initial_p)
+                for name, value in schedule.values_at(since, self._drift_start).items():
+                    self._p[self._drift_index[name]] = value
             self._x = self._numeric.step(self._x, self._u, self._p, t - self._now)
             self._now = t
             if not self.keep_history:  # only the current state

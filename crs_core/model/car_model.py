@@ -28,7 +28,7 @@ from crs_core.model.chronos import (
     dynamics_parameters,
     photodiode_parameters,
 )
-from crs_core.model.effects import EFFECTS, Effect
+from crs_core.model.effects import EFFECTS, Effect, effect_of_parameter
 from crs_core.model.lighthouse import BaseStation
 from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
 from crs_core.parameters import ParameterSet
@@ -291,22 +291,38 @@ class CarModel:
         model = cls(spec, n_base_stations)
         return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path))
 
+    def with_effects_at_zero(self, effects: Iterable[str]) -> CarModel:
+        """This model with the registry ``effects`` it lacks switched on, their parameters at 0
+        (where every effect is the base model); its own values, input mode and online
+        parameters kept. Itself when it has them all."""
+        spec: dict[str, Mapping[str, float] | None] = {e.name: None for e in self.effects}
+        for name in effects:
+            if name not in spec:
+                spec[name] = dict.fromkeys((p.name for p in EFFECTS[name].parameters), 0.0)
+        if len(spec) == len(self.effects):
+            return self
+        stations, inputs = self.n_base_stations, self.estimated_inputs
+        widened = CarModel(spec, stations, estimated_inputs=inputs).parameters
+        parameters = widened.updated({n: self.parameters.value(n) for n in self.parameters.names})
+        online = self.online
+        return CarModel(spec, stations, parameters, inputs, None, online.names, online.reversion_s)
+
     def with_online(self, names: Sequence[str], reversion_s: float) -> CarModel:
         """This model with online parameters ``names`` (:mod:`crs_core.model.online`); an
         effect one of them belongs to is switched on, its parameters at 0 (the base model),
         when this model lacks it."""
-        owners = {p.name: e.name for e in EFFECTS.values() for p in e.parameters}
-        added = {
-            owners[name]: dict.fromkeys((p.name for p in EFFECTS[owners[name]].parameters), 0.0)
-            for name in names
-            if name not in self.parameters.names and name in owners
-        }
-        spec: dict[str, Mapping[str, float] | None] = {e.name: None for e in self.effects}
-        spec |= added
-        stations = self.n_base_stations
-        widened = CarModel(spec, stations, estimated_inputs=self.estimated_inputs).parameters
-        parameters = widened.updated({n: self.parameters.value(n) for n in self.parameters.names})
-        return CarModel(spec, stations, parameters, self.estimated_inputs, None, names, reversion_s)
+        owners = [effect_of_parameter(n) for n in names if n not in self.parameters.names]
+        base = self.with_effects_at_zero(owner for owner in owners if owner is not None)
+        effects = [e.name for e in base.effects]
+        return CarModel(
+            effects,
+            base.n_base_stations,
+            base.parameters,
+            base.estimated_inputs,
+            None,
+            names,
+            reversion_s,
+        )
 
     @cached_property
     def dynamics_function(self) -> ca.Function:
@@ -353,7 +369,7 @@ class CarModel:
         extra = [value for e in self.effects for value in e.initial_states(command)]
         if self.estimated_inputs:
             extra += command
-        extra += self.online.initial_values(self.parameters)
+        extra += self.online.initial_values()
         return np.array(base + extra)
 
     @property

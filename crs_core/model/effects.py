@@ -314,6 +314,14 @@ EFFECTS: dict[str, Effect] = {
 }
 
 
+def effect_of_parameter(name: str) -> str | None:
+    """The registry effect parameter ``name`` belongs to (None: no effect's)."""
+    for effect in EFFECTS.values():
+        if any(p.name == name for p in effect.parameters):
+            return effect.name
+    return None
+
+
 def parse_effect(text: str) -> tuple[str, str | None, float | None]:
     """``NAME``, ``NAME=VALUE`` or ``NAME.PARAM=VALUE`` -> (effect, parameter, value).
 

@@ -21,13 +21,13 @@ the model (dynamics and sensors) the state takes the parameter's place.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import casadi as ca
 
 from crs_core.errors import FieldError
-from crs_core.model.effects import EFFECTS
+from crs_core.model.effects import effect_of_parameter
 from crs_core.parameters import ParameterSet
 
 #: The grip factor's name and the tyre peaks it scales.
@@ -91,19 +91,20 @@ class OnlineParameters:
         entries = []
         for name in names:
             if name == GRIP:
-                low, high = GRIP_BOUNDS
-                entries.append(OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", low, high))
+                entries.append(OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", *GRIP_BOUNDS))
                 continue
             if name not in parameters.names:
-                owner = [e.name for e in EFFECTS.values() if name in {p.name for p in e.parameters}]
+                owner = effect_of_parameter(name)
                 hint = (
-                    f"a parameter of the effect {owner[0]}, which the model does not have"
+                    f"a parameter of the effect {owner}, which the model does not have"
                     if owner
                     else f"known: {', '.join((*parameters.names, GRIP))}"
                 )
                 raise FieldError("online_parameters", f"no parameter {name!r} ({hint})")
             p = parameters[name]
-            entries.append(OnlineParameter(name, p.value, p.prior_std, p.unit, p.lower, p.upper))
+            entries.append(
+                OnlineParameter(name, p.value, p.prior_std, p.unit, *_bounds(name, parameters))
+            )
         clash = [e.name for e in entries if e.name in GRIP_SCALES]
         if clash and GRIP in names:
             raise FieldError(
@@ -160,13 +161,16 @@ class OnlineParameters:
             *[-(states[k] - prior) / self.reversion_s for k, prior in enumerate(priors)]
         )
 
-    def initial_values(self, parameters: ParameterSet) -> list[float]:
+    def initial_values(self) -> list[float]:
         """The states at their priors."""
-        return [1.0 if e.name == GRIP else parameters.value(e.name) for e in self.entries]
+        return [e.prior for e in self.entries]
 
-    def values_of(self, states: Iterable[float]) -> dict[str, float]:
-        """``{name: value}`` of the online states (the last ``len(self)`` of a model state)."""
-        return dict(zip(self.names, (float(v) for v in states), strict=True))
+
+def _bounds(name: str, parameters: ParameterSet) -> tuple[float, float]:
+    """The soft bounds of online parameter ``name``: the grip factor's, else the parameter's."""
+    if name == GRIP:
+        return GRIP_BOUNDS
+    return parameters[name].lower, parameters[name].upper
 
 
 def model_values(parameters: ParameterSet, online: Mapping[str, float]) -> dict[str, float]:
@@ -187,11 +191,8 @@ def model_values(parameters: ParameterSet, online: Mapping[str, float]) -> dict[
 def at_bound(name: str, value: float, parameters: ParameterSet, share: float = 0.02) -> bool:
     """Whether online parameter ``name`` at ``value`` lies within ``share`` of its range of
     its soft bound (:attr:`OnlineParameters.bounds`; a name ``parameters`` lacks: never)."""
-    if name == GRIP:
-        lower, upper = GRIP_BOUNDS
-    elif name in parameters.names:
-        lower, upper = parameters[name].lower, parameters[name].upper
-    else:
+    if name != GRIP and name not in parameters.names:
         return False
+    lower, upper = _bounds(name, parameters)
     margin = share * (upper - lower)
     return bool(value <= lower + margin or value >= upper - margin)

@@ -401,3 +401,11 @@ def test_parsed_lighthouse_offset_builds_a_model_with_both_plane_offsets():
     model = CarModel(spec)
     assert model.parameters.value("lh_plane1_offset") == 0.02
     assert model.parameters.value("lh_plane2_offset") == -0.01
+
+
+def test_a_parameter_names_the_effect_it_belongs_to():
+    from crs_core.model.effects import effect_of_parameter
+
+    assert effect_of_parameter("gyro_bias") == "gyro_bias"
+    assert effect_of_parameter("lh_plane2_offset") == "lighthouse_offset"
+    assert effect_of_parameter("Cm1") is None
