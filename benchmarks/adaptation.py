@@ -116,9 +116,9 @@ def race_row(report: dict[str, Any], run: Path, schedule: DriftSchedule) -> dict
     with np.load(run / "truth_car1.npz") as log:
         truth = {key: log[key] for key in log.files}
     origin = float(truth["command_read_t"][0])  # the drift's: the first command the car read
-    laps = lap_statistics(truth["t"], truth["x"], track)
+    laps = lap_statistics(truth["t"] - origin, truth["x"], track)  # times since the origin
     grip_at = _grip_change(schedule)
-    flying = _flying_laps(truth["t"] - origin, truth["x"], track)
+    flying = _flying_laps(laps)
     row: dict[str, Any] = {
         "folder": str(run),
         "laps": car["laps_completed"],
@@ -211,9 +211,9 @@ def _grip_change(schedule: DriftSchedule) -> float | None:
     return min(starts) if starts else None
 
 
-def _flying_laps(since: np.ndarray, x: np.ndarray, track) -> list[tuple[float, float]]:
-    """(start since the first command, time) of each flying lap of the true trajectory."""
-    stats = lap_statistics(since, x, track)
+def _flying_laps(stats: dict[str, Any]) -> list[tuple[float, float]]:
+    """(start, time) of each flying lap in :func:`~crs_core.analysis.metrics.lap_statistics`'s
+    ``stats`` (s, on the clock it was given)."""
     starts, times = stats["crossings_s"], stats["lap_times_s"]
     return [(float(start), float(lap)) for start, lap in zip(starts[1:], times[1:], strict=False)]
 
