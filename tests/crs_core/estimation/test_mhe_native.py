@@ -98,3 +98,25 @@ def test_in_casadis_vm_the_mhe_steps_in_numpy_to_the_same_estimates(mhe, drive, 
     compiled, _ = _run(mhe, drive, queries)
     interpreted, _ = _run(in_vm, drive, queries)
     np.testing.assert_allclose(interpreted, compiled, rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize(
+    "online", [("Cm1",), ("Cm1", "gyro_bias"), ("Cm1", "gyro_bias", "grip")], ids=len
+)
+def test_the_compiled_step_is_the_reference_step_at_every_state_count(drive, online) -> None:
+    """7, 8 and 9 states (the car's 6 and online parameters; GCC 12 once dropped the
+    triangular solve of the step at exactly 7): a full window steps as the reference does,
+    and no update of the drive falls back."""
+    settings = MheSettings(rate_hz=60.0, horizon=12, online_parameters=online)
+    mhe = make_estimator("mhe", "lh+imu+we", settings=settings, inputs="commanded")
+    assert isinstance(mhe, MovingHorizonEstimator)
+    assert mhe.model.nx == 6 + len(online)
+    _run(mhe, drive, np.arange(1, 61) / 60.0)
+    assert mhe.diagnostics.fallbacks == 0
+    inputs, first, information, mean = _window(mhe)
+    (code, native), (expected, reference) = _both(mhe, inputs, first, information, mean)
+    assert code == expected == StepOutcome.TAKEN
+    np.testing.assert_allclose(
+        native.X, reference.X, rtol=0, atol=1e-9 * np.max(np.abs(reference.X))
+    )
+    np.testing.assert_allclose(native.covariance, reference.covariance, rtol=1e-7, atol=1e-12)
