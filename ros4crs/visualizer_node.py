@@ -10,7 +10,8 @@ viewer does reaches a car. It finds the cars (``cars``, else every ``/carN`` nam
 graph) and the topics by polling the graph once a second, as the recorder does, and subscribes
 raw and best-effort (a slow viewer never holds a publisher back, and joining or leaving does not
 disturb the stack). A car's ``estimate/state``, ``ground_truth``, ``estimate/diagnostics``,
-``controller/plan``, ``controller/reference``, ``controller/solve_time`` and ``lighthouse_fix``
+``controller/plan``, ``controller/reference``, ``controller/solve_time``,
+``estimate/parameters`` and ``lighthouse_fix``
 (which the estimator computes only while subscribed) are validated at the boundary
 (:mod:`ros4crs.conversions`; a malformed message is dropped with a throttled warning naming the
 field) and feed a :class:`~ros4crs.viz_scene.CarWatch` each (laps counted on the track).
@@ -26,7 +27,8 @@ Channels (the JSON ones with a JSON schema), each built and sent only while a vi
 - ``/tf`` (``foxglove.FrameTransforms``, where the Foxglove app looks for frames):
   ``world`` -> ``carN/base_link`` from each car's estimate, at ``rate_hz`` (the ROS ``/tf`` is
   not passed through: this channel takes its name);
-- ``/viz/carN/status`` (JSON): status, reason, laps, last lap, solve time, deadline misses;
+- ``/viz/carN/status`` (JSON): status, reason, laps, last lap, solve time, deadline misses,
+  online parameters (value, std, informed);
 - ``/viz/page/track`` and ``/viz/page/cars`` (JSON): the built-in page's contract
   (``docs/live-view.md``);
 - every other topic of the graph as raw CDR with its ``ros2msg`` schema, at most ``rate_hz``
@@ -276,6 +278,11 @@ class VisualizerNode(Node):
                     time.monotonic(), conversions.pose_fix_from_msg(msg)[1]
                 ),
                 "Lighthouse fix",
+            )
+        if relative == topics["parameters"]:
+            return (
+                lambda msg: watch.parameters(conversions.online_parameters_from_msg(msg)[1]),
+                "online parameters",
             )
         if relative == topics["solve_time"]:
             return lambda msg: watch.solve_time(conversions.solve_time_from_msg(msg)), "solve time"

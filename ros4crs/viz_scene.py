@@ -2,7 +2,8 @@
 per-car status and the built-in page's JSON.
 
 :class:`CarWatch` follows one car from its validated messages (estimate, truth, estimator
-diagnostics, the controller's plan and solve time, the Lighthouse pose fixes) and counts its laps
+diagnostics, the controller's plan and solve time, the Lighthouse pose fixes, the online
+parameters) and counts its laps
 (:class:`~crs_core.analysis.laps.LapCounter` on the track's projection); :meth:`CarWatch.view`
 is a :class:`CarView`, a snapshot the builders below turn into messages:
 :func:`track_scene` / :func:`cars_scene` (``foxglove.SceneUpdate``), :func:`frame_transforms`
@@ -19,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -44,6 +45,7 @@ from foxglove.messages import (
 from crs_core.analysis.laps import LapCounter
 from crs_core.analysis.statistics import covariance_ellipse
 from crs_core.errors import FieldError
+from crs_core.estimation.base import OnlineValue
 from crs_core.track import Track
 from ros4crs.conversions import body_frame, stamp_ns
 from sim.closed_loop import CAR_LENGTH, CAR_WIDTH
@@ -146,6 +148,9 @@ class CarView:
         The estimator's updates slower than their deadline, since it started.
     stamp : float or None
         Stamp of the newest estimate, s.
+    parameters : dict of str to OnlineValue
+        The estimator's online parameters by name (value and std in the parameter's unit,
+        whether the data inform it; empty: none estimated).
     """
 
     name: str
@@ -162,6 +167,7 @@ class CarView:
     solve_ms: float | None = None
     deadline_misses: int = 0
     stamp: float | None = None
+    parameters: Mapping[str, OnlineValue] = field(default_factory=dict)
 
 
 def car_status(
@@ -221,6 +227,7 @@ class CarWatch:
         self._reference = np.zeros((0, 2))
         self._solve_ms: float | None = None
         self._fixes: deque[tuple[float, np.ndarray]] = deque()
+        self._parameters: Mapping[str, OnlineValue] = {}
 
     def estimate(
         self,
@@ -267,6 +274,10 @@ class CarWatch:
         (monotonic s)."""
         self._fixes.append((received, np.asarray(pose[:3], dtype=float)))
 
+    def parameters(self, values: Mapping[str, OnlineValue]) -> None:
+        """The estimator's online parameters by name (checked)."""
+        self._parameters = dict(values)
+
     def view(self, now: float) -> CarView:
         """The snapshot at ``now`` (monotonic s, the clock of ``received``)."""
         age = None if self._received is None else now - self._received
@@ -290,6 +301,7 @@ class CarWatch:
             solve_ms=self._solve_ms,
             deadline_misses=self._deadline_misses,
             stamp=self._stamp,
+            parameters=self._parameters,
         )
 
 
@@ -457,9 +469,21 @@ def _maybe(value: float | None, digits: int) -> float | None:
     return None if value is None or not math.isfinite(value) else round(float(value), digits)
 
 
+def _parameters_json(car: CarView) -> list[dict[str, Any]]:
+    return [
+        {
+            "name": name,
+            "value": _maybe(p.value, 6),
+            "std": _maybe(p.std, 6),
+            "informed": bool(p.informed),
+        }
+        for name, p in car.parameters.items()
+    ]
+
+
 def status_json(car: CarView) -> dict[str, Any]:
-    """``/viz/<car>/status``: status, reason, laps, last lap (s), solve time (ms) and the
-    estimator's deadline misses (:data:`STATUS_SCHEMA`)."""
+    """``/viz/<car>/status``: status, reason, laps, last lap (s), solve time (ms), the
+    estimator's deadline misses and its online parameters (:data:`STATUS_SCHEMA`)."""
     return {
         "status": car.status,
         "reason": car.reason,
@@ -467,6 +491,7 @@ def status_json(car: CarView) -> dict[str, Any]:
         "last_lap_s": _maybe(car.last_lap_s, 3),
         "solve_ms": _maybe(car.solve_ms, 3),
         "deadline_misses": car.deadline_misses,
+        "parameters": _parameters_json(car),
     }
 
 
@@ -482,8 +507,8 @@ def page_track_json(track: Track) -> dict[str, Any]:
 
 def page_cars_json(cars: list[CarView], stamp: float) -> dict[str, Any]:
     """``/viz/page/cars``: every car's status, estimate and truth ``[x, y, yaw]`` (or null),
-    plan, recent Lighthouse fixes ``[[x, y, yaw], ...]``, size ``[length, width]`` (m), laps
-    and last lap (s) at ``stamp`` (s)."""
+    plan, recent Lighthouse fixes ``[[x, y, yaw], ...]``, size ``[length, width]`` (m), laps,
+    last lap (s) and online parameters (name, value, std, informed) at ``stamp`` (s)."""
     return {
         "stamp": round(stamp, 6),
         "cars": [
@@ -498,6 +523,7 @@ def page_cars_json(cars: list[CarView], stamp: float) -> dict[str, Any]:
                 "size": list(CAR_SIZE),
                 "laps": car.laps,
                 "last_lap_s": _maybe(car.last_lap_s, 3),
+                "parameters": _parameters_json(car),
             }
             for car in cars
         ],
@@ -507,6 +533,19 @@ def page_cars_json(cars: list[CarView], stamp: float) -> dict[str, Any]:
 _POINTS = {"type": "array", "items": {"type": "array", "items": {"type": "number"}}}
 _POSE = {"type": ["array", "null"], "items": {"type": "number"}, "minItems": 3, "maxItems": 3}
 _STATUS = {"type": "string", "enum": list(STATUSES)}
+_PARAMETERS = {
+    "type": "array",
+    "items": {
+        "type": "object",
+        "properties": {
+            "name": {"type": "string"},
+            "value": {"type": ["number", "null"]},
+            "std": {"type": ["number", "null"]},
+            "informed": {"type": "boolean"},
+        },
+        "required": ["name", "value", "std", "informed"],
+    },
+}
 #: JSON schema of :func:`status_json`.
 STATUS_SCHEMA: dict[str, Any] = {
     "title": "chronos.CarStatus",
@@ -518,8 +557,17 @@ STATUS_SCHEMA: dict[str, Any] = {
         "last_lap_s": {"type": ["number", "null"]},
         "solve_ms": {"type": ["number", "null"]},
         "deadline_misses": {"type": "integer"},
+        "parameters": _PARAMETERS,
     },
-    "required": ["status", "reason", "laps", "last_lap_s", "solve_ms", "deadline_misses"],
+    "required": [
+        "status",
+        "reason",
+        "laps",
+        "last_lap_s",
+        "solve_ms",
+        "deadline_misses",
+        "parameters",
+    ],
 }
 #: JSON schema of :func:`page_track_json`.
 PAGE_TRACK_SCHEMA: dict[str, Any] = {
@@ -549,6 +597,7 @@ PAGE_CARS_SCHEMA: dict[str, Any] = {
                     "size": {"type": "array", "items": {"type": "number"}},
                     "laps": {"type": "integer"},
                     "last_lap_s": {"type": ["number", "null"]},
+                    "parameters": _PARAMETERS,
                 },
                 "required": [
                     "name",
@@ -561,6 +610,7 @@ PAGE_CARS_SCHEMA: dict[str, Any] = {
                     "size",
                     "laps",
                     "last_lap_s",
+                    "parameters",
                 ],
             },
         },

@@ -282,9 +282,18 @@ function cell(row, text, className) {
   return td;
 }
 
-// One row per car (name, status, laps, last lap) and one under it with the status's reason.
+// Three significant digits of an online parameter (its value or std).
+function significant(value) {
+  return value === null ? "–" : Number(value.toPrecision(3)).toString();
+}
+
+// One row per car (name, status, laps, last lap), one under it with the status's reason and one
+// per online parameter (value ± std; "prior" while the data do not inform it).
 function updateTable() {
-  const key = JSON.stringify(cars.map((c) => [c.name, c.status, c.reason, c.laps, c.last_lap_s]));
+  const key = JSON.stringify(cars.map((c) => [
+    c.name, c.status, c.reason, c.laps, c.last_lap_s,
+    c.parameters.map((p) => [p.name, significant(p.value), significant(p.std), p.informed]),
+  ]));
   if (key === tableKey) {
     return;  // unchanged: no DOM work at 30 Hz
   }
@@ -302,6 +311,12 @@ function updateTable() {
     if (car.reason) {
       const reason = cell(tableBody.insertRow(), car.reason, "reason");
       reason.colSpan = 4;
+    }
+    for (const p of car.parameters) {
+      const text = `${p.name} ${significant(p.value)} ± ${significant(p.std)}` +
+        (p.informed ? "" : " (prior)");
+      const parameter = cell(tableBody.insertRow(), text, "parameter");
+      parameter.colSpan = 4;
     }
   }
   noCars.hidden = cars.length > 0;

@@ -54,7 +54,27 @@ def test_every_fix_between_two_ticks_is_read_and_only_the_newest_state(
             assert view.stamp == pytest.approx(6.1)
             node._read_pending()  # nothing new: nothing read again
             assert len(watch.view(time.monotonic()).fixes) == 2
+            _online_parameters_are_read_and_a_malformed_message_is_dropped(node, watch)
         finally:
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def _online_parameters_are_read_and_a_malformed_message_is_dropped(node, watch) -> None:
+    from rclpy.serialization import serialize_message
+
+    from chronos_msgs.msg import OnlineParameters
+
+    topic = "/car1/estimate/parameters"
+    node.topics[topic] = entry = node._subscribe(topic, "chronos_msgs/msg/OnlineParameters", watch)
+    assert entry is not None
+    good = OnlineParameters(names=["Cm1"], values=[0.28], stds=[0.01], informed=[True])
+    node._on_message(topic, entry, serialize_message(good))
+    node._read_pending()
+    ((name, value),) = watch.view(time.monotonic()).parameters.items()
+    assert name == "Cm1" and (value.value, value.std, value.informed) == (0.28, 0.01, True)
+    bad = OnlineParameters(names=["Cm1", "grip"], values=[0.2], stds=[0.01], informed=[True])
+    node._on_message(topic, entry, serialize_message(bad))
+    node._read_pending()  # dropped with a warning: the last good values stay
+    assert watch.view(time.monotonic()).parameters["Cm1"].value == 0.28

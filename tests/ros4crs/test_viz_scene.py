@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from crs_core.errors import FieldError
+from crs_core.estimation.base import OnlineValue
 from crs_core.track import load_demo_track
 from ros4crs import viz_scene
 from ros4crs.viz_scene import CarView, CarWatch
@@ -104,6 +105,7 @@ def _view(**fields) -> CarView:
         last_lap_s=6.4321,
         solve_ms=4.56789,
         deadline_misses=1,
+        parameters={"Cm1": OnlineValue(0.2912345678, 0.0123, True)},
     )
     return CarView(**{**base, **fields})
 
@@ -186,6 +188,7 @@ def _valid(value, schema) -> None:
         "string": str,
         "number": (int, float),
         "null": type(None),
+        "boolean": bool,
     }
     types["integer"] = int
     kinds = schema["type"] if isinstance(schema["type"], list) else [schema["type"]]
@@ -202,7 +205,10 @@ def _valid(value, schema) -> None:
 
 
 def test_the_status_and_the_page_json_follow_their_schemas():
-    views = [_view(), _view(name="car2", status="none", reason="no estimate yet", estimate=None)]
+    views = [
+        _view(),
+        _view(name="car2", status="none", reason="no estimate yet", estimate=None, parameters={}),
+    ]
     status = viz_scene.status_json(views[0])
     assert status == {
         "status": "ok",
@@ -211,6 +217,7 @@ def test_the_status_and_the_page_json_follow_their_schemas():
         "last_lap_s": 6.432,
         "solve_ms": 4.568,
         "deadline_misses": 1,
+        "parameters": [{"name": "Cm1", "value": 0.291235, "std": 0.0123, "informed": True}],
     }
     cars = viz_scene.page_cars_json(views, 12.25)
     assert cars["stamp"] == 12.25
@@ -218,6 +225,7 @@ def test_the_status_and_the_page_json_follow_their_schemas():
     assert car1["estimate"] == [1.0, 2.0, 0.5] and car1["plan"][1] == [1.2, 2.1]
     assert car1["fixes"] == [[1.0, 2.01, 0.5], [1.02, 2.0, 0.52]]
     assert car1["size"] == list(viz_scene.CAR_SIZE) and car2["estimate"] is None
+    assert car1["parameters"] == status["parameters"] and car2["parameters"] == []
     track = viz_scene.page_track_json(TRACK)
     assert len(track["centre"]) == len(track["left"]) == len(track["right"]) == TRACK.num_points
     for value, schema in (
