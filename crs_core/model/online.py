@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import casadi as ca
 
 from crs_core.errors import FieldError
-from crs_core.model.effects import effect_of_parameter
+from crs_core.model.effects import EFFECTS, effect_of_parameter
 from crs_core.parameters import ParameterSet
 
 #: The grip factor's name and the tyre peaks it scales.
@@ -56,6 +56,20 @@ class OnlineParameter:
     @property
     def state_name(self) -> str:
         return STATE_PREFIX + self.name
+
+
+def _prior_std(name: str, identification_std: float) -> float:
+    """An online parameter's prior standard deviation: its identification prior's, except for
+    an effect's parameter, whose prior is the effect's nominal size (its value when the effect
+    is named without one: 0.05 rad/s for the gyro bias) where that is smaller. The
+    identification prior of an effect's parameter spans a quarter of its whole range (0.25
+    rad/s for the gyro bias): as a random walk that wide (0.032 rad/s per sqrt(s) at
+    T = 120 s) the estimate followed the measurement noise."""
+    owner = effect_of_parameter(name)
+    if owner is None:
+        return identification_std
+    nominal = next(abs(p.value) for p in EFFECTS[owner].parameters if p.name == name)
+    return min(identification_std, nominal) if nominal > 0 else identification_std
 
 
 def parse_online_names(text: str) -> tuple[str, ...]:
@@ -103,7 +117,9 @@ class OnlineParameters:
                 raise FieldError("online_parameters", f"no parameter {name!r} ({hint})")
             p = parameters[name]
             entries.append(
-                OnlineParameter(name, p.value, p.prior_std, p.unit, *_bounds(name, parameters))
+                OnlineParameter(
+                    name, p.value, _prior_std(name, p.prior_std), p.unit, *_bounds(name, parameters)
+                )
             )
         clash = [e.name for e in entries if e.name in GRIP_SCALES]
         if clash and GRIP in names:

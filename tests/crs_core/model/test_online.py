@@ -78,6 +78,17 @@ def test_random_walk_and_prior_std_follow_the_prior():
     assert online.process_std["online_Cm1"] == pytest.approx(cm1_prior_std * np.sqrt(2 / 50.0))
 
 
+def test_an_effect_parameter_is_as_uncertain_as_the_effects_nominal_size():
+    """Not as its identification prior (a quarter of its range: 0.25 rad/s for the gyro bias),
+    whose random walk follows the noise."""
+    model = CarModel(["gyro_bias", "steering_lag"])
+    assert model.parameters["gyro_bias"].prior_std == pytest.approx(0.25)
+    online = OnlineParameters(("gyro_bias", "tau_steer"), model.parameters, 120.0)
+    assert online.priors["gyro_bias"][1] == pytest.approx(0.05)
+    tau = model.parameters["tau_steer"]
+    assert online.priors["tau_steer"][1] == pytest.approx(min(tau.prior_std, 0.05))
+
+
 @pytest.mark.parametrize(
     ("names", "effects", "message"),
     [
