@@ -1,7 +1,8 @@
 """``crs bench adaptation``: a car that changes while it races, raced with and without online
 parameters.
 
-Each schedule of changes (:mod:`sim.drift`: the issue's, and one of our own) drives an emulated
+Each schedule of changes (:mod:`sim.drift`: the issue's, one of our own, and ``steady``, a car
+that does not change) drives an emulated
 car behind a ``typical`` Wi-Fi link (``crs launch car --emulate --link typical --car-drift``),
 once with the plain estimator and once with ``Cm1``, ``gyro_bias`` and ``grip`` estimated online
 (:data:`ONLINE`), ``repeats`` times each. Per race: laps, lap times, the mean flying lap before
@@ -10,7 +11,9 @@ time off the track, motor cut-offs and the estimation RMSE. With online paramete
 parameter: each estimate against the emulator's truth at its stamp (the truth log's drifted
 parameters; ``grip`` is the front tyre peak over its start), judged from :data:`SETTLE_S` after
 each change of that parameter ends (and after the start) until its next change begins: the share
-of that time within :data:`TOLERANCES`, the share with the truth inside ±2σ, the largest error.
+of that time within :data:`TOLERANCES`, the share with the truth inside ±2σ, the largest error,
+and how far the final value lies from the prior in its own final σ (a car that does not change:
+no false drift); the course at 1 Hz for :func:`plot`.
 """
 
 from __future__ import annotations
@@ -26,6 +29,9 @@ from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim.closed_loop import off_track
 from sim.drift import DriftSchedule, parse_drift
+
+#: Estimates per second kept in a race's course (:func:`plot`).
+COURSE_HZ = 1.0
 
 #: The online parameters of the races with them.
 ONLINE = ("Cm1", "gyro_bias", "grip")
@@ -51,6 +57,7 @@ SCHEDULES: dict[str, dict[str, Any]] = {
             {"effect": "gyro_bias", "from_s": 15, "to_s": 60, "value": -0.04},
         ]
     },
+    "steady": {"drift": []},
 }
 #: How close an online estimate must be to its truth: relative (``rel``) or absolute.
 TOLERANCES = {"Cm1": ("rel", 0.05), "grip": ("rel", 0.10), "gyro_bias": ("abs", 0.01)}
@@ -74,10 +81,13 @@ def adaptation_benchmark(
 
     rows = []
     for name in schedules:
-        path = work_dir / f"{name}.yaml"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(yaml.safe_dump(SCHEDULES[name]))
-        schedule = parse_drift(SCHEDULES[name])
+        work_dir.mkdir(parents=True, exist_ok=True)
+        path: Path | None = None
+        schedule = DriftSchedule(())
+        if SCHEDULES[name]["drift"]:
+            path = work_dir / f"{name}.yaml"
+            path.write_text(yaml.safe_dump(SCHEDULES[name]))
+            schedule = parse_drift(SCHEDULES[name])
         for online in (False, True):
             for repeat in range(repeats):
                 mode = "online" if online else "plain"
@@ -158,6 +168,7 @@ def parameter_figures(
         std = np.array([estimates[k][1][name].std for k in have])
         actual = _truth_of(name, truth, stamps[have])
         judged = _judged(name, since[have], schedule, float(since[-1]))
+        prior = float(value[0])  # each parameter's first estimate is its prior
         kind, tolerance = TOLERANCES[name]
         error = np.abs(value - actual)
         allowed = tolerance * np.abs(actual) if kind == "rel" else np.full(actual.size, tolerance)
@@ -170,10 +181,65 @@ def parameter_figures(
                 "final": {
                     "value": round(float(value[-1]), 4),
                     "truth": round(float(actual[-1]), 4),
+                    "std": round(float(std[-1]), 5),
+                    "from_prior_sigmas": round(abs(float(value[-1]) - prior) / float(std[-1]), 2),
                 },
             }
+        keep = _every(since[have], 1.0 / COURSE_HZ)
+        figures["course"] = {
+            "t_s": [round(float(t), 2) for t in since[have][keep]],
+            **{
+                key: [round(float(v), 5) for v in series[keep]]
+                for key, series in (("value", value), ("std", std), ("truth", actual))
+            },
+        }
         out[name] = figures
     return out
+
+
+def _every(t: np.ndarray, period: float) -> np.ndarray:
+    """Indices of the first sample of ``t`` in each ``period`` (s)."""
+    _, first = np.unique(np.floor(t / period), return_index=True)
+    return first
+
+
+def plot(result: dict[str, Any], path: Path) -> None:
+    """Each online parameter (rows) on each schedule (columns): the first race's estimate with
+    its ±2σ band against the truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names, schedules = result["online_parameters"], list(result["schedules"])
+    figure, axes = plt.subplots(
+        len(names), len(schedules), figsize=(4.2 * len(schedules), 2.4 * len(names)),
+        sharex=True, squeeze=False,
+    )  # fmt: skip
+    for column, schedule in enumerate(schedules):
+        race = next(
+            (r for r in result["rows"] if r["schedule"] == schedule and r.get("parameters")), None
+        )
+        for row, name in enumerate(names):
+            ax = axes[row, column]
+            course = (race or {}).get("parameters", {}).get(name, {}).get("course")
+            if course:
+                t, value, std = (np.array(course[k]) for k in ("t_s", "value", "std"))
+                ax.fill_between(t, value - 2 * std, value + 2 * std, alpha=0.25, label="±2σ")
+                ax.plot(t, value, lw=1.2, label="online estimate")
+                ax.plot(t, course["truth"], "k--", lw=1.0, label="truth")
+            ax.grid(alpha=0.3)
+            if column == 0:
+                ax.set_ylabel(name)
+            if row == 0:
+                ax.set_title(f"schedule {schedule}")
+            if row == len(names) - 1:
+                ax.set_xlabel("s since the first command")
+    axes[0, 0].legend(fontsize=7, loc="best")
+    figure.suptitle("crs bench adaptation: online parameters against the emulated car's truth")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def _truth_of(name: str, truth: dict[str, np.ndarray], stamps: np.ndarray) -> np.ndarray:
@@ -246,8 +312,9 @@ def format_markdown(result: dict[str, Any]) -> str:
         f"Online parameters, judged from {result['settle_s']:g} s after each change ends "
         "(share of that time within the tolerance / with the truth inside ±2σ; largest error):",
         "",
-        "| schedule | parameter | tolerance | within | inside ±2σ | largest error |",
-        "|---|---|---|---|---|---|",
+        "| schedule | parameter | tolerance | within | inside ±2σ | largest error | final from"
+        " the prior |",
+        "|---|---|---|---|---|---|---|",
     ]
     for name in result["schedules"]:
         group = [r for r in rows if r["schedule"] == name and r.get("parameters")]
@@ -265,7 +332,8 @@ def format_markdown(result: dict[str, Any]) -> str:
                 f"| {name} | {parameter} | {allowed} "
                 f"| {_span([100 * f['within_tolerance'] for f in figures], '{:.0f} %')} "
                 f"| {_span([100 * f['inside_2sigma'] for f in figures], '{:.0f} %')} "
-                f"| {_span([f['max_error'] for f in figures], '{:.3g}')} |"
+                f"| {_span([f['max_error'] for f in figures], '{:.3g}')} "
+                f"| {_span([f['final']['from_prior_sigmas'] for f in figures], '{:.1f} σ')} |"
             )
     return "\n".join(lines)
 

@@ -78,12 +78,14 @@ def stack(args: argparse.Namespace) -> Outcome:
 
 
 def adaptation(args: argparse.Namespace) -> Outcome:
-    from benchmarks.adaptation import adaptation_benchmark, format_markdown
+    from benchmarks.adaptation import adaptation_benchmark, format_markdown, plot
 
     work = _runs(args, "adaptation")
     schedules = tuple(args.schedules.split(","))
     result = adaptation_benchmark(work, args.duration, args.repeats, schedules, args.seed)
-    return _with_machine(result), f"{format_markdown(result)}\nruns: {work}"
+    figure = work / "adaptation.png"
+    plot(result, figure)
+    return _with_machine(result), f"{format_markdown(result)}\nplot: {figure}\nruns: {work}"
 
 
 def _adaptation_options(parser: argparse.ArgumentParser) -> None:
@@ -107,6 +109,14 @@ def _known_names(option: str, known: tuple[str, ...], text: str) -> str:
     if unknown or not text.strip():
         raise ValueError(f"--{option}: one or more of {', '.join(known)}, got {text!r}")
     return ",".join(names)
+
+
+def online_real(args: argparse.Namespace) -> Outcome:
+    from benchmarks.online_real import format_markdown, online_real_benchmark
+
+    plots = Path(args.out).parent / "online_real_plots" if args.out else None
+    result = _with_machine(online_real_benchmark(plots))
+    return result, format_markdown(result) + (f"\nfigures: {plots}" if plots else "")
 
 
 def floor(args: argparse.Namespace) -> Outcome:
@@ -395,11 +405,20 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
     "adaptation": (
         adaptation,
         _adaptation_options,
-        "a car that changes while it races (sim.drift: the issue's schedule and one of ours), "
+        "a car that changes while it races (sim.drift: the issue's schedule, one of ours, and "
+        "a car that does not change), "
         "emulated behind a typical Wi-Fi link, raced with and without Cm1, gyro_bias and grip "
         "estimated online: laps, flying laps before and after the grip change, contouring "
         "error, time off the track, cut-offs, RMSE, and each online parameter against the "
-        "truth (within tolerance, inside ±2σ); ~repeats x 4 x (duration + 25 s)",
+        "truth (within tolerance, inside ±2σ, final value from the prior) with a plot of each "
+        "against the truth; ~repeats x 6 x (duration + 25 s)",
+    ),
+    "online-real": (
+        online_real,
+        None,
+        f"Cm1 and gyro_bias estimated online (MHE) on the two real recordings in {REAL_DATA}: "
+        "their course over each run (figures beside --out), and each run's end values tried "
+        "on the other run's held-out 2 s prediction; ~1.5 min",
     ),
     "floor": (
         floor,

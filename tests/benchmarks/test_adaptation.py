@@ -12,10 +12,11 @@ from benchmarks.adaptation import (
     _truth_of,
     format_markdown,
     parameter_figures,
+    plot,
 )
 from crs_core.estimation.base import OnlineValue
 from crs_core.model import CarModel
-from sim.drift import parse_drift
+from sim.drift import DriftSchedule, parse_drift
 
 ISSUE = parse_drift(SCHEDULES["issue"])
 
@@ -52,11 +53,25 @@ def test_estimates_are_scored_within_tolerance_and_inside_two_sigma():
     assert figures["max_error"] == pytest.approx(0.02) and figures["judged_s"] == pytest.approx(
         10.0
     )
+    assert figures["final"]["from_prior_sigmas"] == 0.0  # the first estimate is the prior
+    assert figures["course"]["t_s"][:3] == [0.0, 1.0, 2.0] and len(figures["course"]["t_s"]) == 20
 
 
-def test_the_table_has_a_row_per_schedule_and_mode_and_per_online_parameter():
+def test_a_car_that_does_not_change_is_judged_from_ten_seconds_on():
+    since = np.arange(0.0, 30.0, 1.0)
+    for name in ("Cm1", "gyro_bias", "grip"):
+        assert since[_judged(name, since, DriftSchedule(()), 30.0)].min() == 10.0
+
+
+def test_the_table_has_a_row_per_schedule_and_mode_and_per_online_parameter(tmp_path):
     def row(online: bool) -> dict:
-        figures = {"within_tolerance": 0.9, "inside_2sigma": 0.95, "max_error": 0.04}
+        figures = {
+            "within_tolerance": 0.9,
+            "inside_2sigma": 0.95,
+            "max_error": 0.04,
+            "final": {"from_prior_sigmas": 0.8},
+            "course": {"t_s": [0.0, 1.0], "value": [1.0, 0.9], "std": [0.1, 0.05], "truth": [1, 1]},
+        }
         return {
             "schedule": "issue",
             "online": online,
@@ -84,4 +99,6 @@ def test_the_table_has_a_row_per_schedule_and_mode_and_per_online_parameter():
     text = format_markdown(result)
     assert "| issue | no | 16 | 6.60 s | 6.90 s | 80 / 170 mm | 0.00 s | 0 | 1.0 / 1.2 mm |" in text
     assert "| issue | yes |" in text
-    assert "| issue | Cm1 | 5 % | 90 % | 95 % | 0.04 |" in text
+    assert "| issue | Cm1 | 5 % | 90 % | 95 % | 0.04 | 0.8 σ |" in text
+    plot(result, tmp_path / "adaptation.png")
+    assert (tmp_path / "adaptation.png").stat().st_size > 10_000
