@@ -333,7 +333,7 @@ def format_markdown(result: dict[str, Any]) -> str:
                 f"| {_span([100 * f['within_tolerance'] for f in figures], '{:.0f} %')} "
                 f"| {_span([100 * f['inside_2sigma'] for f in figures], '{:.0f} %')} "
                 f"| {_span([f['max_error'] for f in figures], '{:.3g}')} "
-                f"| {_span([f['final']['from_prior_sigmas'] for f in figures], '{:.1f} σ')} |"
+                f"| {_span([f['final'].get('from_prior_sigmas') for f in figures], '{:.1f} σ')} |"
             )
     return "\n".join(lines)
 
