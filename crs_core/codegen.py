@@ -13,6 +13,7 @@ Callables are not thread-safe: each owns its work buffers.
 from __future__ import annotations
 
 import ctypes
+import fcntl
 import hashlib
 import os
 import shutil
@@ -234,6 +235,16 @@ def _build_library(
     if target.exists():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
+    # one builder per library: a process that finds another compiling it waits and loads its
+    # result (the test suite's workers and a launch's nodes ask for the same libraries)
+    with open(target.with_suffix(".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not target.exists():
+            _compile(source, library_name, target, flags)
+    return target
+
+
+def _compile(source: str, library_name: str, target: Path, flags: Sequence[str]) -> None:
     with tempfile.TemporaryDirectory(dir=target.parent) as build:
         c_file = Path(build, f"{library_name}.c")
         c_file.write_text(source)
@@ -247,5 +258,4 @@ def _build_library(
         )
         if result.returncode != 0:
             raise RuntimeError(f"compiling {library_name} failed:\n{result.stderr[-2000:]}")
-        os.replace(built, target)  # atomic: concurrent builders agree on the result
-    return target
+        os.replace(built, target)  # atomic: a reader never sees a half-written library

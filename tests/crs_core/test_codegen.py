@@ -4,6 +4,9 @@ definition agree, take and return the same shapes and give the same estimates
 
 from __future__ import annotations
 
+import multiprocessing
+import os
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -56,6 +59,32 @@ def test_library_is_cached(models, tmp_path, monkeypatch):
     mtime = built[0].stat().st_mtime_ns
     compile_functions(functions, "cache_probe", "compiled")
     assert built[0].stat().st_mtime_ns == mtime
+
+
+def _build_probe(cache: str) -> None:
+    os.environ["CRS_CACHE_DIR"] = cache
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
+    compile_functions([ca.Function("probe", [x, u], [ca.sin(x) * u])], "lock_probe", "compiled")
+
+
+@needs_compiler
+def test_processes_asking_for_one_library_at_once_compile_it_once(tmp_path, monkeypatch):
+    """Four processes build the same library at the same moment: the compiler runs once (the
+    others wait for it and load its result)."""
+    log = tmp_path / "compiles.log"
+    wrapper = tmp_path / "cc.sh"
+    wrapper.write_text(f'#!/bin/sh\necho run >> "{log}"\nsleep 0.5\nexec gcc "$@"\n')
+    wrapper.chmod(0o755)
+    monkeypatch.setenv("CC", str(wrapper))
+    context = multiprocessing.get_context("fork")
+    processes = [context.Process(target=_build_probe, args=(str(tmp_path),)) for _ in range(4)]
+    for process in processes:
+        process.start()
+    for process in processes:
+        process.join(60)
+        assert process.exitcode == 0
+    assert log.read_text().splitlines() == ["run"]
+    assert len(list((tmp_path / "codegen").glob("lock_probe_*.so"))) == 1
 
 
 def test_wrong_input_size_is_rejected(models):
