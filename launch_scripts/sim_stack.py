@@ -360,6 +360,7 @@ def run_stack(
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
         write_online_parameters(contents_of, out, options.params_file)
+        write_drift_truth(contents_of, out)
         return analyse(contents_of, cars, track)
 
     report = launch_and_report(
@@ -608,6 +609,28 @@ def write_online_parameters(
         path = out / f"online_parameters_{car}.csv"
         prior_t = min(0.0, float(stamps[0]))  # estimates before the first command: earlier
         written.append(track.write_csv(path, stamps, model.online.priors, prior_t))
+    return written
+
+
+def write_drift_truth(contents_of: dict[str, BagContents], out: Path) -> list[Path]:
+    """``out/truth_carN.npz`` of each car whose simulator drifted (``ground_truth/parameters``
+    in the bag): ``t`` (s, the ground truth's stamps), ``x`` (its states, ``(N, 6)``) and
+    ``drift_<name>`` (each drifted parameter at ``t``), as an emulated car's truth log."""
+    written = []
+    for car, contents in contents_of.items():
+        if not contents.truth_parameters or not contents.truth:
+            continue
+        t = np.array([stamp for stamp, _ in contents.truth])
+        stamps = np.array([stamp for stamp, _ in contents.truth_parameters])
+        drifted = {
+            f"drift_{name}": np.interp(
+                t, stamps, [values[name] for _, values in contents.truth_parameters]
+            )
+            for name in contents.truth_parameters[0][1]
+        }
+        path = out / f"truth_{car}.npz"
+        np.savez(path, t=t, x=np.array([x for _, x in contents.truth]), **drifted)
+        written.append(path)
     return written
 
 

@@ -80,6 +80,9 @@ class BagContents:
     )
     #: ``estimate/parameters``: each message's stamp and its online parameters by name.
     online_parameters: list[tuple[float, dict[str, OnlineValue]]] = field(default_factory=list)
+    #: ``ground_truth/parameters``: each message's stamp and the simulated car's drifted
+    #: parameters by name (a car with a drift schedule).
+    truth_parameters: list[tuple[float, dict[str, float]]] = field(default_factory=list)
 
 
 def read_car(bag: str | Path, namespace: str = "", input_topic: str = "input") -> BagContents:
@@ -102,6 +105,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
     prefix = namespace.rstrip("/") + "/" if namespace else "/"
     measurements, inputs, estimates, truth, queries = [], [], [], [], []
     online: list[tuple[float, dict[str, OnlineValue]]] = []
+    truth_parameters: list[tuple[float, dict[str, float]]] = []
     estimate_sigmas: list[np.ndarray] = []
     receive_times: dict[str, list[tuple[float, float]]] = {k: [] for k in _RECEIVE_KINDS}
     malformed = velocity_references = 0
@@ -154,6 +158,9 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
                 queries.append(Query(*conversions.query_from_msg(msg)))
             elif family == "parameters":
                 online.append(conversions.online_parameters_from_msg(msg))
+            elif family == "truth_parameters":
+                stamp, values = conversions.online_parameters_from_msg(msg)
+                truth_parameters.append((stamp, {k: v.value for k, v in values.items()}))
         except ValueError:
             malformed += 1
     measurements.sort(key=lambda m: (m.stamp, m.sensor))
@@ -170,6 +177,7 @@ def read_car_from(reader: Reader, namespace: str = "", input_topic: str = "input
         estimate_sigmas=estimate_sigmas,
         receive_times=receive_times,
         online_parameters=online,
+        truth_parameters=truth_parameters,
     )
     if diagnostics is not None:
         contents.deadline_misses = int(diagnostics.deadline_misses)

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from array import array
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -65,6 +65,7 @@ TOPICS = {
     "input": "input",
     "applied_input": "input/applied",
     "ground_truth": "ground_truth",
+    "truth_parameters": "ground_truth/parameters",
     "state": "estimate/state",
     "odometry": "estimate/odometry",
     "diagnostics": "estimate/diagnostics",
@@ -439,16 +440,26 @@ def transform_msg(estimate: Estimate, child_frame_id: str = "base_link") -> Any:
 
 def online_parameters_msg(estimate: Estimate) -> Any:
     """``chronos_msgs/OnlineParameters`` of an estimate's online parameters."""
+    return parameters_msg(estimate.parameters, estimate.stamp)
+
+
+def truth_parameters_msg(values: Mapping[str, float], stamp: float) -> Any:
+    """``chronos_msgs/OnlineParameters`` of a simulated car's drifted parameters as they are at
+    ``stamp`` (s): each exact (std 0, informed)."""
+    return parameters_msg({k: OnlineValue(float(v), 0.0, True) for k, v in values.items()}, stamp)
+
+
+def parameters_msg(parameters: Mapping[str, OnlineValue], stamp: float) -> Any:
+    """``chronos_msgs/OnlineParameters`` of ``parameters`` by name at ``stamp`` (s)."""
     from chronos_msgs.msg import OnlineParameters
 
-    parameters = estimate.parameters
     msg = OnlineParameters(
         names=list(parameters),
         values=[p.value for p in parameters.values()],
         stds=[p.std for p in parameters.values()],
         informed=[p.informed for p in parameters.values()],
     )
-    fill_stamp(msg.header.stamp, estimate.stamp)
+    fill_stamp(msg.header.stamp, stamp)
     return msg
 
 

@@ -26,7 +26,8 @@ its compiler), ``onboard``
 time), ``command_timeout`` (s of simulated time without a command that cut the drive motor, as
 the car's firmware does after 200 ms (:mod:`sim.cutoff`): torque 0, the steering held, until the
 next command; 0 = hold the last command for ever), ``drift_file`` (a schedule of changes to the
-simulated car while it races, :mod:`sim.drift`; empty: none).
+simulated car while it races, :mod:`sim.drift`; empty: none; the parameters it changes are
+published as they are with the ground truth, on ``ground_truth/parameters``).
 """
 
 from __future__ import annotations
@@ -166,6 +167,12 @@ class SimulatorNode(Node):
         from chronos_msgs.msg import CarState
 
         self._truth = self.create_publisher(CarState, conversions.TOPICS["ground_truth"], 10)
+        self._truth_parameters = None
+        if drift is not None:
+            from chronos_msgs.msg import OnlineParameters
+
+            topic = conversions.TOPICS["truth_parameters"]
+            self._truth_parameters = self.create_publisher(OnlineParameters, topic, 10)
         self._inputs = input_subscription(self, self._on_input)
         self._clock_publisher = None
         if self.rate_factor != 1.0:
@@ -227,6 +234,10 @@ class SimulatorNode(Node):
         if t >= self._next_truth:
             self._next_truth = t + self._truth_period
             self._truth.publish(conversions.car_state_msg(self.session.base_state, self.epoch + t))
+            if self._truth_parameters is not None:
+                self._truth_parameters.publish(
+                    conversions.truth_parameters_msg(self.session.drifted, self.epoch + t)
+                )
 
     def _on_input(self, command: conversions.CarCommand) -> None:
         if command.mode != "torque" and self.session.onboard is None:

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from launch_scripts.sim_stack import StackOptions, stack_nodes
+from launch_scripts.sim_stack import StackOptions, stack_nodes, write_drift_truth
 
 
 def _parameters(output: str, cars: int = 2) -> dict[str, dict]:
@@ -166,3 +167,22 @@ def test_the_summary_gives_each_cars_online_parameters_at_the_end(tmp_path: Path
     }
     text = summary({"cars": {"car1": car}, "cpu_percent": {}}, tmp_path)
     assert "  online at the end: Cm1 0.835 ± 0.022" in text.splitlines()
+
+
+def test_a_drifting_simulators_truth_is_written_like_an_emulated_cars(tmp_path: Path):
+    """``truth_carN.npz`` of a car whose bag holds ``ground_truth/parameters``: ``t`` and
+    ``x`` of its ground truth, ``drift_<name>`` at those stamps; none for a car without."""
+    from ros4crs.bag_replay import BagContents
+
+    truth = [(10.0 + 0.02 * k, np.full(6, float(k))) for k in range(4)]
+    drifted = [(10.0, {"Cm1": 1.0}), (10.04, {"Cm1": 0.9})]
+    contents = {
+        "car1": BagContents([], [], [], truth, 0, truth_parameters=drifted),
+        "car2": BagContents([], [], [], truth, 0),
+    }
+    (path,) = write_drift_truth(contents, tmp_path)
+    assert path == tmp_path / "truth_car1.npz"
+    with np.load(path) as log:
+        np.testing.assert_allclose(log["t"], [10.0, 10.02, 10.04, 10.06])
+        np.testing.assert_allclose(log["drift_Cm1"], [1.0, 0.95, 0.9, 0.9])
+        assert log["x"].shape == (4, 6)
