@@ -2,8 +2,15 @@
 
 from __future__ import annotations
 
+import casadi as ca
+
 from crs_core.errors import FieldError
-from crs_core.estimation.base import Estimator, EstimatorSettings
+from crs_core.estimation.base import (
+    Estimator,
+    EstimatorSettings,
+    parse_sensor_set,
+    sensor_group,
+)
 from crs_core.estimation.ekf import EkfSettings, ExtendedKalmanFilter
 from crs_core.estimation.inputs import InputModeEstimator
 from crs_core.estimation.mhe import MheSettings, MovingHorizonEstimator
@@ -60,6 +67,9 @@ def make_estimator(
         raise FieldError("model", "give the commanded model; inputs='estimated' builds the other")
     if settings.online_parameters:
         model = model.with_online(settings.online_parameters, settings.online_reversion_s)
+        check_online_reach(
+            model, parse_sensor_set(sensors) if isinstance(sensors, str) else sensors
+        )
 
     if inputs == "commanded":
         return _new_estimator(model, sensors, settings)
@@ -78,6 +88,38 @@ def _new_estimator(
     if isinstance(settings, MheSettings):
         return MovingHorizonEstimator(model, sensors, settings)
     raise TypeError(f"settings: EkfSettings or MheSettings, got {settings!r}")
+
+
+def check_online_reach(model: CarModel, groups: frozenset[str]) -> None:
+    """A :class:`~crs_core.errors.FieldError` naming ``online_parameters`` if an online
+    parameter of ``model`` is one no data could inform (:func:`unseen_online_parameters`)."""
+    unseen = unseen_online_parameters(model, groups)
+    if unseen:
+        raise FieldError(
+            "online_parameters",
+            f"{', '.join(unseen)}: neither the car's motion nor what the sensors "
+            f"{'+'.join(sorted(groups))} read depends on it (nothing could inform it)",
+        )
+
+
+def unseen_online_parameters(model: CarModel, groups: frozenset[str]) -> list[str]:
+    """The online parameters of ``model`` that neither the dynamics of its other states nor the
+    outputs of the sensor ``groups`` depend on (symbolically): no data could ever inform them."""
+    plain = model.nx - len(model.online)
+    dynamics = model.xdot_expression[:plain]
+    outputs = [
+        expression
+        for sensor, expression in model.output_expressions.items()
+        if sensor_group(sensor) in groups
+    ]
+    unseen = []
+    for k, name in enumerate(model.online.names):
+        state = model.x_sym[plain + k]
+        if not ca.depends_on(dynamics, state) and not any(
+            ca.depends_on(output, state) for output in outputs
+        ):
+            unseen.append(name)
+    return unseen
 
 
 def input_free_model(model: CarModel) -> CarModel:

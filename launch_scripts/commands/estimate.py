@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
@@ -15,6 +16,10 @@ from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
 from launch_scripts.arguments import Command, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
+
+if TYPE_CHECKING:
+    from crs_core.dataset import Dataset
+    from crs_core.model import CarModel
 
 
 def parse_x0(text: str | None) -> np.ndarray | None:
@@ -104,9 +109,11 @@ def estimate(args: argparse.Namespace) -> None:
         else EkfSettings(online_parameters=online)
     )
     try:  # the model with its online parameters, before --out is touched
-        model.with_online(online, settings.online_reversion_s)
+        online_model = model.with_online(online, settings.online_reversion_s)
     except FieldError as error:
         raise error.renamed("--online-params") from None
+    if online:
+        _check_reach(online_model, dataset, args.sensors)
     out = prepare_output(Path(args.out), "estimate", args.overwrite)
     name = Path(args.dataset).resolve().name
     with tqdm(total=1000, desc=f"estimate {name}", file=sys.stderr, disable=None) as bar:
@@ -231,3 +238,19 @@ COMMAND = Command(
     arguments=add_arguments,
     handler=estimate,
 )
+
+
+def _check_reach(model: CarModel, dataset: Dataset, sensors: str) -> None:
+    """Refuse (naming ``--online-params``) an online parameter no chosen sensor could inform;
+    sensors that do not parse are left to the estimator's own message."""
+    from crs_core.estimation.factory import check_online_reach
+    from crs_core.estimation.offline import available_sensors
+
+    try:
+        groups = parse_sensor_set(available_sensors(dataset) if sensors == "auto" else sensors)
+    except FieldError:
+        return
+    try:
+        check_online_reach(model, groups)
+    except FieldError as error:
+        raise error.renamed("--online-params") from None

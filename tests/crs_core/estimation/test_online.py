@@ -1,6 +1,7 @@
 """Online parameters in the EKF and the MHE: on a simulated car whose motor, grip and gyro are
-off the model, both find them; a parameter the sensors cannot see stays at its prior with its
-prior's uncertainty; a car that is the model gets no drift."""
+off the model, both find them; a parameter the drive does not excite stays at its prior with
+its prior's uncertainty, one nothing could see is refused; a car that is the model gets no
+drift."""
 
 from __future__ import annotations
 
@@ -79,16 +80,25 @@ def test_a_changed_motor_grip_and_gyro_are_found(kind, changed_car):
     assert all(last[-1][name].informed for name in informed), last[-1]
 
 
-def test_a_parameter_no_sensor_sees_stays_at_its_prior(model_car):
-    """Without wheel encoders the wheel radius is seen by nothing: no drift, the prior's
-    uncertainty, and said to be uninformed (the EKF; the MHE's parameters follow the same
-    model, and compiling it for this one case cost the suite 10 s)."""
-    estimates = _estimate("ekf", model_car, ("wheel_radius_error",), sensors="lh+imu")
-    prior_std = CarModel(["wheel_radius_error"]).parameters["wheel_radius_error"].prior_std
-    final = estimates[-1].parameters["wheel_radius_error"]
-    assert final.value == pytest.approx(0.0, abs=0.05 * prior_std)
-    assert final.std == pytest.approx(prior_std, rel=0.05)
-    assert not final.informed
+def test_a_parameter_the_drive_does_not_excite_stays_at_its_prior():
+    """Driving straight, the tyres carry no side force: the grip factor is not informed and
+    keeps its prior and the prior's uncertainty (no drift along the flat direction), while the
+    motor constant, informed by the same drive's acceleration, is called informed (the EKF;
+    the MHE's parameters follow the same model)."""
+    track = load_demo_track()
+    simulator = Simulator(CarModel(), SensorSuite(), seed=6)
+    straight = simulator.run(lambda t, x: np.array([0.0, 0.12]), 8.0, track.start_state())
+    final = _estimate("ekf", straight, ("grip", "Cm1"))[-1].parameters
+    assert final["grip"].value == pytest.approx(1.0, abs=0.1 * 0.1)
+    assert final["grip"].std == pytest.approx(0.1, rel=0.05) and not final["grip"].informed
+    assert final["Cm1"].informed
+
+
+def test_a_parameter_nothing_can_see_is_refused_naming_it():
+    """Without wheel encoders nothing depends on the wheel radius: refused in one line."""
+    settings = EkfSettings(online_parameters=("Cm1", "wheel_radius_error"))
+    with pytest.raises(ValueError, match=r"^online_parameters: wheel_radius_error: .* imu\+lh read"):
+        make_estimator("ekf", "lh+imu", settings=settings)
 
 
 @pytest.mark.parametrize("kind", KINDS)

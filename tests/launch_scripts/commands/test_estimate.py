@@ -80,6 +80,11 @@ def test_estimate_prints_a_short_summary(estimate_run):
         (["--online-params", "Cm1,,grip"], "--online-params: a comma-separated list"),
         (["--online-params", "Cm9"], "--online-params: no parameter 'Cm9' (known: "),
         (["--online-params", "Df,grip"], "--online-params: Df and grip together"),
+        (
+            ["--sensors", "lh+imu", "--online-params", "Cm1,wheel_radius_error"],
+            "--online-params: wheel_radius_error: neither the car's motion nor what the sensors "
+            "imu+lh read depends on it",
+        ),
     ],
 )
 def test_estimate_bad_arguments_are_one_line_errors(
