@@ -292,7 +292,7 @@ function significant(value) {
 function updateTable() {
   const key = JSON.stringify(cars.map((c) => [
     c.name, c.status, c.reason, c.laps, c.last_lap_s,
-    c.parameters.map((p) => [p.name, significant(p.value), significant(p.std), p.informed]),
+    (c.parameters || []).map((p) => [p.name, significant(p.value), significant(p.std), p.informed]),
   ]));
   if (key === tableKey) {
     return;  // unchanged: no DOM work at 30 Hz
@@ -312,7 +312,7 @@ function updateTable() {
       const reason = cell(tableBody.insertRow(), car.reason, "reason");
       reason.colSpan = 4;
     }
-    for (const p of car.parameters) {
+    for (const p of car.parameters || []) {  // none from a visualizer older than them
       const text = `${p.name} ${significant(p.value)} ± ${significant(p.std)}` +
         (p.informed ? "" : " (prior)");
       const parameter = cell(tableBody.insertRow(), text, "parameter");

@@ -84,6 +84,7 @@ class Visualizer:
             "size": [0.12, 0.06],
             "laps": int(s // self.track.length),
             "last_lap_s": None,
+            "parameters": [{"name": "Cm1", "value": 0.95, "std": 0.012, "informed": True}],
         }
 
     def _run(self) -> None:
