@@ -97,7 +97,8 @@ def test_a_parameter_the_drive_does_not_excite_stays_at_its_prior():
 def test_a_parameter_nothing_can_see_is_refused_naming_it():
     """Without wheel encoders nothing depends on the wheel radius: refused in one line."""
     settings = EkfSettings(online_parameters=("Cm1", "wheel_radius_error"))
-    with pytest.raises(ValueError, match=r"^online_parameters: wheel_radius_error: .* imu\+lh read"):
+    refused = r"^online_parameters: wheel_radius_error: .* imu\+lh read"
+    with pytest.raises(ValueError, match=refused):
         make_estimator("ekf", "lh+imu", settings=settings)
 
 

@@ -158,7 +158,7 @@ def test_online_parameters_are_written_with_their_priors_first(small_dataset: Pa
     assert list(rows[0]) == ["t", "name", "value", "std"]
     assert [r["name"] for r in rows[:3]] == ["Cm1", "gyro_bias", "grip"]
     assert {r["t"] for r in rows[:3]} == {"0.0000"}
-    assert float(rows[1]["value"]) == 0.0 and float(rows[1]["std"]) == 0.25  # the prior
+    assert float(rows[1]["value"]) == 0.0 and float(rows[1]["std"]) == 0.05  # the prior
     n = Dataset.load(small_dataset).t.size
     assert len(rows) == 3 + 3 * n
     report = json.loads((out / "diagnostics.json").read_text())
