@@ -28,10 +28,6 @@ ONLINE = ("Cm1", "gyro_bias")
 ESTIMATOR = "mhe"
 
 
-def _say(line: str) -> None:
-    print(f"[bench] {line}", flush=True)
-
-
 def online_run(run: str, plots: Path | None = None) -> dict[str, Any]:
     """One run estimated with :data:`ONLINE` online: their course over the run (and its
     figure in ``plots``)."""
@@ -44,6 +40,7 @@ def online_run(run: str, plots: Path | None = None) -> dict[str, Any]:
     result = estimate_dataset(dataset, ESTIMATOR, settings=settings)
     track = result.online
     since = result.t - result.t[0]
+    priors = result.estimator.model.online.priors
     out: dict[str, Any] = {"duration_s": round(float(since[-1]), 2), "parameters": {}}
     for i, name in enumerate(track.names):
         known = np.flatnonzero(np.isfinite(track.value[i]))
@@ -63,8 +60,8 @@ def online_run(run: str, plots: Path | None = None) -> dict[str, Any]:
             },
             "range": [round(float(value.min()), 5), round(float(value.max()), 5)],
             "informed_share": round(float(np.mean(track.informed[i, known])), 3),
-            "prior": result.estimator.model.online.priors[name][0],
-            "prior_std": result.estimator.model.online.priors[name][1],
+            "prior": priors[name][0],
+            "prior_std": priors[name][1],
         }
     if plots is not None:
         plots.mkdir(parents=True, exist_ok=True)
@@ -104,11 +101,11 @@ def online_real_benchmark(plots: Path | None = None) -> dict[str, Any]:
     tried on the other run (JSON-ready)."""
     runs = {}
     for run in RUNS:
-        _say(f"{run}: {ESTIMATOR} with {', '.join(ONLINE)} online")
+        print(f"[bench] {run}: {ESTIMATOR} with {', '.join(ONLINE)} online", flush=True)
         runs[run] = online_run(run, plots)
     cross = {}
     for train, test in ((RUNS[0], RUNS[1]), (RUNS[1], RUNS[0])):
-        _say(f"the end values of {train} on {test}: held-out 2 s prediction")
+        print(f"[bench] the end values of {train} on {test}: held-out 2 s prediction", flush=True)
         cross[f"{train} -> {test}"] = held_out(runs[train], test)
     return {"estimator": ESTIMATOR, "online_parameters": list(ONLINE), "runs": runs, "cross": cross}
 
