@@ -80,8 +80,8 @@ def adaptation_benchmark(
     from launch_scripts.sim_stack import CarTruth, StackOptions
 
     rows = []
+    work_dir.mkdir(parents=True, exist_ok=True)
     for name in schedules:
-        work_dir.mkdir(parents=True, exist_ok=True)
         path: Path | None = None
         schedule = DriftSchedule(())
         if SCHEDULES[name]["drift"]:
