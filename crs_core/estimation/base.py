@@ -16,9 +16,10 @@ The base class also supervises the estimate (the same for every estimator):
 * **Honest status** (:mod:`~crs_core.estimation.health`): every estimate says ``ok``,
   ``degraded`` or ``lost`` with the reason.
 * **Re-initialisation.** When every Lighthouse sample has been rejected for
-  ``HealthSettings.lost_after_s`` (the estimate and the Lighthouse disagree) or the state
-  leaves the physical envelope, the estimate is ``lost`` and the estimator re-initialises
-  from the Lighthouse as at a blind start.
+  ``HealthSettings.lost_after_s`` (the estimate and the Lighthouse disagree), no sample of any
+  sensor has come for ``HealthSettings.lost_silent_s`` (the link to the car is down), or the
+  state leaves the physical envelope, the estimate is ``lost`` and the estimator
+  re-initialises from the Lighthouse as at a blind start.
 * **Boundary.** A sensor the model does not have (``lighthouse/5/1`` on a one-station model) is
   refused with a ``ValueError`` naming it; a per-sensor time offset moves stamps to the time
   the values refer to.
@@ -358,6 +359,7 @@ class Estimator:
             self._reset_state(float(t0), np.zeros(6), None)
             return
         self._initializer = None
+        self._health.start(float(t0))
         self._reset_state(float(t0), checked_initial_state(x0), _checked_covariance(covariance))
 
     def _start_initializer(self, reason: str) -> None:
@@ -464,6 +466,9 @@ class Estimator:
         disagreement = self._health.disagreeing_since(t) if "lh" in self.sensors else None
         if disagreement is not None:
             return f"every Lighthouse sample rejected for {disagreement:.2f} s"
+        silence = self._health.silent_for(t) if self.sensors & {"lh", "pose"} else None
+        if silence is not None:
+            return f"no sample of any sensor for {silence:.2f} s (is the link to the car down?)"
         return ""
 
     def _accept(self, sensor: str, stamp: float) -> None:

@@ -14,8 +14,10 @@ describes it:
 ``lost``
     The estimator does not know where the car is: it is waiting for its first Lighthouse (or
     motion-capture) fix, or it is re-initialising after the Lighthouse disagreed with it for
-    ``lost_after_s`` (every sweep rejected while sweeps kept arriving), or its state left the
-    physical envelope.
+    ``lost_after_s`` (every sweep rejected while sweeps kept arriving), or no sample of any
+    sensor has come for ``lost_silent_s`` (the link to the car is down: the estimator only
+    predicts from commands the car may never have received, and a Chronos car cuts its motors
+    200 ms after the last one), or its state left the physical envelope.
 
 All times are measurement stamps in seconds (the stream's clock).
 """
@@ -50,6 +52,10 @@ class HealthSettings(Settings, prefix="health"):
     lost_min_samples : int
         Rejected Lighthouse samples needed before ``lost_after_s`` can declare the estimate lost
         (a short burst of outliers is not a disagreement).
+    lost_silent_s : float
+        No sample of any sensor for this long (s): ``lost``, and the estimator re-initialises
+        from the Lighthouse once samples come again (well above the ``outages`` link preset's
+        0.3 s; a Lighthouse blackout alone, with the IMU still coming, is dead reckoning).
     max_speed : float
         ``|v_x|`` or ``|v_y|`` above this (m/s) is outside the physical envelope: ``lost``.
     max_yaw_rate : float
@@ -61,6 +67,7 @@ class HealthSettings(Settings, prefix="health"):
     dead_reckoning_after_s: float = positive(0.25)
     lost_after_s: float = positive(0.5)
     lost_min_samples: int = 10
+    lost_silent_s: float = positive(1.0)
     max_speed: float = positive(10.0)
     max_yaw_rate: float = positive(40.0)
 
@@ -84,11 +91,18 @@ class HealthMonitor:
         self._fallbacks: deque[tuple[float, str]] = deque()
         self._last_lighthouse_accepted: float | None = None
         self._first_lighthouse_rejected: float | None = None  # start of the current run
+        self._last_sample: float | None = None  # newest sample of any sensor group
+
+    def start(self, t0: float) -> None:
+        """Count silence from ``t0`` (a reset or a re-initialisation)."""
+        self._last_sample = t0
 
     def record(self, group: str, stamp: float, accepted: bool) -> None:
         """A sample of sensor group ``group`` (``lh``, ``imu``, ...) stamped ``stamp``."""
         book = self._accepted if accepted else self._rejected
         book.setdefault(group, deque()).append(stamp)
+        if self._last_sample is None or stamp > self._last_sample:
+            self._last_sample = stamp
         if group != "lh":
             return
         if accepted:
@@ -111,6 +125,13 @@ class HealthMonitor:
         if duration >= self.settings.lost_after_s and recent >= self.settings.lost_min_samples:
             return duration
         return None
+
+    def silent_for(self, t: float) -> float | None:
+        """How long (s) no sample of any sensor has come, if that counts as lost."""
+        last = self._last_sample
+        if last is None or t - last < self.settings.lost_silent_s:
+            return None
+        return t - last
 
     def status(self, t: float) -> tuple[str, str]:
         """``("ok" | "degraded", reason)`` at time ``t`` (``lost`` is decided by the estimator)."""

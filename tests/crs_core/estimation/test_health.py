@@ -54,3 +54,31 @@ def test_status_says_degraded_during_a_lighthouse_blackout(kind):
     during = found[3.8]
     assert during.status == "degraded" and "dead reckoning" in during.reason
     assert found[5.9].status == "ok" and found[5.9].reason == ""
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_link_down_is_lost_after_a_second_and_reinitialised_when_it_is_back(kind):
+    """No sample of any sensor from 3 to 5 s (the link to the car is down; commands still go
+    in): dead reckoning at first, ``lost`` after ``lost_silent_s`` (1 s) with the reason, then
+    re-initialised from the Lighthouse and tracking once the samples come again."""
+    cut = [Blackout(sensor, 3.0, 2.0) for sensor in ("lighthouse", "imu", "wheel_encoders")]
+    dark = standard_drive(seed=5, duration=6.0, blackouts=cut)
+    estimator = make_estimator(kind, "lh+imu+we")
+    estimator.reset(0.0, start_state(dark))
+    events, k = _events(dark), 0
+    queries = np.arange(1, 360) / 60.0
+    found, xs = {}, []
+    for t in queries:
+        while k < len(events) and events[k].stamp <= t:
+            estimator.add(events[k])
+            k += 1
+        estimate = estimator.estimate(t)
+        found[round(t, 3)] = estimate
+        xs.append(estimate.x)
+    assert found[3.5].status == "degraded" and "dead reckoning" in found[3.5].reason
+    lost = found[4.5]
+    assert lost.status == "lost" and "no sample of any sensor for 1.0" in lost.reason, lost
+    assert estimator.diagnostics.reinitializations == 1
+    assert found[5.9].status == "ok"
+    error = _position_error(dark, queries, np.array(xs))
+    assert error[queries > 5.5].max() < 0.01
