@@ -182,14 +182,18 @@ class MovingHorizonEstimator(Estimator):
         self.groups = measurement_groups(model)
         self._dt = 1.0 / s.rate_hz
         self._substeps = max(1, math.ceil(self._dt / MAX_SUBSTEP - 1e-9))
-        blocks, cost, sizes = build_mhe_function(model, s.horizon, self._substeps, self.groups)
+        blocks, cost, node_terms, sizes = build_mhe_function(
+            model, s.horizon, self._substeps, self.groups
+        )
         offset_outputs = offset_output_functions(model, self.groups)
+        step = model.step_function(self._substeps, "mhe_predict")
         compiled = compile_functions(
-            [blocks, cost, model.step_function(self._substeps, "mhe_predict"), *offset_outputs],
+            [blocks, cost, node_terms, step, *offset_outputs],
             f"mhe_{model.tag}_{model.n_base_stations}bs_M{s.horizon}_n{self._substeps}",
             driver=NativeGaussNewton.driver(blocks),
         )
         self._solve_blocks, self._cost = compiled["mhe_gn"], compiled["mhe_cost"]
+        self._node_terms = compiled["mhe_node"]
         #: the Gauss-Newton step: one compiled call, or (in CasADi's VM) numpy and LAPACK
         self._step_solver: NativeGaussNewton | BandedGaussNewton
         if isinstance(self._solve_blocks, CompiledFunction):
@@ -289,6 +293,8 @@ class MovingHorizonEstimator(Estimator):
         self._initial_weight = weight
         self._arrival_information: np.ndarray | None = None  # set once node 0 is marginalized
         self._last_blocks: tuple | None = None
+        #: node 0's data in the last step (with online parameters only): x, y, wy, tau, ug
+        self._last_node0: tuple | None = None
         self._node_covariance = np.diag(1.0 / weight)  # of the newest node, nx x nx
         self._cap.clear()
 
@@ -494,6 +500,10 @@ class MovingHorizonEstimator(Estimator):
 
         def step() -> int:
             inputs = (self._X, self._U, self._DT, *self._weights(), self._p, self._bounds)
+            if len(self.model.online) and first == 0:  # for the parameters' marginalisation
+                self._last_node0 = tuple(
+                    np.array(a[:, 0], dtype=float) for a in (self._X, *inputs[4:8])
+                )
             return solver.step(inputs, first, information, self._arrival)
 
         outcome = step()
@@ -530,16 +540,50 @@ class MovingHorizonEstimator(Estimator):
         if self._last_blocks is None:  # no solve yet or it failed: keep the current prior
             self._arrival = self._X[:, 1].copy()
             return
-        D0, O0, S0, g0, g1, x1_lin = self._last_blocks
+        information, b = self._marginal(*self._last_blocks[:5])
+        if self._last_node0 is not None:
+            information, b = self._keep_parameter_information(information, b)
+        self._arrival = self._last_blocks[5] - np.linalg.solve(information, b)
+        scale = np.sqrt(self._node_discount)
+        self._arrival_information = scale[:, None] * information * scale[None, :]
+        self._last_blocks = self._last_node0 = None
+
+    def _marginal(
+        self, D0: np.ndarray, O0: np.ndarray, S0: np.ndarray, g0: np.ndarray, g1: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Node 0's terms minimised out: the information ``L`` and gradient ``b`` left on node 1
+        (floored at ``1 / arrival_floor_std^2``)."""
         solved = np.linalg.solve(D0, np.column_stack([O0, g0]))
         information = S0 - O0.T @ solved[:, :-1]
         b = g1 - O0.T @ solved[:, -1]
         information = 0.5 * (information + information.T)
         information += np.eye(information.shape[0]) / self.settings.arrival_floor_std**2
-        self._arrival = x1_lin - np.linalg.solve(information, b)
-        scale = np.sqrt(self._node_discount)
-        self._arrival_information = scale[:, None] * information * scale[None, :]
-        self._last_blocks = None
+        return information, b
+
+    def _keep_parameter_information(
+        self, information: np.ndarray, b: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        r"""The marginalisation with node 0's measurements at their full weight for the online
+        parameters. In the window a sample's weight is discounted to :math:`\eta^M` by the
+        time node 0 leaves (0.13 at M = 40, η = 0.95), which is right for the states (they
+        forget) but left a parameter a seventh of each sample's information: its σ 1.7 times
+        the EKF's. Node 0 is marginalised again with its measurement terms undiscounted (its
+        Gauss-Newton block and gradient from ``mhe_node`` at both weights: the difference is
+        what the discount took) and the result's difference added scaled by
+        :math:`\eta^{M/2}` on the states' rows and columns, 1 on the parameters': the
+        parameters' marginal information gains the full sample, the states' is as discounted
+        as before."""
+        s, nx = self.settings, self.model.nx
+        x, y, wy, tau, ug = self._last_node0
+        D0, O0, S0, g0, g1, _ = self._last_blocks
+        bounds = self._bounds[nx + 1 :]
+        H, g = self._node_terms(x, ug, y, wy, tau, bounds, self._p)
+        full_weight = wy * s.discount ** (-s.horizon / 2)  # weights are square roots
+        H_full, g_full = self._node_terms(x, ug, y, full_weight, tau, bounds, self._p)
+        full, b_full = self._marginal(D0 + H_full - H, O0, S0, g0 + g_full - g, g1)
+        plain = nx - len(self.model.online)
+        t = np.where(np.arange(nx) < plain, s.discount ** (s.horizon / 2), 1.0)
+        return information + t[:, None] * (full - information) * t[None, :], b + t * (b_full - b)
 
     def _drop_undefined(self, residuals: np.ndarray) -> bool:
         """Drop measurements whose model output is undefined at the current trajectory.

@@ -65,8 +65,9 @@ def bound_data_size(nx: int) -> int:
 
 def build_mhe_function(
     model: CarModel, horizon: int, substeps: int, groups: list[str]
-) -> tuple[ca.Function, ca.Function, list[int]]:
-    """The Gauss-Newton blocks and the cost of the whole horizon, and the sensor sizes.
+) -> tuple[ca.Function, ca.Function, ca.Function, list[int]]:
+    """The Gauss-Newton blocks and the cost of the whole horizon, one node's terms, and the
+    sensor sizes.
 
     Inputs of both functions: ``X`` (nx, M+1), ``U`` (2, M), ``DT`` (1, M), ``WP`` (nx, M)
     process weights, ``Y`` (ny, M+1), ``WY`` (ny, M+1) measurement weights, ``TAU`` (ng, M+1)
@@ -75,6 +76,9 @@ def build_mhe_function(
     upper blocks ``O`` (nx, nx M), gradient ``G`` (nx, M+1), cost, the weighted measurement
     residuals ``RY`` (ny, M+1), and stage 0's contributions to node 1 (``S0`` block and ``g0b``
     gradient) for the marginalization of node 0. ``mhe_cost`` returns the cost alone.
+    ``mhe_node`` is one node's measurement and bound terms, the Gauss-Newton block ``H`` (nx, nx)
+    and gradient ``g`` (nx), from ``x`` (nx), ``ug`` (2 ng), ``y`` (ny), ``wy`` (ny), ``tau``
+    (ng), the state bounds (``BND`` after the process bounds) and ``p``.
     """
     nx, p = model.nx, model.p_sym
     nb = nx - 3  # every state but the pose is bounded
@@ -115,6 +119,9 @@ def build_mhe_function(
         "node", node_args, [Jn.T @ Jn, Jn.T @ r_node, ca.sumsqr(r_node), r_y], SX_OPTIONS
     )
     node_cost = ca.Function("node_cost", node_args, [ca.sumsqr(r_node)], SX_OPTIONS)
+    node_terms = ca.Function(
+        "mhe_node", node_args, [ca.densify(Jn.T @ Jn), ca.densify(Jn.T @ r_node)], SX_OPTIONS
+    )
     # the horizon is assembled in MX so the generated code loops over the (SX) stage and node
     # functions instead of inlining M copies of them
     M = horizon
@@ -154,7 +161,8 @@ def build_mhe_function(
     only_cost = ca.sum2(stage_cost.map(M, "serial")(*stage_inputs)) + ca.sum2(
         node_cost.map(M + 1, "serial")(*node_inputs)
     )
-    return blocks, ca.Function("mhe_cost", inputs, [only_cost], names, ["cost"]), sizes
+    only_cost_function = ca.Function("mhe_cost", inputs, [only_cost], names, ["cost"])
+    return blocks, only_cost_function, node_terms, sizes
 
 
 class Band:
