@@ -16,6 +16,12 @@ prior's :math:`\sigma_0`. Data that inform the parameter move it as fast as the 
 lets them; a parameter the data do not inform relaxes to its prior with its prior's
 uncertainty within a few ``T`` instead of drifting along a flat direction. Everywhere else in
 the model (dynamics and sensors) the state takes the parameter's place.
+
+An effect's parameter (a sensor's bias, an offset) is an imperfection that moves slower than
+the car's physics (the battery's sag, the tyres' grip): its ``T`` is
+:data:`EFFECT_REVERSION_FACTOR` times the model parameters'. Its random walk is then half as
+fast, and its estimate's standard deviation, which goes as :math:`T^{-1/4}` in steady state,
+about 0.7 times as wide (docs/online.md has the measured figures).
 """
 
 from __future__ import annotations
@@ -38,13 +44,16 @@ GRIP_PRIOR_STD = 0.1
 GRIP_BOUNDS = (0.3, 1.5)
 #: Default relaxation time T of an online parameter to its prior, s.
 DEFAULT_REVERSION_S = 120.0
+#: An effect's parameter relaxes this many times slower than the model's parameters.
+EFFECT_REVERSION_FACTOR = 4.0
 #: Prefix of an online parameter's state name (``online_Cm1``).
 STATE_PREFIX = "online_"
 
 
 @dataclass(frozen=True)
 class OnlineParameter:
-    """One online parameter: its prior, prior standard deviation, unit and soft bounds."""
+    """One online parameter: its prior, prior standard deviation, unit, soft bounds and
+    relaxation time ``reversion_s`` (s)."""
 
     name: str
     prior: float
@@ -52,6 +61,7 @@ class OnlineParameter:
     unit: str
     lower: float
     upper: float
+    reversion_s: float
 
     @property
     def state_name(self) -> str:
@@ -93,7 +103,8 @@ class OnlineParameters:
     parameters : ParameterSet
         The model's parameters (the priors, units, prior standard deviations and bounds).
     reversion_s : float
-        :math:`T`, s.
+        :math:`T` of the model's parameters and the grip factor, s (an effect's parameter:
+        :data:`EFFECT_REVERSION_FACTOR` times it).
     """
 
     def __init__(self, names: Sequence[str], parameters: ParameterSet, reversion_s: float) -> None:
@@ -105,7 +116,9 @@ class OnlineParameters:
         entries = []
         for name in names:
             if name == GRIP:
-                entries.append(OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", *GRIP_BOUNDS))
+                entries.append(
+                    OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", *GRIP_BOUNDS, self.reversion_s)
+                )
                 continue
             if name not in parameters.names:
                 owner = effect_of_parameter(name)
@@ -116,9 +129,15 @@ class OnlineParameters:
                 )
                 raise FieldError("online_parameters", f"no parameter {name!r} ({hint})")
             p = parameters[name]
+            slower = EFFECT_REVERSION_FACTOR if effect_of_parameter(name) else 1.0
             entries.append(
                 OnlineParameter(
-                    name, p.value, _prior_std(name, p.prior_std), p.unit, *_bounds(name, parameters)
+                    name,
+                    p.value,
+                    _prior_std(name, p.prior_std),
+                    p.unit,
+                    *_bounds(name, parameters),
+                    self.reversion_s * slower,
                 )
             )
         clash = [e.name for e in entries if e.name in GRIP_SCALES]
@@ -137,8 +156,7 @@ class OnlineParameters:
     @property
     def process_std(self) -> dict[str, float]:
         """Random-walk standard deviation per sqrt(s) of each state, by state name."""
-        rate = math.sqrt(2.0 / self.reversion_s)
-        return {e.state_name: e.prior_std * rate for e in self.entries}
+        return {e.state_name: e.prior_std * math.sqrt(2.0 / e.reversion_s) for e in self.entries}
 
     @property
     def prior_std(self) -> dict[str, float]:
@@ -174,7 +192,10 @@ class OnlineParameters:
         """:math:`-(\\theta - \\theta_0) / T` per state, the priors read through ``P``."""
         priors = [1.0 if e.name == GRIP else P(e.name) for e in self.entries]
         return ca.vertcat(
-            *[-(states[k] - prior) / self.reversion_s for k, prior in enumerate(priors)]
+            *[
+                -(states[k] - prior) / e.reversion_s
+                for k, (prior, e) in enumerate(zip(priors, self.entries, strict=True))
+            ]
         )
 
     def initial_values(self) -> list[float]:

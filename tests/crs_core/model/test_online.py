@@ -10,7 +10,12 @@ import pytest
 
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
-from crs_core.model.online import GRIP, OnlineParameters, parse_online_names
+from crs_core.model.online import (
+    EFFECT_REVERSION_FACTOR,
+    GRIP,
+    OnlineParameters,
+    parse_online_names,
+)
 
 X = np.array([0.3, -0.2, 0.4, 1.4, 0.1, 1.2])
 U = np.array([0.2, 0.4])
@@ -53,9 +58,13 @@ def test_a_state_away_from_its_prior_acts_as_that_parameter_and_relaxes():
     xdot = online.dynamics_function(x, U, p).full().ravel()
     expected = changed.dynamics_function(X, U, changed.parameters.vector()).full().ravel()
     assert xdot[:6] == pytest.approx(expected)
-    # d theta / dt = -(theta - prior) / T
+    # d theta / dt = -(theta - prior) / T, T four times as long for an effect's parameter
     priors = np.array([defaults.value("Cm1"), 0.0, 1.0])
-    assert xdot[6:] == pytest.approx(-(np.array([cm1, bias, grip]) - priors) / 60.0)
+    reversion = np.array([60.0, 60.0 * EFFECT_REVERSION_FACTOR, 60.0])
+    assert xdot[6:] == pytest.approx(-(np.array([cm1, bias, grip]) - priors) / reversion)
+    assert online.online.process_std["online_gyro_bias"] == pytest.approx(
+        0.05 * np.sqrt(2 / (60.0 * EFFECT_REVERSION_FACTOR))
+    )
     gyro = online.output_function("imu")(x, U, p).full().ravel()[2]
     assert gyro == pytest.approx(X[5] + bias)
 
