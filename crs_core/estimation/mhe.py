@@ -574,6 +574,7 @@ class MovingHorizonEstimator(Estimator):
         parameters' marginal information gains the full sample, the states' is as discounted
         as before."""
         s, nx = self.settings, self.model.nx
+        assert self._last_node0 is not None and self._last_blocks is not None
         x, y, wy, tau, ug = self._last_node0
         D0, O0, S0, g0, g1, _ = self._last_blocks
         bounds = self._bounds[nx + 1 :]
