@@ -230,8 +230,19 @@ class Mpcc:
         """One call from the track's start pose, then :meth:`reset`: the first call's one-off
         costs (the model's numeric functions built, the compiled code's pages first touched;
         85 ms against 68 for a later cold call on an idle machine) are paid before a car waits
-        for a command."""
-        self(self._track.start_state())
+        for a command. With torque output the hold-safety filter is built and run once too (a
+        hold-safe call from the start pose, one moving along the track): its first call took
+        another 130 ms on an idle machine, and beside two busy loops that paused the first
+        commands over a car's 200 ms cut-off."""
+        start = self._track.start_state()
+        self(start)
+        if self.output == "torque":
+            moving = start.copy()
+            moving[3] = 2.0 * self.contingency.min_speed
+            self(start, hold_safe=True)
+            self(moving, hold_safe=True)
+            assert self._safety is not None
+            self._safety.replaced = 0
         self.reset()
 
     @property

@@ -390,3 +390,23 @@ def test_online_parameters_move_the_model_at_the_parameter_rate():
     assert set(used) == {"Cm1", "Df", "Dr"}
     index = values.names.index("Cm1")
     assert mpcc.p[index] == used["Cm1"]
+
+
+def test_warm_up_builds_the_hold_safety_filter_before_the_first_command(track, monkeypatch):
+    """The hold-safety filter is built in ``warm_up`` (its first call cost 130 ms, over a car's
+    200 ms cut-off beside two busy loops): a hold-safe call after it builds nothing, and the
+    warm-up leaves no plan and no replaced command behind."""
+    import crs_core.control.mpcc as mpcc_module
+
+    controller = Mpcc(track)
+    controller.warm_up()
+    assert controller.plan is None and controller.hold_safe_replaced == 0
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the hold-safety filter was built in the control loop")
+
+    monkeypatch.setattr(mpcc_module, "HoldSafetyFilter", refuse)
+    moving = track.start_state().copy()
+    moving[3] = 1.5
+    u = controller(moving, hold_safe=True)
+    assert np.all(np.isfinite(u))
