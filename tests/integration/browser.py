@@ -154,9 +154,14 @@ def bounding_box(m: NDArray[np.bool_]) -> tuple[int, int, int, int]:
     return int(columns.min()), int(columns.max()), int(rows.min()), int(rows.max())
 
 
+#: The page's cars as it last received them (its script's ``cars``: name, status, estimate).
+PAGE_CARS = "JSON.stringify(cars.map((c) => [c.name, c.status, c.estimate]))"
+
+
 def two_screenshots(url: str, profile: Path) -> tuple[bytes, bytes]:
     """PNG screenshots of the page at ``url``: once it shows the track and an ``ok`` car (within
-    10 s), and a second later."""
+    10 s), and a second later once the page has received a new position of its cars (within
+    5 s; an assertion error naming the page's connection line when none came)."""
     colours = page_colours()
     browser = DevTools(url, profile)
     try:
@@ -173,7 +178,15 @@ def two_screenshots(url: str, profile: Path) -> tuple[bytes, bytes]:
                 break
             assert time.monotonic() < deadline, "the page drew no track and car within 10 s"
             time.sleep(0.2)
+        drawn = browser.evaluate(PAGE_CARS)
         time.sleep(1.0)
+        deadline = time.monotonic() + 4.0
+        while browser.evaluate(PAGE_CARS) == drawn:
+            header = browser.evaluate("header.textContent")
+            assert time.monotonic() < deadline, (
+                f"the page received no new car position in 5 s ({header!r}; cars {drawn})"
+            )
+            time.sleep(0.1)
         second = browser.screenshot()
     finally:
         browser.close()

@@ -287,12 +287,21 @@ def test_the_built_in_page_shows_the_race_in_a_browser(race, tmp_path) -> None:
     """Headless Chromium on the visualizer's page (``http://127.0.0.1:PAGE_PORT/``, no ``?ws=``:
     the page connects to the WebSocket port the node was started with, PORT, not 8765):
     the screenshots show the demo track and car1, moving."""
-    launcher, _, _ = race
+    launcher, _, estimates = race
     # the page's server first: a page Chromium loads from a server not up yet is its error page,
     # which no retry of the suite's page reloads (the module's first test runs on a stack up)
     wait_for(lambda: _serves(f"http://127.0.0.1:{PAGE_PORT}/"), TIMEOUT_S, "the page's server")
-    first, second = two_screenshots(f"http://127.0.0.1:{PAGE_PORT}/", tmp_path / "profile")
-    (tmp_path / "first.png").write_bytes(first)
-    (tmp_path / "second.png").write_bytes(second)
-    check_track_and_moving_car(first, second, TRACK)
+    since = len(estimates)
+    try:
+        first, second = two_screenshots(f"http://127.0.0.1:{PAGE_PORT}/", tmp_path / "profile")
+        (tmp_path / "first.png").write_bytes(first)
+        (tmp_path / "second.png").write_bytes(second)
+        check_track_and_moving_car(first, second, TRACK)
+    except AssertionError as error:  # was it the page, or did the car stop?
+        xy = [(m.x, m.y) for _, m in estimates[since:]]
+        travelled = float(np.sum(np.hypot(*np.diff(np.array(xy), axis=0).T))) if xy else 0.0
+        raise AssertionError(
+            f"{error}\n(car1's estimates meanwhile: {len(xy)}, {travelled:.2f} m travelled, "
+            f"nodes exited: {launcher.poll()})"
+        ) from error
     assert launcher.poll() == []
