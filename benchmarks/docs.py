@@ -33,6 +33,7 @@ from benchmarks.link import format_table as link_table
 from benchmarks.middleware_floor import format_markdown as floor_markdown
 from benchmarks.model import format_markdown as model_markdown
 from benchmarks.online_real import format_markdown as online_real_markdown
+from benchmarks.online_tuning import format_markdown as online_tuning_markdown
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
@@ -91,6 +92,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "middleware_floor": _headed("floor", floor_markdown),
     "adaptation": _headed("adaptation", adaptation_markdown),
     "online_real": _headed("online-real", online_real_markdown),
+    "online_tuning": _headed("online-tuning", online_tuning_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),

@@ -26,7 +26,9 @@ from crs_core.analysis.metrics import STATE_NAMES
 from crs_core.analysis.statistics import summary
 from crs_core.dataset import Dataset
 from crs_core.estimation import make_estimator
+from crs_core.estimation.ekf import EkfSettings
 from crs_core.estimation.mhe import MheSettings
+from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import InputSample
 from crs_core.model import CarModel
 from sim.replay import (
@@ -196,8 +198,14 @@ def speed_rows(seed: int = 0) -> list[dict]:
     return rows
 
 
-def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dict]:
-    """EKF and MHE over real recordings (LH + WE + yaw rate, as recorded).
+def real_rows(
+    folders: Sequence[Path],
+    plot_dir: Path | None = None,
+    noise: EstimatorNoise | None = None,
+    kinds: Sequence[str] = ("ekf", "mhe"),
+) -> list[dict]:
+    """``kinds`` of estimator over real recordings (LH + WE + yaw rate, as recorded), assuming
+    ``noise`` (default: the estimators' own).
 
     The reference is the car's own on-line estimate ``x.npy``, not ground truth. Also reported:
     the Lighthouse angle residuals of each estimate (recorded minus predicted sweep angles).
@@ -216,8 +224,13 @@ def real_rows(folders: Sequence[Path], plot_dir: Path | None = None) -> list[dic
         )
         reference = shifted.x
         trajectories = {}
-        for kind in ("ekf", "mhe"):
-            settings = MheSettings(rate_hz=50.0) if kind == "mhe" else None
+        noise_setting = {} if noise is None else {"noise": noise}
+        for kind in kinds:
+            settings = (
+                MheSettings(rate_hz=50.0, **noise_setting)
+                if kind == "mhe"
+                else EkfSettings(**noise_setting)
+            )
             estimator = make_estimator(
                 kind, "lh+we+gyro", CarModel(parameters=model), settings, inputs="commanded"
             )

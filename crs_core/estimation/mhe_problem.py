@@ -120,7 +120,7 @@ def build_mhe_function(
     )
     node_cost = ca.Function("node_cost", node_args, [ca.sumsqr(r_node)], SX_OPTIONS)
     node_terms = ca.Function(
-        "mhe_node", node_args, [ca.densify(Jn.T @ Jn), ca.densify(Jn.T @ r_node)], SX_OPTIONS
+        "mhe_node", node_args, [ca.densify(v) for v in node(*node_args)[:2]], SX_OPTIONS
     )
     # the horizon is assembled in MX so the generated code loops over the (SX) stage and node
     # functions instead of inlining M copies of them

@@ -190,11 +190,10 @@ class OnlineParameters:
 
     def derivative(self, states: ca.SX, P: Callable[[str], ca.SX]) -> ca.SX:
         """:math:`-(\\theta - \\theta_0) / T` per state, the priors read through ``P``."""
-        priors = [1.0 if e.name == GRIP else P(e.name) for e in self.entries]
         return ca.vertcat(
             *[
-                -(states[k] - prior) / e.reversion_s
-                for k, (prior, e) in enumerate(zip(priors, self.entries, strict=True))
+                -(states[k] - (1.0 if e.name == GRIP else P(e.name))) / e.reversion_s
+                for k, e in enumerate(self.entries)
             ]
         )
 
