@@ -127,11 +127,6 @@ def online_tuning(args: argparse.Namespace) -> Outcome:
     return result, f"{format_markdown(result)}\nthe race: {work}"
 
 
-def _online_tuning_options(parser: argparse.ArgumentParser) -> None:
-    add_duration(parser, 120.0, "wall-clock time of the race")
-    add_seed(parser, "noise and link seed of the race")
-
-
 def floor(args: argparse.Namespace) -> Outcome:
     from benchmarks.middleware_floor import floor_benchmark, format_markdown
 
@@ -180,9 +175,16 @@ def workflow(args: argparse.Namespace) -> Outcome:
     return result, f"{format_table(result)}\nruns (races, bags, sysid, discrepancy): {work}"
 
 
-def _workflow_options(parser: argparse.ArgumentParser) -> None:
-    add_duration(parser, 40.0, "each race")
-    add_seed(parser, "seed of the emulated car's noise")
+def _duration_and_seed(
+    default: float, duration: str, seed: str
+) -> Callable[[argparse.ArgumentParser], None]:
+    """The options ``--duration`` (``default`` s, what it is ``duration``) and ``--seed``."""
+
+    def options(parser: argparse.ArgumentParser) -> None:
+        add_duration(parser, default, duration)
+        add_seed(parser, seed)
+
+    return options
 
 
 def sysid(args: argparse.Namespace) -> Outcome:
@@ -435,7 +437,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
     ),
     "online-tuning": (
         online_tuning,
-        _online_tuning_options,
+        _duration_and_seed(120.0, "wall-clock time of the race", "noise and link seed of the race"),
         "how sharply the online gyro bias can be known against what the same tuning does to "
         "the real recordings: one race of the adaptation bench's issue schedule recorded with "
         "every sensor, estimated again offline with tighter process noise of x, y and yaw "
@@ -480,7 +482,7 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
     ),
     "workflow": (
         workflow,
-        _workflow_options,
+        _duration_and_seed(40.0, "each race", "seed of the emulated car's noise"),
         "a researcher's day on an emulated car that is not the model (tyres and motor off by "
         "10-20 %%, a hidden gyro bias): race it with the default model and record, crs sysid "
         "and crs discrepancy on the bag, race again with the result; laps, flying lap, "
