@@ -4,8 +4,9 @@ A stand-in pipeline process carries exactly one car's traffic (the topics, messa
 and rates of ``crs launch sim``'s simulator, estimator and controller: a sensor batch every
 ``batch_period`` with the readings the default sensors produce in it, ground truth, the four
 estimate topics, the command) and a stand-in recorder subscribes to every topic raw, as the
-recorder does. The stand-ins fill each message as the nodes do and read every received message
-into numpy, and compute nothing else: no physics, no sensors, no estimator, no controller, no
+recorder does. The stand-ins build each message with the nodes' own builders
+(:mod:`ros4crs.conversions`) and read every received message into numpy, and compute nothing
+else: no physics, no sensors, no estimator, no controller, no
 validation. Two variants: the pipeline with its own subscriptions (the batch and the command
 into the estimator, the state into the controller, the command into the simulator), and
 publishing only (what an in-process hand-off between the car's nodes would leave). The real
@@ -79,12 +80,13 @@ def _stand_in(role: str, seconds: float, subscribe: bool) -> dict[str, Any]:
     """Run one stand-in process's nodes for ``seconds``; its CPU (% of one core) after
     :data:`WARM_UP_S` and the messages it received per topic."""
     import rclpy
-    from builtin_interfaces.msg import Time
-    from geometry_msgs.msg import TransformStamped
     from nav_msgs.msg import Odometry
     from rclpy.node import Node
 
     from chronos_msgs.msg import CarInput, CarState, EstimatorQuery, SensorBatch
+    from crs_core.estimation.base import Estimate
+    from crs_core.measurements import Measurement
+    from ros4crs import conversions
     from ros4crs.node_support import LOG_QOS, STREAM_OUT_QOS, STREAM_QOS, make_executor
     from tf2_msgs.msg import TFMessage
 
@@ -102,17 +104,6 @@ def _stand_in(role: str, seconds: float, subscribe: bool) -> dict[str, Any]:
         "/tf": (TFMessage, STREAM_QOS),
         "input": (CarInput, LOG_QOS),
     }
-
-    def stamp(t: float) -> Time:
-        return Time(sec=int(t), nanosec=int((t % 1.0) * 1e9))
-
-    def state(t: float, x: np.ndarray) -> CarState:
-        msg = CarState()
-        msg.header.stamp = stamp(t)
-        msg.header.frame_id = "world"
-        msg.x, msg.y, msg.yaw, msg.vx, msg.vy, msg.omega = x.tolist()
-        msg.covariance = np.eye(6).ravel()
-        return msg
 
     def counted(topic: str, read):
         def callback(msg) -> None:
@@ -136,22 +127,17 @@ def _stand_in(role: str, seconds: float, subscribe: bool) -> dict[str, Any]:
         def on_batch(self) -> None:
             now = time.time()
             self.carry += [per_batch for _, _, per_batch in load["batch"]]
-            names, sizes = [], []
+            readings = []
             for k, (name, size, _) in enumerate(load["batch"]):
                 while self.carry[k] >= 1.0:
                     self.carry[k] -= 1.0
-                    names.append(name)
-                    sizes.append(size)
-            msg = SensorBatch()
-            msg.header.stamp = stamp(now)
-            msg.header.frame_id = "car1/base_link"
-            msg.sensors = names
-            msg.stamps_ns = [int(now * 1e9) - 1000 * k for k in range(len(names))]
-            msg.values = rng.random(sum(sizes)).tolist()
-            self.batch.publish(msg)
+                    stamp = now - 1e-6 * len(readings)
+                    readings.append(Measurement(stamp, name, rng.random(size)))
+            if readings:
+                self.batch.publish(conversions.batch_msg(readings, "car1/base_link"))
 
         def on_truth(self) -> None:
-            self.truth.publish(state(time.time(), rng.random(6)))
+            self.truth.publish(conversions.car_state_msg(rng.random(6), time.time()))
 
     class Estimator(Node):
         def __init__(self) -> None:
@@ -169,33 +155,13 @@ def _stand_in(role: str, seconds: float, subscribe: bool) -> dict[str, Any]:
 
         def on_update(self) -> None:
             now = time.time()
-            x = rng.random(6)
-            self.state.publish(state(now, x))
-            odometry = Odometry()
-            odometry.header.stamp = stamp(now)
-            odometry.header.frame_id = "world"
-            odometry.child_frame_id = "car1/base_link"
-            odometry.pose.pose.position.x, odometry.pose.pose.position.y = x[0], x[1]
-            odometry.pose.pose.orientation.z = float(np.sin(x[2] / 2))
-            odometry.pose.pose.orientation.w = float(np.cos(x[2] / 2))
-            odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = x[3], x[4]
-            odometry.twist.twist.angular.z = x[5]
-            odometry.pose.covariance = np.zeros(36)
-            odometry.twist.covariance = np.zeros(36)
-            self.odometry.publish(odometry)
-            query = EstimatorQuery()
-            query.header.stamp = stamp(now)
-            query.streams = ["sensors/batch", "input"]
-            query.newest = [stamp(now), stamp(now)]
-            query.oldest = [stamp(now - 10.0), stamp(now - 10.0)]
-            self.query.publish(query)
-            transform = TransformStamped()
-            transform.header.stamp = stamp(now)
-            transform.header.frame_id = "world"
-            transform.child_frame_id = "car1/base_link"
-            transform.transform.translation.x, transform.transform.translation.y = x[0], x[1]
-            transform.transform.rotation.w = 1.0
-            self.tf.publish(TFMessage(transforms=[transform]))
+            estimate = Estimate(now, rng.random(6), np.eye(6))
+            self.state.publish(conversions.car_state_msg(estimate.x, now, estimate.covariance))
+            self.odometry.publish(conversions.odometry_msg(estimate, "car1/base_link"))
+            newest = {"sensors/batch": now, "input": now}
+            oldest = {stream: now - 10.0 for stream in newest}
+            self.query.publish(conversions.query_msg(now, False, newest, oldest))
+            self.tf.publish(conversions.transform_msg(estimate, "car1/base_link"))
 
     class Controller(Node):
         def __init__(self) -> None:
@@ -213,10 +179,7 @@ def _stand_in(role: str, seconds: float, subscribe: bool) -> dict[str, Any]:
             self.create_timer(1.0 / rates["input"], self.on_control)
 
         def on_control(self) -> None:
-            msg = CarInput()
-            msg.header.stamp = stamp(time.time())
-            msg.steer, msg.torque = 0.1, 0.2
-            self.command.publish(msg)
+            self.command.publish(conversions.car_input_msg(np.array([0.1, 0.2]), time.time()))
 
     class Recorder(Node):
         def __init__(self) -> None:
