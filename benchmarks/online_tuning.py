@@ -4,13 +4,14 @@ same tuning does to the real recordings.
 The gyro's bias is told from the yaw rate through the heading: the Lighthouse's yaw and the
 heading of the path its positions draw. How far the estimators let the pose move off what the
 velocities integrate to is the process noise of ``x, y, yaw`` (``noise.process_std[:3]``; the
-velocities' is left as it is); how fast an online parameter may move, its relaxation time. One
+velocities' is left as it is); how hard the wheel speeds pull the velocities, their noise
+(``noise.wheel_std``); how fast an online parameter may move, its relaxation time. One
 race of the adaptation bench (:mod:`benchmarks.adaptation`: the issue's schedule, an emulated
 car behind a ``typical`` link, ``Cm1``, ``gyro_bias`` and ``grip`` online) is recorded with
 every sensor, then estimated again offline with each of :data:`VARIANTS` and judged as that
 bench judges (each parameter against the emulator's truth, from 10 s after its changes end),
 with the estimation RMSE against the truth. The two real recordings are estimated with the
-same pose noises (MHE, the sensors as recorded): the Lighthouse residual (recorded minus
+same noises (MHE, the sensors as recorded): the Lighthouse residual (recorded minus
 predicted sweep angle) and the distance from the car's own on-line estimate say whether the
 real car's pose follows the tighter kinematics.
 """
@@ -18,7 +19,7 @@ real car's pose follows the tighter kinematics.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -28,17 +29,29 @@ from benchmarks.machine import REAL_DATA
 from benchmarks.online_real import RUNS
 from crs_core.model.online import DEFAULT_REVERSION_S
 
+
+class Variant(NamedTuple):
+    """One setting of the estimators' tuning (see :data:`VARIANTS`)."""
+
+    pose_std: tuple[float, float, float]
+    wheel_std: float
+    reversion_s: float
+
+
 #: The variants tried, by name: the process noise of ``x, y, yaw`` (``noise.process_std[:3]``;
-#: m/sqrt(s), m/sqrt(s), rad/sqrt(s)) and the online parameters' relaxation time
-#: ``online_reversion_s`` (s; an effect's is four times it). The first is the default.
-VARIANTS: dict[str, tuple[tuple[float, float, float], float]] = {
-    "default": ((0.02, 0.02, 0.02), DEFAULT_REVERSION_S),
-    "x, y tighter": ((0.005, 0.005, 0.02), DEFAULT_REVERSION_S),
-    "yaw tighter": ((0.02, 0.02, 0.005), DEFAULT_REVERSION_S),
-    "pose 0.01": ((0.01, 0.01, 0.01), DEFAULT_REVERSION_S),
-    "pose 0.005": ((0.005, 0.005, 0.005), DEFAULT_REVERSION_S),
-    "pose 0.002": ((0.002, 0.002, 0.002), DEFAULT_REVERSION_S),
-    "slower walk": ((0.02, 0.02, 0.02), 4 * DEFAULT_REVERSION_S),
+#: m/sqrt(s), m/sqrt(s), rad/sqrt(s)), the wheel speeds' noise (``noise.wheel_std``, rad/s)
+#: and the online parameters' relaxation time ``online_reversion_s`` (s; an effect's is four
+#: times it). The first is the default.
+VARIANTS: dict[str, Variant] = {
+    "default": Variant((0.02, 0.02, 0.02), 2.5, DEFAULT_REVERSION_S),
+    "x, y tighter": Variant((0.005, 0.005, 0.02), 2.5, DEFAULT_REVERSION_S),
+    "yaw tighter": Variant((0.02, 0.02, 0.005), 2.5, DEFAULT_REVERSION_S),
+    "pose 0.01": Variant((0.01, 0.01, 0.01), 2.5, DEFAULT_REVERSION_S),
+    "pose 0.005": Variant((0.005, 0.005, 0.005), 2.5, DEFAULT_REVERSION_S),
+    "pose 0.002": Variant((0.002, 0.002, 0.002), 2.5, DEFAULT_REVERSION_S),
+    "pose 0.005, wheels 10": Variant((0.005, 0.005, 0.005), 10.0, DEFAULT_REVERSION_S),
+    "pose 0.005, wheels 25": Variant((0.005, 0.005, 0.005), 25.0, DEFAULT_REVERSION_S),
+    "slower walk": Variant((0.02, 0.02, 0.02), 2.5, 4 * DEFAULT_REVERSION_S),
 }
 #: The schedule raced.
 SCHEDULE = "issue"
@@ -50,10 +63,10 @@ def online_tuning_benchmark(
     work_dir: Path,
     duration: float = 120.0,
     seed: int = 0,
-    variants: dict[str, tuple[tuple[float, float, float], float]] = VARIANTS,
+    variants: dict[str, Variant] = VARIANTS,
 ) -> dict[str, Any]:
     """Record one race, then estimate it with each of ``variants``, and the real recordings
-    with each of their pose noises (JSON-ready)."""
+    with each of their noises (JSON-ready)."""
     from launch_scripts.car_stack import EmulatedLink, run_car_stack
     from launch_scripts.sim_stack import CarTruth, StackOptions
     from sim.drift import parse_drift
@@ -76,17 +89,19 @@ def online_tuning_benchmark(
     report = run_car_stack(1, options, duration, run, True, link=link)
     race = race_row(report, run, schedule)
     rows, real = [], {}
-    for k, (name, (pose_std, reversion_s)) in enumerate(variants.items(), 1):
+    for k, (name, variant) in enumerate(variants.items(), 1):
         print(f"[bench] variant {k} of {len(variants)}: {name}", flush=True)
-        if pose_std not in real:  # the real runs carry no online parameters
-            real[pose_std] = real_figures(pose_std)
+        noise = (variant.pose_std, variant.wheel_std)
+        if noise not in real:  # the real runs carry no online parameters
+            real[noise] = real_figures(variant)
         rows.append(
             {
                 "variant": name,
-                "pose_process_std": list(pose_std),
-                "online_reversion_s": reversion_s,
-                "race": offline_figures(run, pose_std, reversion_s, schedule),
-                "real": real[pose_std],
+                "pose_process_std": list(variant.pose_std),
+                "wheel_std": variant.wheel_std,
+                "online_reversion_s": variant.reversion_s,
+                "race": offline_figures(run, variant, schedule),
+                "real": real[noise],
             }
         )
     return {
@@ -99,21 +114,21 @@ def online_tuning_benchmark(
     }
 
 
-def pose_noise(pose_std: tuple[float, float, float]) -> Any:
-    """The estimators' noise with the process noise of ``x, y, yaw`` set to ``pose_std``."""
+def variant_noise(variant: Variant) -> Any:
+    """The estimators' noise with the process noise of ``x, y, yaw`` and the wheel speeds'
+    noise of ``variant``."""
     from crs_core.estimation.noise import EstimatorNoise
 
     default = EstimatorNoise()
-    return EstimatorNoise(process_std=(*pose_std, *default.process_std[3:]))
+    return EstimatorNoise(
+        process_std=(*variant.pose_std, *default.process_std[3:]), wheel_std=variant.wheel_std
+    )
 
 
-def offline_figures(
-    run: Path, pose_std: tuple[float, float, float], reversion_s: float, schedule: Any
-) -> dict[str, Any]:
-    """The recorded race estimated offline (MHE, :data:`ONLINE` online with relaxation time
-    ``reversion_s``) with the pose's process noise ``pose_std``: each online parameter judged
-    as the adaptation bench does, and the RMSE of x, y (mm) and yaw (mrad) against the
-    emulator's truth from 10 s on."""
+def offline_figures(run: Path, variant: Variant, schedule: Any) -> dict[str, Any]:
+    """The recorded race estimated offline (MHE, :data:`ONLINE` online) with ``variant``'s
+    tuning: each online parameter judged as the adaptation bench does, and the RMSE of x, y
+    (mm) and yaw (mrad) against the emulator's truth from 10 s on."""
     from crs_core.analysis.metrics import interpolate_states, state_rmse
     from crs_core.estimation import MheSettings
     from crs_core.estimation.base import OnlineValue
@@ -122,7 +137,9 @@ def offline_figures(
 
     dataset = dataset_from_bag(run / "bag", "car1", reference="none")
     settings = MheSettings(
-        noise=pose_noise(pose_std), online_parameters=ONLINE, online_reversion_s=reversion_s
+        noise=variant_noise(variant),
+        online_parameters=ONLINE,
+        online_reversion_s=variant.reversion_s,
     )
     result = estimate_dataset(dataset, "mhe", settings=settings, at=dataset.t[::EVERY])
     with np.load(run / "truth_car1.npz") as log:
@@ -153,13 +170,15 @@ def offline_figures(
     }
 
 
-def real_figures(pose_std: tuple[float, float, float]) -> dict[str, Any]:
-    """The two real recordings estimated (MHE) with the pose's process noise ``pose_std``: per run,
-    the Lighthouse residual (median, p95; rad) and the distance from the on-board estimate
-    (RMSE of x and y, mm)."""
+def real_figures(variant: Variant) -> dict[str, Any]:
+    """The two real recordings estimated (MHE) with ``variant``'s noise: per run, the
+    Lighthouse residual (median, p95; rad) and the distance from the on-board estimate (RMSE
+    of x and y, mm)."""
     from benchmarks.estimation import real_rows
 
-    rows = real_rows([REAL_DATA / run for run in RUNS], noise=pose_noise(pose_std), kinds=("mhe",))
+    rows = real_rows(
+        [REAL_DATA / run for run in RUNS], noise=variant_noise(variant), kinds=("mhe",)
+    )
     return {
         row["run"]: {
             "lighthouse_residual_rad": {
@@ -186,15 +205,16 @@ def format_markdown(result: dict[str, Any]) -> str:
     distance from the on-board estimate."""
     names = result["online_parameters"]
     runs = list(result["rows"][0]["real"]) if result["rows"] else []
-    head = ["variant", "x, y, yaw process noise", "T"]
+    head = ["variant", "x, y, yaw process noise", "wheels", "T"]
     head += [f"{name}: within / ±2σ / final σ" for name in names]
     head += ["race RMSE x / y / yaw"]
     head += [f"{run}: LH residual median / p95, from on-board x / y" for run in runs]
     lines = [
         f"One {result['duration_s']:g} s race on the `{result['schedule']}` schedule, "
         f"{', '.join(names)} online, estimated again offline with each variant (the process "
-        "noise of the pose, the online parameters' relaxation time T: an effect's is 4 T); the "
-        "two real recordings with the same pose noise (MHE). The first row is the default.",
+        "noise of the pose, the wheel speeds' noise, the online parameters' relaxation time T: "
+        "an effect's is 4 T); the two real recordings with the same noise (MHE). The first row "
+        "is the default.",
         "",
         "| " + " | ".join(head) + " |",
         "|" + "---|" * len(head),
@@ -203,6 +223,7 @@ def format_markdown(result: dict[str, Any]) -> str:
         cells = [
             row["variant"],
             " / ".join(f"{v:g}" for v in row["pose_process_std"]),
+            f"{row['wheel_std']:g} rad/s",
             f"{row['online_reversion_s']:g} s",
         ]
         for name in names:

@@ -78,7 +78,7 @@ class EstimatorNoise:
             "lighthouse_std": (self.lighthouse_std,),
             "imu_std": self.imu_std,
             "gyro_std": (self.gyro_std,),
-            "wheel_std": tuple(np.atleast_1d(self.wheel_std)),
+            "wheel_std": tuple(np.atleast_1d(self.wheel_std).tolist()),
             "pose_std": self.pose_std,
         }
         for name, entries in values.items():

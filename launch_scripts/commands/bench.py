@@ -440,8 +440,9 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         _duration_and_seed(120.0, "wall-clock time of the race", "noise and link seed of the race"),
         "how sharply the online gyro bias can be known against what the same tuning does to "
         "the real recordings: one race of the adaptation bench's issue schedule recorded with "
-        "every sensor, estimated again offline with tighter process noise of x, y and yaw "
-        "and a slower walk of the online parameters, each judged against the truth, "
+        "every sensor, estimated again offline with tighter process noise of x, y and yaw, "
+        "the wheel speeds trusted less and a slower walk of the online parameters, each "
+        "judged against the truth, "
         f"and the real recordings in {REAL_DATA} with the same settings (Lighthouse residual, "
         "distance from the on-board estimate); ~duration + 2.5 min",
     ),

@@ -6,18 +6,19 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.online_tuning import VARIANTS, format_markdown, pose_noise
+from benchmarks.online_tuning import VARIANTS, Variant, format_markdown, variant_noise
 from crs_core.estimation import MheSettings
 from crs_core.estimation.noise import EstimatorNoise
 
 
-def test_only_the_pose_process_noise_changes_and_the_first_variant_is_the_default():
+def test_a_variant_changes_the_pose_and_wheel_noise_only_and_the_first_is_the_default():
     default = EstimatorNoise()
-    first_pose, first_reversion = next(iter(VARIANTS.values()))
-    assert first_pose == pytest.approx(default.process_std[:3])
-    assert first_reversion == MheSettings().online_reversion_s
-    tight = pose_noise((0.002, 0.002, 0.002))
-    assert tight.process_std[:3] == (0.002, 0.002, 0.002)
+    first = next(iter(VARIANTS.values()))
+    assert first.pose_std == pytest.approx(default.process_std[:3])
+    assert first.wheel_std == default.wheel_std
+    assert first.reversion_s == MheSettings().online_reversion_s
+    tight = variant_noise(Variant((0.002, 0.002, 0.002), 10.0, 120.0))
+    assert tight.process_std[:3] == (0.002, 0.002, 0.002) and tight.wheel_std == 10.0
     assert tight.process_std[3:] == default.process_std[3:]
     assert tight.lighthouse_std == default.lighthouse_std and tight.imu_std == default.imu_std
 
@@ -33,6 +34,7 @@ def test_the_table_has_a_row_per_setting_with_the_parameters_and_both_real_runs(
     row = {
         "variant": "default",
         "pose_process_std": [0.02, 0.02, 0.02],
+        "wheel_std": 2.5,
         "online_reversion_s": 120.0,
         "race": {
             "parameters": {"gyro_bias": parameter(0.828, 0.00867)},
@@ -47,9 +49,11 @@ def test_the_table_has_a_row_per_setting_with_the_parameters_and_both_real_runs(
         "rows": [row],
     }
     text = format_markdown(result)
-    assert "| variant | x, y, yaw process noise | T | Cm1: within / ±2σ / final σ |" in text
     assert (
-        "| default | 0.02 / 0.02 / 0.02 | 120 s | – | 83 / 98 % / 0.00867 | "
+        "| variant | x, y, yaw process noise | wheels | T | Cm1: within / ±2σ / final σ |" in text
+    )
+    assert (
+        "| default | 0.02 / 0.02 / 0.02 | 2.5 rad/s | 120 s | – | 83 / 98 % / 0.00867 | "
         "0.90 / 1.11 mm / 7.6 mrad | 0.42 / 1.6 mrad, 3.1 / 3.7 mm | "
         "0.42 / 1.6 mrad, 3.1 / 3.7 mm |" in text
     )
