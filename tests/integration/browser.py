@@ -116,6 +116,10 @@ class DevTools:
         self.session = self.call(
             "Target.attachToTarget", targetId=pages[0]["targetId"], flatten=True
         )["sessionId"]
+        # in front and focused, as a page someone watches: a page the browser takes for hidden
+        # may get no animation frames, and the page draws in them
+        self.call("Page.bringToFront")
+        self.call("Emulation.setFocusEmulationEnabled", enabled=True)
 
     def evaluate(self, expression: str) -> Any:
         """The value of a JavaScript expression in the page."""
