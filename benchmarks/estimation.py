@@ -224,12 +224,12 @@ def real_rows(
         )
         reference = shifted.x
         trajectories = {}
-        noise_setting = {} if noise is None else {"noise": noise}
+        assumed = noise or EstimatorNoise()
         for kind in kinds:
             settings = (
-                MheSettings(rate_hz=50.0, **noise_setting)
+                MheSettings(rate_hz=50.0, noise=assumed)
                 if kind == "mhe"
-                else EkfSettings(**noise_setting)
+                else EkfSettings(noise=assumed)
             )
             estimator = make_estimator(
                 kind, "lh+we+gyro", CarModel(parameters=model), settings, inputs="commanded"

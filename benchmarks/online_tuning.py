@@ -18,6 +18,7 @@ real car's pose follows the tighter kinematics.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -27,6 +28,7 @@ import yaml
 from benchmarks.adaptation import ONLINE, SCHEDULES, parameter_figures, race_row
 from benchmarks.machine import REAL_DATA
 from benchmarks.online_real import RUNS
+from crs_core.estimation.noise import EstimatorNoise
 from crs_core.model.online import DEFAULT_REVERSION_S
 
 
@@ -38,20 +40,27 @@ class Variant(NamedTuple):
     reversion_s: float
 
 
+_ASSUMED = EstimatorNoise()
+#: The estimators' own tuning.
+DEFAULT = Variant(
+    (_ASSUMED.process_std[0], _ASSUMED.process_std[1], _ASSUMED.process_std[2]),
+    float(np.atleast_1d(_ASSUMED.wheel_std)[0]),  # one value for every wheel
+    DEFAULT_REVERSION_S,
+)
 #: The variants tried, by name: the process noise of ``x, y, yaw`` (``noise.process_std[:3]``;
 #: m/sqrt(s), m/sqrt(s), rad/sqrt(s)), the wheel speeds' noise (``noise.wheel_std``, rad/s)
 #: and the online parameters' relaxation time ``online_reversion_s`` (s; an effect's is four
 #: times it). The first is the default.
 VARIANTS: dict[str, Variant] = {
-    "default": Variant((0.02, 0.02, 0.02), 2.5, DEFAULT_REVERSION_S),
-    "x, y tighter": Variant((0.005, 0.005, 0.02), 2.5, DEFAULT_REVERSION_S),
-    "yaw tighter": Variant((0.02, 0.02, 0.005), 2.5, DEFAULT_REVERSION_S),
-    "pose 0.01": Variant((0.01, 0.01, 0.01), 2.5, DEFAULT_REVERSION_S),
-    "pose 0.005": Variant((0.005, 0.005, 0.005), 2.5, DEFAULT_REVERSION_S),
-    "pose 0.002": Variant((0.002, 0.002, 0.002), 2.5, DEFAULT_REVERSION_S),
-    "pose 0.005, wheels 10": Variant((0.005, 0.005, 0.005), 10.0, DEFAULT_REVERSION_S),
-    "pose 0.005, wheels 25": Variant((0.005, 0.005, 0.005), 25.0, DEFAULT_REVERSION_S),
-    "slower walk": Variant((0.02, 0.02, 0.02), 2.5, 4 * DEFAULT_REVERSION_S),
+    "default": DEFAULT,
+    "x, y tighter": DEFAULT._replace(pose_std=(0.005, 0.005, DEFAULT.pose_std[2])),
+    "yaw tighter": DEFAULT._replace(pose_std=(*DEFAULT.pose_std[:2], 0.005)),
+    "pose 0.01": DEFAULT._replace(pose_std=(0.01, 0.01, 0.01)),
+    "pose 0.005": DEFAULT._replace(pose_std=(0.005, 0.005, 0.005)),
+    "pose 0.002": DEFAULT._replace(pose_std=(0.002, 0.002, 0.002)),
+    "pose 0.005, wheels 10": DEFAULT._replace(pose_std=(0.005, 0.005, 0.005), wheel_std=10.0),
+    "pose 0.005, wheels 25": DEFAULT._replace(pose_std=(0.005, 0.005, 0.005), wheel_std=25.0),
+    "slower walk": DEFAULT._replace(reversion_s=4 * DEFAULT_REVERSION_S),
 }
 #: The schedule raced.
 SCHEDULE = "issue"
@@ -114,14 +123,13 @@ def online_tuning_benchmark(
     }
 
 
-def variant_noise(variant: Variant) -> Any:
+def variant_noise(variant: Variant) -> EstimatorNoise:
     """The estimators' noise with the process noise of ``x, y, yaw`` and the wheel speeds'
     noise of ``variant``."""
-    from crs_core.estimation.noise import EstimatorNoise
-
-    default = EstimatorNoise()
-    return EstimatorNoise(
-        process_std=(*variant.pose_std, *default.process_std[3:]), wheel_std=variant.wheel_std
+    return replace(
+        _ASSUMED,
+        process_std=(*variant.pose_std, *_ASSUMED.process_std[3:]),
+        wheel_std=variant.wheel_std,
     )
 
 
@@ -150,7 +158,9 @@ def offline_figures(run: Path, variant: Variant, schedule: Any) -> dict[str, Any
         (
             float(t),
             {
-                name: OnlineValue(float(online.value[i, k]), float(online.std[i, k]), True)
+                name: OnlineValue(
+                    float(online.value[i, k]), float(online.std[i, k]), bool(online.informed[i, k])
+                )
                 for i, name in enumerate(online.names)
             },
         )

@@ -186,9 +186,9 @@ def two_screenshots(url: str, profile: Path) -> tuple[bytes, bytes]:
         time.sleep(1.0)
         deadline = time.monotonic() + 4.0
         while browser.evaluate(PAGE_CARS) == drawn:
-            header = browser.evaluate("header.textContent")
             assert time.monotonic() < deadline, (
-                f"the page received no new car position in 5 s ({header!r}; cars {drawn})"
+                "the page received no new car position in 5 s "
+                f"({browser.evaluate('header.textContent')!r}; cars {drawn})"
             )
             time.sleep(0.1)
         second = browser.screenshot()

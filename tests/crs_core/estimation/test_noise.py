@@ -2,6 +2,9 @@
 
 import math
 
+import pytest
+
+from crs_core.errors import FieldError
 from crs_core.estimation import (
     EstimatorNoise,
 )
@@ -19,10 +22,6 @@ def test_effect_states_get_noise_by_name():
 def test_whole_numbers_are_standard_deviations_too_and_a_bad_one_is_named():
     """``wheel_std=25`` (an int, one value or four) is a standard deviation like 25.0; a zero
     is refused naming the field."""
-    import pytest
-
-    from crs_core.errors import FieldError
-
     assert EstimatorNoise(wheel_std=25).measurement_std("wheel_encoders").tolist() == [25.0] * 4
     assert EstimatorNoise(wheel_std=(1, 2, 3, 4)).measurement_std("wheel_encoders")[3] == 4.0
     with pytest.raises(FieldError, match=r"noise\.wheel_std"):
