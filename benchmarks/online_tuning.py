@@ -165,6 +165,7 @@ def offline_figures(run: Path, variant: Variant, schedule: Any) -> dict[str, Any
             },
         )
         for k, t in enumerate(result.t)
+        if result.status[k] != "lost"  # none while lost, as the estimator node publishes
     ]
     figures = _without_course(parameter_figures(estimates, truth, origin, schedule))
     reference = interpolate_states(result.t, truth["t"], truth["x"])
