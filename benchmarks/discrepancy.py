@@ -1,7 +1,8 @@
 """``crs bench discrepancy``: does the workflow name the right effect, and never one on clean data?
 
 Cases: every registry effect hidden in the simulated car at two magnitudes (three for the steering
-gain), and clean runs (no effect; every third with sensor noise the estimator does not assume),
+gain), changes outside the registry (:data:`OUTSIDE`: a battery losing torque over each run), and
+clean runs (no effect; every third with sensor noise the estimator does not assume),
 each a training run and a held-out run of another seed. Half of the cases are read as
 an *independent source*: a joystick driver instead of the path follower, and the datasets saved
 in the layout of the real recordings (``t.npy``, ``u.npy``, ``y.npy``, ``x.npy`` only: no
@@ -33,6 +34,7 @@ from crs_core.discrepancy.workflow import (
 )
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
+from sim.drift import DriftSchedule, parse_drift
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 from sim.sensors import SensorSpec, SensorSuite
 
@@ -59,6 +61,12 @@ MAGNITUDES: dict[str, tuple[dict[str, float], ...]] = {
         {"lh_plane1_offset": 0.006, "lh_plane2_offset": -0.004},
     ),
 }
+#: Changes outside the registry, per kind one truth per level of :data:`LEVELS`: ``battery``, the
+#: motor constant falling to ``Cm1_factor`` of its value linearly over each recording (no
+#: registry effect has time in it; the FIE's state absorbs it, open-loop prediction does not).
+OUTSIDE: dict[str, tuple[dict[str, float], ...]] = {
+    "battery": ({"Cm1_factor": 0.85}, {"Cm1_factor": 0.7}),
+}
 #: A named parameter counts as recovered within this relative error.
 RELATIVE_TOLERANCE = 0.15
 #: Length of every held-out run, s (the test's power grows with it; scoring costs little).
@@ -72,6 +80,12 @@ MISMATCHED_SENSORS = SensorSuite(
 )
 
 
+def _battery(values: dict[str, float], duration: float) -> DriftSchedule:
+    """The motor constant falling linearly to ``values["Cm1_factor"]`` over ``duration`` s."""
+    change = {"parameter": "Cm1", "from_s": 0.0, "to_s": duration}
+    return parse_drift({"drift": [{**change, "factor": values["Cm1_factor"]}]})
+
+
 def _case_datasets(
     effect: str | None,
     values: dict[str, float],
@@ -80,12 +94,23 @@ def _case_datasets(
     held_out_s: float,
     independent: bool,
     noise: str,
+    outside: str | None = None,
 ) -> tuple[Dataset, Dataset]:
     truth = CarModel({effect: values}) if effect else CarModel()
     driver = "joystick" if independent else "path"
     sensors = MISMATCHED_SENSORS if noise == "mismatched" else None
-    train = simulate_dataset(duration, seed, truth, driver, sensors)
-    held_out = simulate_dataset(held_out_s, seed + 1000, truth, driver, sensors)
+    battery = outside == "battery"
+    train = simulate_dataset(
+        duration, seed, truth, driver, sensors, _battery(values, duration) if battery else None
+    )
+    held_out = simulate_dataset(
+        held_out_s,
+        seed + 1000,
+        truth,
+        driver,
+        sensors,
+        _battery(values, held_out_s) if battery else None,
+    )
     if not independent:
         return train, held_out
     with tempfile.TemporaryDirectory() as folder:
@@ -121,6 +146,7 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
         case["held_out_s"],
         case["independent"],
         case["noise"],
+        case.get("outside"),
     )
     result, summary, seconds = _workflow(train, held_out, workers)
     row = {
@@ -132,6 +158,11 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
         "gap_after_m": summary["gap_after"],
         "parameters": summary["parameters"],
         "plane1_lag": summary["plane1_lag"],
+        "where": summary["where"],
+        "prediction": {
+            key: summary["prediction_before"][key]
+            for key in ("gap", "shuffled_gap", "coherence", "structured", "strongest")
+        },
         "hypotheses": {
             "+".join(h["effects"]): {
                 "improvement": h["held_out"]["improvement"] if h["held_out"] else None,
@@ -151,6 +182,8 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
         row["relative_error"] = errors
         row["correct"] = result.effects == (effect,) or effect in result.effects
         row["within_tolerance"] = bool(errors) and max(errors.values()) <= RELATIVE_TOLERANCE
+    elif case.get("outside"):
+        row["correct"] = result.verdict == "unexplained"
     else:
         row["correct"] = result.verdict == "none"
     return row
@@ -174,6 +207,22 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
                         "noise": "nominal",
                         "duration_s": duration,
                         "held_out_s": HELD_OUT_S,
+                        "outside": None,
+                    }
+                )
+        for kind, magnitudes in OUTSIDE.items():
+            for m, (level, values) in enumerate(zip(LEVELS, magnitudes, strict=False)):
+                out.append(
+                    {
+                        "effect": None,
+                        "magnitude": level,
+                        "values": values,
+                        "seed": 100 + seed,
+                        "independent": bool((m + seed) % 2),
+                        "noise": "nominal",
+                        "duration_s": duration,
+                        "held_out_s": HELD_OUT_S,
+                        "outside": kind,
                     }
                 )
     clean = [
@@ -186,6 +235,7 @@ def cases(seeds: int, clean_seeds: int, duration: float) -> list[dict[str, Any]]
             "noise": "mismatched" if seed % 3 == 2 else "nominal",
             "duration_s": duration,
             "held_out_s": HELD_OUT_S,
+            "outside": None,
         }
         for seed in range(clean_seeds)
     ]
@@ -200,7 +250,7 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Confusion table, detection rates, false-alarm rate and parameter accuracy."""
     confusion: dict[str, Counter] = {}
     for row in rows:
-        truth = row["effect"] or "clean"
+        truth = row["effect"] or row.get("outside") or "clean"
         answer = "+".join(row["named"]) if row["named"] else row["verdict"]
         confusion.setdefault(truth, Counter())[answer] += 1
     detection = {}
@@ -215,11 +265,24 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
                     "gap_before_m": [r["gap_before_m"] for r in hits],
                     "gap_after_m": [r["gap_after_m"] for r in hits],
                 }
-    clean = [r for r in rows if r["effect"] is None]
+    clean = [r for r in rows if r["effect"] is None and not r.get("outside")]
     alarms = [r for r in clean if r["verdict"] != "none"]
+    outside = {}
+    for kind in OUTSIDE:
+        for level in LEVELS:
+            hits = [r for r in rows if r.get("outside") == kind and r["magnitude"] == level]
+            if hits:
+                outside[f"{kind}/{level}"] = {
+                    "runs": len(hits),
+                    "verdicts": dict(Counter(r["verdict"] for r in hits)),
+                    "registry_names": [r["named"] for r in hits if r["named"]],
+                    "gap_before_m": [r["gap_before_m"] for r in hits],
+                    "coherence": [r["prediction"]["coherence"] for r in hits],
+                }
     return {
         "confusion": {truth: dict(counts) for truth, counts in confusion.items()},
         "detection": detection,
+        "outside": outside,
         "false_alarms": {
             "runs": len(clean),
             "findings": len(alarms),
@@ -267,7 +330,7 @@ def markdown(rows: list[dict[str, Any]]) -> str:
             f"| {r['effect']} | {truth} | {source} | {named} | {fitted or '—'} | {held_out} | "
             f"{r['gap_before_m']:.3f} → {r['gap_after_m']:.3f} |"
         )
-    clean = [r for r in rows if not r["effect"]]
+    clean = [r for r in rows if not r["effect"] and not r.get("outside")]
     verdicts = Counter(r["verdict"] for r in clean)
     mismatched = [r for r in clean if r["noise"] == "mismatched"]
     lines.append("")
@@ -336,9 +399,28 @@ def format_markdown(result: dict[str, Any]) -> str:
         f"{sum(r.get('within_tolerance', False) for r in correct)} of those {len(correct)}; "
         f"**wrong names: {len(result['summary']['wrong_names'])}**.",
     ]
+    if result["summary"].get("outside"):
+        lines.append(_outside_line(rows))
     if "speed_60s" in result:
         lines.append(_speed_line(result["speed_60s"]))
     return "\n".join([*lines, "", markdown(rows)])
+
+
+def _outside_line(rows: list[dict[str, Any]]) -> str:
+    """The bullet on the changes outside the registry: per case the verdict, the open-loop
+    coherence and the held-out gap."""
+    outside = [r for r in rows if r.get("outside")]
+    unexplained = [r for r in outside if r["verdict"] == "unexplained"]
+    cases = "; ".join(
+        f"{r['outside']} {', '.join(f'{k} {v:g}' for k, v in r['values'].items())} (seed "
+        f"{r['seed']}): {'+'.join(r['named']) or r['verdict']}, coherence "
+        f"{r['prediction']['coherence']:.2f}, gap {r['gap_before_m']:.3f} m"
+        for r in sorted(outside, key=lambda r: (r["outside"], r["magnitude"], r["seed"]))
+    )
+    return (
+        f"- **Outside the registry: {len(unexplained)} of {len(outside)} `unexplained`** (never "
+        f"`none`): {cases}."
+    )
 
 
 def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
@@ -362,11 +444,11 @@ def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
 
 
 #: What identifies a case across runs of the benchmark (``--resume``).
-CASE_KEY = ("effect", "magnitude", "seed", "independent", "noise")
+CASE_KEY = ("effect", "outside", "magnitude", "seed", "independent", "noise")
 
 
 def _case_key(case: dict[str, Any]) -> tuple:
-    return tuple(case[name] for name in CASE_KEY)
+    return tuple(case.get(name) for name in CASE_KEY)
 
 
 def _resumed(out: Path, settings: dict[str, Any]) -> dict[str, Any]:

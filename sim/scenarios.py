@@ -13,6 +13,7 @@ from crs_core.model import CarModel
 from crs_core.track import Track, load_demo_track
 
 if TYPE_CHECKING:
+    from sim.drift import DriftSchedule
     from sim.sensors import SensorSuite
     from sim.simulator import SimulationResult
 
@@ -75,9 +76,10 @@ def simulate_dataset(
     model: CarModel | None = None,
     driver: str = "path",
     sensors: SensorSuite | None = None,
+    drift: DriftSchedule | None = None,
 ) -> Dataset:
-    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos;
-    ``sensors``, default :class:`~sim.sensors.SensorSuite`).
+    """A closed-loop simulated dataset on DEMO_TRACK (truth: ``model``, default Chronos, changed
+    over time by ``drift``; ``sensors``, default :class:`~sim.sensors.SensorSuite`).
 
     ``driver``: ``"path"`` the path follower at 1 m/s, ``"joystick"`` a
     :class:`JoystickDriver` (jittery steering and throttle, 1.3 m/s, seeded by ``seed``).
@@ -95,8 +97,8 @@ def simulate_dataset(
     else:
         controller = JoystickDriver(track, wheelbase, seed)
     x0 = track.start_state()
-    result = Simulator(model, sensors or SensorSuite(), seed=seed).run(controller, duration, x0)
-    return result.to_dataset()
+    simulator = Simulator(model, sensors or SensorSuite(), seed=seed, drift=drift)
+    return simulator.run(controller, duration, x0).to_dataset()
 
 
 def standard_drive(seed: int, duration: float = 20.0, blackouts=()) -> SimulationResult:

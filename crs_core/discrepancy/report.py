@@ -30,6 +30,7 @@ from crs_core.discrepancy.figures import (
     residuals_figure,
 )
 from crs_core.discrepancy.hypotheses import DELAY_EFFECT, Hypothesis, information_criterion
+from crs_core.discrepancy.prediction import COHERENCE_MAX, PREDICTION_CHANNEL
 from crs_core.discrepancy.residuals import CHANNEL_UNITS
 from crs_core.discrepancy.sweep_lag import SweepLag
 from crs_core.discrepancy.workflow import DiscrepancyResult
@@ -168,6 +169,18 @@ def headline(result: DiscrepancyResult, summary: dict[str, Any] | None = None) -
     tried = len({h.effects for h in result.hypotheses if len(h.effects) == 1})
     if result.verdict == "unexplained" and result.where is not None:
         w = result.where
+        if w["channel"] == PREDICTION_CHANNEL:
+            d = result.prediction_before
+            text = (
+                f"**Unexplained: open-loop predictions miss coherently, most when "
+                f"{w['regressor']} in [{w['low']:.3g}, {w['high']:.3g}] "
+                f"{REGRESSOR_UNITS.get(w['regressor'], '')}** — over {d.horizon_s:g} s from the "
+                f"fit's states they miss by {1e3 * d.gap:.1f} mm, {d.coherence:.2f}× the "
+                f"{1e3 * d.shuffled_gap:.1f} mm of the same drive with the fit's process "
+                "residuals shuffled, while the measurement residuals show no structure; none of "
+                f"the {tried} candidate effects explains it on the held-out data"
+            )
+            return text + (f"; {gap}" if gap else "")
         unit = REGRESSOR_UNITS.get(w["regressor"], "")
         channel_unit = CHANNEL_UNITS.get(w["channel"], "")
         text = (
@@ -180,7 +193,8 @@ def headline(result: DiscrepancyResult, summary: dict[str, Any] | None = None) -
         return text + (f"; {gap}" if gap else "")
     text = (
         f"**No effect needed** — none of the {tried} candidate effects improves the held-out "
-        "predictions significantly, and the current model's residuals show no structure"
+        "predictions significantly, the current model's residuals show no structure and its "
+        "open-loop predictions miss no more coherently than noise"
     )
     return text + (f"; {gap}" if gap else "")
 
@@ -301,6 +315,8 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         )
     lines += ["", "## Residual diagnostics of the training fit", ""]
     lines += _diagnostics_table(summary, result)
+    lines += ["", "## Open-loop predictions from the training fit's states", ""]
+    lines += _prediction_table(summary, result)
     lines += [
         "",
         "## Figures",
@@ -350,4 +366,34 @@ def _diagnostics_table(summary: dict[str, Any], result: DiscrepancyResult) -> li
                 f"{format_number(d['regime_r2'], '.3f')} | "
                 f"{d['strongest_regressor']} | {'**yes**' if d['structured'] else 'no'} |"
             )
+    return lines
+
+
+def _prediction_table(summary: dict[str, Any], result: DiscrepancyResult) -> list[str]:
+    same = result.prediction_after is result.prediction_before
+    lines = [
+        "Gap = position RMSE of predictions over the horizon from the fit's states, against "
+        "them; shuffled = the same drive with the fit's process residuals in shuffled order "
+        "(median and range); coherence = gap / shuffled (about 1 for white process noise, "
+        "below for a right model; structured above "
+        f"{COHERENCE_MAX:g}). Strongest: the error series (gap, or the signed miss along or "
+        "across the heading) most correlated with a regime variable.",
+        "",
+        "| model | horizon | gap | shuffled | coherence | strongest (correlation) | structured |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    fits = [("current", summary["prediction_before"])]
+    if not same:
+        fits.append(("final", summary["prediction_after"]))
+    for label, d in fits:
+        low, high = d["shuffled_range"]
+        strongest = d["strongest"]
+        lines.append(
+            f"| {label} | {d['horizon_s']:g} s | {format_number(1e3 * d['gap'], '.3g')} mm | "
+            f"{format_number(1e3 * d['shuffled_gap'], '.3g')} mm "
+            f"[{format_number(1e3 * low, '.3g')}, {format_number(1e3 * high, '.3g')}] | "
+            f"{format_number(d['coherence'], '.2f')} | {strongest['series']} with "
+            f"{strongest['regressor']} ({format_number(strongest['correlation'], '+.2f')}) | "
+            f"{'**yes**' if d['structured'] else 'no'} |"
+        )
     return lines

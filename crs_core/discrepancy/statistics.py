@@ -139,14 +139,18 @@ def mean_z(x: np.ndarray) -> float:
 def strongest(e: np.ndarray, design: np.ndarray, names: list[str]) -> str:
     """The regressor with the largest absolute correlation with ``e`` (first on ties)."""
     best, best_r = names[0], -1.0
-    ec = e - e.mean()
     for j, name in enumerate(names):
-        xc = design[:, j] - design[:, j].mean()
-        scale = float(np.sqrt(np.sum(xc**2) * np.sum(ec**2)))
-        r = abs(float(np.sum(xc * ec))) / scale if scale > 0 else 0.0
+        r = abs(correlation(design[:, j], e))
         if r > best_r:
             best, best_r = name, r
     return best
+
+
+def correlation(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson correlation of two series (0 when either is constant)."""
+    ac, bc = a - a.mean(), b - b.mean()
+    scale = float(np.sqrt(np.sum(ac**2) * np.sum(bc**2)))
+    return float(np.sum(ac * bc)) / scale if scale > 0 else 0.0
 
 
 def autocorrelation(x: np.ndarray, lags: int) -> np.ndarray:

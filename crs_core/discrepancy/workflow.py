@@ -5,7 +5,9 @@
 1. identify the current model on the training data (the FIE); on a recording without a
    stream (the real recordings' layout) with the first-plane sweep lag fitted first, a
    nuisance shared by every hypothesis (:mod:`~crs_core.discrepancy.sweep_lag`);
-2. diagnose its residuals channel by channel (:mod:`~crs_core.discrepancy.residuals`);
+2. diagnose its residuals channel by channel (:mod:`~crs_core.discrepancy.residuals`) and
+   its open-loop predictions from the fit's states (:mod:`~crs_core.discrepancy.prediction`:
+   a slow drift the fit's state absorbs shows there);
 3. fit every candidate effect of the registry on the training data and test it on held-out
    data (:mod:`~crs_core.discrepancy.hypotheses`); held-out data are the validation dataset,
    or without one the last :attr:`DiscrepancySettings.held_out_fraction` of the training run;
@@ -15,7 +17,8 @@
    was clear of "no effect" although the held-out test refused them, the lowest criterion first
    (one effect can hide another); two effects at once are reported when both are significant;
    no finding: ``none``, or ``unexplained`` when the residuals of the current model stay
-   structured (with the channel and regime where the misfit lives);
+   structured or its open-loop predictions miss coherently (with the channel and regime where
+   the misfit lives);
 5. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
    horizon and the per-channel RMS, with the final model's parameters.
 """
@@ -43,6 +46,11 @@ from crs_core.discrepancy.hypotheses import (
     judge,
     null_value,
     parameter_table,
+)
+from crs_core.discrepancy.prediction import (
+    PREDICTION_CHANNEL,
+    PredictionDiagnosis,
+    diagnose_prediction,
 )
 from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
 from crs_core.discrepancy.sweep_lag import (
@@ -144,6 +152,8 @@ class DiscrepancyResult:
     current : the current model's FIE result
     hypotheses : every hypothesis tried, in order
     diagnostics_before, diagnostics_after : residual diagnoses of the current / final fit
+    prediction_before, prediction_after : open-loop prediction diagnoses of the current / final
+        fit
     gap : {"before": m, "after": m} held-out open-loop position RMSE (None without a reference)
     channel_rms : {"before": {...}, "after": {...}} held-out per-channel RMS
     where : the channel and regime of the misfit (``unexplained``), else None
@@ -162,6 +172,8 @@ class DiscrepancyResult:
     hypotheses: list[Hypothesis]
     diagnostics_before: list[ChannelDiagnosis]
     diagnostics_after: list[ChannelDiagnosis]
+    prediction_before: PredictionDiagnosis
+    prediction_after: PredictionDiagnosis
     gap: dict[str, float | None]
     channel_rms: dict[str, dict[str, float | None]]
     where: dict[str, Any] | None
@@ -193,6 +205,8 @@ class DiscrepancyResult:
             "hypotheses": [h.to_dict() for h in self.hypotheses],
             "diagnostics_before": [d.to_dict() for d in self.diagnostics_before],
             "diagnostics_after": [d.to_dict() for d in self.diagnostics_after],
+            "prediction_before": self.prediction_before.to_dict(),
+            "prediction_after": self.prediction_after.to_dict(),
             "time_s": self.time_s,
         }
 
@@ -239,6 +253,15 @@ def find_discrepancy(
     fit_data, current, plane1_lag = _plane1_lag(fit_data, model, current, settings, say)
     current_model = _fitted(model, current)
     diagnostics_before = diagnose(current)
+    say("open-loop predictions from the fit's states ...")
+    prediction_before = diagnose_prediction(
+        fit_data, current_model, current.states, settings.horizon_s
+    )
+    say(
+        f"open-loop gap {1e3 * prediction_before.gap:.1f} mm over "
+        f"{prediction_before.horizon_s:g} s, {prediction_before.coherence:.2f}x the same drive's "
+        "with the fit's process residuals shuffled"
+    )
     current_scores = held_out_scores(held_out, current_model, settings.test.test_horizon_s)
     say(f"current model: FIE cost {current.cost:.6g}; {len(candidates)} hypotheses to test")
 
@@ -288,9 +311,20 @@ def find_discrepancy(
         final, final_model, delay, effects = current, current_model, 0.0, ()
         verdict = "none"
     diagnostics_after = diagnose(final) if chosen is not None else diagnostics_before
+    prediction_after = (
+        diagnose_prediction(
+            delayed_inputs(fit_data, delay), final_model, final.states, settings.horizon_s
+        )
+        if chosen is not None
+        else prediction_before
+    )
     where = None
     if verdict == "none":
         where = where_misfit(diagnostics_before)
+        if where is None and prediction_before.structured:
+            where = prediction_before.where()
+        elif where is not None and prediction_before.structured:
+            where["also_structured"].append(PREDICTION_CHANNEL)
         if where is not None:
             verdict = "unexplained"
     say("gap on the held-out data ...")
@@ -305,6 +339,8 @@ def find_discrepancy(
         hypotheses=hypotheses,
         diagnostics_before=diagnostics_before,
         diagnostics_after=diagnostics_after,
+        prediction_before=prediction_before,
+        prediction_after=prediction_after,
         gap=gap,
         channel_rms=channel_rms,
         where=where,

@@ -120,10 +120,26 @@ class OpenLoopPredictor:
         )
         self._step, self._output = functions["rk4_validation_map"], functions["h_validation_map"]
 
-    def predict(self, p: np.ndarray | None = None, outputs: bool = True) -> OpenLoopPrediction:
-        """Predict with the model's parameter vector ``p`` (default: the model's own)."""
+    def predict(
+        self,
+        p: np.ndarray | None = None,
+        outputs: bool = True,
+        disturbances: np.ndarray | None = None,
+    ) -> OpenLoopPrediction:
+        """Predict with the model's parameter vector ``p`` (default: the model's own).
+
+        ``disturbances`` (``(N - 1, nx)``, state units), when given, is added to the state at
+        the end of every sample interval ``k`` (:math:`x_{k+1} = F(x_k, u_k) + d_k`): with a
+        fit's process residuals (:func:`process_residuals`) the prediction retraces the fit's
+        states.
+        """
         t, u, starts, n = self.dataset.t, self._u, self.starts, len(self.starts)
         p = self.model.parameters.vector() if p is None else np.asarray(p, dtype=float)
+        if disturbances is not None and disturbances.shape != (len(t) - 1, self.model.nx):
+            raise FieldError(
+                "disturbances",
+                f"must be ({len(t) - 1}, {self.model.nx}), got {disturbances.shape}",
+            )
         padded = self._padded
         capacity = len(padded)
         p_all = np.tile(p[:, None], (1, capacity))
@@ -141,6 +157,8 @@ class OpenLoopPredictor:
                 x = self._step(x, self._sub_u[kk, s].T, p_all, h_s)[0].reshape(
                     self.model.nx, capacity, order="F"
                 )
+            if disturbances is not None:
+                x = x + np.where(active, disturbances[kk].T, 0.0)
             ours = active[:n]
             positions[ours, i] = x[:2, :n][:, ours].T
             if outputs:
@@ -181,6 +199,23 @@ def _substeps(dataset: Dataset) -> tuple[np.ndarray, np.ndarray]:
         for j, (value, h) in enumerate(row):
             sub_u[k, j], sub_h[k, j] = value, h
     return sub_u, sub_h
+
+
+def process_residuals(dataset: Dataset, model: CarModel, states: np.ndarray) -> np.ndarray:
+    """A state trajectory's process residuals :math:`w_k = x_{k+1} - F(x_k, u_k)`, ``(N - 1,
+    nx)`` in state units: ``F`` the model's RK4 step over each sample interval with the
+    held-command substeps of the FIE and the open-loop predictions (``model``'s parameters)."""
+    if states.shape != (len(dataset.t), model.nx):
+        raise FieldError("states", f"must be ({len(dataset.t)}, {model.nx}), got {states.shape}")
+    sub_u, sub_h = _substeps(dataset)
+    step = model.step_function(1, "rk4_residual")
+    intervals = len(dataset.t) - 1
+    stepped = step.map(intervals)
+    p_all = np.tile(model.parameters.vector()[:, None], (1, intervals))
+    x = states[:-1].T
+    for s in range(sub_h.shape[1]):
+        x = np.asarray(stepped(x, sub_u[:, s].T, p_all, sub_h[None, :, s]))
+    return np.asarray(states[1:] - x.T)
 
 
 def horizon_index(dataset: Dataset, prediction: OpenLoopPrediction) -> np.ndarray:

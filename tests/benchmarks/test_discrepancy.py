@@ -51,6 +51,8 @@ class _Runs:
             "gap_after_m": 0.1,
             "parameters": {},
             "hypotheses": {},
+            "where": None,
+            "prediction": {"coherence": 0.5, "structured": False},
         }
 
 

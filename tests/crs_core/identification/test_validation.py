@@ -5,11 +5,15 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
+from crs_core.errors import FieldError
 from crs_core.identification.reference import LIGHTHOUSE_REFERENCE
 from crs_core.identification.validation import (
     OpenLoopPredictor,
+    horizon_index,
     predict_open_loop,
+    process_residuals,
     validate,
 )
 from crs_core.model import CarModel
@@ -44,3 +48,20 @@ def test_validation_without_reference_states_scores_against_the_lighthouse(drive
     )
     assert abs(with_fixes - with_truth) < 0.01
     assert bare["channel_rms"] == truth["channel_rms"]
+
+
+def test_a_trajectorys_own_process_residuals_retrace_it(drive):
+    """Predicted open loop with the process residuals of the true trajectory added, every start
+    follows the truth (to rounding); without them the model's prediction departs from it (the
+    truth's substeps are the simulator's, not the predictor's)."""
+    model = CarModel()
+    truth = drive.x
+    residuals = process_residuals(drive, model, truth)
+    predictor = OpenLoopPredictor(drive, model, horizon_s=1.0, states=truth, every=10)
+    retraced = predictor.predict(outputs=False, disturbances=residuals)
+    index = horizon_index(drive, retraced)
+    inside = np.isfinite(retraced.positions[..., 0])
+    np.testing.assert_allclose(retraced.positions[inside], truth[index][inside][:, :2], atol=1e-9)
+    assert np.abs(residuals).max() < 1e-3  # the model is the truth's: only integration error
+    with pytest.raises(FieldError, match="disturbances"):
+        predictor.predict(disturbances=residuals[1:])
