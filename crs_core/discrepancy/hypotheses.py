@@ -56,6 +56,7 @@ from crs_core.identification.validation import (
 )
 from crs_core.measurements import InputSample
 from crs_core.model import EFFECTS, CarModel
+from crs_core.model.terms import Term
 from crs_core.parameters import Parameter
 
 #: Effects fitted through the data rather than the model (no state-space form).
@@ -126,7 +127,7 @@ class Hypothesis:
 
     Attributes
     ----------
-    effects : the effects added (to the current model)
+    effects : the effects added (to the current model), and the names of the terms added
     result : the FIE result of the extended model on the training data
     model : the extended model (structure; parameters = the fit)
     delay_s : the fitted input delay (``input_delay`` only), s
@@ -134,6 +135,7 @@ class Hypothesis:
     comparison : the held-out test
     significant : a finding (see the module)
     reasons : why not, when not
+    terms : the proposed terms added (:mod:`crs_core.model.terms`), also named in ``effects``
     """
 
     effects: tuple[str, ...]
@@ -144,6 +146,7 @@ class Hypothesis:
     comparison: HeldOutComparison | None = None
     significant: bool = False
     reasons: list[str] = field(default_factory=list)
+    terms: tuple[Term, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -171,21 +174,26 @@ TIME_CONSTANT_GRID = (2.0, 4.0, 10.0, 20.0, 40.0, 100.0)
 
 
 def extended_model(
-    model: CarModel, effects: Sequence[str], values: Mapping[str, float] = MappingProxyType({})
+    model: CarModel,
+    effects: Sequence[str],
+    values: Mapping[str, float] = MappingProxyType({}),
+    terms: Sequence[Term] = (),
 ) -> CarModel:
-    """``model`` with ``effects`` added, their parameters at ``values`` or else their null
-    values; every other value kept."""
+    """``model`` with ``effects`` (and ``terms``) added, their parameters at ``values`` or else
+    their null values (a term's coefficients at 0); every other value kept."""
     spec: dict[str, dict[str, float] | None] = {e.name: None for e in model.effects}
     for name in effects:
         if name not in EFFECTS:
             raise FieldError("effects", f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
         spec[name] = {p.name: values.get(p.name, null_value(p)) for p in EFFECTS[name].parameters}
-    skeleton = CarModel(spec, n_base_stations=model.n_base_stations)
+    all_terms = (*model.terms, *terms)
+    skeleton = CarModel(spec, n_base_stations=model.n_base_stations, terms=all_terms)
     values = {n: model.parameters.value(n) for n in model.parameters.names}
     return CarModel(
         spec,
         n_base_stations=model.n_base_stations,
         parameters=skeleton.parameters.updated(values),
+        terms=all_terms,
     )
 
 
@@ -268,21 +276,23 @@ def fit_hypothesis(
     settings: FieSettings,
     progress: Callable[[int, float], None] | None = None,
     start: Mapping[str, float] = MappingProxyType({}),
+    terms: Sequence[Term] = (),
 ) -> Hypothesis:
-    """Fit ``model`` (the current structure, its *prior* values) extended by ``effects`` on
-    ``train``, warm-started at ``current`` (the current model's fit). The added parameters
-    start at ``start``, or else at their null value; a single added time constant at the best
-    point of its profile (:func:`_profile_time_constant`)."""
+    """Fit ``model`` (the current structure, its *prior* values) extended by ``effects`` and
+    ``terms`` on ``train``, warm-started at ``current`` (the current model's fit). The added
+    parameters start at ``start``, or else at their null value; a single added time constant at
+    the best point of its profile (:func:`_profile_time_constant`)."""
     effects = tuple(effects)
     state_effects = [e for e in effects if e != DELAY_EFFECT]
-    extended = extended_model(model, state_effects)
-    added = tuple(p.name for e in state_effects for p in EFFECTS[e].parameters)
+    extended = extended_model(model, state_effects, terms=terms)
+    added_parameters = [p for e in state_effects for p in EFFECTS[e].parameters]
+    added_parameters += [p for term in terms for p in term.parameters()]
+    added = tuple(p.name for p in added_parameters)
     fit = tuple(settings.fit) + tuple(n for n in added if n not in settings.fit)
     values = {n: current.parameters.value(n) for n in current.fit}
     lags = [p for e in state_effects for p in EFFECTS[e].parameters if null_value(p) != 0.0]
-    for name in state_effects:
-        for p in EFFECTS[name].parameters:
-            values.setdefault(p.name, start.get(p.name, null_value(p)))
+    for p in added_parameters:
+        values.setdefault(p.name, start.get(p.name, null_value(p)))
     if not start and len(added) == 1 and len(lags) == 1:
         values[lags[0].name] = _profile_time_constant(
             train, extended, current, lags[0], replace(settings, starts=1), progress
@@ -297,18 +307,16 @@ def fit_hypothesis(
     else:
         result = identify(train, extended, fit_settings, progress, warm_start=warm)
     fitted_model = extended_model(
-        CarModel(
-            {e.name: None for e in extended.effects},
-            n_base_stations=extended.n_base_stations,
-            parameters=result.parameters,
-        ),
+        extended.with_parameters(result.parameters),
         [DELAY_EFFECT] if DELAY_EFFECT in effects else [],
         {DELAY_EFFECT: delay},
     )
     parameters: dict[str, dict[str, dict[str, float | str]]] = {}
-    for name in state_effects:
+    owners = [(name, EFFECTS[name].parameters) for name in state_effects]
+    owners += [(term.name, term.parameters()) for term in terms]
+    for name, owned in owners:
         parameters[name] = {}
-        for p in EFFECTS[name].parameters:
+        for p in owned:
             j = result.fit.index(p.name)
             value, std = float(result.theta[j]), float(result.uncertainty.std[j])
             parameters[name][p.name] = {
@@ -327,7 +335,8 @@ def fit_hypothesis(
                 "z": delay / delay_std if delay_std > 0 else math.inf,
             }
         }
-    return Hypothesis(effects, result, fitted_model, delay, parameters)
+    names = (*effects, *(term.name for term in terms))
+    return Hypothesis(names, result, fitted_model, delay, parameters, terms=tuple(terms))
 
 
 def _profile_time_constant(
@@ -347,11 +356,7 @@ def _profile_time_constant(
     warm = WarmStart({n: current.parameters.value(n) for n in current.fit}, current.states)
     best, best_cost = grid[0], current.cost
     for value in grid:
-        fixed = CarModel(
-            {e.name: None for e in model.effects},
-            n_base_stations=model.n_base_stations,
-            parameters=model.parameters.updated({tau.name: value}),
-        )
+        fixed = model.with_parameters(model.parameters.updated({tau.name: value}))
         cost = identify(train, fixed, settings, progress, warm_start=warm).cost
         if cost >= best_cost:
             break

@@ -132,7 +132,12 @@ def write_final_params(result: DiscrepancyResult, path: Path) -> Path:
         "# Load it with --params on crs sysid / validate / sim / estimate (effects inferred).",
         "# Fitted parameters: prior -> identified +- std.",
     ]
-    body = yaml.safe_dump({"parameters": entries}, sort_keys=False)
+    document = {"parameters": entries}
+    if result.terms:
+        header.append("# Terms proposed from the data (coefficients: <name>_c1, ...):")
+        header += [f"#   {term.equation()}" for term in result.terms]
+        document = {"terms": [term.to_dict() for term in result.terms], **document}
+    body = yaml.safe_dump(document, sort_keys=False)
     path.write_text("\n".join(header + comments) + "\n" + body)
     return path
 
@@ -150,11 +155,25 @@ def headline(result: DiscrepancyResult, summary: dict[str, Any] | None = None) -
     -------
     str
         ``**Finding: <effects>** — <parameter> = value ± std unit; held-out ...`` for
-        ``effect``, ``**No effect needed** — ...`` for ``none`` and ``**Unexplained misfit in
-        <channel> when <regressor> in [low, high] <unit>** — ...`` for ``unexplained``.
+        ``effect`` (with a term proposed beside it, when one was), ``**Proposed term:
+        <equation>** — ...`` for ``proposed``, ``**No effect needed** — ...`` for ``none`` and
+        ``**Unexplained misfit in <channel> when <regressor> in [low, high] <unit>** — ...``
+        (or ``**Unexplained: open-loop predictions miss coherently ...**``) for
+        ``unexplained``.
     """
     summary = summary if summary is not None else result.summary()
     gap = _gap_text(summary)
+    accepted = [entry for entry in summary["proposed_terms"] if entry["accepted"]]
+    if result.verdict == "proposed":
+        entry = accepted[0]
+        held = entry["held_out"]
+        text = (
+            f"**Proposed term: {entry['equation']}** — none of the registry's effects explains "
+            f"the data; this term, found by sparse regression on what the fit leaves, predicts "
+            f"{100 * held['improvement']:.1f} % better held out (p = {held['p_value']:.2g}): a "
+            "term that predicts better, not a proof of physics"
+        )
+        return text + (f"; {gap}" if gap else "")
     if result.verdict == "effect":
         values = "; ".join(
             f"{name.replace('_', ' ')} = {_value_std(entry)}"
@@ -164,7 +183,8 @@ def headline(result: DiscrepancyResult, summary: dict[str, Any] | None = None) -
         chosen = _chosen(result)
         if gap is None and chosen is not None and chosen.comparison is not None:
             gap = f"held-out prediction score {100 * chosen.comparison.improvement:+.1f} %"
-        parts = [p for p in (values, gap) if p]
+        beside = f"and the proposed term {accepted[0]['equation']}" if accepted else None
+        parts = [p for p in (values, beside, gap) if p]
         return f"**Finding: {' + '.join(result.effects)}** — " + "; ".join(parts)
     tried = len({h.effects for h in result.hypotheses if len(h.effects) == 1})
     if result.verdict == "unexplained" and result.where is not None:
@@ -317,6 +337,8 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
     lines += _diagnostics_table(summary, result)
     lines += ["", "## Open-loop predictions from the training fit's states", ""]
     lines += _prediction_table(summary, result)
+    lines += ["", "## Terms proposed beyond the registry", ""]
+    lines += _proposed_table(summary)
     lines += [
         "",
         "## Figures",
@@ -395,5 +417,38 @@ def _prediction_table(summary: dict[str, Any], result: DiscrepancyResult) -> lis
             f"{format_number(d['coherence'], '.2f')} | {strongest['series']} with "
             f"{strongest['regressor']} ({format_number(strongest['correlation'], '+.2f')}) | "
             f"{'**yes**' if d['structured'] else 'no'} |"
+        )
+    return lines
+
+
+def _proposed_table(summary: dict[str, Any]) -> list[str]:
+    entries = summary["proposed_terms"]
+    if not entries:
+        return [
+            "None: what the final fit leaves follows no monomial of the library (products of up "
+            "to three of vx, vy, omega, steer, torque) enough to propose one."
+        ]
+    lines = [
+        "From what the final fit leaves (process residual rates of vx, vy, omega; the wheel "
+        "speeds' and the gyro's residuals), a sparse regression on products of the model's "
+        "variables proposes a term per target; each is fitted with the model and tested on the "
+        "held-out data as an effect is. A term that passes predicts better, it is not a proof "
+        "of physics.",
+        "",
+        "| target | regression (R²) | fitted term | held-out improvement | p | verdict |",
+        "|---|---|---|---|---|---|",
+    ]
+    for entry in entries:
+        regression = entry["regression"]
+        held = entry["held_out"] or {}
+        improvement = held.get("improvement")
+        verdict = "**finding**" if entry["significant"] else "no: " + "; ".join(entry["reasons"])
+        if entry["accepted"]:
+            verdict += " (added)"
+        lines.append(
+            f"| {entry['target']} | {' + '.join(regression['monomials'])} "
+            f"({format_number(regression['r2'], '.2f')}) | {entry['equation']} | "
+            f"{format_number(100 * improvement if improvement is not None else None, '+.1f')} % | "
+            f"{format_number(held.get('p_value'), '.2g')} | {verdict} |"
         )
     return lines

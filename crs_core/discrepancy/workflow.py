@@ -19,7 +19,14 @@
    no finding: ``none``, or ``unexplained`` when the residuals of the current model stay
    structured or its open-loop predictions miss coherently (with the channel and regime where
    the misfit lives);
-5. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
+5. beyond the registry: from what the final fit (the named effects', or the current model's)
+   still leaves, propose terms in the model's own variables by sparse regression
+   (:mod:`~crs_core.discrepancy.proposal`), fit each with the model and test it on the held-out
+   data as an effect is tested (with a named effect: on top of it, and alone, for a term can
+   explain what the effect only imitated); of the named effects and the terms that pass, the
+   lowest information criterion on the training data is the final model (verdict ``proposed``
+   when it holds a term and no registry effect);
+6. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
    horizon and the per-channel RMS, with the final model's parameters.
 """
 
@@ -40,6 +47,7 @@ from crs_core.discrepancy.hypotheses import (
     TestSettings,
     clear_of_null,
     delayed_inputs,
+    extended_model,
     fit_hypothesis,
     held_out_scores,
     information_criterion,
@@ -52,6 +60,7 @@ from crs_core.discrepancy.prediction import (
     PredictionDiagnosis,
     diagnose_prediction,
 )
+from crs_core.discrepancy.proposal import Proposal, propose
 from crs_core.discrepancy.residuals import ChannelDiagnosis, diagnose, where_misfit
 from crs_core.discrepancy.sweep_lag import (
     SweepLag,
@@ -65,10 +74,11 @@ from crs_core.identification.problem import FieSettings, check_fit
 from crs_core.identification.solve import FieResult, identify
 from crs_core.identification.validation import DEFAULT_HORIZON_S, validate
 from crs_core.model import EFFECTS, CarModel
+from crs_core.model.terms import Term
 from crs_core.settings import Settings, within
 
 #: Verdicts of the workflow.
-VERDICTS = ("effect", "none", "unexplained")
+VERDICTS = ("effect", "proposed", "none", "unexplained")
 
 
 @dataclass(frozen=True)
@@ -109,6 +119,9 @@ class DiscrepancySettings(Settings):
         On training data without a stream and without a stated lag (the real recordings'
         layout), fit the first-plane sweep lag before the hypotheses
         (:func:`~crs_core.discrepancy.sweep_lag.estimate_plane1_lag`); else it is taken as 0.
+    propose : bool
+        Propose terms beyond the registry (:mod:`~crs_core.discrepancy.proposal`) from what the
+        final fit leaves, and test them.
     """
 
     identification: FieSettings = field(default_factory=FieSettings)
@@ -121,6 +134,7 @@ class DiscrepancySettings(Settings):
     hypothesis_max_iter: int = 30
     workers: int = 1
     estimate_plane1_lag: bool = True
+    propose: bool = True
 
     def _check_relations(self) -> None:
         if self.workers < 1:
@@ -145,7 +159,10 @@ class DiscrepancyResult:
     Attributes
     ----------
     verdict : one of :data:`VERDICTS`
-    effects : the named effects (empty for ``none`` / ``unexplained``)
+    effects : the named registry effects (empty for ``proposed``, ``none``, ``unexplained``)
+    terms : the proposed terms in the final model (:mod:`crs_core.model.terms`)
+    proposed : every proposed term as (its target's sparse fit, :class:`~crs_core.discrepancy.
+        proposal.Proposal`; its hypothesis, fitted and tested)
     final : the final model's FIE result (the current model's when nothing was named)
     final_model : the final model (structure and fitted parameters)
     delay_s : the named input delay, s (0 without)
@@ -182,6 +199,8 @@ class DiscrepancyResult:
     held_out: str
     time_s: float
     plane1_lag: SweepLag = field(default_factory=lambda: SweepLag(None, None, "none"))
+    terms: tuple[Term, ...] = ()
+    proposed: list[tuple[Proposal, Hypothesis]] = field(default_factory=list)
 
     def summary(self) -> dict[str, Any]:
         """The JSON report (``report.json``)."""
@@ -192,6 +211,10 @@ class DiscrepancyResult:
             "verdict": self.verdict,
             "effects": list(self.effects),
             "parameters": parameter_table(named[-1:]) if named else {},
+            "proposed_terms": [
+                proposed_entry(h, proposal, h.terms == self.terms and h.model is self.final_model)
+                for proposal, h in self.proposed
+            ],
             "gap_before": self.gap["before"],
             "gap_after": self.gap["after"],
             "gap_horizon_s": self.gap["horizon_s"],
@@ -310,12 +333,26 @@ def find_discrepancy(
     else:
         final, final_model, delay, effects = current, current_model, 0.0, ()
         verdict = "none"
-    diagnostics_after = diagnose(final) if chosen is not None else diagnostics_before
+    proposed: list[tuple[Proposal, Hypothesis]] = []
+    terms: tuple[Term, ...] = ()
+    if settings.propose:
+        proposed = _propose_and_judge(
+            model, fit_data, held_out, chosen, current, current_scores, fit_settings, say
+        )
+        passed = [h for _, h in proposed if h.significant]
+        best = min(
+            [*passed, *([chosen] if chosen else [])], key=information_criterion, default=None
+        )
+        if best is not None and best.terms:
+            final, final_model, terms, delay = best.result, best.model, best.terms, best.delay_s
+            effects = tuple(e for e in best.effects if e not in {t.name for t in best.terms})
+            verdict = "effect" if effects else "proposed"
+    diagnostics_after = diagnose(final) if final is not current else diagnostics_before
     prediction_after = (
         diagnose_prediction(
             delayed_inputs(fit_data, delay), final_model, final.states, settings.horizon_s
         )
-        if chosen is not None
+        if final is not current
         else prediction_before
     )
     where = None
@@ -349,6 +386,8 @@ def find_discrepancy(
         held_out=held_out_label,
         time_s=time.perf_counter() - started,
         plane1_lag=plane1_lag,
+        terms=terms,
+        proposed=proposed,
     )
 
 
@@ -389,7 +428,21 @@ _HypothesisTask = tuple[
 _JointTask = tuple[
     CarModel, Hypothesis, Hypothesis, Dataset, DiscrepancySettings, HeldOutScores, Dataset, int
 ]
-_Task = TypeVar("_Task", _HypothesisTask, _JointTask)
+#: A term task: the proposed term on top of the chosen hypothesis (None: the current model),
+#: judged against it (model, chosen, term, fit data, base fit, settings, base scores, held-out
+#: data, tests).
+_TermTask = tuple[
+    CarModel,
+    Hypothesis | None,
+    Term,
+    Dataset,
+    FieResult,
+    DiscrepancySettings,
+    HeldOutScores,
+    Dataset,
+    int,
+]
+_Task = TypeVar("_Task", _HypothesisTask, _JointTask, _TermTask)
 
 
 def _fit_and_judge(task: _HypothesisTask) -> Hypothesis:
@@ -404,6 +457,95 @@ def _fit_joint_and_judge(task: _JointTask) -> Hypothesis:
     model, base, other, data, settings, scores, held_out, tests = task
     hypothesis = _joint_hypothesis(model, base, other, data, settings)
     return judge(hypothesis, scores, held_out, settings.test, tests)
+
+
+def _propose_and_judge(
+    model: CarModel,
+    fit_data: Dataset,
+    held_out: Dataset,
+    chosen: Hypothesis | None,
+    current: FieResult,
+    current_scores: HeldOutScores,
+    settings: DiscrepancySettings,
+    say: Callable[[str], None],
+) -> list[tuple[Proposal, Hypothesis]]:
+    """Terms proposed from what the final registry fit (``chosen``'s, else ``current``'s)
+    leaves, each fitted on top of it and judged against it on the held-out data; with a
+    chosen effect each term is also fitted alone on the current model and judged against it
+    (a term may explain what the effect only imitated)."""
+    if chosen is None:
+        base_data, base_fit, base_model, scores = fit_data, current, None, current_scores
+    else:
+        base_data = delayed_inputs(fit_data, chosen.delay_s)
+        base_fit, base_model = chosen.result, chosen.model
+        scores = held_out_scores(
+            held_out, chosen.model, settings.test.test_horizon_s, chosen.delay_s
+        )
+    say("proposing terms beyond the registry ...")
+    proposals = propose(base_data, base_model or _fitted(model, current), base_fit)
+    if not proposals:
+        say("no term to propose: what the fit leaves follows none of the library's monomials")
+        return []
+    bases = [(chosen, base_data, base_fit, scores)]
+    if chosen is not None:
+        bases.append((None, fit_data, current, current_scores))
+    terms = [proposal.term(f"term{k + 1}") for k, proposal in enumerate(proposals)]
+    tasks: list[_TermTask] = [
+        (model, on_top, term, data, fit, settings, base_scores, held_out, len(terms) * len(bases))
+        for term in terms
+        for on_top, data, fit, base_scores in bases
+    ]
+    say(f"{len(terms)} proposed terms to test: " + "; ".join(t.equation() for t in terms))
+    judged = _run_hypotheses(_fit_term_and_judge, tasks, settings.workers, say)
+    return [(proposals[k // len(bases)], h) for k, h in enumerate(judged)]
+
+
+def _fit_term_and_judge(task: _TermTask) -> Hypothesis:
+    """Fit one proposed term (with the chosen effects' parameters, started at their fit) and
+    judge it against its base."""
+    model, chosen, term, data, base_fit, settings, scores, held_out, tests = task
+    effects = tuple(e for e in chosen.effects if e != DELAY_EFFECT) if chosen else ()
+    start = {
+        name: float(entry["value"])
+        for effect in effects
+        for name, entry in chosen.parameters[effect].items()  # type: ignore[union-attr]
+    }
+    hypothesis = fit_hypothesis(
+        data, model, base_fit, effects, settings.identification, start=start, terms=(term,)
+    )
+    if chosen is not None and chosen.delay_s:
+        hypothesis.delay_s = chosen.delay_s
+        hypothesis.parameters = {
+            **hypothesis.parameters,
+            DELAY_EFFECT: chosen.parameters[DELAY_EFFECT],
+        }
+        hypothesis.effects = (*chosen.effects, term.name)
+        hypothesis.model = extended_model(
+            hypothesis.model, [DELAY_EFFECT], {DELAY_EFFECT: chosen.delay_s}
+        )
+    return judge(hypothesis, scores, held_out, settings.test, tests)
+
+
+def proposed_entry(hypothesis: Hypothesis, proposal: Proposal, accepted: bool) -> dict[str, Any]:
+    """A proposed term's entry of ``report.json`` (``proposed_terms``)."""
+    term = hypothesis.terms[0]
+    fitted = hypothesis.parameters[term.name]
+    values = [float(fitted[name]["value"]) for name in term.coefficient_names()]
+    return {
+        "name": term.name,
+        "on_top_of": [e for e in hypothesis.effects if e != term.name],
+        "target": term.target,
+        "variables": term.variables(),
+        "equation": term.equation(values),
+        "coefficients": {
+            name: {k: v for k, v in entry.items() if k != "z"} for name, entry in fitted.items()
+        },
+        "held_out": hypothesis.comparison.to_dict() if hypothesis.comparison else None,
+        "significant": hypothesis.significant,
+        "reasons": hypothesis.reasons,
+        "accepted": accepted,
+        "regression": proposal.to_dict(),
+    }
 
 
 def _slow_to_fit(effect: str) -> bool:
@@ -470,11 +612,7 @@ def _joint_hypothesis(
 
 
 def _fitted(model: CarModel, result: FieResult) -> CarModel:
-    return CarModel(
-        {e.name: None for e in model.effects},
-        n_base_stations=model.n_base_stations,
-        parameters=result.parameters,
-    )
+    return model.with_parameters(result.parameters)
 
 
 def _gap(

@@ -51,6 +51,7 @@ from crs_core.estimation.online_track import OnlineTrack
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.model.car_model import effects_in_file
+from crs_core.model.terms import Term, terms_in_file
 
 #: Integer codes of the status words in ``estimates.npz``.
 STATUS_CODES = {"ok": 0, "degraded": 1, "lost": 2}
@@ -74,21 +75,24 @@ def dataset_model(
     """The Chronos model with the dataset's Lighthouse geometry (stations, photodiodes).
 
     ``effects`` (the ``CarModel`` effects mapping) are switched on, and those whose parameters
-    ``parameters_yaml`` names (:func:`~crs_core.model.car_model.effects_in_file`); ``values``
+    ``parameters_yaml`` names (:func:`~crs_core.model.car_model.effects_in_file`), with the
+    terms it lists (:func:`~crs_core.model.terms.terms_in_file`); ``values``
     (parameter values by name) and then ``parameters_yaml`` (a parameter file,
     :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`) are applied last, so they may
     also override the geometry. A geometry without base stations (the deck layout alone) is
     refused with a :class:`~crs_core.errors.FieldError` naming ``geometry.base_stations``.
     """
+    terms: tuple[Term, ...] = ()
     if parameters_yaml is not None:
         effects = {**dict.fromkeys(effects_in_file(parameters_yaml)), **effects}
+        terms = terms_in_file(parameters_yaml)
     n = len(dataset.geometry.known_stations())
     geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
-    parameters = CarModel(effects, n_base_stations=n).parameters.updated(geometry)
+    parameters = CarModel(effects, n_base_stations=n, terms=terms).parameters.updated(geometry)
     parameters = parameters.updated(dict(values))
     if parameters_yaml is not None:
         parameters = parameters.updated_from_yaml(parameters_yaml)
-    return CarModel(effects, n_base_stations=n, parameters=parameters)
+    return CarModel(effects, n_base_stations=n, parameters=parameters, terms=terms)
 
 
 def dataset_stream(dataset: Dataset) -> tuple[list[Measurement], list[InputSample], str]:

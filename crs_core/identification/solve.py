@@ -132,11 +132,7 @@ def initial_trajectory(
     the first fix; effect states (an actuator lag's output) at rest under the first command and
     then run through the commands (:func:`effect_state_trajectory`)."""
     if parameters is not None:
-        model = CarModel(
-            {e.name: None for e in model.effects},
-            n_base_stations=model.n_base_stations,
-            parameters=parameters,
-        )
+        model = model.with_parameters(parameters)
     estimates = estimate_dataset(dataset, "ekf", model=model)
     x = estimates.x.T.copy()
     found = np.flatnonzero(estimates.status != "lost")

@@ -292,11 +292,7 @@ def validate(
     }
     predictions = {}
     for label, parameters in candidates.items():
-        candidate = CarModel(
-            {e.name: None for e in model.effects},
-            n_base_stations=model.n_base_stations,
-            parameters=parameters,
-        )
+        candidate = model.with_parameters(parameters)
         prediction = predict_open_loop(dataset, candidate, horizon_s)
         errors = validation_errors(dataset, prediction)
         summary["position_rmse_m"][label] = errors["position_rmse_m"]

@@ -7,6 +7,8 @@ versions. The simulator, estimators, controllers and identification all use this
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -31,6 +33,7 @@ from crs_core.model.chronos import (
 from crs_core.model.effects import EFFECTS, Effect, effect_of_parameter
 from crs_core.model.lighthouse import BaseStation
 from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
+from crs_core.model.terms import STATE_TARGETS, Term, terms_in_file
 from crs_core.parameters import ParameterSet
 from crs_core.yaml_io import load_yaml
 
@@ -134,6 +137,9 @@ class CarModel:
         ``online_<name>``, for an estimator to estimate online (:mod:`crs_core.model.online`).
     online_reversion_s : float
         Their relaxation time to the prior, s.
+    terms : sequence of Term
+        Additive terms proposed from data (:mod:`crs_core.model.terms`), after every effect;
+        their coefficients are parameters (``<name>_c1``, ...).
 
     Attributes
     ----------
@@ -156,6 +162,7 @@ class CarModel:
         base_stations: Sequence[BaseStation] | None = None,
         online_parameters: Sequence[str] = (),
         online_reversion_s: float = DEFAULT_REVERSION_S,
+        terms: Sequence[Term] = (),
     ) -> None:
         if base_stations is not None:
             n_base_stations = len(base_stations)
@@ -186,6 +193,9 @@ class CarModel:
         )
         for effect in self.effects:
             defaults = defaults.merged(ParameterSet(list(effect.parameters)))
+        self.terms: tuple[Term, ...] = tuple(terms)
+        for term in self.terms:
+            defaults = defaults.merged(ParameterSet(list(term.parameters())))
         if parameters is not None:
             missing = set(defaults.names) - set(parameters.names)
             if missing:
@@ -207,7 +217,22 @@ class CarModel:
         a model crosses into worker processes."""
         names = [e.name for e in self.effects]
         arguments = (names, self.n_base_stations, self.parameters, self.estimated_inputs)
-        return (CarModel, (*arguments, None, self.online.names, self.online.reversion_s))
+        online = (self.online.names, self.online.reversion_s)
+        return (CarModel, (*arguments, None, *online, self.terms))
+
+    def with_parameters(self, parameters: ParameterSet) -> CarModel:
+        """This model's structure (effects, terms, stations, input mode, online parameters)
+        with ``parameters``' values."""
+        online = (self.online.names, self.online.reversion_s)
+        return CarModel(
+            [e.name for e in self.effects],
+            self.n_base_stations,
+            parameters,
+            self.estimated_inputs,
+            None,
+            *online,
+            self.terms,
+        )
 
     # --- symbolic model ------------------------------------------------------------------
     def _build_symbolic(self) -> None:
@@ -237,6 +262,12 @@ class CarModel:
             outputs[f"lighthouse/{station}/2"] = second
         for effect in self.effects:
             outputs = {name: effect.output(name, y, P) for name, y in outputs.items()}
+        for term in self.terms:
+            if term.target == "wheel_speeds":
+                outputs["wheel_encoders"] = outputs["wheel_encoders"] + term.value(x, applied, P)
+            elif term.target == "yaw_rate":
+                imu = outputs["imu"]
+                outputs["imu"] = ca.vertcat(imu[0], imu[1], imu[2] + term.value(x, applied, P))
         outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
@@ -258,7 +289,12 @@ class CarModel:
         if self.estimated_inputs:
             u = x[offset : offset + 2]
             derivatives.append(ca.SX.zeros(2))
-        return ca.vertcat(state_derivative(x[: len(STATE_NAMES)], u, P), *derivatives), u
+        base = state_derivative(x[: len(STATE_NAMES)], u, P)
+        for term in self.terms:
+            if term.target in STATE_TARGETS:
+                index = STATE_TARGETS[term.target][0]
+                base[index] = base[index] + term.value(x, u, P)
+        return ca.vertcat(base, *derivatives), u
 
     def function_of_xup(self, name: str, expression: ca.SX, output: str) -> ca.Function:
         """``name(x, u, p) -> output``: ``expression`` as a function of the model's state,
@@ -282,14 +318,16 @@ class CarModel:
         """The model with ``effects`` and the parameter YAML ``path`` applied (None: the Chronos
         defaults; :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`, whose errors name
         the file). The effects whose parameters the file names are switched on too
-        (:func:`effects_in_file`: a ``params.yaml`` of ``crs discrepancy`` carries its effect);
+        (:func:`effects_in_file`: a ``params.yaml`` of ``crs discrepancy`` carries its effect),
+        and the terms it lists under ``terms:`` (:func:`~crs_core.model.terms.terms_in_file`);
         an effect's own value (``steering_lag=0.05``) wins over the file."""
         if path is None:
             return cls(effects, n_base_stations)
         given = dict(effects) if isinstance(effects, Mapping) else dict.fromkeys(effects)
         spec = {**dict.fromkeys(effects_in_file(path)), **given}
-        model = cls(spec, n_base_stations)
-        return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path))
+        terms = terms_in_file(path)
+        model = cls(spec, n_base_stations, terms=terms)
+        return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path), terms=terms)
 
     def with_effects_at_zero(self, effects: Iterable[str]) -> CarModel:
         """This model with the registry ``effects`` it lacks switched on, their parameters at 0
@@ -302,10 +340,12 @@ class CarModel:
         if len(spec) == len(self.effects):
             return self
         stations, inputs = self.n_base_stations, self.estimated_inputs
-        widened = CarModel(spec, stations, estimated_inputs=inputs).parameters
+        widened = CarModel(spec, stations, estimated_inputs=inputs, terms=self.terms).parameters
         parameters = widened.updated({n: self.parameters.value(n) for n in self.parameters.names})
         online = self.online
-        return CarModel(spec, stations, parameters, inputs, None, online.names, online.reversion_s)
+        return CarModel(
+            spec, stations, parameters, inputs, None, online.names, online.reversion_s, self.terms
+        )
 
     def with_online(self, names: Sequence[str], reversion_s: float) -> CarModel:
         """This model with online parameters ``names`` (:mod:`crs_core.model.online`); an
@@ -322,6 +362,7 @@ class CarModel:
             None,
             names,
             reversion_s,
+            base.terms,
         )
 
     @cached_property
@@ -378,6 +419,9 @@ class CarModel:
         parts = [e.name for e in self.effects] + (["estinputs"] if self.estimated_inputs else [])
         if len(self.online):
             parts.append("online_" + "_".join(self.online.names))
+        if self.terms:
+            described = json.dumps([t.to_dict() for t in self.terms], sort_keys=True)
+            parts.append("terms_" + hashlib.sha256(described.encode()).hexdigest()[:10])
         return "_".join(parts) or "base"
 
     @cached_property
@@ -387,6 +431,8 @@ class CarModel:
 
     def __repr__(self) -> str:
         names = ", ".join(e.name for e in self.effects) or "none"
+        if self.terms:
+            names += "; terms: " + ", ".join(t.equation() for t in self.terms)
         inputs = "; inputs estimated" if self.estimated_inputs else ""
         online = f"; online: {', '.join(self.online.names)}" if len(self.online) else ""
         return f"CarModel(effects: {names}; stations: {self.n_base_stations}{inputs}{online})"

@@ -55,6 +55,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         test=TestSettings(false_alarm_rate=args.false_alarm_rate),
         candidates=parse_candidates(args.candidates),
         workers=args.workers,
+        propose=not args.no_propose,
     )
     out = prepare_output(args.out, "discrepancy", args.overwrite)
     started = time.perf_counter()
@@ -72,7 +73,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
         if summary["gap_before"] is not None
         else ""
     )
-    named = ", ".join(result.effects) if result.effects else ""
+    named = ", ".join([*result.effects, *(term.equation() for term in result.terms)])
     print(
         f"discrepancy: {result.verdict}{' ' + named if named else ''}{gap}; "
         f"{result.time_s:.0f} s; wrote {out}/report.json, report.md, params.yaml"
@@ -109,6 +110,12 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "data, whose truth has no process noise)",
     )
     sub.add_argument(
+        "--no-propose",
+        action="store_true",
+        help="do not propose terms beyond the registry (sparse regression on what the fit "
+        "leaves, each term tested on held-out data as an effect is)",
+    )
+    sub.add_argument(
         "--workers",
         type=bounded_number("workers", "", 0, 64, int),
         default=min(2, os.cpu_count() or 1),
@@ -122,7 +129,8 @@ COMMAND = Command(
     description="Identify the current model on TRAIN, diagnose its residuals channel by "
     "channel, fit every effect of the registry as a hypothesis and test it on held-out "
     "data (--validate, or the last 30 % of TRAIN) with a test designed for a false-alarm "
-    "rate of --false-alarm-rate per round; name the winner (or 'none', or 'unexplained' "
+    "rate of --false-alarm-rate per round; propose terms beyond the registry from what the "
+    "fit leaves and test them the same way; name the winner (or 'none', or 'unexplained' "
     "with the channel and regime of the misfit), and report the held-out gap before and "
     "after. Writes OUT/report.json, report.md, params.yaml (the final model: --params "
     "everywhere) and figures; one progress line per step on stderr.",

@@ -92,7 +92,14 @@ def run_validate(args: argparse.Namespace) -> int:
     model = identification_model(dataset, effects, args.params, "--params")
     prior = None
     if args.prior is not None:
-        prior = identification_model(dataset, effects, args.prior, "--prior").parameters
+        given = identification_model(dataset, effects, args.prior, "--prior").parameters
+        # a term of --params the prior lacks is at 0 there (no term)
+        absent = {
+            n: 0.0 for t in model.terms for n in t.coefficient_names() if n not in given.names
+        }
+        prior = model.parameters.updated(
+            {**{n: given.value(n) for n in given.names if n in model.parameters.names}, **absent}
+        )
     span = dataset.t[-1] - dataset.t[0] if len(dataset.t) else 0.0
     if args.horizon > span:
         raise ValueError(f"--horizon: {args.horizon:g} s is longer than the dataset ({span:.2f} s)")
