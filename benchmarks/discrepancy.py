@@ -34,6 +34,7 @@ from crs_core.discrepancy.workflow import (
 )
 from crs_core.identification.problem import DYNAMICS_FIT, FieSettings
 from crs_core.model import EFFECTS, CarModel
+from crs_core.model.terms import Term
 from sim.drift import DriftSchedule, parse_drift
 from sim.scenarios import SIM_PROCESS_SCALE, simulate_dataset
 from sim.sensors import SensorSpec, SensorSuite
@@ -61,12 +62,45 @@ MAGNITUDES: dict[str, tuple[dict[str, float], ...]] = {
         {"lh_plane1_offset": 0.006, "lh_plane2_offset": -0.004},
     ),
 }
-#: Changes outside the registry, per kind one truth per level of :data:`LEVELS`: ``battery``, the
-#: motor constant falling to ``Cm1_factor`` of its value linearly over each recording (no
-#: registry effect has time in it; the FIE's state absorbs it, open-loop prediction does not).
+#: Changes outside the registry, per kind one truth per level of :data:`LEVELS`:
+#:
+#: * ``battery``: the motor constant falling to ``Cm1_factor`` of its value linearly over each
+#:   recording (time is in no registry effect and no library monomial; the FIE's state absorbs
+#:   it, open-loop prediction does not);
+#: * ``slip``: the wheels spinning faster under drive torque, ``wheel_speeds += k torque vx``
+#:   (rad/s per m/s: the longitudinal slip of 0.2 per unit torque is ``k`` 11.4);
+#: * ``scrub``: the tyres scrubbing speed when steered, ``d vx/dt += -c steer^2 vx`` (1/(s rad^2));
+#: * ``g_sensitivity``: a gyro that reads the lateral acceleration, ``yaw_rate += g vx omega``
+#:   (rad/s per m/s^2; MEMS gyros' g-sensitivity, here far larger than a good part's).
 OUTSIDE: dict[str, tuple[dict[str, float], ...]] = {
     "battery": ({"Cm1_factor": 0.85}, {"Cm1_factor": 0.7}),
+    "slip": ({"k": 5.7}, {"k": 11.4}),
+    "scrub": ({"c": 1.0}, {"c": 2.0}),
+    "g_sensitivity": ({"g": 0.01}, {"g": 0.02}),
 }
+#: The right shape of a term proposed for each kind: its target and the variables it must use
+#: (None: no library term can have it).
+OUTSIDE_SHAPES: dict[str, tuple[str, set[str]] | None] = {
+    "battery": None,
+    "slip": ("wheel_speeds", {"vx", "torque"}),
+    "scrub": ("vx", {"steer", "vx"}),
+    "g_sensitivity": ("yaw_rate", {"vx", "omega"}),
+}
+
+
+def outside_truth(kind: str, values: dict[str, float]) -> CarModel:
+    """The simulated car of an outside-the-registry case without its drift (``battery`` is a
+    drift schedule, :func:`_battery`)."""
+    terms = {
+        "slip": lambda: Term("slip", "wheel_speeds", (("torque", "vx"),), (values["k"],)),
+        "scrub": lambda: Term("scrub", "vx", (("steer", "steer", "vx"),), (-values["c"],)),
+        "g_sensitivity": lambda: Term(
+            "g_sensitivity", "yaw_rate", (("vx", "omega"),), (values["g"],)
+        ),
+    }
+    return CarModel(terms=[terms[kind]()]) if kind in terms else CarModel()
+
+
 #: A named parameter counts as recovered within this relative error.
 RELATIVE_TOLERANCE = 0.15
 #: Length of every held-out run, s (the test's power grows with it; scoring costs little).
@@ -97,6 +131,8 @@ def _case_datasets(
     outside: str | None = None,
 ) -> tuple[Dataset, Dataset]:
     truth = CarModel({effect: values}) if effect else CarModel()
+    if outside:
+        truth = outside_truth(outside, values)
     driver = "joystick" if independent else "path"
     sensors = MISMATCHED_SENSORS if noise == "mismatched" else None
     battery = outside == "battery"
@@ -183,7 +219,21 @@ def run_case(case: dict[str, Any], workers: int = 1) -> dict[str, Any]:
         row["correct"] = result.effects == (effect,) or effect in result.effects
         row["within_tolerance"] = bool(errors) and max(errors.values()) <= RELATIVE_TOLERANCE
     elif case.get("outside"):
-        row["correct"] = result.verdict == "unexplained"
+        row["proposed"] = [
+            {k: entry[k] for k in ("target", "variables", "equation", "accepted", "significant")}
+            for entry in summary["proposed_terms"]
+        ]
+        accepted = [entry for entry in summary["proposed_terms"] if entry["accepted"]]
+        shape = OUTSIDE_SHAPES[case["outside"]]
+        row["shape_right"] = (
+            bool(accepted)
+            and shape is not None
+            and any(
+                entry["target"] == shape[0] and shape[1] <= set(entry["variables"])
+                for entry in accepted
+            )
+        )
+        row["correct"] = row["shape_right"] or (not accepted and result.verdict == "unexplained")
     else:
         row["correct"] = result.verdict == "none"
     return row
@@ -276,6 +326,11 @@ def tabulate(rows: list[dict[str, Any]]) -> dict[str, Any]:
                     "runs": len(hits),
                     "verdicts": dict(Counter(r["verdict"] for r in hits)),
                     "registry_names": [r["named"] for r in hits if r["named"]],
+                    "shape_right": sum(r.get("shape_right", False) for r in hits),
+                    "proposed": [
+                        [e["equation"] for e in r.get("proposed", []) if e["accepted"]]
+                        for r in hits
+                    ],
                     "gap_before_m": [r["gap_before_m"] for r in hits],
                     "coherence": [r["prediction"]["coherence"] for r in hits],
                 }
@@ -403,24 +458,47 @@ def format_markdown(result: dict[str, Any]) -> str:
         lines.append(_outside_line(rows))
     if "speed_60s" in result:
         lines.append(_speed_line(result["speed_60s"]))
-    return "\n".join([*lines, "", markdown(rows)])
+    tables = [markdown(rows)]
+    if result["summary"].get("outside"):
+        tables += ["", outside_markdown(rows)]
+    return "\n".join([*lines, "", *tables])
 
 
 def _outside_line(rows: list[dict[str, Any]]) -> str:
-    """The bullet on the changes outside the registry: per case the verdict, the open-loop
-    coherence and the held-out gap."""
+    """The bullet on the changes outside the registry (:func:`outside_markdown` has the cases)."""
     outside = [r for r in rows if r.get("outside")]
-    unexplained = [r for r in outside if r["verdict"] == "unexplained"]
-    cases = "; ".join(
-        f"{r['outside']} {', '.join(f'{k} {v:g}' for k, v in r['values'].items())} (seed "
-        f"{r['seed']}): {'+'.join(r['named']) or r['verdict']}, coherence "
-        f"{r['prediction']['coherence']:.2f}, gap {r['gap_before_m']:.3f} m"
-        for r in sorted(outside, key=lambda r: (r["outside"], r["magnitude"], r["seed"]))
-    )
+    verdicts = Counter(r["verdict"] for r in outside)
+    named = [r for r in outside if r["named"]]
     return (
-        f"- **Outside the registry: {len(unexplained)} of {len(outside)} `unexplained`** (never "
-        f"`none`): {cases}."
+        f"- **Outside the registry: {sum(r['shape_right'] for r in outside)} of {len(outside)} "
+        "proposed a term of the right shape** (target and variables, table below); verdicts "
+        + ", ".join(f"{v} {n}" for v, n in sorted(verdicts.items()))
+        + f"; a registry effect named in {len(named)}."
     )
+
+
+def outside_markdown(rows: list[dict[str, Any]]) -> str:
+    """The table of the outside-the-registry cases: truth, verdict, the accepted term, whether
+    its shape is right, the open-loop coherence of the current model and the held-out gap."""
+    lines = [
+        "| change | truth | seed, source | verdict | term added (held-out test passed) | right "
+        "shape | coherence | gap before → after (m) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    outside = [r for r in rows if r.get("outside")]
+    order = list(OUTSIDE)
+    outside.sort(key=lambda r: (order.index(r["outside"]), LEVELS.index(r["magnitude"]), r["seed"]))
+    for r in outside:
+        truth = ", ".join(f"{name} {value:g}" for name, value in r["values"].items())
+        source = f"{r['seed']}, {'independent' if r['independent'] else 'simulator'}"
+        added = [e["equation"] for e in r["proposed"] if e["accepted"]]
+        verdict = r["verdict"] + (f" ({'+'.join(r['named'])})" if r["named"] else "")
+        lines.append(
+            f"| {r['outside']} | {truth} | {source} | {verdict} | {'; '.join(added) or '—'} | "
+            f"{'yes' if r['shape_right'] else 'no'} | {r['prediction']['coherence']:.2f} | "
+            f"{r['gap_before_m']:.3f} → {r['gap_after_m']:.3f} |"
+        )
+    return "\n".join(lines)
 
 
 def speed(duration: float = 60.0, workers: int = 2) -> dict[str, Any]:
@@ -498,6 +576,9 @@ def discrepancy_benchmark(
                 for effect, levels in MAGNITUDES.items()
             },
             "mismatched_sensors": MISMATCHED_SENSORS.to_dict(),
+            "outside": {
+                kind: dict(zip(LEVELS, levels, strict=False)) for kind, levels in OUTSIDE.items()
+            },
         },
         "cases": [],
     }

@@ -11,8 +11,8 @@ own variables, would. For each target of :mod:`crs_core.model.terms` the fit lea
 
 Each series is regressed on a library of candidate monomials (:func:`library`: every product of
 up to :data:`MAX_DEGREE` of the variables ``vx, vy, omega, steer, torque``, the constant
-included) by sparse regression: forward selection (orthogonal matching pursuit on standardised
-columns), adding the monomial that explains most of what is left while it explains at least
+included) by sparse regression: forward stepwise selection, each step refitting every candidate
+set by least squares and adding the monomial that explains most of what is left while it adds
 :data:`MIN_GAIN` of the series' square sum (about 0: an offset is the constant's to explain), at
 most :data:`MAX_TERMS`. This is SINDy's question
 (a sparse model from a library of candidate functions) asked of residuals instead of measured
@@ -125,7 +125,8 @@ def library(variables: dict[str, np.ndarray]) -> tuple[list[tuple[str, ...]], np
 def sparse_fit(
     series: np.ndarray, monomials: list[tuple[str, ...]], theta: np.ndarray, target: str
 ) -> Proposal:
-    """Forward selection of monomials for ``series`` (finite samples only; see the module)."""
+    """Forward stepwise selection of monomials for ``series`` (finite samples only; see the
+    module)."""
     keep = np.isfinite(series) & np.all(np.isfinite(theta), axis=1)
     y, x = series[keep], theta[keep]
     total = float(np.sum(y**2))

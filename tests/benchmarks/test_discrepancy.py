@@ -53,6 +53,8 @@ class _Runs:
             "hypotheses": {},
             "where": None,
             "prediction": {"coherence": 0.5, "structured": False},
+            "proposed": [],
+            "shape_right": False,
         }
 
 
