@@ -113,6 +113,8 @@ Y_CHANNELS = (
     "yaw_rate",
 )
 FORMAT = "chronos-dataset/1"
+#: ``meta`` key of a time split's recording start (:meth:`Dataset.samples`), s.
+RECORDING_START_KEY = "recording_start_s"
 
 
 #: The error of a reader that needs base stations when the geometry gives none.
@@ -393,6 +395,13 @@ class Dataset:
         return folder
 
     # --- views --------------------------------------------------------------------------
+    @property
+    def recording_start(self) -> float:
+        """Stamp of the recording's first sample, s: this dataset's own, or for a time split
+        (:meth:`samples`) the first of the recording it was cut from (a model term's time ``t``
+        counts from it)."""
+        return float(self.meta.get(RECORDING_START_KEY, self.t[0]))
+
     def samples(self, start: int, stop: int) -> Dataset:
         """Samples ``start:stop`` as a dataset of their own (a time split for training and
         held-out data). The full-rate stream keeps what falls within the kept stamps, and the
@@ -417,7 +426,7 @@ class Dataset:
             y=self.y[start:stop],
             x=None if self.x is None else self.x[start:stop],
             geometry=self.geometry,
-            meta=self.meta,
+            meta={**self.meta, RECORDING_START_KEY: self.recording_start},
             measurements=measurements,
             inputs=inputs,
             truth_t=truth_t,

@@ -10,12 +10,13 @@ own variables, would. For each target of :mod:`crs_core.model.terms` the fit lea
   measurement residual :math:`y_k - h(x_k)`.
 
 Each series is regressed on a library of candidate monomials (:func:`library`: every product of
-up to :data:`MAX_DEGREE` of the variables ``vx, vy, omega, steer, torque``, the constant
-included) by sparse regression: forward stepwise selection, each step refitting every candidate
-set by least squares and adding the monomial that explains most of what is left while it adds
-:data:`MIN_GAIN` of the series' square sum (about 0: an offset is the constant's to explain), at
-most :data:`MAX_TERMS`. This is SINDy's question
-(a sparse model from a library of candidate functions) asked of residuals instead of measured
+up to :data:`MAX_DEGREE` of the variables ``vx, vy, omega, steer, torque`` and ``t``, the time
+into the recording, ``t`` at most once, the constant included) by sparse regression: forward
+stepwise selection, each step refitting every candidate set by least squares and adding the
+monomial that explains most of what is left while it adds :data:`MIN_GAIN` of the series'
+square sum (about 0: an offset is the constant's to explain), at most :data:`MAX_TERMS`. This is
+SINDy's question (a sparse model from a library of candidate functions) asked of residuals
+instead of measured
 derivatives; it is written here rather than taken from PySINDy because the targets are the
 fit's residuals and the terms are refitted inside the FIE with every other parameter, which
 PySINDy's derivative-based fit does not do. A target is proposed when its selected monomials
@@ -23,9 +24,10 @@ explain at least :data:`MIN_R2` of its series. The workflow then fits each propo
 :class:`~crs_core.model.terms.Term` with the model and tests it on held-out data exactly as a
 registry effect (:func:`~crs_core.discrepancy.hypotheses.judge`).
 
-Not in the library: the time into the recording (a model has no clock state), signs and absolute
-values (not smooth: the FIE and the estimators need derivatives) and delayed inputs (a delay is
-the registry's ``input_delay``, a lag its actuator effects).
+Not in the library: powers of ``t`` (a slow drift is proposed as linear in time: a polynomial in
+``t`` fits any wander on the training data and extrapolates wildly), signs and absolute values
+(not smooth: the FIE and the estimators need derivatives) and delayed inputs (a delay is the
+registry's ``input_delay``, a lag its actuator effects).
 """
 
 from __future__ import annotations
@@ -112,11 +114,13 @@ class Proposal:
 
 def library(variables: dict[str, np.ndarray]) -> tuple[list[tuple[str, ...]], np.ndarray]:
     """Every monomial of degree 0..:data:`MAX_DEGREE` of ``variables`` (name -> (N,) values,
-    in :data:`~crs_core.model.terms.TERM_VARIABLES` order) and its values, ``(N, L)``."""
+    in :data:`~crs_core.model.terms.TERM_VARIABLES` order; ``t`` at most once in each) and its
+    values, ``(N, L)``."""
     names = list(variables)
     monomials: list[tuple[str, ...]] = []
     for degree in range(MAX_DEGREE + 1):
-        monomials += list(itertools.combinations_with_replacement(names, degree))
+        products = itertools.combinations_with_replacement(names, degree)
+        monomials += [m for m in products if m.count("t") <= 1]
     n = len(next(iter(variables.values())))
     columns = [np.prod([variables[v] for v in m], axis=0) if m else np.ones(n) for m in monomials]
     return monomials, np.column_stack(columns)
@@ -188,8 +192,9 @@ def target_series(data: Dataset, model: CarModel, result: FieResult) -> dict[str
 
 
 def term_variables(data: Dataset, model: CarModel, states: np.ndarray) -> dict[str, np.ndarray]:
-    """The term variables per sample: the velocity states of ``states`` and the input the
-    model applies (after its effects on the command and its actuators)."""
+    """The term variables per sample: the velocity states of ``states``, the input the model
+    applies (after its effects on the command and its actuators) and ``t``, s since the
+    recording's start (:attr:`~crs_core.dataset.Dataset.recording_start`)."""
     assert data.u is not None
     applied_input = model.function_of_xup(
         "applied_proposal", model.applied_input_expression, "applied"
@@ -197,9 +202,10 @@ def term_variables(data: Dataset, model: CarModel, states: np.ndarray) -> dict[s
     applied = np.asarray(
         applied_input.map(len(data.t))(states.T, data.u.T, model.parameters.vector())
     ).T
+    source = {"state": states, "input": applied}
     out = {}
     for name, (kind, index, _) in TERM_VARIABLES.items():
-        out[name] = states[:, index] if kind == "state" else applied[:, index]
+        out[name] = source[kind][:, index] if kind in source else data.t - data.recording_start
     return out
 
 

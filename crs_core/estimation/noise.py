@@ -13,15 +13,18 @@ from crs_core.measurements import parse_lighthouse
 from crs_core.model.car_model import ESTIMATED_INPUT_STATES, CarModel
 from crs_core.model.effects import EFFECTS
 from crs_core.model.online import STATE_PREFIX as ONLINE_STATE_PREFIX
+from crs_core.model.terms import CLOCK_STATE
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
 #: initial standard deviation. Actuator lags follow their command closely (small noise); the
-#: estimated inputs of an input-free model are random walks that must follow the driver.
+#: estimated inputs of an input-free model are random walks that must follow the driver; a
+#: term's clock (:data:`~crs_core.model.terms.CLOCK_STATE`) runs as time does.
 EXTRA_STATE_DEFAULTS: dict[str, tuple[float, float]] = {
     "steer_applied": (1e-3, 0.05),
     "torque_applied": (1e-3, 0.05),
     "steer_estimated": (1.0, 0.2),
     "torque_estimated": (3.0, 0.5),
+    "clock": (1e-4, 1e-3),
 }
 #: Process noise and initial standard deviation of an extra state not in the table.
 EXTRA_STATE_FALLBACK = (1e-3, 0.05)
@@ -119,7 +122,7 @@ def check_effect_state_names(names: Iterable[str], field: str) -> None:
     input-free model) adds; settings may name states the current model lacks, so one setting
     serves the commanded and the input-free model."""
     known = {name for effect in EFFECTS.values() for name, _ in effect.states}
-    known |= {name for name, _ in ESTIMATED_INPUT_STATES}
+    known |= {name for name, _ in ESTIMATED_INPUT_STATES} | {CLOCK_STATE[0]}
     unknown = {name for name in names if not name.startswith(ONLINE_STATE_PREFIX)} - known
     if unknown:
         raise FieldError(

@@ -24,6 +24,8 @@ from crs_core.identification.data import FieData, input_segments
 from crs_core.identification.problem import FieProblem, FieSettings, check_fit
 from crs_core.identification.uncertainty import ParameterUncertainty, parameter_uncertainty
 from crs_core.model import CarModel
+from crs_core.model.bicycle import STATE_NAMES
+from crs_core.model.terms import CLOCK_STATE
 from crs_core.parameters import ParameterSet
 
 
@@ -163,7 +165,7 @@ def effect_state_trajectory(
     n_effect = sum(len(e.initial_states([0.0, 0.0])) for e in model.effects)
     if n_effect == 0:
         return states
-    base = len(states[0]) - n_effect - (2 if model.estimated_inputs else 0)
+    base = len(STATE_NAMES)  # the effects' states come first after the base states
     effect = slice(base, base + n_effect)
     numeric = model.numeric
     p = model.parameters.vector() if p is None else p
@@ -209,9 +211,12 @@ def _with_effect_states(
     dataset: Dataset, model: CarModel, base: np.ndarray, p: np.ndarray
 ) -> np.ndarray:
     """Model states ``(N, nx)`` from base states ``(N, 6)``: effect states at rest under the
-    first command, then run through the commands with parameter vector ``p``."""
+    first command, then run through the commands with parameter vector ``p``; a term's clock
+    the time since the recording's start (:attr:`~crs_core.dataset.Dataset.recording_start`)."""
     u = dataset.u if dataset.u is not None else np.zeros((len(base), 2))
     at_rest = np.stack([model.initial_state(row, cmd) for row, cmd in zip(base, u, strict=True)])
+    if model.has_clock:
+        at_rest[:, model.state_names.index(CLOCK_STATE[0])] = dataset.t - dataset.recording_start
     return effect_state_trajectory(dataset, model, at_rest, p)
 
 

@@ -33,7 +33,7 @@ from crs_core.model.chronos import (
 from crs_core.model.effects import EFFECTS, Effect, effect_of_parameter
 from crs_core.model.lighthouse import BaseStation
 from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
-from crs_core.model.terms import STATE_TARGETS, Term, terms_in_file
+from crs_core.model.terms import CLOCK_STATE, STATE_TARGETS, Term, terms_in_file
 from crs_core.parameters import ParameterSet
 from crs_core.yaml_io import load_yaml
 
@@ -206,6 +206,9 @@ class CarModel:
         extra_states = tuple(st for e in self.effects for st in e.states)
         if self.estimated_inputs:
             extra_states += ESTIMATED_INPUT_STATES
+        self.has_clock = any(term.uses_time for term in self.terms)
+        if self.has_clock:
+            extra_states += (CLOCK_STATE,)
         extra_states += tuple((e.state_name, e.unit) for e in self.online.entries)
         self.state_names = STATE_NAMES + tuple(name for name, _ in extra_states)
         self.state_units = STATE_UNITS + tuple(unit for _, unit in extra_states)
@@ -262,12 +265,15 @@ class CarModel:
             outputs[f"lighthouse/{station}/2"] = second
         for effect in self.effects:
             outputs = {name: effect.output(name, y, P) for name, y in outputs.items()}
+        clock = self._clock(x)
         for term in self.terms:
             if term.target == "wheel_speeds":
-                outputs["wheel_encoders"] = outputs["wheel_encoders"] + term.value(x, applied, P)
+                added = term.value(x, applied, P, clock)
+                outputs["wheel_encoders"] = outputs["wheel_encoders"] + added
             elif term.target == "yaw_rate":
                 imu = outputs["imu"]
-                outputs["imu"] = ca.vertcat(imu[0], imu[1], imu[2] + term.value(x, applied, P))
+                added = term.value(x, applied, P, clock)
+                outputs["imu"] = ca.vertcat(imu[0], imu[1], imu[2] + added)
         outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
@@ -289,12 +295,20 @@ class CarModel:
         if self.estimated_inputs:
             u = x[offset : offset + 2]
             derivatives.append(ca.SX.zeros(2))
+        if self.has_clock:
+            derivatives.append(ca.SX(1))
         base = state_derivative(x[: len(STATE_NAMES)], u, P)
         for term in self.terms:
             if term.target in STATE_TARGETS:
                 index = STATE_TARGETS[term.target][0]
-                base[index] = base[index] + term.value(x, u, P)
+                base[index] = base[index] + term.value(x, u, P, self._clock(x))
         return ca.vertcat(base, *derivatives), u
+
+    def _clock(self, x: ca.SX) -> ca.SX | None:
+        """The clock state of ``x`` (None without one)."""
+        if not self.has_clock:
+            return None
+        return x[self.state_names.index(CLOCK_STATE[0])]
 
     def function_of_xup(self, name: str, expression: ca.SX, output: str) -> ca.Function:
         """``name(x, u, p) -> output``: ``expression`` as a function of the model's state,
@@ -410,6 +424,8 @@ class CarModel:
         extra = [value for e in self.effects for value in e.initial_states(command)]
         if self.estimated_inputs:
             extra += command
+        if self.has_clock:
+            extra.append(0.0)
         extra += self.online.initial_values()
         return np.array(base + extra)
 

@@ -3,12 +3,14 @@
 A :class:`Term` adds :math:`\\sum_k c_k m_k` to one *target*: the time derivative of a velocity
 state (``vx``, ``vy``, ``omega``) or a sensor output (``wheel_speeds``, each of the four wheels
 alike; ``yaw_rate``, the gyro), where each monomial :math:`m_k` is a product of the model's
-variables (:data:`TERM_VARIABLES`: the velocity states and the applied inputs; the empty
-product is a constant). The coefficients are parameters of group ``term:<name>``, so
-identification fits them and every tool carries them like an effect's; with every coefficient at
-0 the model is the model without the term (nested, as an effect). The discrepancy workflow
-proposes terms (:mod:`crs_core.discrepancy.proposal`) and a parameter YAML stores them under
-``terms:`` (:func:`terms_in_file`), so that ``--params`` rebuilds the model with them.
+variables (:data:`TERM_VARIABLES`: the velocity states, the applied inputs and ``t``, the time
+since the model's state began, which a model with such a term carries as one more state,
+``clock``; the empty product is a constant). The coefficients are parameters of group
+``term:<name>``, so identification fits them and every tool carries them like an effect's; with
+every coefficient at 0 the model is the model without the term (nested, as an effect). The
+discrepancy workflow proposes terms (:mod:`crs_core.discrepancy.proposal`) and a parameter YAML
+stores them under ``terms:`` (:func:`terms_in_file`), so that ``--params`` rebuilds the model
+with them.
 
 A term is a description of what predicted better, not a claim of physics.
 """
@@ -28,14 +30,19 @@ from crs_core.errors import FieldError
 from crs_core.parameters import Parameter
 from crs_core.yaml_io import load_yaml
 
-#: Variables a monomial may use: state or applied-input index and unit.
+#: Variables a monomial may use: where they come from (a base state's or an applied input's index;
+#: ``t`` the clock state's value) and unit.
 TERM_VARIABLES: dict[str, tuple[str, int, str]] = {
     "vx": ("state", 3, "m/s"),
     "vy": ("state", 4, "m/s"),
     "omega": ("state", 5, "rad/s"),
     "steer": ("input", 0, "rad"),
     "torque": ("input", 1, "-"),
+    "t": ("clock", 0, "s"),
 }
+#: The state a model with a term in ``t`` carries: the time since its state began, s
+#: (derivative 1, 0 at the start: in a recording's fit and prediction, the time into it).
+CLOCK_STATE = ("clock", "s")
 #: Targets: state derivatives (state index, unit of the derivative) and sensor outputs (unit).
 STATE_TARGETS: dict[str, tuple[int, str]] = {
     "vx": (3, "m/s^2"),
@@ -150,15 +157,23 @@ class Term:
             parts.append(f"{value} * {monomial_text(monomial)}")
         return f"{self.target_text()} += " + " + ".join(parts)
 
-    def value(self, x: ca.SX, u: ca.SX, parameter: Any) -> ca.SX:
-        """The term's value for state ``x``, applied input ``u`` and parameter access
-        ``parameter(name) -> SX``."""
+    @property
+    def uses_time(self) -> bool:
+        """A monomial has ``t`` in it (the model then carries :data:`CLOCK_STATE`)."""
+        return any("t" in monomial for monomial in self.monomials)
+
+    def value(self, x: ca.SX, u: ca.SX, parameter: Any, clock: ca.SX | None = None) -> ca.SX:
+        """The term's value for state ``x``, applied input ``u``, parameter access
+        ``parameter(name) -> SX`` and the clock state (needed when :attr:`uses_time`)."""
+        if self.uses_time and clock is None:
+            raise ValueError(f"term {self.name!r} uses t: its model needs a clock state")
+        values = {"state": x, "input": u, "clock": clock if clock is not None else ca.SX(0)}
         total = ca.SX(0)
         for name, monomial in zip(self.coefficient_names(), self.monomials, strict=True):
             product = ca.SX(1)
             for variable in monomial:
                 kind, index, _ = TERM_VARIABLES[variable]
-                product = product * (x[index] if kind == "state" else u[index])
+                product = product * values[kind][index]
             total = total + parameter(name) * product
         return total
 

@@ -81,13 +81,32 @@ def test_a_sagging_battery_hides_from_the_residuals_but_not_from_prediction(sagg
 
 
 def test_the_workflow_does_not_call_a_sagging_battery_none(sagging):
-    """With no candidate effect for it, the verdict is ``unexplained`` in the open-loop
-    prediction, not ``none``; the report carries both diagnoses."""
+    """Without terms beyond the registry (and no candidate effect for it), the verdict is
+    ``unexplained`` in the open-loop prediction, not ``none``; the report carries both
+    diagnoses."""
     data = sagging[0]
-    settings = DiscrepancySettings(identification=FIT, candidates=("gyro_bias",))
+    settings = DiscrepancySettings(identification=FIT, candidates=("gyro_bias",), propose=False)
     result = find_discrepancy(data, CarModel(), settings=settings)
     assert result.verdict == "unexplained"
     assert result.where is not None and result.where["channel"] == PREDICTION_CHANNEL
     summary = result.summary()
     assert summary["prediction_before"]["structured"]
     assert summary["prediction_after"] == summary["prediction_before"]
+    assert summary["proposed_terms"] == []
+
+
+def test_a_sagging_battery_is_proposed_as_a_term_in_time_and_torque(sagging):
+    """With terms proposed, the lost torque is a term in ``t * torque`` on vx's derivative (the
+    last 30 % of the run held out: the time goes on there), and its coefficient is the truth's:
+    Cm1 falling by 30 % in 40 s takes ``0.3 / 40 * Cm1 / m`` m/s^2 per s and unit torque."""
+    data = sagging[0]
+    settings = DiscrepancySettings(identification=FIT, candidates=("gyro_bias",))
+    result = find_discrepancy(data, CarModel(), settings=settings)
+    assert result.verdict == "proposed"
+    (term,) = result.terms
+    assert term.target == "vx" and ("t", "torque") in {tuple(sorted(m)) for m in term.monomials}
+    k = [tuple(sorted(m)) for m in term.monomials].index(("t", "torque"))
+    fitted = result.final_model.parameters.value(term.coefficient_names()[k])
+    base = CarModel().parameters
+    assert fitted == pytest.approx(-0.3 / DURATION * base.value("Cm1") / base.value("m"), rel=0.2)
+    assert result.gap["after"] < 0.5 * result.gap["before"]

@@ -96,3 +96,20 @@ def test_a_bad_term_is_refused_naming_the_field(entries, field, message):
     with pytest.raises(FieldError, match=message) as error:
         parse_terms([entries])
     assert error.value.field == field
+
+
+def test_a_term_in_time_gives_the_model_a_clock():
+    """``t`` is a state, ``clock``: derivative 1, 0 at rest, read by the term."""
+    term = Term("battery", "vx", (("torque", "t"),), coefficients=(-0.02,))
+    model = CarModel(terms=[term])
+    assert model.state_names[-1] == "clock" and model.has_clock and not CarModel().has_clock
+    x = model.initial_state(X, U)
+    assert x[-1] == 0.0
+    x[-1] = 30.0
+    p = model.parameters.vector()
+    xdot = model.numeric.f(x, U, p)
+    plain = CarModel().numeric.f(X, U, CarModel().parameters.vector())
+    assert xdot[-1] == 1.0
+    np.testing.assert_allclose(xdot[3] - plain[3], -0.02 * U[1] * 30.0, atol=1e-12)
+    with pytest.raises(ValueError, match="clock"):
+        term.value(X, U, lambda name: 1.0)
