@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from crs_core.dataset import Dataset
-from crs_core.discrepancy.residuals import regime_regressors
+from crs_core.discrepancy.residuals import regime_regressors, where_entry
 from crs_core.discrepancy.statistics import correlation, regime_regression, worst_regime
 from crs_core.errors import FieldError
 from crs_core.identification.validation import (
@@ -108,18 +108,9 @@ class PredictionDiagnosis:
         """The misfit's channel and regime in the form of
         :func:`~crs_core.discrepancy.residuals.where_misfit` (``normalized_rms``: the
         coherence; ``rms``: the gap in the worst regime, m)."""
-        regime = self.worst_regime
-        return {
-            "channel": PREDICTION_CHANNEL,
-            "regressor": str(regime["regressor"]),
-            "low": float(regime["low"]),
-            "high": float(regime["high"]),
-            "rms": float(regime["rms"]),
-            "normalized_rms": float(self.coherence),
-            "regime_r2": float(self.regime_r2),
-            "mean": float(self.gap),
-            "also_structured": [],
-        }
+        return where_entry(
+            PREDICTION_CHANNEL, self.worst_regime, self.coherence, self.regime_r2, self.gap, []
+        )
 
 
 def diagnose_prediction(

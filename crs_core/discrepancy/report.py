@@ -370,9 +370,7 @@ def _diagnostics_table(summary: dict[str, Any], result: DiscrepancyResult) -> li
         "| strongest regressor | structured |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
-    fits = [("current", summary["diagnostics_before"])]
-    if not same:
-        fits.append(("final", summary["diagnostics_after"]))
+    fits = _current_and_final(summary, "diagnostics", same)
     rows: dict[str, list[tuple[str, dict[str, Any]]]] = {}  # channel -> (model, diagnosis)
     for label, diagnoses in fits:
         for d in diagnoses:
@@ -404,10 +402,7 @@ def _prediction_table(summary: dict[str, Any], result: DiscrepancyResult) -> lis
         "| model | horizon | gap | shuffled | coherence | strongest (correlation) | structured |",
         "|---|---|---|---|---|---|---|",
     ]
-    fits = [("current", summary["prediction_before"])]
-    if not same:
-        fits.append(("final", summary["prediction_after"]))
-    for label, d in fits:
+    for label, d in _current_and_final(summary, "prediction", same):
         low, high = d["shuffled_range"]
         strongest = d["strongest"]
         lines.append(
@@ -452,3 +447,10 @@ def _proposed_table(summary: dict[str, Any]) -> list[str]:
             f"{format_number(held.get('p_value'), '.2g')} | {verdict} |"
         )
     return lines
+
+
+def _current_and_final(summary: dict[str, Any], key: str, same: bool) -> list[tuple[str, Any]]:
+    """``("current", summary[key_before])`` and, unless the final fit is the current one,
+    ``("final", summary[key_after])``."""
+    fits = [("current", summary[f"{key}_before"])]
+    return fits if same else [*fits, ("final", summary[f"{key}_after"])]

@@ -398,17 +398,33 @@ def where_misfit(diagnoses: list[ChannelDiagnosis]) -> dict[str, Any] | None:
     if not structured:
         return None
     best = max(structured, key=_misfit_score)
-    regime = best.worst_regime
+    also = [d.channel for d in structured if d is not best]
+    return where_entry(
+        best.channel, best.worst_regime, best.normalized_rms, best.regime_r2, best.mean, also
+    )
+
+
+def where_entry(
+    channel: str,
+    regime: dict[str, Any],
+    normalized_rms: float,
+    regime_r2: float,
+    mean: float,
+    also_structured: list[str],
+) -> dict[str, Any]:
+    """The ``where`` of a verdict (:func:`where_misfit`): the channel, its worst regime's
+    regressor, bin and RMS, and the channel's size, regime R², mean and the other structured
+    channels."""
     return {
-        "channel": best.channel,
+        "channel": channel,
         "regressor": str(regime["regressor"]),
         "low": float(regime["low"]),
         "high": float(regime["high"]),
         "rms": float(regime["rms"]),
-        "normalized_rms": float(best.normalized_rms),
-        "regime_r2": float(best.regime_r2),
-        "mean": float(best.mean),
-        "also_structured": [d.channel for d in structured if d is not best],
+        "normalized_rms": float(normalized_rms),
+        "regime_r2": float(regime_r2),
+        "mean": float(mean),
+        "also_structured": list(also_structured),
     }
 
 
