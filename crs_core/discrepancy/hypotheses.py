@@ -59,6 +59,9 @@ from crs_core.model import EFFECTS, CarModel
 from crs_core.model.terms import Term
 from crs_core.parameters import Parameter
 
+#: A hypothesis whose held-out error is this many times the current model's (or not finite)
+#: diverged: its model is unstable in open loop (a proposed term's cube of a state can be).
+DIVERGED = 100.0
 #: Effects fitted through the data rather than the model (no state-space form).
 DELAY_EFFECT = "input_delay"
 #: Spacing of the delays the FIE tries for ``input_delay``, s.
@@ -429,7 +432,9 @@ def judge(
     threshold = settings.false_alarm_rate / max(tests, 1)
     if not comparison.p_value < threshold:
         reasons.append(f"held-out p = {comparison.p_value:.2g} (needs < {threshold:.2g})")
-    if comparison.improvement < settings.min_improvement:
+    if not comparison.improvement > -DIVERGED:
+        reasons.append("its held-out predictions diverge (an unstable model)")
+    elif comparison.improvement < settings.min_improvement:
         reasons.append(
             f"held-out improvement {100 * comparison.improvement:.1f} % "
             f"(needs >= {100 * settings.min_improvement:.0f} %)"
