@@ -612,7 +612,8 @@ def discrepancy_benchmark(
             result["cases"].append(row)
             result["summary"] = tabulate(result["cases"])
             say(
-                f"[{i}/{first + len(todo)}] {row['effect'] or 'clean'} {row['magnitude'] or ''} "
+                f"[{i}/{first + len(todo)}] {row['effect'] or row.get('outside') or 'clean'} "
+                f"{row['magnitude'] or ''} "
                 f"seed {row['seed']}: {row['verdict']} {'+'.join(row['named'])} "
                 f"({row['time_s']:.0f} s)"
             )

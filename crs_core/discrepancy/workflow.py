@@ -22,10 +22,10 @@
 5. beyond the registry: from what the final fit (the named effects', or the current model's)
    still leaves, propose terms in the model's own variables by sparse regression
    (:mod:`~crs_core.discrepancy.proposal`), fit each with the model and test it on the held-out
-   data as an effect is tested (with a named effect: on top of it, and alone, for a term can
-   explain what the effect only imitated); of the named effects and the terms that pass, the
-   lowest information criterion on the training data is the final model (verdict ``proposed``
-   when it holds a term and no registry effect);
+   data as an effect is tested (with a named effect: on top of it, and the terms proposed from
+   the current model's fit alone, for a term can explain what the effect only imitated); of the
+   named effects and the terms that pass, the lowest information criterion on the training
+   data is the final model (verdict ``proposed`` when it holds a term and no registry effect);
 6. report the gap before and after: the held-out open-loop position RMSE over the paper's 2 s
    horizon and the per-channel RMS, with the final model's parameters.
 """
@@ -471,33 +471,42 @@ def _propose_and_judge(
 ) -> list[tuple[Proposal, Hypothesis]]:
     """Terms proposed from what the final registry fit (``chosen``'s, else ``current``'s)
     leaves, each fitted on top of it and judged against it on the held-out data; with a
-    chosen effect each term is also fitted alone on the current model and judged against it
-    (a term may explain what the effect only imitated)."""
-    if chosen is None:
-        base_data, base_fit, base_model, scores = fit_data, current, None, current_scores
-    else:
-        base_data = delayed_inputs(fit_data, chosen.delay_s)
-        base_fit, base_model = chosen.result, chosen.model
+    chosen effect, also the terms proposed from what the current model's fit leaves, each fitted
+    alone and judged against the current model (a term may explain what the effect only
+    imitated, and leave nothing on top of it)."""
+    current_model = _fitted(model, current)
+    bases: list[tuple[Hypothesis | None, Dataset, FieResult, HeldOutScores, CarModel]] = []
+    if chosen is not None:
         scores = held_out_scores(
             held_out, chosen.model, settings.test.test_horizon_s, chosen.delay_s
         )
+        data = delayed_inputs(fit_data, chosen.delay_s)
+        bases.append((chosen, data, chosen.result, scores, chosen.model))
+    bases.append((None, fit_data, current, current_scores, current_model))
     say("proposing terms beyond the registry ...")
-    proposals = propose(base_data, base_model or _fitted(model, current), base_fit)
-    if not proposals:
+    proposed = [
+        (proposal, base) for base in bases for proposal in propose(base[1], base[4], base[2])
+    ]
+    if not proposed:
         say("no term to propose: what the fit leaves follows none of the library's monomials")
         return []
-    bases = [(chosen, base_data, base_fit, scores)]
-    if chosen is not None:
-        bases.append((None, fit_data, current, current_scores))
-    terms = [proposal.term(f"term{k + 1}") for k, proposal in enumerate(proposals)]
     tasks: list[_TermTask] = [
-        (model, on_top, term, data, fit, settings, base_scores, held_out, len(terms) * len(bases))
-        for term in terms
-        for on_top, data, fit, base_scores in bases
+        (
+            model,
+            on_top,
+            proposal.term(f"term{k + 1}"),
+            data,
+            fit,
+            settings,
+            scores,
+            held_out,
+            len(proposed),
+        )
+        for k, (proposal, (on_top, data, fit, scores, _)) in enumerate(proposed)
     ]
-    say(f"{len(terms)} proposed terms to test: " + "; ".join(t.equation() for t in terms))
+    say(f"{len(tasks)} proposed terms to test: " + "; ".join(t[2].equation() for t in tasks))
     judged = _run_hypotheses(_fit_term_and_judge, tasks, settings.workers, say)
-    return [(proposals[k // len(bases)], h) for k, h in enumerate(judged)]
+    return [(proposal, h) for (proposal, _), h in zip(proposed, judged, strict=True)]
 
 
 def _fit_term_and_judge(task: _TermTask) -> Hypothesis:
