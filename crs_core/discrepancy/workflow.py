@@ -46,6 +46,7 @@ from crs_core.discrepancy.hypotheses import (
     Hypothesis,
     TestSettings,
     clear_of_null,
+    compare_held_out,
     delayed_inputs,
     extended_model,
     fit_hypothesis,
@@ -339,6 +340,10 @@ def find_discrepancy(
         proposed = _propose_and_judge(
             model, fit_data, held_out, chosen, current, current_scores, fit_settings, say
         )
+        if chosen is not None:
+            for _, h in proposed:
+                if h.significant and not set(chosen.effects) <= set(h.effects):
+                    _against_the_effect(h, chosen, held_out, settings.test)
         passed = [h for _, h in proposed if h.significant]
         best = min(
             [*passed, *([chosen] if chosen else [])], key=information_criterion, default=None
@@ -507,6 +512,28 @@ def _propose_and_judge(
     say(f"{len(tasks)} proposed terms to test: " + "; ".join(t[2].equation() for t in tasks))
     judged = _run_hypotheses(_fit_term_and_judge, tasks, settings.workers, say)
     return [(proposal, h) for (proposal, _), h in zip(proposed, judged, strict=True)]
+
+
+def _against_the_effect(
+    term: Hypothesis, chosen: Hypothesis, held_out: Dataset, test: TestSettings
+) -> None:
+    """A term fitted without the named effect may replace it only if it predicts the held-out
+    data better than the effect does (the same test, one comparison): else it is not a finding
+    (a constant on the gyro is the registry's gyro bias by another name)."""
+    horizon = test.test_horizon_s
+    effect_scores = held_out_scores(held_out, chosen.model, horizon, chosen.delay_s)
+    term_scores = held_out_scores(held_out, term.model, horizon, term.delay_s)
+    comparison = compare_held_out(effect_scores, term_scores, horizon)
+    if (
+        comparison.p_value < test.false_alarm_rate
+        and comparison.improvement >= test.min_improvement
+    ):
+        return
+    term.significant = False
+    term.reasons.append(
+        f"predicts the held-out data no better than {'+'.join(chosen.effects)} "
+        f"({100 * comparison.improvement:+.1f} %, p = {comparison.p_value:.2g})"
+    )
 
 
 def _fit_term_and_judge(task: _TermTask) -> Hypothesis:
