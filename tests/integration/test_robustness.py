@@ -228,16 +228,24 @@ def test_a_killed_recorder_leaves_a_bag_readable_up_to_its_last_second(stack, tm
 def test_launcher_reports_a_killed_node_and_the_others_keep_running(stack):
     """``kill -9`` of one node process (the simulator) is reported by ``Launcher.poll()`` once,
     with the node's full name and return code -9 (and the end of its log); the estimator
-    process keeps running and publishing estimates."""
-    launcher, _, estimates, _ = stack
+    process keeps running: without any sensor it stops publishing estimates within about its
+    ``health.lost_silent_s`` (1 s; a controller then sees a stale estimate and stops the car)
+    and goes on publishing its diagnostics, which say it is lost."""
+    launcher, _, estimates, diagnostics = stack
     simulator = launcher.processes["/car1/simulator"]
+    killed = time.time()
     os.kill(simulator.pid, signal.SIGKILL)
     exited = wait_for(launcher.poll, 10.0, "the launcher to notice the killed simulator")
     assert [(e.node, e.returncode) for e in exited] == [("/car1/simulator", -signal.SIGKILL)]
     assert isinstance(exited[0].log_tail, str)
 
-    killed = time.time()
-    wait_for(lambda: len(_after(estimates, killed)) >= 30, 10.0, "estimates after the kill")
+    def lost_reports() -> list:
+        return [d for d in _after(diagnostics, killed) if d.status.startswith("lost")]
+
+    wait_for(lambda: len(lost_reports()) >= 2, 15.0, "two diagnostics saying lost after the kill")
+    quiet_since = time.time()
+    time.sleep(1.0)
+    assert _after(estimates, quiet_since) == []  # nothing stale published while lost
     assert launcher.processes["/car1/estimator"].poll() is None
     assert launcher.poll() == []  # reported once, and nothing else died
 
