@@ -421,7 +421,8 @@ def _proposed_table(summary: dict[str, Any]) -> list[str]:
     if not entries:
         return [
             "None: what the final fit leaves follows no monomial of the library (products of up "
-            "to three of vx, vy, omega, steer, torque) enough to propose one."
+            "to three of vx, vy, omega, steer, torque and t) enough to propose one, or "
+            "`--no-propose`."
         ]
     lines = [
         "From what the final fit leaves (process residual rates of vx, vy, omega; the wheel "

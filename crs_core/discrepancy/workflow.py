@@ -213,7 +213,7 @@ class DiscrepancyResult:
             "effects": list(self.effects),
             "parameters": parameter_table(named[-1:]) if named else {},
             "proposed_terms": [
-                proposed_entry(h, proposal, h.terms == self.terms and h.model is self.final_model)
+                proposed_entry(h, proposal, h.model is self.final_model)
                 for proposal, h in self.proposed
             ],
             "gap_before": self.gap["before"],
@@ -340,10 +340,6 @@ def find_discrepancy(
         proposed = _propose_and_judge(
             model, fit_data, held_out, chosen, current, current_scores, fit_settings, say
         )
-        if chosen is not None:
-            for _, h in proposed:
-                if h.significant and not set(chosen.effects) <= set(h.effects):
-                    _against_the_effect(h, chosen, held_out, settings.test)
         passed = [h for _, h in proposed if h.significant]
         best = min(
             [*passed, *([chosen] if chosen else [])], key=information_criterion, default=None
@@ -478,7 +474,8 @@ def _propose_and_judge(
     leaves, each fitted on top of it and judged against it on the held-out data; with a
     chosen effect, also the terms proposed from what the current model's fit leaves, each fitted
     alone and judged against the current model (a term may explain what the effect only
-    imitated, and leave nothing on top of it)."""
+    imitated, and leave nothing on top of it), which must also predict better than the effect
+    to pass (:func:`_against_the_effect`)."""
     current_model = _fitted(model, current)
     bases: list[tuple[Hypothesis | None, Dataset, FieResult, HeldOutScores, CarModel]] = []
     if chosen is not None:
@@ -511,17 +508,25 @@ def _propose_and_judge(
     ]
     say(f"{len(tasks)} proposed terms to test: " + "; ".join(t[2].equation() for t in tasks))
     judged = _run_hypotheses(_fit_term_and_judge, tasks, settings.workers, say)
+    if chosen is not None:
+        effect_scores = bases[0][3]
+        for h in judged:
+            if h.significant and not set(chosen.effects) <= set(h.effects):
+                _against_the_effect(h, chosen, effect_scores, held_out, settings.test)
     return [(proposal, h) for (proposal, _), h in zip(proposed, judged, strict=True)]
 
 
 def _against_the_effect(
-    term: Hypothesis, chosen: Hypothesis, held_out: Dataset, test: TestSettings
+    term: Hypothesis,
+    chosen: Hypothesis,
+    effect_scores: HeldOutScores,
+    held_out: Dataset,
+    test: TestSettings,
 ) -> None:
     """A term fitted without the named effect may replace it only if it predicts the held-out
-    data better than the effect does (the same test, one comparison): else it is not a finding
-    (a constant on the gyro is the registry's gyro bias by another name)."""
+    data better than the effect does (``effect_scores``; the same test, one comparison): else
+    it is not a finding (a constant on the gyro is the registry's gyro bias by another name)."""
     horizon = test.test_horizon_s
-    effect_scores = held_out_scores(held_out, chosen.model, horizon, chosen.delay_s)
     term_scores = held_out_scores(held_out, term.model, horizon, term.delay_s)
     comparison = compare_held_out(effect_scores, term_scores, horizon)
     if (

@@ -265,14 +265,14 @@ class CarModel:
             outputs[f"lighthouse/{station}/2"] = second
         for effect in self.effects:
             outputs = {name: effect.output(name, y, P) for name, y in outputs.items()}
-        clock = self._clock(x)
         for term in self.terms:
+            if term.target in STATE_TARGETS:
+                continue
+            added = term.value(x, applied, P, self._clock(x))
             if term.target == "wheel_speeds":
-                added = term.value(x, applied, P, clock)
                 outputs["wheel_encoders"] = outputs["wheel_encoders"] + added
-            elif term.target == "yaw_rate":
+            else:  # yaw_rate
                 imu = outputs["imu"]
-                added = term.value(x, applied, P, clock)
                 outputs["imu"] = ca.vertcat(imu[0], imu[1], imu[2] + added)
         outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
