@@ -28,6 +28,7 @@ REGISTRY: dict[str, str] = {
     "sysid": "launch_scripts.commands.sysid:SYSID",
     "validate": "launch_scripts.commands.sysid:VALIDATE",
     "discrepancy": "launch_scripts.commands.discrepancy:COMMAND",
+    "plan-drive": "launch_scripts.commands.plan_drive:COMMAND",
     "calibrate-lighthouse": "launch_scripts.commands.calibration:COMMAND",
     "launch": "launch_scripts.commands.launch:COMMAND",
     "viz": "launch_scripts.commands.viz:COMMAND",

@@ -175,6 +175,31 @@ def workflow(args: argparse.Namespace) -> Outcome:
     return result, f"{format_table(result)}\nruns (races, bags, sysid, discrepancy): {work}"
 
 
+def plan_drive(args: argparse.Namespace) -> Outcome:
+    from benchmarks.plan_drive import format_table, plan_drive_benchmark
+
+    result = plan_drive_benchmark(args.race, args.duration, args.seed, args.evaluations)
+    result = _with_machine(result)
+    return result, format_table(result)
+
+
+def _plan_drive_options(parser: argparse.ArgumentParser) -> None:
+    add_duration(parser, 8.0, "the drive (designed and slalom)")
+    add_seed(parser, "seed of the simulated car's noise and of the design's starts")
+    parser.add_argument(
+        "--race",
+        type=bounded_number("race", "s", 5.0, 600.0),
+        default=30.0,
+        help="the race before the drive, s (default 30)",
+    )
+    parser.add_argument(
+        "--evaluations",
+        type=bounded_number("evaluations", "", 1, 100000, kind=int, include_low=True),
+        default=400,
+        help="drives the design simulates (default 400, ~0.2 s each)",
+    )
+
+
 def _duration_and_seed(
     default: float, duration: str, seed: str
 ) -> Callable[[argparse.ArgumentParser], None]:
@@ -490,6 +515,16 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "contouring error, estimation RMSE and the held-out 2 s prediction error before and "
         "after, the parameters and the effect against the truth, each step's time; ~5 min with "
         "40 s races",
+    ),
+    "plan-drive": (
+        plan_drive,
+        _plan_drive_options,
+        "does a designed drive decide what a race leaves open: issue 27's truth car with a "
+        "hidden motor lag raced by the path follower, identified (FIE) from the race alone, "
+        "from the race plus a designed drive (crs plan-drive's design from the race's "
+        "covariance) and from the race plus a slalom of the same length; the sigma predicted "
+        "and reported by the FIE and the error against the truth of Dr, Br, tau_motor (and "
+        "Df, Bf), the grip and peak slip the drives reached; ~3 min",
     ),
     "sysid": (
         sysid,
