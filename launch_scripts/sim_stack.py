@@ -181,6 +181,9 @@ class StackOptions:
     online_parameters : tuple of str
         Parameters every car's estimator estimates online (:mod:`crs_core.model.online`;
         published on ``estimate/parameters``, written to ``online_parameters_carN.csv``).
+    drive_file : Path, optional
+        A ``drive.yaml`` of ``crs plan-drive`` every car's controller drives (the path
+        follower plus its command offsets; the ``path`` controller's ``drive_file``).
     """
 
     estimator: str
@@ -199,6 +202,7 @@ class StackOptions:
     process_per_node: bool = False
     after_start_up: bool = False
     online_parameters: tuple[str, ...] = ()
+    drive_file: Path | None = None
 
     def pipeline_process(self) -> str:
         """The process a car's pipeline nodes share (``""``: each its own)."""
@@ -304,6 +308,8 @@ def car_control_nodes(
     hold_safe = controller_hold_safe(options, over_udp)
     if hold_safe is not None:
         commands["hold_safe"] = hold_safe
+    if options.drive_file is not None:
+        commands["drive_file"] = str(Path(options.drive_file).resolve())
     estimator: dict[str, Any] = {
         "estimator": options.estimator,
         "blind_start": options.blind_start,

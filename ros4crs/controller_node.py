@@ -42,7 +42,9 @@ Parameters: ``controller`` (``mpcc`` | ``path``), ``output`` (``torque`` | ``vel
 latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale_timeout`` (s),
 ``degraded_speed`` (m/s), ``speed_ramp``, ``speed_rise`` (m/s^2), ``ok_hold`` (s), ``hold_safe``
 (``after_outage`` | ``always`` | ``never``), ``caution_memory`` (s), ``recover``,
-``solve_budget`` (s), ``predict``, ``command_delay`` (s), ``track_file``
+``solve_budget`` (s), ``predict``, ``command_delay`` (s), ``drive_file`` (with ``path``: a
+``drive.yaml`` of ``crs plan-drive``, the follower plus its command offsets,
+:class:`~crs_core.discrepancy.drive_file.DriveController`), ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
 """
@@ -65,6 +67,7 @@ from crs_core.control.overload import OverloadSettings
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
 from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
+from crs_core.discrepancy.drive_file import DriveController, load_drive
 from crs_core.estimation.base import OnlineValue
 from ros4crs import conversions
 from ros4crs.node_support import (
@@ -74,6 +77,7 @@ from ros4crs.node_support import (
     declare,
     declare_model,
     declare_track,
+    file_or_empty,
     non_negative,
     one_of,
     positive,
@@ -135,6 +139,18 @@ class ControllerNode(Node):
             "path follower: reference speed, m/s",
             positive,
         )
+        drive_file = declare(
+            self,
+            "drive_file",
+            "",
+            "path follower: a drive.yaml of crs plan-drive (its speed and command offsets); "
+            "empty: none",
+            file_or_empty,
+        )
+        if drive_file and kind != "path":
+            raise ParameterError(
+                "drive_file", f"needs controller:=path (got controller:={kind}), got {drive_file!r}"
+            )
         # checked when the settings are built below; degraded_speed before it is clamped there
         supervision = declare_fields(
             self, SUPERVISOR_PARAMETERS, checks={"degraded_speed": positive}
@@ -154,9 +170,23 @@ class ControllerNode(Node):
         delay = CommandDelay(declare_settings(self, COMMAND_DELAY_PARAMETERS))
         track = declare_track(self)
         limits: MpccSettings | PathFollowerSettings
+        drive = None
         if kind == "mpcc":
             limits = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
             max_speed = limits.progress_speed_max
+        elif drive_file:
+            try:
+                drive = load_drive(drive_file)
+            except ValueError as error:
+                raise ParameterError("drive_file", str(error)) from None
+            limits = PathFollowerSettings(
+                v_ref=drive.v_ref,
+                a_lat_max=drive.a_lat_max,
+                steer_max=drive.limits.steer_max,
+                torque_min=drive.limits.torque_min,
+                torque_max=drive.limits.torque_max,
+            )
+            max_speed = drive.v_ref
         else:
             limits = PathFollowerSettings(v_ref=v_ref)
             max_speed = v_ref
@@ -175,8 +205,14 @@ class ControllerNode(Node):
             velocity_max=conversions.VELOCITY_LIMIT,
         )
         if isinstance(limits, MpccSettings):
-            controller: Mpcc | PathFollower = Mpcc(track, model, limits, output=self.output)
+            controller: Mpcc | PathFollower | DriveController = Mpcc(
+                track, model, limits, output=self.output
+            )
             controller.warm_up()
+        elif drive is not None:
+            parameters = model.parameters
+            wheelbase = parameters.value("lf") + parameters.value("lr")
+            controller = DriveController(drive, track, wheelbase, t_start=None)
         else:
             parameters = model.parameters
             wheelbase = parameters.value("lf") + parameters.value("lr")

@@ -98,7 +98,7 @@ class DesignSettings:
     """
 
     duration_s: float = 8.0
-    segment_s: float = 0.5
+    segment_s: float = 0.25
     v_ref: float = 1.2
     a_lat_max: float = 4.0
     steer_offset_max: float = 0.34

@@ -169,6 +169,10 @@ def drive_from_dict(document: Any) -> Drive:
         raise FieldError("drive", "expected a mapping (a drive.yaml)")
     if document.get("format") != DRIVE_FORMAT:
         raise FieldError("format", f"must be {DRIVE_FORMAT!r}, got {document.get('format')!r}")
+    duration, segment, v_ref = (
+        _number(document, k, "") for k in ("duration_s", "segment_s", "v_ref")
+    )
+    steer, torque = (_numbers(document, k) for k in ("steer_offset", "torque_offset"))
     limits = document.get("limits", {})
     start = document.get("start")
     if not isinstance(limits, dict):
@@ -183,12 +187,12 @@ def drive_from_dict(document: Any) -> Drive:
         raise FieldError("open", "must be a list of parameter names")
     defaults = DriveLimits()
     return Drive(
-        duration_s=_number(document, "duration_s", ""),
-        segment_s=_number(document, "segment_s", ""),
-        v_ref=_number(document, "v_ref", ""),
+        duration_s=duration,
+        segment_s=segment,
+        v_ref=v_ref,
+        steer_offset=steer,
+        torque_offset=torque,
         a_lat_max=_number(document, "a_lat_max", "", 4.0),
-        steer_offset=_numbers(document, "steer_offset"),
-        torque_offset=_numbers(document, "torque_offset"),
         open=tuple(names),
         kind=document.get("kind", "designed"),
         limits=DriveLimits(
@@ -214,7 +218,13 @@ def load_drive(path: str | Path) -> Drive:
 
 
 class DriveController:
-    """``(t, x) -> u`` of a drive: the follower plus the drive's offsets, clipped.
+    """``(t, x[, speed_limit]) -> u`` of a drive: the follower plus the drive's offsets, clipped.
+
+    The drive begins at ``t_start``, or (``None``) at the first call at which the car is at
+    nine tenths of the design's start speed (``drive.start``'s ``vx``): a car that starts
+    from rest first gets up to speed behind the follower. Before the drive and after its
+    ``duration_s`` the follower alone drives. A car whose centre leaves the track (beyond half
+    its width from the centreline) is stopped for good: zero torque, straight wheels.
 
     Parameters
     ----------
@@ -222,13 +232,15 @@ class DriveController:
     track : Track
     wheelbase : float
         ``lf + lr``, m.
-    t_start : float
-        The controller's time at which the drive begins, s (before it, and after its
-        ``duration_s``, the follower alone drives).
+    t_start : float, optional
+        The controller's time at which the drive begins, s.
     """
 
-    def __init__(self, drive: Drive, track: Track, wheelbase: float, t_start: float = 0.0):
-        self.drive, self.t_start = drive, float(t_start)
+    def __init__(
+        self, drive: Drive, track: Track, wheelbase: float, t_start: float | None = 0.0
+    ) -> None:
+        self.drive = drive
+        self.t_start = None if t_start is None else float(t_start)
         lim = drive.limits
         settings = PathFollowerSettings(
             v_ref=drive.v_ref,
@@ -238,14 +250,29 @@ class DriveController:
             torque_max=lim.torque_max,
         )
         self.follower = PathFollower(track, wheelbase, settings)
+        self.edge = float(np.min(track.width)) / 2
+        #: the car left the track: stopped for good
+        self.stopped = False
 
     def done(self, t: float) -> bool:
         """The drive is over at controller time ``t`` s."""
-        return t - self.t_start >= self.drive.duration_s
+        return self.t_start is not None and t - self.t_start >= self.drive.duration_s
 
-    def __call__(self, t: float, x: np.ndarray) -> np.ndarray:
-        steer, torque = self.follower(t, np.asarray(x, dtype=float)[:6])
-        d_steer, d_torque = self.drive.offsets(t - self.t_start)
+    def reset(self) -> None:
+        """Start the follower over (after a stop of the supervisor); the drive's clock runs on."""
+        self.follower.reset()
+
+    def __call__(self, t: float, x: np.ndarray, speed_limit: float | None = None) -> np.ndarray:
+        state = np.asarray(x, dtype=float)[:6]
+        steer, torque = self.follower(t, state, speed_limit)
+        if self.stopped or abs(self.lateral_error) > self.edge:
+            self.stopped = True
+            return np.zeros(2)
+        if self.t_start is None and state[3] >= 0.9 * self.drive.start[3]:
+            self.t_start = float(t)
+        d_steer, d_torque = (
+            (0.0, 0.0) if self.t_start is None else self.drive.offsets(t - self.t_start)
+        )
         lim = self.drive.limits
         return np.array(
             [

@@ -82,8 +82,12 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
         "process_per_node",
         "after_start_up",
     )
+    values = {field: getattr(args, field) for field in same_name}
+    if args.drive is not None:  # the path follower drives a drive
+        values["controller"] = "path"
     return StackOptions(
-        **{field: getattr(args, field) for field in same_name},
+        **values,
+        drive_file=args.drive,
         params_file=args.params,
         track_file=args.track,
         car=CarTruth(args.car_params, tuple(args.car_effect or ()), args.car_drift),
@@ -154,6 +158,15 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
             f"--output: velocity needs --controller mpcc (the {args.controller} controller "
             "commands torque)"
         )
+    if args.drive is not None:
+        from crs_core.discrepancy.drive_file import load_drive
+
+        if args.output == "velocity":
+            raise ValueError("--drive: a drive commands torque, not --output velocity")
+        try:
+            load_drive(args.drive)
+        except ValueError as error:
+            raise ValueError(f"--drive: {error}") from None
     if args.params is not None:
         build_model([], 1, args.params)
     car_truth = args.car_params is not None or args.car_effect or args.car_drift is not None
@@ -292,6 +305,12 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         choices=["mpcc", "path"],
         default="mpcc",
         help="mpcc: race (MPCC, 30 Hz; default); path: follow the centreline at 1 m/s (50 Hz)",
+    )
+    sub.add_argument(
+        "--drive",
+        type=Path,
+        help="a drive.yaml of crs plan-drive: every car's path follower drives it (its speed "
+        "and command offsets, begun once the car is at speed; replaces --controller)",
     )
     sub.add_argument(
         "--output",

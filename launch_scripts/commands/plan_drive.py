@@ -180,8 +180,8 @@ def add_plan_drive_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument(
         "--segment",
         type=bounded_number("segment", "s", 0.05, 10.0),
-        default=0.5,
-        help="each command offset held this long, s (default 0.5)",
+        default=0.25,
+        help="each command offset held this long, s (default 0.25)",
     )
     sub.add_argument(
         "--v-ref",

@@ -186,3 +186,14 @@ def test_a_drifting_simulators_truth_is_written_like_an_emulated_cars(tmp_path: 
         np.testing.assert_allclose(log["t"], [10.0, 10.02, 10.04, 10.06])
         np.testing.assert_allclose(log["drift_Cm1"], [1.0, 0.95, 0.9, 0.9])
         assert log["x"].shape == (4, 6)
+
+
+def test_a_drive_reaches_every_cars_controller_as_its_file(tmp_path: Path):
+    drive = tmp_path / "drive.yaml"
+    options = StackOptions("ekf", controller="path", drive_file=drive)
+    nodes = stack_nodes(2, options, Path("/tmp/unused-bag"))
+    controllers = [spec.parameters for spec in nodes if spec.name == "controller"]
+    assert len(controllers) == 2
+    for parameters in controllers:
+        assert parameters["controller"] == "path"
+        assert parameters["drive_file"] == str(drive.resolve())

@@ -70,3 +70,39 @@ def test_the_plan_and_the_solve_time_go_out_only_to_a_listener(monkeypatch) -> N
             node.destroy_node()
     finally:
         rclpy.shutdown()
+
+
+def test_a_drive_file_makes_the_path_controller_drive_it(tmp_path) -> None:
+    """``drive_file``: the supervisor runs the drive's controller with the drive's limits; a bad
+    file, or a drive for the MPCC, is refused naming the parameter."""
+    import pytest
+    import rclpy
+
+    from crs_core.discrepancy.drive_file import Drive, DriveController
+    from ros4crs.controller_node import ControllerNode
+    from ros4crs.node_support import ParameterError
+
+    path = Drive(2.0, 1.0, 1.1, (0.1, -0.1), (0.2, 0.0), start=(0.15, -1.05, 0.0, 1.1)).save(
+        tmp_path / "drive.yaml"
+    )
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("format: crs-drive/1\n")
+    for arguments, error in (
+        (["controller:=path", f"drive_file:={path}"], None),
+        (["controller:=path", f"drive_file:={bad}"], "drive_file"),
+        (["controller:=mpcc", f"drive_file:={path}"], "needs controller:=path"),
+    ):
+        rclpy.init(args=["--ros-args", *(a for p in arguments for a in ("-p", p))])
+        try:
+            if error is not None:
+                with pytest.raises(ParameterError, match=error):
+                    ControllerNode()
+                continue
+            node = ControllerNode()
+            try:
+                assert isinstance(node.supervisor.controller, DriveController)
+                assert node.supervisor.settings.torque_min == -0.5
+            finally:
+                node.destroy_node()
+        finally:
+            rclpy.shutdown()

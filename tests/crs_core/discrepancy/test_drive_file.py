@@ -87,3 +87,17 @@ def test_the_controller_adds_the_offsets_to_the_follower_and_clips() -> None:
     assert command[1] == pytest.approx(np.clip(follower[1] + 0.3, -0.2, 0.8))
     assert not excited.done(11.9) and excited.done(12.0)
     assert abs(excited.lateral_error) < 1e-6
+
+
+def test_a_drive_begins_at_speed_and_stops_the_car_off_the_track() -> None:
+    track = load_demo_track()
+    drive = _drive()
+    controller = DriveController(drive, track, 0.09, t_start=None)
+    controller(0.0, track.start_state(0.2))
+    assert controller.t_start is None  # getting up to speed behind the follower
+    controller(1.0, track.start_state(0.95))
+    assert controller.t_start == 1.0
+    off = track.start_state(1.0)
+    off[1] += 0.3  # 0.3 m left of the centreline, the track is 0.46 m wide
+    assert np.all(controller(1.1, off) == 0.0) and controller.stopped
+    assert np.all(controller(1.2, track.start_state(1.0)) == 0.0)

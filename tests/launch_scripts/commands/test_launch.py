@@ -18,6 +18,7 @@ from launch_scripts.cli import main
     [
         ("--track", "track:\n  xCoords: [1, 2]\n", "track.yCoords: required key missing"),
         ("--params", "parameters:\n  m: heavy\n", "parameter 'm': expected a number"),
+        ("--drive", "format: crs-drive/1\nduration_s: 2\n", "segment_s: required key missing"),
     ],
 )
 def test_launch_checks_track_and_parameter_files_before_starting_nodes(
@@ -29,7 +30,7 @@ def test_launch_checks_track_and_parameter_files_before_starting_nodes(
     bad.write_text(content)
     out = tmp_path / "out"
     err = crs_refuses(["launch", "sim", option, str(bad), "--out", str(out)])
-    named = f"{option}: " if option == "--params" else ""
+    named = f"{option}: " if option in ("--params", "--drive") else ""
     assert err.startswith(f"crs launch: error: {named}{bad}: ") and message in err, err
     assert not out.exists()
 
