@@ -289,11 +289,12 @@ def _markdown(result: DiscrepancyResult, summary: dict[str, Any], folder: Path) 
         "",
         "Each candidate effect is added to the current model, fitted on the training data (FIE) "
         "and tested on the held-out data: improvement = relative decrease of the open-loop "
-        "prediction error (every channel group weighted equally), p = one-sided paired block "
-        "t-test. A finding needs a small p, a practical improvement and, for every effect "
-        "added, a parameter clearly away from 'no effect'. Of competing findings the one with the "
-        "lowest Akaike criterion on the training data (ΔAIC: FIE cost plus twice the number of "
-        "effect parameters, against the current model) is named.",
+        "prediction error (every channel group weighted equally), p = twice the smaller of two "
+        "one-sided paired block tests (a t-test on the blocks' log ratios, a signed-rank test on "
+        "their differences). A finding needs a small p, a practical improvement and, for every "
+        "effect added, a parameter clearly away from 'no effect'. Of competing findings the one "
+        "with the lowest Akaike criterion on the training data (ΔAIC: FIE cost plus twice the "
+        "number of effect parameters, against the current model) is named.",
         "",
         "| effects | fitted parameters (± std) | ΔAIC (train) | held-out improvement | p "
         "| verdict |",
