@@ -30,13 +30,12 @@ from crs_core.discrepancy.drive_design import (
     DesignSettings,
     DriveDesign,
     design_drive,
-    drive_summary,
     evaluate_drive,
     slalom_drive,
-    slip_used,
     with_open_effects,
 )
 from crs_core.discrepancy.drive_file import Drive, DriveController
+from crs_core.discrepancy.drive_reach import drive_summary, slip_used
 from crs_core.identification.problem import DEFAULT_FIT, FieSettings
 from crs_core.identification.solve import FieResult, identify
 from crs_core.model import CarModel

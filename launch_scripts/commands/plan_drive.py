@@ -57,10 +57,10 @@ def run_plan_drive(args: argparse.Namespace) -> int:
         DesignSettings,
         default_fit,
         design_drive,
-        drive_summary,
         prior_from,
         with_open_effects,
     )
+    from crs_core.discrepancy.drive_reach import drive_summary
     from crs_core.model import CarModel
     from crs_core.model.car_model import effects_in_file
     from crs_core.track import load_demo_track

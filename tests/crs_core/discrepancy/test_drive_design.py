@@ -10,7 +10,6 @@ from crs_core.discrepancy.drive_design import (
     base_drive,
     default_fit,
     design_drive,
-    drive_summary,
     evaluate_drive,
     prior_covariance,
     prior_from,
@@ -18,6 +17,7 @@ from crs_core.discrepancy.drive_design import (
     slalom_drive,
     with_open_effects,
 )
+from crs_core.discrepancy.drive_reach import drive_summary
 from crs_core.errors import FieldError
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
