@@ -34,6 +34,7 @@ from benchmarks.middleware_floor import format_markdown as floor_markdown
 from benchmarks.model import format_markdown as model_markdown
 from benchmarks.online_real import format_markdown as online_real_markdown
 from benchmarks.online_tuning import format_markdown as online_tuning_markdown
+from benchmarks.plan_drive import format_table as plan_drive_table
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
@@ -95,6 +96,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "online_tuning": _headed("online-tuning", online_tuning_markdown),
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
+    "plan_drive": _headed("plan-drive", plan_drive_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),
     "calibration": _headed("calibration", calibration_markdown),
     "model": _headed("model", model_markdown),

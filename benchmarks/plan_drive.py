@@ -10,10 +10,11 @@ the start) :func:`~crs_core.discrepancy.drive_design.design_drive` designs a dri
 ``--drive-duration`` s; the slalom of the same length is the follower plus the largest steering
 sine at :data:`SLALOM_HZ` that the model keeps on the track. Each drive follows the race in one
 recording (the car goes on from where the race left it), and the FIE identifies again from the
-defaults on race plus drive. Per case and open parameter: the sigma predicted (the race's FIE
-covariance, then the design's prediction from it) and the sigma the FIE reports, the fitted
-value against the truth; per drive how much grip and peak slip the truth reached and whether
-it stayed on the track and in the Lighthouse's view.
+defaults on race plus drive. A third drive is designed for the rear tyre alone (``Dr``, ``Br``):
+how far the track lets a drive bend the rear curve. Per case and parameter: the sigma
+predicted (the race's FIE covariance, then the design's prediction from it) and the sigma the
+FIE reports, the fitted value against the truth; per drive how much grip and peak slip the
+truth reached and whether it stayed on the track and in the Lighthouse's view.
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ RACE = {"v_ref": 1.5, "a_lat_max": 4.0}
 #: The parameters the race leaves open (the rear tyre's peak and shape, the motor lag) and the
 #: front tyre's, reported beside them.
 OPEN = ("Dr", "Br", "tau_motor")
+#: The rear tyre alone: a second design, to see how far the track lets a drive bend its curve.
+REAR = ("Dr", "Br")
 REPORTED = ("Df", "Bf", "Dr", "Br", "tau_motor")
 #: The slalom's frequency, Hz, and the amplitudes tried, largest first (rad).
 SLALOM_HZ = 1.5
@@ -160,7 +163,8 @@ def _slalom(
 def plan_drive_benchmark(
     race_s: float = 30.0, drive_s: float = 8.0, seed: int = 0, evaluations: int = 400
 ) -> dict[str, Any]:
-    """The three cases (module docstring); JSON-ready figures."""
+    """The cases (module docstring; and a drive designed for the rear tyre alone,
+    :data:`REAR`); JSON-ready figures."""
     track = load_demo_track()
     truth = truth_model()
     prior_model = with_open_effects(CarModel(), OPEN)
@@ -187,6 +191,9 @@ def plan_drive_benchmark(
     started = time.perf_counter()
     designed = design_drive(identified, fit, OPEN, alone.uncertainty.covariance, track, settings)
     timings["design_s"] = time.perf_counter() - started
+    started = time.perf_counter()
+    rear = design_drive(identified, fit, REAR, alone.uncertainty.covariance, track, settings)
+    timings["design_rear_s"] = time.perf_counter() - started
     slalom = _slalom(identified, fit, alone.uncertainty.covariance, track, settings)
 
     cases: dict[str, Any] = {
@@ -194,14 +201,17 @@ def plan_drive_benchmark(
             "parameters": rows(alone, truth, dict(zip(fit, alone.uncertainty.std, strict=True)))
         }
     }
-    for name, design in (("race_designed", designed), ("race_slalom", slalom)):
+    drives = (("race_designed", designed), ("race_slalom", slalom), ("race_designed_rear", rear))
+    for name, design in drives:
         started = time.perf_counter()
         data = simulate(truth, race_s, design.drive, seed)
         result = fie(data, prior_model, fit)
         timings[f"{name}_fie_s"] = time.perf_counter() - started
-        predicted = design.sigma()
+        after = np.sqrt(np.diag(design.covariance_after))
+        predicted = {n: round(float(after[fit.index(n)]), 6) for n in REPORTED}
         cases[name] = {
-            "parameters": rows(result, truth, {n: round(v, 6) for n, v in predicted.items()}),
+            "open": list(design.open),
+            "parameters": rows(result, truth, predicted),
             "drive_on_model": drive_summary(design, identified, track, settings.track_margin),
             "drive_on_truth": reach(data, truth, race_s),
             "drive": design.drive.to_dict(),
@@ -238,21 +248,30 @@ def beats(cases: dict[str, Any]) -> dict[str, Any]:
 
 def format_table(result: dict[str, Any]) -> str:
     """A Markdown table: per open parameter, sigma (predicted / FIE) and the error per case."""
-    lines = [
-        "| parameter | truth | race: σ pred / FIE, error | race + designed | race + slalom |",
-        "|---|---|---|---|---|",
-    ]
     cases = result["cases"]
+    names = [
+        c for c in ("race", "race_designed", "race_slalom", "race_designed_rear") if c in cases
+    ]
+    header = {
+        "race": "race: σ pred / FIE, error",
+        "race_designed": "race + designed",
+        "race_slalom": "race + slalom",
+        "race_designed_rear": "race + designed for Dr, Br",
+    }
+    lines = [
+        "| parameter | truth | " + " | ".join(header[c] for c in names) + " |",
+        "|---|---|" + "---|" * len(names),
+    ]
     for name in REPORTED:
         cells = []
-        for case in ("race", "race_designed", "race_slalom"):
+        for case in names:
             row = cases[case]["parameters"][name]
             pred = row["sigma_predicted"]
             text = f"{pred:.4g}" if pred is not None else "-"
             cells.append(f"{text} / {row['sigma_fie']:.4g}, {row['error']:+.1%}")
         truth = cases["race"]["parameters"][name]["truth"]
         lines.append(f"| {name} | {truth:.4g} | " + " | ".join(cells) + " |")
-    for case in ("race_designed", "race_slalom"):
+    for case in names[1:]:
         reach_ = cases[case]["drive_on_truth"]
         lines.append(
             f"\n{case}: rear grip {reach_['grip_used_max']['rear']:.2f}, rear peak slip "

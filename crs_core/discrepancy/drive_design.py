@@ -16,7 +16,8 @@ covariance after the drive. The criterion is D-optimal over the open parameters:
 refitted: the open block of the full covariance, the inverse of the information's Schur
 complement), in units of their prior sigmas, plus penalties for leaving the track (the
 centreline's distance beyond ``width / 2 - track_margin``), the Lighthouse's view and a speed
-floor. L-BFGS-B with finite differences minimises it from a few starts.
+floor. L-BFGS-B with finite differences minimises it from a fast square wave of steering and
+torque (:func:`square_waves`), within a budget of simulated drives.
 
 What it is not: the design is local (at the model's values; a truth far from them would be
 excited differently) and the prediction is the Laplace covariance (the curvature of the FIE's
@@ -44,11 +45,13 @@ from crs_core.discrepancy.drive_information import (
 from crs_core.errors import FieldError
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT
-from crs_core.identification.problem import DEFAULT_FIT, prior_std
+from crs_core.identification.problem import DEFAULT_FIT, check_fit, prior_std
 from crs_core.model import CarModel
 from crs_core.model.effects import EFFECTS
 from crs_core.track import Track
 
+#: The searches of :func:`design_drive`.
+SEARCHES = ("lbfgsb", "spsa")
 #: Weight of each penalty, in units of the criterion (log det of prior sigmas).
 PENALTY_WEIGHT = 20.0
 #: Track excess (m) that costs one penalty weight when held over the whole drive.
@@ -86,7 +89,14 @@ class DesignSettings:
     view_limit : float
         Sweep angles beyond this are out of the base station's view, rad.
     starts : int
-        Optimiser starts (a small sign-alternating pattern, then seeded random offsets).
+        Searches, one after the other within the budget: from the fastest square wave of
+        :func:`square_waves` (a quarter of the bounds, torque in phase), then from the
+        best-scoring of the other square waves and seeded random offsets.
+    search : {"lbfgsb", "spsa"}
+        The search from each start: L-BFGS-B with finite differences (one drive per offset
+        and step; the better one on the bench's race: criterion -2.1 against -1.5 at 400
+        drives) or simultaneous-perturbation gradient steps (two drives a step whatever the
+        number of offsets).
     evaluations : int
         Budget of simulated drives over all starts (each about 0.2 s on one core).
     seed : int
@@ -107,10 +117,17 @@ class DesignSettings:
     sample_period: float = 1.0 / 45.0
     process_scale: float = 1.0
     view_limit: float = LIGHTHOUSE_VIEW_LIMIT
-    starts: int = 2
+    starts: int = 1
+    search: str = "lbfgsb"
     evaluations: int = 400
     seed: int = 0
     start: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.search not in SEARCHES:
+            raise FieldError("search", f"one of {', '.join(SEARCHES)}, got {self.search!r}")
+        if self.starts < 1 or self.evaluations < 1:
+            raise FieldError("starts", "starts and evaluations must be >= 1")
 
 
 @dataclass
@@ -313,6 +330,46 @@ def slalom_drive(
     return replace(plain, kind="slalom", steer_offset=tuple(steer), torque_offset=(0.0,) * n)
 
 
+def _spsa(
+    objective: Callable[[np.ndarray], float],
+    v0: np.ndarray,
+    iterations: int,
+    rng: np.random.Generator,
+    step: float = 0.05,
+    probe: float = 0.05,
+) -> np.ndarray:
+    """Simultaneous-perturbation gradient descent in the box ``[-1, 1]``: each iteration two
+    drives (``v ± probe * delta``, ``delta`` random signs) estimate the gradient, whose first
+    and second moments (Adam's) scale a step of about ``step``. The best drive is kept by the
+    objective's caller; returns the last iterate."""
+    v = np.asarray(v0, dtype=float).copy()
+    first, second = np.zeros_like(v), np.zeros_like(v)
+    for k in range(1, iterations + 1):
+        delta = rng.choice([-1.0, 1.0], size=v.size)
+        up = objective(np.clip(v + probe * delta, -1.0, 1.0))
+        down = objective(np.clip(v - probe * delta, -1.0, 1.0))
+        gradient = (up - down) / (2.0 * probe) * delta
+        first = 0.9 * first + 0.1 * gradient
+        second = 0.999 * second + 0.001 * gradient**2
+        unbiased = first / (1 - 0.9**k), second / (1 - 0.999**k)
+        v = np.clip(v - step * unbiased[0] / (np.sqrt(unbiased[1]) + 1e-12), -1.0, 1.0)
+    return v
+
+
+def square_waves(segments: int) -> list[np.ndarray]:
+    """Candidate starts of the search (offsets in units of their bounds): steering square
+    waves of half periods 1, 2 and 4 segments at a quarter and a half of the bound, the torque
+    offset none, in phase or against it at the same share (the second: half period 1, a
+    quarter, torque in phase)."""
+    out = []
+    for half in (1, 2, 4):
+        wave = (-1.0) ** (np.arange(segments) // half)
+        for amplitude in (0.25, 0.5):
+            for torque in (0.0, 1.0, -1.0):
+                out.append(amplitude * np.concatenate([wave, torque * wave]))
+    return out
+
+
 def design_drive(
     model: CarModel,
     fit: Sequence[str],
@@ -334,6 +391,7 @@ def design_drive(
         raise FieldError("open", f"the model lacks {', '.join(missing)}")
     if not set(open_names) <= set(fit):
         raise FieldError("open", "every open parameter must be fitted")
+    check_fit(model, fit)  # what the FIE cannot fit, no drive decides
     information = DriveInformation(
         model, fit, settings.sample_period, EstimatorNoise(), settings.process_scale
     )
@@ -364,20 +422,35 @@ def design_drive(
             progress(count[0], best[0])
         return value
 
-    rng = np.random.default_rng(settings.seed)
-    for start in range(settings.starts):
-        if start == 0:
-            v0 = 0.25 * np.tile((-1.0) ** np.arange(n), 2)
-        else:
-            v0 = rng.uniform(-0.4, 0.4, 2 * n)
+    # the first start: the fastest square wave the segments allow, a quarter of the bounds,
+    # torque in phase (steps of steering and torque excite the yaw transients and the motor);
+    # further starts: the best-scoring of the other square waves and seeded random offsets
+    waves = square_waves(n)
+    starts = [waves[1]]
+    if settings.starts > 1:
+        rng = np.random.default_rng(settings.seed)
+        others = waves[:1] + waves[2:] + [rng.uniform(-0.4, 0.4, 2 * n) for _ in range(4)]
         try:
-            minimize(
-                objective,
-                v0,
-                method="L-BFGS-B",
-                bounds=[(-1.0, 1.0)] * (2 * n),
-                options={"maxfun": settings.evaluations, "eps": 0.03},
-            )
+            scores = [objective(v) for v in others]
+        except _BudgetSpentError:
+            scores = []
+        starts += [others[i] for i in np.argsort(scores)[: settings.starts - 1]]
+    rng = np.random.default_rng(settings.seed)
+    for v0 in starts:
+        left = settings.evaluations - count[0]
+        if left <= 0:
+            break
+        try:
+            if settings.search == "spsa":
+                _spsa(objective, v0, left // 2, rng)
+            else:
+                minimize(
+                    objective,
+                    v0,
+                    method="L-BFGS-B",
+                    bounds=[(-1.0, 1.0)] * (2 * n),
+                    options={"maxfun": left, "eps": 0.03},
+                )
         except _BudgetSpentError:
             break
     design: DriveDesign = best[1]

@@ -61,6 +61,7 @@ def run_plan_drive(args: argparse.Namespace) -> int:
         with_open_effects,
     )
     from crs_core.discrepancy.drive_reach import drive_summary
+    from crs_core.identification.problem import check_fit
     from crs_core.model import CarModel
     from crs_core.model.car_model import effects_in_file
     from crs_core.track import load_demo_track
@@ -75,6 +76,10 @@ def run_plan_drive(args: argparse.Namespace) -> int:
     except FieldError as error:
         raise error.renamed("--open") from None
     fit = default_fit(model, open_names)
+    try:
+        check_fit(model, fit)  # what the FIE cannot fit, no drive decides
+    except FieldError as error:
+        raise error.renamed("--open") from None
     result = load_result(args.params)
     if result is not None:
         prior = prior_from(model, fit, result["names"], result["std"], result["correlation"])

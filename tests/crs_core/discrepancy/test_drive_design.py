@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from crs_core.discrepancy.drive_design import (
+    SEARCHES,
     DesignSettings,
     base_drive,
     default_fit,
@@ -103,3 +106,22 @@ def test_the_design_refuses_an_open_parameter_the_model_lacks(setup) -> None:
     _, fit, prior, track = setup
     with pytest.raises(FieldError, match="lacks"):
         design_drive(CarModel(), fit, OPEN, prior, track, SETTINGS)
+
+
+class _Bests(list):
+    """The best objective after each drive of a search (its progress callback)."""
+
+    def add(self, count: int, best: float) -> None:
+        self.append(best)
+
+
+def test_both_searches_improve_on_their_start_within_the_budget(setup) -> None:
+    model, fit, prior, track = setup
+    for search in SEARCHES:
+        settings = replace(SETTINGS, search=search, starts=2, evaluations=30)
+        counted = _Bests()
+        design = design_drive(model, fit, OPEN, prior, track, settings, counted.add)
+        assert 0 < design.evaluations <= 30 and len(counted) == design.evaluations
+        assert counted[-1] == design.criterion + design.penalty <= counted[0]
+    with pytest.raises(FieldError, match="search"):
+        DesignSettings(search="random")

@@ -59,6 +59,19 @@ def test_an_unknown_open_parameter_is_one_line_naming_open(params, tmp_path, crs
         ["plan-drive", "--params", str(params), "--open", "Dr,grip", "--out", str(tmp_path / "o")]
     )
     assert "--open" in line and "'grip'" in line
+    line = crs_refuses(
+        [
+            "plan-drive",
+            "--params",
+            str(params),
+            "--open",
+            "input_delay",
+            "--out",
+            str(tmp_path / "o"),
+        ]
+    )
+    assert line.startswith("crs plan-drive: error: --open: 'input_delay' is a transport delay")
+    assert not (tmp_path / "o").exists()
 
 
 def test_a_file_that_is_no_parameter_yaml_is_one_line_naming_it(tmp_path, crs_refuses) -> None:
