@@ -57,6 +57,7 @@ def run_plan_drive(args: argparse.Namespace) -> int:
         DesignSettings,
         default_fit,
         design_drive,
+        prior_covariance,
         prior_from,
         with_open_effects,
     )
@@ -85,10 +86,7 @@ def run_plan_drive(args: argparse.Namespace) -> int:
         prior = prior_from(model, fit, result["names"], result["std"], result["correlation"])
         source = f"{result['path']} (the identification's sigmas and correlations)"
     else:
-        names = [n for n in fit]
-        std = [model.parameters[n].prior_std or np.nan for n in names]
-        known = [(n, s) for n, s in zip(names, std, strict=True) if np.isfinite(s) and s > 0]
-        prior = prior_from(model, fit, [n for n, _ in known], [s for _, s in known])
+        prior = prior_covariance(model, fit)
         source = f"{args.params} (each parameter's prior_std, no correlations)"
     track = read_track(args.track) if args.track else load_demo_track()
     settings = DesignSettings(
