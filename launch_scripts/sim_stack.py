@@ -184,6 +184,8 @@ class StackOptions:
     drive_file : Path, optional
         A ``drive.yaml`` of ``crs plan-drive`` every car's controller drives (the path
         follower plus its command offsets; the ``path`` controller's ``drive_file``).
+    drive_after : float
+        With ``drive_file``: the follower alone drives this long first, s (``drive_after``).
     """
 
     estimator: str
@@ -203,6 +205,7 @@ class StackOptions:
     after_start_up: bool = False
     online_parameters: tuple[str, ...] = ()
     drive_file: Path | None = None
+    drive_after: float = 0.0
 
     def pipeline_process(self) -> str:
         """The process a car's pipeline nodes share (``""``: each its own)."""
@@ -310,6 +313,7 @@ def car_control_nodes(
         commands["hold_safe"] = hold_safe
     if options.drive_file is not None:
         commands["drive_file"] = str(Path(options.drive_file).resolve())
+        commands["drive_after"] = float(options.drive_after)
     estimator: dict[str, Any] = {
         "estimator": options.estimator,
         "blind_start": options.blind_start,

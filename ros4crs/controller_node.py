@@ -44,7 +44,8 @@ latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale
 (``after_outage`` | ``always`` | ``never``), ``caution_memory`` (s), ``recover``,
 ``solve_budget`` (s), ``predict``, ``command_delay`` (s), ``drive_file`` (with ``path``: a
 ``drive.yaml`` of ``crs plan-drive``, the follower plus its command offsets,
-:class:`~crs_core.discrepancy.drive_file.DriveController`), ``track_file``
+:class:`~crs_core.discrepancy.drive_file.DriveController`), ``drive_after`` (s: the follower
+alone before the drive), ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
 model).
 """
@@ -147,6 +148,13 @@ class ControllerNode(Node):
             "empty: none",
             file_or_empty,
         )
+        drive_after = declare(
+            self,
+            "drive_after",
+            0.0,
+            "with drive_file: the follower alone drives this long before the drive, s",
+            non_negative,
+        )
         if drive_file and kind != "path":
             raise ParameterError(
                 "drive_file", f"needs controller:=path (got controller:={kind}), got {drive_file!r}"
@@ -212,7 +220,9 @@ class ControllerNode(Node):
         elif drive is not None:
             parameters = model.parameters
             wheelbase = parameters.value("lf") + parameters.value("lr")
-            controller = DriveController(drive, track, wheelbase, t_start=None)
+            controller = DriveController(
+                drive, track, wheelbase, t_start=None, lead_in_s=drive_after
+            )
         else:
             parameters = model.parameters
             wheelbase = parameters.value("lf") + parameters.value("lr")

@@ -221,10 +221,12 @@ class DriveController:
     """``(t, x[, speed_limit]) -> u`` of a drive: the follower plus the drive's offsets, clipped.
 
     The drive begins at ``t_start``, or (``None``) at the first call at which the car is at
-    nine tenths of the design's start speed (``drive.start``'s ``vx``): a car that starts
-    from rest first gets up to speed behind the follower. Before the drive and after its
-    ``duration_s`` the follower alone drives. A car whose centre leaves the track (beyond half
-    its width from the centreline) is stopped for good: zero torque, straight wheels.
+    nine tenths of the design's start speed (``drive.start``'s ``vx``) and ``lead_in_s`` have
+    passed since the first call: a car that starts from rest first gets up to speed behind the
+    follower, and a lead-in is a race before the drive in the same recording. Before the drive
+    and after its ``duration_s`` the follower alone drives. A car whose centre leaves the track
+    (beyond half its width from the centreline) is stopped for good: zero torque, straight
+    wheels.
 
     Parameters
     ----------
@@ -234,13 +236,23 @@ class DriveController:
         ``lf + lr``, m.
     t_start : float, optional
         The controller's time at which the drive begins, s.
+    lead_in_s : float
+        With ``t_start`` None: the follower alone drives at least this long first, s.
     """
 
     def __init__(
-        self, drive: Drive, track: Track, wheelbase: float, t_start: float | None = 0.0
+        self,
+        drive: Drive,
+        track: Track,
+        wheelbase: float,
+        t_start: float | None = 0.0,
+        lead_in_s: float = 0.0,
     ) -> None:
-        self.drive = drive
+        if not (math.isfinite(lead_in_s) and lead_in_s >= 0):
+            raise FieldError("lead_in_s", f"must be >= 0 s, got {lead_in_s!r}")
+        self.drive, self.lead_in_s = drive, float(lead_in_s)
         self.t_start = None if t_start is None else float(t_start)
+        self._t_first: float | None = None
         lim = drive.limits
         settings = PathFollowerSettings(
             v_ref=drive.v_ref,
@@ -264,11 +276,14 @@ class DriveController:
 
     def __call__(self, t: float, x: np.ndarray, speed_limit: float | None = None) -> np.ndarray:
         state = np.asarray(x, dtype=float)[:6]
+        if self._t_first is None:
+            self._t_first = float(t)
         steer, torque = self.follower(t, state, speed_limit)
         if self.stopped or abs(self.lateral_error) > self.edge:
             self.stopped = True
             return np.zeros(2)
-        if self.t_start is None and state[3] >= 0.9 * self.drive.start[3]:
+        led_in = t - self._t_first >= self.lead_in_s
+        if self.t_start is None and led_in and state[3] >= 0.9 * self.drive.start[3]:
             self.t_start = float(t)
         d_steer, d_torque = (
             (0.0, 0.0) if self.t_start is None else self.drive.offsets(t - self.t_start)

@@ -88,6 +88,7 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
     return StackOptions(
         **values,
         drive_file=args.drive,
+        drive_after=args.drive_after,
         params_file=args.params,
         track_file=args.track,
         car=CarTruth(args.car_params, tuple(args.car_effect or ()), args.car_drift),
@@ -158,6 +159,8 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
             f"--output: velocity needs --controller mpcc (the {args.controller} controller "
             "commands torque)"
         )
+    if args.drive is None and args.drive_after:
+        raise ValueError("--drive-after: needs --drive")
     if args.drive is not None:
         from crs_core.discrepancy.drive_file import load_drive
 
@@ -311,6 +314,13 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         type=Path,
         help="a drive.yaml of crs plan-drive: every car's path follower drives it (its speed "
         "and command offsets, begun once the car is at speed; replaces --controller)",
+    )
+    sub.add_argument(
+        "--drive-after",
+        type=bounded_number("drive-after", "s", 0.0, include_low=True),
+        default=0.0,
+        help="with --drive: the path follower alone races this long first, s (a race and the "
+        "drive in one recording, for crs sysid; default 0)",
     )
     sub.add_argument(
         "--output",

@@ -190,10 +190,11 @@ def test_a_drifting_simulators_truth_is_written_like_an_emulated_cars(tmp_path: 
 
 def test_a_drive_reaches_every_cars_controller_as_its_file(tmp_path: Path):
     drive = tmp_path / "drive.yaml"
-    options = StackOptions("ekf", controller="path", drive_file=drive)
+    options = StackOptions("ekf", controller="path", drive_file=drive, drive_after=30.0)
     nodes = stack_nodes(2, options, Path("/tmp/unused-bag"))
     controllers = [spec.parameters for spec in nodes if spec.name == "controller"]
     assert len(controllers) == 2
     for parameters in controllers:
         assert parameters["controller"] == "path"
         assert parameters["drive_file"] == str(drive.resolve())
+        assert parameters["drive_after"] == 30.0

@@ -88,7 +88,7 @@ def test_a_drive_file_makes_the_path_controller_drive_it(tmp_path) -> None:
     bad = tmp_path / "bad.yaml"
     bad.write_text("format: crs-drive/1\n")
     for arguments, error in (
-        (["controller:=path", f"drive_file:={path}"], None),
+        (["controller:=path", f"drive_file:={path}", "drive_after:=3.0"], None),
         (["controller:=path", f"drive_file:={bad}"], "drive_file"),
         (["controller:=mpcc", f"drive_file:={path}"], "needs controller:=path"),
     ):
@@ -101,6 +101,7 @@ def test_a_drive_file_makes_the_path_controller_drive_it(tmp_path) -> None:
             node = ControllerNode()
             try:
                 assert isinstance(node.supervisor.controller, DriveController)
+                assert node.supervisor.controller.lead_in_s == 3.0
                 assert node.supervisor.settings.torque_min == -0.5
             finally:
                 node.destroy_node()

@@ -101,3 +101,16 @@ def test_a_drive_begins_at_speed_and_stops_the_car_off_the_track() -> None:
     off[1] += 0.3  # 0.3 m left of the centreline, the track is 0.46 m wide
     assert np.all(controller(1.1, off) == 0.0) and controller.stopped
     assert np.all(controller(1.2, track.start_state(1.0)) == 0.0)
+
+
+def test_a_lead_in_races_before_the_drive() -> None:
+    track = load_demo_track()
+    controller = DriveController(_drive(), track, 0.09, t_start=None, lead_in_s=5.0)
+    at_speed = track.start_state(1.0)
+    controller(10.0, at_speed)
+    controller(14.9, at_speed)
+    assert controller.t_start is None
+    controller(15.0, at_speed)
+    assert controller.t_start == 15.0
+    with pytest.raises(FieldError, match="lead_in_s"):
+        DriveController(_drive(), track, 0.09, lead_in_s=-1.0)

@@ -156,3 +156,8 @@ def test_online_and_drift_options_are_refused_with_one_line(
     err = crs_refuses(["launch", "sim", *argv, "--out", str(out)])
     assert message in err, err
     assert not out.exists()
+
+
+def test_drive_after_needs_a_drive(tmp_path: Path, crs_refuses) -> None:
+    err = crs_refuses(["launch", "sim", "--drive-after", "5", "--out", str(tmp_path / "o")])
+    assert err == "crs launch: error: --drive-after: needs --drive\n"
