@@ -79,7 +79,9 @@ class DesignSettings:
     limits : DriveLimits
         Command limits.
     track_margin : float
-        The car's centre stays this far inside each track edge, m.
+        The car's centre stays this far inside each track edge, m (0.07: the half diagonal of
+        a Chronos's 0.12 x 0.07 m footprint, so no corner leaves the track whatever the yaw;
+        0.05 let the emulated car's footprint out by 9 mm).
     min_speed : float
         Speed floor, m/s (slip angles are defined at speed).
     sample_period : float
@@ -112,7 +114,7 @@ class DesignSettings:
     steer_offset_max: float = 0.34
     torque_offset_max: float = 0.6
     limits: DriveLimits = field(default_factory=DriveLimits)
-    track_margin: float = 0.05
+    track_margin: float = 0.07
     min_speed: float = 0.3
     sample_period: float = 1.0 / 45.0
     process_scale: float = 1.0
@@ -380,7 +382,9 @@ def design_drive(
     progress: Callable[[int, float], None] | None = None,
 ) -> DriveDesign:
     """The drive of :class:`DesignSettings`' length whose offsets minimise the D-optimal
-    criterion plus penalties (module docstring), from ``prior`` (``(n, n)`` of ``fit``).
+    criterion plus penalties (module docstring), from ``prior`` (``(n, n)`` of ``fit``): the
+    best drive the search found without a penalty (on the track, in view, at speed), else the
+    best with one.
 
     ``model`` must have every open parameter (:func:`with_open_effects`); ``progress`` is
     called with the evaluation count and the best objective so far."""
@@ -399,6 +403,7 @@ def design_drive(
     n = plain.segments
     bounds = np.array([settings.steer_offset_max] * n + [settings.torque_offset_max] * n)
     best: list[Any] = [np.inf, None]
+    feasible: list[Any] = [np.inf, None]  # the best drive without a penalty
     count = [0]
 
     class _BudgetSpentError(Exception):
@@ -418,6 +423,8 @@ def design_drive(
             raise _BudgetSpentError
         if value < best[0]:
             best[0], best[1] = value, result
+        if result.penalty == 0.0 and value < feasible[0]:
+            feasible[0], feasible[1] = value, result
         if progress is not None:
             progress(count[0], best[0])
         return value
@@ -453,6 +460,6 @@ def design_drive(
                 )
         except _BudgetSpentError:
             break
-    design: DriveDesign = best[1]
+    design: DriveDesign = feasible[1] if feasible[1] is not None else best[1]
     design.evaluations = min(count[0], settings.evaluations)
     return design

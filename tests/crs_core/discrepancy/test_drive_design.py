@@ -77,7 +77,7 @@ def test_a_designed_drive_beats_its_start_and_the_slalom_on_the_criterion(setup,
 def test_the_designed_drive_stays_on_the_track_and_in_view(setup, designed) -> None:
     model, _, _, track = setup
     summary = drive_summary(designed, model, track, SETTINGS.track_margin)
-    assert summary["max_lateral_error_m"] <= summary["lateral_limit_m"] + 0.005
+    assert summary["max_lateral_error_m"] <= summary["lateral_limit_m"]  # the best feasible one
     assert summary["in_view_fraction"] == 1.0
     assert 0 < summary["grip_used_max"]["rear"] <= 1.0 + 1e-9
     assert set(summary["sigma"]) == set(OPEN)
