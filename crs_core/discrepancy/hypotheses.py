@@ -309,7 +309,8 @@ def _one_sided_t(d: np.ndarray) -> float:
 
 def _one_sided_signed_rank(d: np.ndarray) -> float:
     """p-value of a one-sided Wilcoxon signed-rank test that ``d`` is centred above 0 (exact
-    for up to 50 non-zero values; 1 for fewer than three non-zero)."""
+    for up to 50 values, else its normal approximation; zeros left out; 1 for fewer than three
+    non-zero values)."""
     if np.count_nonzero(d) < 3:
         return 1.0
     return float(stats.wilcoxon(d, alternative="greater", zero_method="wilcox").pvalue)
