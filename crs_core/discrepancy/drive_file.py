@@ -43,6 +43,10 @@ from crs_core.yaml_io import load_yaml
 
 #: ``format`` of a drive file.
 DRIVE_FORMAT = "crs-drive/1"
+#: A car within this distance of a drive's start position is at its start, m.
+START_RADIUS = 0.15
+#: ... when at least this share of the start's speed.
+START_SPEED_SHARE = 0.8
 #: What made a drive.
 DRIVE_KINDS = ("designed", "slalom")
 
@@ -220,10 +224,13 @@ def load_drive(path: str | Path) -> Drive:
 class DriveController:
     """``(t, x[, speed_limit]) -> u`` of a drive: the follower plus the drive's offsets, clipped.
 
-    The drive begins at ``t_start``, or (``None``) at the first call at which the car is at
-    nine tenths of the design's start speed (``drive.start``'s ``vx``) and ``lead_in_s`` have
-    passed since the first call: a car that starts from rest first gets up to speed behind the
-    follower, and a lead-in is a race before the drive in the same recording. Before the drive
+    The drive begins at ``t_start``, or (``None``) at the first call, ``lead_in_s`` or more
+    after the first, at which the car is where the design begins it (within
+    :data:`START_RADIUS` of ``drive.start``'s position, heading within 45 degrees of its yaw) at
+    :data:`START_SPEED_SHARE` of its speed or more: the offsets were chosen for that place on
+    the track. A car that starts from rest first gets up to speed behind the follower (and
+    laps until it passes the start at speed), and a lead-in is a race before the drive in the
+    same recording. Before the drive
     and after its ``duration_s`` the follower alone drives. A car whose centre leaves the track
     (beyond half its width from the centreline) is stopped for good: zero torque, straight
     wheels.
@@ -282,8 +289,7 @@ class DriveController:
         if self.stopped or abs(self.lateral_error) > self.edge:
             self.stopped = True
             return np.zeros(2)
-        led_in = t - self._t_first >= self.lead_in_s
-        if self.t_start is None and led_in and state[3] >= 0.9 * self.drive.start[3]:
+        if self.t_start is None and t - self._t_first >= self.lead_in_s and self.at_start(state):
             self.t_start = float(t)
         d_steer, d_torque = (
             (0.0, 0.0) if self.t_start is None else self.drive.offsets(t - self.t_start)
@@ -295,6 +301,13 @@ class DriveController:
                 np.clip(torque + d_torque, lim.torque_min, lim.torque_max),
             ]
         )
+
+    def at_start(self, state: np.ndarray) -> bool:
+        """The car (base state) is where and as fast as the drive begins."""
+        x, y, yaw, vx = self.drive.start
+        near = math.hypot(state[0] - x, state[1] - y) <= START_RADIUS
+        heading = math.cos(state[2] - yaw) >= math.cos(math.pi / 4)
+        return near and heading and state[3] >= START_SPEED_SHARE * vx
 
     @property
     def lateral_error(self) -> float:

@@ -313,7 +313,8 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         "--drive",
         type=Path,
         help="a drive.yaml of crs plan-drive: every car's path follower drives it (its speed "
-        "and command offsets, begun once the car is at speed; replaces --controller)",
+        "and command offsets, begun when the car passes the drive's start at speed; replaces "
+        "--controller)",
     )
     sub.add_argument(
         "--drive-after",

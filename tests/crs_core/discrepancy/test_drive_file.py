@@ -95,6 +95,10 @@ def test_a_drive_begins_at_speed_and_stops_the_car_off_the_track() -> None:
     controller = DriveController(drive, track, 0.09, t_start=None)
     controller(0.0, track.start_state(0.2))
     assert controller.t_start is None  # getting up to speed behind the follower
+    elsewhere = track.start_state(1.0)
+    elsewhere[0] += 0.5  # half a metre down the straight from where the drive begins
+    controller(0.5, elsewhere)
+    assert controller.t_start is None
     controller(1.0, track.start_state(0.95))
     assert controller.t_start == 1.0
     off = track.start_state(1.0)
