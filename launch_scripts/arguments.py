@@ -151,6 +151,16 @@ def add_duration(parser: argparse.ArgumentParser, default: float, what: str) -> 
     )
 
 
+def add_evaluations(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--evaluations`` of a drive design: how many drives its search simulates (default 400)."""
+    parser.add_argument(
+        "--evaluations",
+        type=bounded_number("evaluations", "", 1, 100000, kind=int, include_low=True),
+        default=400,
+        help=f"drives {what} simulates (default 400, ~0.2 s each)",
+    )
+
+
 def add_estimator(parser: argparse.ArgumentParser) -> None:
     """``--estimator ekf|mhe`` (default mhe)."""
     parser.add_argument(

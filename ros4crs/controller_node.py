@@ -187,13 +187,7 @@ class ControllerNode(Node):
                 drive = load_drive(drive_file)
             except ValueError as error:
                 raise ParameterError("drive_file", str(error)) from None
-            limits = PathFollowerSettings(
-                v_ref=drive.v_ref,
-                a_lat_max=drive.a_lat_max,
-                steer_max=drive.limits.steer_max,
-                torque_min=drive.limits.torque_min,
-                torque_max=drive.limits.torque_max,
-            )
+            limits = drive.follower_settings()
             max_speed = drive.v_ref
         else:
             limits = PathFollowerSettings(v_ref=v_ref)

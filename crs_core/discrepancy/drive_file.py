@@ -115,6 +115,16 @@ class Drive:
         j = min(int(t / self.segment_s), self.segments - 1)
         return self.steer_offset[j], self.torque_offset[j]
 
+    def follower_settings(self) -> PathFollowerSettings:
+        """The path follower's settings of this drive (its speed, bends and command limits)."""
+        return PathFollowerSettings(
+            v_ref=self.v_ref,
+            a_lat_max=self.a_lat_max,
+            steer_max=self.limits.steer_max,
+            torque_min=self.limits.torque_min,
+            torque_max=self.limits.torque_max,
+        )
+
     def with_offsets(self, steer: Sequence[float], torque: Sequence[float]) -> Drive:
         """This drive with other offsets."""
         data = asdict(self) | {
@@ -260,15 +270,7 @@ class DriveController:
         self.drive, self.lead_in_s = drive, float(lead_in_s)
         self.t_start = None if t_start is None else float(t_start)
         self._t_first: float | None = None
-        lim = drive.limits
-        settings = PathFollowerSettings(
-            v_ref=drive.v_ref,
-            a_lat_max=drive.a_lat_max,
-            steer_max=lim.steer_max,
-            torque_min=lim.torque_min,
-            torque_max=lim.torque_max,
-        )
-        self.follower = PathFollower(track, wheelbase, settings)
+        self.follower = PathFollower(track, wheelbase, drive.follower_settings())
         self.edge = float(np.min(track.width)) / 2
         #: the car left the track: stopped for good
         self.stopped = False

@@ -16,6 +16,7 @@ from launch_scripts.arguments import (
     Command,
     add_duration,
     add_estimator,
+    add_evaluations,
     add_out,
     add_seed,
     argument_type,
@@ -192,12 +193,7 @@ def _plan_drive_options(parser: argparse.ArgumentParser) -> None:
         default=30.0,
         help="the race before the drive, s (default 30)",
     )
-    parser.add_argument(
-        "--evaluations",
-        type=bounded_number("evaluations", "", 1, 100000, kind=int, include_low=True),
-        default=400,
-        help="drives the design simulates (default 400, ~0.2 s each)",
-    )
+    add_evaluations(parser, "the design")
 
 
 def _duration_and_seed(

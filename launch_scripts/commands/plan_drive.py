@@ -17,6 +17,7 @@ import numpy as np
 from crs_core.errors import FieldError
 from launch_scripts.arguments import (
     Command,
+    add_evaluations,
     add_out,
     add_process_scale,
     add_seed,
@@ -192,12 +193,7 @@ def add_plan_drive_arguments(sub: argparse.ArgumentParser) -> None:
         default=1.2,
         help="the path follower's speed reference during the drive, m/s (default 1.2)",
     )
-    sub.add_argument(
-        "--evaluations",
-        type=bounded_number("evaluations", "", 1, 100000, kind=int, include_low=True),
-        default=400,
-        help="drives simulated by the search (default 400, ~0.2 s each)",
-    )
+    add_evaluations(sub, "the search")
     add_process_scale(
         sub,
         "the FIE's process-noise scale the prediction assumes (default 1.0, real data; 0.1 "
