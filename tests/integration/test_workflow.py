@@ -28,9 +28,9 @@ GYRO_BIAS = -0.18
 #: Seconds raced: at 20 s the bias (then -0.12 rad/s) was fitted (-0.113 ± 0.01 rad/s) but its
 #: held-out test (p = 0.012) missed the threshold of 4 candidates (0.0025); at 30 s on a slower
 #: CI host it was fitted right (-0.1215 ± 0.0084) but held out gave p = 0.019: the last 30 %,
-#: 9 s, hold few blocks for the held-out block test (then a t-test on the differences), and a
-#: bias of that size improved them unevenly. A bias of -0.18 rad/s at 30 s: p = 6e-6 (racing 50 s for a
-#: fourth block cost 55 s of the suite).
+#: 9 s, hold few blocks for the held-out block test (then a t-test on the differences), and
+#: a bias of that size improved them unevenly. A bias of -0.18 rad/s at 30 s: p = 6e-6 (racing
+#: 50 s for a fourth block cost 55 s of the suite).
 RACE_S = 30.0
 
 
