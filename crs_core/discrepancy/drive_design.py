@@ -42,12 +42,13 @@ from crs_core.discrepancy.drive_information import (
     log_det,
     marginal_covariance,
 )
+from crs_core.discrepancy.hypotheses import extended_model
 from crs_core.errors import FieldError
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT
 from crs_core.identification.problem import DEFAULT_FIT, check_fit, prior_std
 from crs_core.model import CarModel
-from crs_core.model.effects import EFFECTS
+from crs_core.model.effects import EFFECTS, effect_of_parameter
 from crs_core.track import Track
 
 #: The searches of :func:`design_drive`.
@@ -171,23 +172,23 @@ def with_open_effects(model: CarModel, names: Sequence[str]) -> CarModel:
     """``model`` with the registry effects owning those of ``names`` it lacks switched on at
     their prior (default) values; :class:`FieldError` (field ``open``) for a name that is no
     model parameter and no effect's."""
-    owners = {p.name: e.name for e in EFFECTS.values() for p in e.parameters}
-    spec: dict[str, Any] = {e.name: None for e in model.effects}
+    added: list[str] = []
     for name in names:
         if name in model.parameters.names:
             continue
-        if name not in owners:
+        owner = effect_of_parameter(name)
+        if owner is None:
             raise FieldError(
                 "open",
                 f"unknown parameter {name!r} (not a model parameter nor an effect's; "
                 f"effects: {', '.join(EFFECTS)})",
             )
-        spec[owners[name]] = None
-    if len(spec) == len(model.effects):
+        if owner not in added:
+            added.append(owner)
+    if not added:
         return model
-    widened = CarModel(spec, model.n_base_stations, terms=model.terms).parameters
-    values = widened.updated({n: model.parameters.value(n) for n in model.parameters.names})
-    return CarModel(spec, model.n_base_stations, values, terms=model.terms)
+    defaults = {p.name: p.value for e in added for p in EFFECTS[e].parameters}
+    return extended_model(model, added, defaults)
 
 
 def default_fit(model: CarModel, open_names: Sequence[str] = ()) -> tuple[str, ...]:
