@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from crs_core.control.path_following import PathFollower, PathFollowerSettings
-from crs_core.errors import FieldError
+from crs_core.errors import FieldError, finite_number
 from crs_core.track import Track
 from crs_core.yaml_io import load_yaml
 
@@ -162,19 +162,14 @@ def _number(document: Mapping[str, Any], key: str, where: str, default: Any = No
     value = document.get(key, default)
     if value is None:
         raise FieldError(f"{where}{key}", "required key missing")
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise FieldError(f"{where}{key}", f"must be a finite number, got {value!r}")
-    return float(value)
+    return finite_number(f"{where}{key}", value)
 
 
 def _numbers(document: Mapping[str, Any], key: str) -> tuple[float, ...]:
     value = document.get(key)
     if not isinstance(value, list) or not value:
         raise FieldError(key, "must be a non-empty list of numbers")
-    for i, v in enumerate(value):
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-            raise FieldError(f"{key}[{i}]", f"must be a finite number, got {v!r}")
-    return tuple(float(v) for v in value)
+    return tuple(finite_number(f"{key}[{i}]", v) for i, v in enumerate(value))
 
 
 def drive_from_dict(document: Any) -> Drive:
