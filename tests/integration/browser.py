@@ -35,6 +35,9 @@ needs_chromium = pytest.mark.skipif(
 )
 #: Largest difference per colour channel of a pixel that counts as a colour of the page.
 TOLERANCE = 8
+#: Seconds Chromium has to answer its first command: a first start on a fresh machine builds
+#: its font cache and profile, which beside a busy test suite has taken more than 10 s.
+STARTUP_S = 90.0
 
 
 def page_colours() -> dict[str, NDArray[np.int64]]:
@@ -50,6 +53,8 @@ class DevTools:
     """Headless Chromium showing ``url``, driven over the DevTools protocol through a pipe."""
 
     def __init__(self, url: str, profile: Path) -> None:
+        profile.mkdir(parents=True, exist_ok=True)
+        self.log = profile / "chromium.log"
         commands_read, self._commands = os.pipe()
         self._answers, answers_write = os.pipe()
         # Chromium reads fd 3 and writes fd 4: move our ends above them first, so bash's
@@ -69,18 +74,24 @@ class DevTools:
             f"--user-data-dir={profile}",
             url,
         ]
-        self.process = subprocess.Popen(
-            ["bash", "-c", f'exec "$0" "$@" 3<&{child_in} 4>&{child_out}', CHROMIUM, *args],
-            pass_fds=(child_in, child_out),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
+        with self.log.open("wb") as log:
+            self.process = subprocess.Popen(
+                ["bash", "-c", f'exec "$0" "$@" 3<&{child_in} 4>&{child_out}', CHROMIUM, *args],
+                pass_fds=(child_in, child_out),
+                stdout=subprocess.DEVNULL,
+                stderr=log,
+            )
         os.close(child_in)
         os.close(child_out)
         self._replies: queue.Queue[dict[str, Any]] = queue.Queue()
         threading.Thread(target=self._read, daemon=True).start()
         self._next_id = 0
         self.session = ""
+        try:
+            self.call("Browser.getVersion", timeout=STARTUP_S)
+        except AssertionError:
+            self.close()
+            raise
 
     def _read(self) -> None:
         buffer = b""
@@ -99,10 +110,20 @@ class DevTools:
         os.write(self._commands, json.dumps(command).encode() + b"\0")
         deadline = time.monotonic() + timeout
         while True:
-            reply = self._replies.get(timeout=max(deadline - time.monotonic(), 0.01))
+            try:
+                reply = self._replies.get(timeout=max(deadline - time.monotonic(), 0.01))
+            except queue.Empty:
+                raise AssertionError(self._silence(method, timeout)) from None
             if reply.get("id") == self._next_id:  # not an event
                 assert "error" not in reply, f"{method}: {reply['error']}"
                 return reply["result"]
+
+    def _silence(self, method: str, timeout: float) -> str:
+        """Why ``method`` got no answer: Chromium's exit status and the end of its log."""
+        code = self.process.poll()
+        state = "running" if code is None else f"exited with {code}"
+        tail = self.log.read_bytes()[-1500:].decode(errors="replace")
+        return f"Chromium ({state}) did not answer {method} in {timeout:.0f} s; its log:\n{tail}"
 
     def attach_to_page(self) -> None:
         deadline = time.monotonic() + 10
@@ -134,7 +155,7 @@ class DevTools:
         self.session = ""
         try:
             self.call("Browser.close", timeout=5)
-        except (queue.Empty, OSError):
+        except (AssertionError, OSError):
             pass  # gone already; killed below
         try:
             self.process.wait(timeout=5)
