@@ -3,8 +3,8 @@
 #   ./run.sh                  set up .venv (if needed) and run the main job into ${OUT:-out/demo}:
 #                             the simulator report (crs demo) and the ROS 2 stack (crs launch sim)
 #   ./run.sh test [ARGS...]   set up, then run the test suite (python -m pytest -q ARGS...: the
-#                             tests that start no stack on two workers, then the integration
-#                             tests alone; see run_tests)
+#                             tests that start no stack on two workers, and the integration
+#                             tests beside them; see run_tests)
 #   ./run.sh setup            only set up .venv
 #   ./run.sh crs ARGS...      set up, then run the crs CLI with ARGS
 # The set-up installs requirements.lock with --no-deps, acados (requirements-acados.lock) into
@@ -187,27 +187,39 @@ warm_compile() {
     "$VENV/bin/python" -m launch_scripts.warm_cache || die "compiling the model functions failed"
 }
 
-# The suite in two phases, ARGS (files, -k, -x, ...) given to both: first the tests that start
-# no stack, on two workers (pytest-xdist; a test module's tests stay on one worker, so its
-# fixtures are built once); then the integration tests (ROS 2 stacks racing in real time, whose
-# timing the other phase would disturb), alone. ARGS choosing a marker themselves (-m) run as
-# one pytest, on one worker. Exit code: the first phase's failure, else the second's; 1 when
-# no test was collected (pytest's 5).
+# The suite in two parts run at once, ARGS (files, -k, -x, ...) given to both: the tests that
+# start no stack, on two workers (pytest-xdist; a test module's tests stay on one worker, so its
+# fixtures are built once), and beside them the integration tests (ROS 2 stacks racing in real
+# time), one at a time. A stack test must pass with two busy loops beside it, and the two
+# workers are that; the stacks leave most of the two cores idle, which the workers use. The
+# integration tests' output is printed once the first part is done (it is kept in a file until
+# then; pytest's cache of each part in a folder of its own). ARGS choosing a marker themselves
+# (-m) run as one pytest, on one worker. Exit code: the first part's failure, else the
+# second's; 1 when no test was collected (pytest's 5).
 run_tests() {
-    local rc_unit=0 rc_integration=0 arg
+    local rc_unit=0 rc_integration=0 arg log integration
     for arg in "$@"; do
         if [ "$arg" = "-m" ] || [[ "$arg" == -m?* ]]; then
             "$VENV/bin/python" -m pytest -q "$@" || rc_unit=$?
             exit_tests "$rc_unit"
         fi
     done
+    log="$(mktemp "${TMPDIR:-/tmp}/crs-integration-tests.XXXXXX")"
+    "$VENV/bin/python" -m pytest -q -m integration -o cache_dir=.pytest_cache/integration "$@" \
+        >"$log" 2>&1 &
+    integration=$!
+    # an interrupted run stops both parts
+    # shellcheck disable=SC2064 # expanded now: the function's locals are gone at exit
+    trap "kill $integration 2>/dev/null || true; rm -f '$log'" EXIT
     "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile -m "not integration" "$@" || rc_unit=$?
     case "$rc_unit" in
         0 | 1 | 5) ;;
-        *) exit "$rc_unit" ;; # interrupted, an internal or a usage error: the second phase would too
+        *) exit "$rc_unit" ;; # interrupted, an internal or a usage error: the second part too
     esac
-    "$VENV/bin/python" -m pytest -q -m integration "$@" || rc_integration=$?
-    # a phase that collected nothing counts only when the other did not either
+    echo "run.sh: the integration tests (started beside the others):"
+    wait "$integration" || rc_integration=$?
+    cat "$log"
+    # a part that collected nothing counts only when the other did not either
     [ "$rc_unit" -ne 5 ] || exit_tests "$rc_integration"
     [ "$rc_unit" -eq 0 ] || exit "$rc_unit"
     [ "$rc_integration" -ne 5 ] || exit 0
