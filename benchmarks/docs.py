@@ -35,6 +35,7 @@ from benchmarks.model import format_markdown as model_markdown
 from benchmarks.online_real import format_markdown as online_real_markdown
 from benchmarks.online_tuning import format_markdown as online_tuning_markdown
 from benchmarks.plan_drive import format_table as plan_drive_table
+from benchmarks.plan_drive_stack import format_table as plan_drive_stack_table
 from benchmarks.robust_estimation import format_markdown as robust_markdown
 from benchmarks.several_machines import format_markdown as machines_markdown
 from benchmarks.stack import format_markdown as stack_markdown
@@ -97,6 +98,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "machines": _headed("machines", machines_markdown),
     "workflow": _headed("workflow", workflow_table),
     "plan_drive": _headed("plan-drive", plan_drive_table),
+    "plan_drive_stack": _headed("plan-drive-stack", plan_drive_stack_table),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),
     "calibration": _headed("calibration", calibration_markdown),
     "model": _headed("model", model_markdown),

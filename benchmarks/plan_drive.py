@@ -141,19 +141,20 @@ def rows(
     return out
 
 
-def _slalom(
+def slalom_design(
     model: CarModel,
     fit: tuple[str, ...],
+    open_names: tuple[str, ...],
     prior: np.ndarray,
     track: Track,
     settings: DesignSettings,
 ) -> DriveDesign:
-    """The largest slalom of :data:`SLALOM_AMPLITUDES` the model keeps on the track and in
-    view (the smallest if none)."""
+    """The largest slalom of :data:`SLALOM_AMPLITUDES` (at :data:`SLALOM_HZ`) the model keeps
+    on the track and in view (the smallest if none)."""
     design = None
     for amplitude in SLALOM_AMPLITUDES:
-        drive = slalom_drive(settings, OPEN, track, amplitude, SLALOM_HZ)
-        design = evaluate_drive(model, drive, fit, OPEN, prior, track, settings)
+        drive = slalom_drive(settings, open_names, track, amplitude, SLALOM_HZ)
+        design = evaluate_drive(model, drive, fit, open_names, prior, track, settings)
         if design.penalty == 0.0:
             break
     assert design is not None
@@ -194,7 +195,7 @@ def plan_drive_benchmark(
     started = time.perf_counter()
     rear = design_drive(identified, fit, REAR, alone.uncertainty.covariance, track, settings)
     timings["design_rear_s"] = time.perf_counter() - started
-    slalom = _slalom(identified, fit, alone.uncertainty.covariance, track, settings)
+    slalom = slalom_design(identified, fit, OPEN, alone.uncertainty.covariance, track, settings)
 
     cases: dict[str, Any] = {
         "race": {

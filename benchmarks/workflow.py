@@ -67,7 +67,7 @@ def truth_parameters() -> dict[str, float]:
     return {name: defaults.value(name) * factor for name, factor in TRUTH_FACTORS.items()}
 
 
-def _crs(argv: list[str]) -> float:
+def run_crs(argv: list[str]) -> float:
     """``crs ARGV`` as a user runs it (a process of its own; its output passes through); the
     seconds it took. A failed command raises."""
     started = time.perf_counter()
@@ -180,12 +180,12 @@ def workflow_benchmark(work: Path, duration: float = 40.0, seed: int = 0, domain
     race += ["--domain", str(domain), *car]
     steps: dict[str, float] = {}
     before, after = (work / RACES[name] for name in ("default_model", "identified_model"))
-    steps["race_default_model_s"] = _crs([*race, "--out", str(before)])
+    steps["race_default_model_s"] = run_crs([*race, "--out", str(before)])
     bag = before / "bag"
-    steps["sysid_s"] = _crs(["sysid", str(bag), "--out", str(work / "sysid")])
-    steps["discrepancy_s"] = _crs(["discrepancy", str(bag), "--out", str(work / "discrepancy")])
+    steps["sysid_s"] = run_crs(["sysid", str(bag), "--out", str(work / "sysid")])
+    steps["discrepancy_s"] = run_crs(["discrepancy", str(bag), "--out", str(work / "discrepancy")])
     final = work / "discrepancy" / "params.yaml"
-    steps["race_identified_model_s"] = _crs([*race, "--params", str(final), "--out", str(after)])
+    steps["race_identified_model_s"] = run_crs([*race, "--params", str(final), "--out", str(after)])
     return summarise(work, duration, seed, steps)
 
 

@@ -184,6 +184,30 @@ def plan_drive(args: argparse.Namespace) -> Outcome:
     return result, format_table(result)
 
 
+def plan_drive_stack(args: argparse.Namespace) -> Outcome:
+    from benchmarks.plan_drive_stack import format_table, plan_drive_stack_benchmark
+
+    work = _runs(args, "plan_drive_stack")
+    result = _with_machine(plan_drive_stack_benchmark(work, args.race, args.after, args.seed))
+    return result, f"{format_table(result)}\nruns (races, bags, sysid, plan): {work}"
+
+
+def _plan_drive_stack_options(parser: argparse.ArgumentParser) -> None:
+    add_seed(parser, "seed of the emulated car's noise and of the design's starts")
+    parser.add_argument(
+        "--race",
+        type=bounded_number("race", "s", 10.0, 600.0),
+        default=40.0,
+        help="the first race, whose bag the drive is designed from, s (default 40)",
+    )
+    parser.add_argument(
+        "--after",
+        type=bounded_number("after", "s", 5.0, 600.0),
+        default=30.0,
+        help="racing before each drive (--drive-after), s (default 30)",
+    )
+
+
 def _plan_drive_options(parser: argparse.ArgumentParser) -> None:
     add_duration(parser, 8.0, "the drive (designed and slalom)")
     add_seed(parser, "seed of the simulated car's noise and of the design's starts")
@@ -521,6 +545,15 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "covariance) and from the race plus a slalom of the same length; the sigma predicted "
         "and reported by the FIE and the error against the truth of Dr, Br, tau_motor (and "
         "Df, Bf), the grip and peak slip the drives reached; ~3 min",
+    ),
+    "plan-drive-stack": (
+        plan_drive_stack,
+        _plan_drive_stack_options,
+        "crs bench plan-drive the way a user goes, every step a crs command: the same truth on "
+        "the emulated car raced (crs launch car --emulate), crs sysid on its bag, crs "
+        "plan-drive, then the designed drive and the slalom each driven after a race (--drive "
+        "--drive-after); crs sysid on each bag cut at the drive's start and end: the sigma of "
+        "Dr, Br, tau_motor from the race alone and with the drive; ~9 min",
     ),
     "sysid": (
         sysid,

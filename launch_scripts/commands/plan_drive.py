@@ -10,7 +10,7 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -25,6 +25,9 @@ from launch_scripts.arguments import (
     bounded_number,
 )
 from launch_scripts.output_folder import prepare_output
+
+if TYPE_CHECKING:
+    from crs_core.model import CarModel
 
 
 def parse_open(text: str) -> tuple[str, ...]:
@@ -52,27 +55,27 @@ def load_result(path: Path) -> dict[str, Any] | None:
     return {"path": str(result), "names": names, "std": std, "correlation": matrix}
 
 
-def run_plan_drive(args: argparse.Namespace) -> int:
-    """``crs plan-drive``: design, then write drive.yaml, report.json and drive.png."""
+def design_inputs(
+    params: Path, open_text: str
+) -> tuple[CarModel, tuple[str, ...], tuple[str, ...], np.ndarray, str]:
+    """What a design starts from: the model of ``params`` with the open effects added, the open
+    names, the parameters fitted, their prior covariance (the identification's beside
+    ``params`` when there is one) and where that came from. Errors name ``--params`` or
+    ``--open``."""
     from crs_core.discrepancy.drive_design import (
-        DesignSettings,
         default_fit,
-        design_drive,
         prior_covariance,
         prior_from,
         with_open_effects,
     )
-    from crs_core.discrepancy.drive_reach import drive_summary
     from crs_core.identification.problem import check_fit
     from crs_core.model import CarModel
     from crs_core.model.car_model import effects_in_file
-    from crs_core.track import load_demo_track
-    from crs_core.track.yaml_file import read_track
 
-    if args.params.is_dir():
-        raise FieldError("--params", f"{args.params} is a folder, not a parameter YAML")
-    model = CarModel.from_file(args.params, effects_in_file(args.params))
-    open_names = parse_open(args.open)
+    if params.is_dir():
+        raise FieldError("--params", f"{params} is a folder, not a parameter YAML")
+    model = CarModel.from_file(params, effects_in_file(params))
+    open_names = parse_open(open_text)
     try:
         model = with_open_effects(model, open_names)
     except FieldError as error:
@@ -82,13 +85,24 @@ def run_plan_drive(args: argparse.Namespace) -> int:
         check_fit(model, fit)  # what the FIE cannot fit, no drive decides
     except FieldError as error:
         raise error.renamed("--open") from None
-    result = load_result(args.params)
+    result = load_result(params)
     if result is not None:
         prior = prior_from(model, fit, result["names"], result["std"], result["correlation"])
         source = f"{result['path']} (the identification's sigmas and correlations)"
     else:
         prior = prior_covariance(model, fit)
-        source = f"{args.params} (each parameter's prior_std, no correlations)"
+        source = f"{params} (each parameter's prior_std, no correlations)"
+    return model, open_names, fit, prior, source
+
+
+def run_plan_drive(args: argparse.Namespace) -> int:
+    """``crs plan-drive``: design, then write drive.yaml, report.json and drive.png."""
+    from crs_core.discrepancy.drive_design import DesignSettings, design_drive
+    from crs_core.discrepancy.drive_reach import drive_summary
+    from crs_core.track import load_demo_track
+    from crs_core.track.yaml_file import read_track
+
+    model, open_names, fit, prior, source = design_inputs(args.params, args.open)
     track = read_track(args.track) if args.track else load_demo_track()
     settings = DesignSettings(
         duration_s=args.duration,
