@@ -192,31 +192,27 @@ def plan_drive_stack(args: argparse.Namespace) -> Outcome:
     return result, f"{format_table(result)}\nruns (races, bags, sysid, plan): {work}"
 
 
+def _add_seconds(parser: argparse.ArgumentParser, flag: str, default: float, what: str) -> None:
+    """``--FLAG``: ``what`` in s, ``[5, 600]``."""
+    name = flag.removeprefix("--")
+    parser.add_argument(
+        flag,
+        type=bounded_number(name, "s", 5.0, 600.0, include_low=True),
+        default=default,
+        help=f"{what}, s (default {default:g})",
+    )
+
+
 def _plan_drive_stack_options(parser: argparse.ArgumentParser) -> None:
     add_seed(parser, "seed of the emulated car's noise and of the design's starts")
-    parser.add_argument(
-        "--race",
-        type=bounded_number("race", "s", 10.0, 600.0),
-        default=40.0,
-        help="the first race, whose bag the drive is designed from, s (default 40)",
-    )
-    parser.add_argument(
-        "--after",
-        type=bounded_number("after", "s", 5.0, 600.0),
-        default=30.0,
-        help="racing before each drive (--drive-after), s (default 30)",
-    )
+    _add_seconds(parser, "--race", 40.0, "the first race, whose bag the drive is designed from")
+    _add_seconds(parser, "--after", 30.0, "racing before each drive (--drive-after)")
 
 
 def _plan_drive_options(parser: argparse.ArgumentParser) -> None:
     add_duration(parser, 8.0, "the drive (designed and slalom)")
     add_seed(parser, "seed of the simulated car's noise and of the design's starts")
-    parser.add_argument(
-        "--race",
-        type=bounded_number("race", "s", 5.0, 600.0),
-        default=30.0,
-        help="the race before the drive, s (default 30)",
-    )
+    _add_seconds(parser, "--race", 30.0, "the race before the drive")
     add_evaluations(parser, "the design")
 
 
