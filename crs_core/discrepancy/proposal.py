@@ -6,8 +6,10 @@ own variables, would. For each target of :mod:`crs_core.model.terms` the fit lea
 * a velocity state's derivative (``vx``, ``vy``, ``omega``): the fit's process residual rate
   :math:`w_k / \\Delta t_k` (:func:`~crs_core.identification.validation.process_residuals`),
   what the model's dynamics miss between samples;
-* a sensor output (``wheel_speeds``: the four wheels' residual averaged; ``yaw_rate``): the
-  measurement residual :math:`y_k - h(x_k)`.
+* a sensor output: the measurement residual :math:`y_k - h(x_k)` of its channels, each
+  multiplied by the sign the term adds with and averaged (``wheel_speeds``: the four wheels'
+  mean; ``wheel_speed_sides``: half the right wheels' residual minus the left ones', what a
+  common mean cancels; ``yaw_rate``).
 
 Each series is regressed on a library of candidate monomials (:func:`library`: every product of
 up to :data:`MAX_DEGREE` of the variables ``vx, vy, omega, steer, torque`` and ``t``, the time
@@ -43,7 +45,13 @@ from crs_core.discrepancy.residuals import CHANNEL_GROUPS
 from crs_core.identification.solve import FieResult
 from crs_core.identification.validation import process_residuals
 from crs_core.model import CarModel
-from crs_core.model.terms import STATE_TARGETS, TERM_VARIABLES, Term, monomial_text
+from crs_core.model.terms import (
+    OUTPUT_TARGETS,
+    STATE_TARGETS,
+    TERM_VARIABLES,
+    Term,
+    monomial_text,
+)
 
 #: Highest degree of a library monomial.
 MAX_DEGREE = 3
@@ -56,14 +64,16 @@ MIN_R2 = 0.1
 #: The prior std of a proposed coefficient, in multiples of its regression value (weak: the
 #: FIE's fit decides).
 PRIOR_STD_FACTOR = 10.0
-#: Series the proposal regresses: target -> dataset columns of its measurement residual (None:
-#: a state derivative's process residual).
-TARGET_SERIES: dict[str, tuple[int, ...] | None] = {
+#: Series the proposal regresses: target -> dataset columns of its measurement residual and
+#: the sign of each (the term's, :data:`~crs_core.model.terms.OUTPUT_TARGETS`), or None: a state
+#: derivative's process residual.
+TARGET_SERIES: dict[str, tuple[tuple[int, ...], tuple[float, ...]] | None] = {
     "vx": None,
     "vy": None,
     "omega": None,
-    "wheel_speeds": CHANNEL_GROUPS["wheel_speeds"],
-    "yaw_rate": CHANNEL_GROUPS["yaw_rate"],
+    "wheel_speeds": (CHANNEL_GROUPS["wheel_speeds"], OUTPUT_TARGETS["wheel_speeds"][1]),
+    "wheel_speed_sides": (CHANNEL_GROUPS["wheel_speeds"], OUTPUT_TARGETS["wheel_speed_sides"][1]),
+    "yaw_rate": (CHANNEL_GROUPS["yaw_rate"], (1.0,)),
 }
 
 
@@ -175,17 +185,19 @@ def _r2(y: np.ndarray, x: np.ndarray, total: float) -> float:
 def target_series(data: Dataset, model: CarModel, result: FieResult) -> dict[str, np.ndarray]:
     """Per target (:data:`TARGET_SERIES`), what the fit leaves, one value per sample (NaN where
     there is none): process residual rates for the state targets (the last sample has none),
-    the measured-column-averaged measurement residual for the output targets."""
+    the signed measurement residual averaged over the measured columns for the output
+    targets."""
     states = result.states
     residual_rate = np.full((len(data.t), model.nx), np.nan)
     residual_rate[:-1] = process_residuals(data, model, states) / np.diff(data.t)[:, None]
     measured = data.y - result.outputs
     out = {}
-    for target, columns in TARGET_SERIES.items():
-        if columns is None:
+    for target, series in TARGET_SERIES.items():
+        if series is None:
             out[target] = residual_rate[:, STATE_TARGETS[target][0]]
             continue
-        block = measured[:, list(columns)]
+        columns, signs = series
+        block = measured[:, list(columns)] * np.asarray(signs)
         counts = np.sum(np.isfinite(block), axis=1)
         out[target] = np.where(counts > 0, np.nansum(block, axis=1) / np.maximum(counts, 1), np.nan)
     return out

@@ -33,7 +33,7 @@ from crs_core.model.chronos import (
 from crs_core.model.effects import EFFECTS, Effect, effect_of_parameter
 from crs_core.model.lighthouse import BaseStation
 from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
-from crs_core.model.terms import CLOCK_STATE, STATE_TARGETS, Term, terms_in_file
+from crs_core.model.terms import CLOCK_STATE, OUTPUT_TARGETS, STATE_TARGETS, Term, terms_in_file
 from crs_core.parameters import ParameterSet
 from crs_core.yaml_io import load_yaml
 
@@ -268,12 +268,9 @@ class CarModel:
         for term in self.terms:
             if term.target in STATE_TARGETS:
                 continue
+            sensor, signs, _ = OUTPUT_TARGETS[term.target]
             added = term.value(x, applied, P, self._clock(x))
-            if term.target == "wheel_speeds":
-                outputs["wheel_encoders"] = outputs["wheel_encoders"] + added
-            else:  # yaw_rate
-                imu = outputs["imu"]
-                outputs["imu"] = ca.vertcat(imu[0], imu[1], imu[2] + added)
+            outputs[sensor] = outputs[sensor] + ca.DM(signs) * added
         outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}

@@ -2,7 +2,8 @@
 
 A :class:`Term` adds :math:`\\sum_k c_k m_k` to one *target*: the time derivative of a velocity
 state (``vx``, ``vy``, ``omega``) or a sensor output (``wheel_speeds``, each of the four wheels
-alike; ``yaw_rate``, the gyro), where each monomial :math:`m_k` is a product of the model's
+alike; ``wheel_speed_sides``, the right wheels up and the left ones down by as much; ``yaw_rate``,
+the gyro), where each monomial :math:`m_k` is a product of the model's
 variables (:data:`TERM_VARIABLES`: the velocity states, the applied inputs and ``t``, the time
 since the model's state began, which a model with such a term carries as one more state,
 ``clock``; the empty product is a constant). The coefficients are parameters of group
@@ -49,7 +50,13 @@ STATE_TARGETS: dict[str, tuple[int, str]] = {
     "vy": (4, "m/s^2"),
     "omega": (5, "rad/s^2"),
 }
-OUTPUT_TARGETS: dict[str, str] = {"wheel_speeds": "rad/s", "yaw_rate": "rad/s"}
+#: Sensor-output targets: the sensor, the sign with which the term adds to each of its channels
+#: (``wheel_encoders``: fl, fr, rl, rr), and the unit.
+OUTPUT_TARGETS: dict[str, tuple[str, tuple[float, ...], str]] = {
+    "wheel_speeds": ("wheel_encoders", (1.0, 1.0, 1.0, 1.0), "rad/s"),
+    "wheel_speed_sides": ("wheel_encoders", (-1.0, 1.0, -1.0, 1.0), "rad/s"),
+    "yaw_rate": ("imu", (0.0, 0.0, 1.0), "rad/s"),
+}
 #: Largest magnitude of a coefficient, in multiples of its prior std.
 BOUND_IN_STDS = 100.0
 
@@ -116,7 +123,7 @@ class Term:
         """The target's unit (a derivative's for a state target)."""
         if self.target in STATE_TARGETS:
             return STATE_TARGETS[self.target][1]
-        return OUTPUT_TARGETS[self.target]
+        return OUTPUT_TARGETS[self.target][2]
 
     def coefficient_names(self) -> tuple[str, ...]:
         """``<name>_c1``, ``<name>_c2``, ..."""

@@ -66,6 +66,19 @@ def test_a_right_model_leaves_nothing_to_propose():
     assert propose(data, CarModel(parameters=result.parameters), result) == []
 
 
+def test_wheels_reading_apart_by_side_are_proposed_on_the_sides_target():
+    """A car whose right wheels read faster and left ones slower under drive torque: the
+    four-wheel mean hides it (it cancels), the sides target proposes it with the torque."""
+    truth = CarModel(terms=[Term("sides", "wheel_speed_sides", (("torque",),), (6.0,))])
+    data = simulate_dataset(15.0, 4, truth, driver="joystick")
+    result = identify(data, CarModel(), FIT)
+    proposals = propose(data, CarModel(parameters=result.parameters), result)
+    targets = [p.target for p in proposals]
+    assert targets and targets[0] == "wheel_speed_sides", targets
+    assert "wheel_speeds" not in targets
+    assert any("torque" in monomial for monomial in proposals[0].monomials)
+
+
 @pytest.mark.slow
 def test_a_term_outside_the_registry_is_proposed_tested_and_stored(tmp_path):
     """The workflow proposes a term in vx's derivative with the steering in it, it predicts the

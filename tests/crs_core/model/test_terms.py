@@ -47,6 +47,16 @@ def test_an_output_term_adds_to_every_wheel():
     np.testing.assert_array_equal(after["imu"], before["imu"])
 
 
+def test_a_sides_term_moves_the_right_wheels_up_and_the_left_ones_down():
+    sides = Term("sides", "wheel_speed_sides", (("torque",),), coefficients=(4.0,))
+    plain, model = CarModel(), CarModel(terms=[sides])
+    before = plain.numeric.outputs(X, U, plain.parameters.vector())
+    after = model.numeric.outputs(X, U, model.parameters.vector())
+    change = after["wheel_encoders"] - before["wheel_encoders"]  # fl, fr, rl, rr
+    np.testing.assert_allclose(change, 4.0 * U[1] * np.array([-1.0, 1.0, -1.0, 1.0]))
+    assert sides.unit == "rad/s"
+
+
 def test_the_coefficients_are_parameters_with_units_and_an_equation():
     model = CarModel(terms=[SCRUB])
     first = model.parameters["scrub_c1"]
