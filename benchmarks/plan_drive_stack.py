@@ -201,7 +201,7 @@ def format_table(result: dict[str, Any]) -> str:
             f"{inside * 100:.1f} cm inside" if inside >= 0 else f"{-inside * 100:.1f} cm outside"
         )
         lines.append(
-            f"\n{kind}: began {case['drive_began_s']:.1f} s after the first command; the "
+            f"\n{kind}: began {case['drive_began_s']:.1f} s into the recording; the "
             f"footprint at most {where} the track's edge"
         )
     return "\n".join(lines)
