@@ -61,7 +61,9 @@ def test_process_streams_answers_commands_and_stops_on_sigterm() -> None:
         process.send_signal(signal.SIGTERM)
         summary, _ = process.communicate(timeout=10)
     car_states = [p.contents for p in packets if isinstance(p.contents, CarState)]
-    assert 200 <= len(car_states) <= 260  # 250 Hz for ~1 s
+    # never faster than 250 Hz; on a loaded host it streams fewer (154 in 1 s once, beside the
+    # suite and a benchmark's two workers): the rate is not this test's to time
+    assert 50 <= len(car_states) <= 260
     assert any(isinstance(p.contents, Ping) for p in packets)  # the ping at boot
     assert car_states[-1].drive_power == pytest.approx(0.5)  # it drives on our commands
     assert car_states[-1].longitudinal_velocity > 0.3
