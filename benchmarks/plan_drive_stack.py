@@ -28,7 +28,7 @@ from benchmarks.plan_drive import OPEN, REPORTED, TRUTH_TAU_MOTOR, slalom_design
 from benchmarks.workflow import load_race, run_crs, truth_parameters
 from crs_core.discrepancy.drive_design import DesignSettings
 from crs_core.discrepancy.drive_file import Drive, DriveController, load_drive
-from crs_core.track import load_demo_track
+from crs_core.track import Track, load_demo_track
 from launch_scripts.commands.plan_drive import design_inputs
 from sim.closed_loop import footprint_outside
 
@@ -38,26 +38,29 @@ PROCESS_SCALE = "0.1"
 KINDS = ("designed", "slalom")
 
 
-def drive_began(drive: Drive, t: np.ndarray, x: np.ndarray, after_s: float) -> float | None:
+def drive_began(
+    drive: Drive, track: Track, t: np.ndarray, x: np.ndarray, after_s: float
+) -> float | None:
     """The first truth stamp ``after_s`` or more past ``t[0]`` where the car is at the drive's
     start (None: it never was)."""
     truth = truth_model().parameters
     wheelbase = truth.value("lf") + truth.value("lr")
-    controller = DriveController(drive, load_demo_track(), wheelbase, None)
+    controller = DriveController(drive, track, wheelbase, None)
     for k in np.flatnonzero(t >= t[0] + after_s):
         if controller.at_start(x[k]):
             return float(t[k])
     return None
 
 
-def identify_cut(run: Path, drive: Drive, after_s: float, work: Path) -> dict[str, Any]:
+def identify_cut(
+    run: Path, drive: Drive, track: Track, after_s: float, work: Path
+) -> dict[str, Any]:
     """``run``'s bag identified up to the drive's start and up to its end (``crs sysid`` on
     each cut), with the drive's start and the footprint's largest excursion during it."""
     recording, truth = load_race(run)
-    began = drive_began(drive, truth["t"], truth["x"], after_s)
+    began = drive_began(drive, track, truth["t"], truth["x"], after_s)
     if began is None:
         raise RuntimeError(f"{run}: the car never reached the drive's start")
-    track = load_demo_track()
     during = np.flatnonzero((truth["t"] >= began) & (truth["t"] < began + drive.duration_s))
     outside = max(footprint_outside(track, *truth["x"][k, :3], None) for k in during[::5])
     start = int(np.searchsorted(recording.t, began))
@@ -133,25 +136,25 @@ def plan_drive_stack_benchmark(
     steps["plan_drive_s"] = run_crs(
         [*plan, "--process-scale", PROCESS_SCALE, "--out", str(work / "plan")]
     )
+    track = load_demo_track()
     designed = load_drive(work / "plan" / "drive.yaml")
     model, open_names, fit, prior, _ = design_inputs(params, open_text)
     settings = DesignSettings(
         duration_s=designed.duration_s, v_ref=designed.v_ref, process_scale=float(PROCESS_SCALE)
     )
-    slalom = slalom_design(model, fit, open_names, prior, load_demo_track(), settings).drive
-    slalom.save(work / "slalom.yaml")
+    slalom = slalom_design(model, fit, open_names, prior, track, settings).drive
+    files = {"designed": work / "plan" / "drive.yaml", "slalom": slalom.save(work / "slalom.yaml")}
     drives = {"designed": designed, "slalom": slalom}
     # long enough to race after_s, reach the drive's start at speed and drive it
     duration = after_s + 14.0 + designed.duration_s
     cases: dict[str, Any] = {}
-    for kind, drive in drives.items():
-        file = work / "plan" / "drive.yaml" if kind == "designed" else work / "slalom.yaml"
+    for kind in KINDS:
         run = work / f"run_{kind}"
-        with_drive = [*launch, "--drive", str(file), "--drive-after", str(after_s)]
+        with_drive = [*launch, "--drive", str(files[kind]), "--drive-after", str(after_s)]
         steps[f"run_{kind}_s"] = run_crs(
             [*with_drive, "--duration", str(duration), "--out", str(run)]
         )
-        cases[kind] = identify_cut(run, drive, after_s, work / "cuts")
+        cases[kind] = identify_cut(run, drives[kind], track, after_s, work / "cuts")
     predicted = json.loads((work / "plan" / "report.json").read_text())["sigma"]
     return {
         "settings": {

@@ -193,11 +193,11 @@ def plan_drive_stack(args: argparse.Namespace) -> Outcome:
 
 
 def _add_seconds(parser: argparse.ArgumentParser, flag: str, default: float, what: str) -> None:
-    """``--FLAG``: ``what`` in s, ``[5, 600]``."""
+    """``--FLAG``: ``what`` in s, ``(5, 600]``."""
     name = flag.removeprefix("--")
     parser.add_argument(
         flag,
-        type=bounded_number(name, "s", 5.0, 600.0, include_low=True),
+        type=bounded_number(name, "s", 5.0, 600.0),
         default=default,
         help=f"{what}, s (default {default:g})",
     )

@@ -31,8 +31,9 @@ def test_the_drive_begins_at_the_first_pass_of_its_start_after_the_lead_in() -> 
     x[np.searchsorted(t, 40.0)] = [*at_start, 0.0, 0.0]
     slow = np.searchsorted(t, 33.0)
     x[slow] = [x0, y0, yaw0, 0.5 * vx0, 0.0, 0.0]  # there, but too slow
-    assert drive_began(drive, t, x, 30.0) == 36.0
-    assert drive_began(drive, t, x, 45.0) is None
+    track = load_demo_track()
+    assert drive_began(drive, track, t, x, 30.0) == 36.0
+    assert drive_began(drive, track, t, x, 45.0) is None
 
 
 def test_parameter_rows_compare_sysid_with_the_truth(tmp_path: Path) -> None:
