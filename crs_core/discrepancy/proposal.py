@@ -47,7 +47,6 @@ from crs_core.identification.validation import process_residuals
 from crs_core.model import CarModel
 from crs_core.model.terms import (
     OUTPUT_TARGETS,
-    STATE_TARGETS,
     TERM_VARIABLES,
     Term,
     monomial_text,
@@ -194,7 +193,8 @@ def target_series(data: Dataset, model: CarModel, result: FieResult) -> dict[str
     out = {}
     for target, series in TARGET_SERIES.items():
         if series is None:
-            out[target] = residual_rate[:, STATE_TARGETS[target][0]]
+            if target in model.state_names:
+                out[target] = residual_rate[:, model.state_names.index(target)]
             continue
         columns, signs = series
         block = measured[:, list(columns)] * np.asarray(signs)
@@ -204,7 +204,7 @@ def target_series(data: Dataset, model: CarModel, result: FieResult) -> dict[str
 
 
 def term_variables(data: Dataset, model: CarModel, states: np.ndarray) -> dict[str, np.ndarray]:
-    """The term variables per sample: the velocity states of ``states``, the input the model
+    """The term variables per sample: the car state's velocities at ``states``, the input the model
     applies (after its effects on the command and its actuators) and ``t``, s since the
     recording's start (:attr:`~crs_core.dataset.Dataset.recording_start`)."""
     assert data.u is not None
@@ -214,7 +214,7 @@ def term_variables(data: Dataset, model: CarModel, states: np.ndarray) -> dict[s
     applied = np.asarray(
         applied_input.map(len(data.t))(states.T, data.u.T, model.parameters.vector())
     ).T
-    source = {"state": states, "input": applied}
+    source = {"car": model.numeric.car_states(states, applied), "input": applied}
     out = {}
     for name, (kind, index, _) in TERM_VARIABLES.items():
         out[name] = source[kind][:, index] if kind in source else data.t - data.recording_start

@@ -39,6 +39,11 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from crs_core.model.chronos import dynamics_parameters
+from crs_core.model.plant import CAR_STATE_NAMES, CAR_STATE_UNITS, ParameterAccess, Plant
+from crs_core.model.sensors import wheel_speeds
+from crs_core.parameters import ParameterSet
+
 #: Low-speed slip denominator at standstill, a fraction of ``eps``: 0.9 keeps the fastest
 #: dynamics at rest within RK4's stable step at :data:`~crs_core.model.MAX_SUBSTEP`.
 STANDSTILL_DENOMINATOR = 0.9
@@ -46,12 +51,9 @@ STANDSTILL_DENOMINATOR = 0.9
 #: Speed scale (m/s) of the smoothed friction sign :math:`\tanh(v_x / v_s)`.
 FRICTION_SIGN_SPEED = 0.01
 
-STATE_NAMES = ("x", "y", "yaw", "vx", "vy", "omega")
-STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
-INPUT_NAMES = ("steer", "torque")
-INPUT_UNITS = ("rad", "-")
-
-ParameterAccess = Callable[[str], ca.SX]
+#: The dynamic bicycle's states are the car state itself.
+STATE_NAMES = CAR_STATE_NAMES
+STATE_UNITS = CAR_STATE_UNITS
 
 
 @dataclass(frozen=True)
@@ -113,15 +115,26 @@ def grip_used(states: np.ndarray, inputs: np.ndarray, P: Callable[[str], float])
     return np.asarray(rows(np.asarray(states).T, np.asarray(inputs).T)).T
 
 
+def motor_force(v: ca.SX, torque: ca.SX, P: ParameterAccess) -> ca.SX:
+    """The motor's force (N) at speed ``v`` (m/s) under the applied torque command: the
+    paper's :math:`(C_{m1} - C_{m2} v) T`."""
+    return (P("Cm1") - P("Cm2") * v) * torque
+
+
+def friction_force(v: ca.SX, P: ParameterAccess) -> ca.SX:
+    """Rolling resistance and drag (N) at speed ``v`` (m/s), odd in ``v`` (module docstring)."""
+    sign = ca.tanh(v / FRICTION_SIGN_SPEED)
+    return sign * (P("Cd2") * v**2 + P("Cd0")) + P("Cd1") * v
+
+
 def axle_forces(x: ca.SX, u: ca.SX, P: ParameterAccess) -> AxleForces:
     """Pacejka lateral forces, AWD-split motor force and friction (paper Sec. III-A)."""
     vx = x[3]
     alpha_f, alpha_r = slip_angles(x, u, P)
     fy_front = P("Df") * ca.sin(P("Cf") * ca.atan(P("Bf") * alpha_f))
     fy_rear = P("Dr") * ca.sin(P("Cr") * ca.atan(P("Br") * alpha_r))
-    motor = (P("Cm1") - P("Cm2") * vx) * u[1]
-    sign = ca.tanh(vx / FRICTION_SIGN_SPEED)
-    friction = sign * (P("Cd2") * vx**2 + P("Cd0")) + P("Cd1") * vx
+    motor = motor_force(vx, u[1], P)
+    friction = friction_force(vx, P)
     return AxleForces(
         fx_front=(1 - P("gamma")) * motor,
         fx_rear=P("gamma") * motor,
@@ -159,3 +172,29 @@ def state_derivative(x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
         ay - vx * omega,
         yaw_moment / P("Iz"),
     )
+
+
+class DynamicBicycle(Plant):
+    """The paper's dynamic bicycle with Pacejka tyres and the all-wheel-drive split: the
+    suite's default model, whose states are the car state."""
+
+    name = "dynamic"
+    description = "dynamic bicycle, Pacejka tyres, all-wheel drive (paper Sec. III-A)"
+    states = tuple(zip(STATE_NAMES, STATE_UNITS, strict=True))
+
+    def parameters(self) -> ParameterSet:
+        """The paper's 15 parameters, ``gamma``, ``eps`` and the encoder geometry."""
+        return dynamics_parameters()
+
+    def derivative(self, x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        """:func:`state_derivative`."""
+        return state_derivative(x, u, P)
+
+    def car_state(self, x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
+        """The state itself."""
+        return x
+
+    def sensors(self, x: ca.SX, u: ca.SX, P: ParameterAccess) -> dict[str, ca.SX]:
+        """The IMU from the axle forces (specific force and yaw rate) and the wheel encoders."""
+        ax, ay = body_specific_force(x, u, P)
+        return {"imu": ca.vertcat(ax, ay, x[5]), "wheel_encoders": wheel_speeds(x, u[0], P)}

@@ -1,8 +1,11 @@
-"""The Chronos car model: dynamics, sensors and effects composed into one CasADi definition.
+"""The car model every tool takes: a plant, its sensors and effects in one CasADi definition.
 
-:class:`CarModel` builds the symbolic model once and derives everything from it: the
-continuous dynamics, an RK4 step, every sensor output, and (lazily) their compiled numeric
-versions. The simulator, estimators, controllers and identification all use this one object.
+:class:`CarModel` composes a :class:`~crs_core.model.plant.Plant` (the dynamic bicycle by
+default, the kinematic one, or a researcher's own) with the Lighthouse geometry, the effects,
+the proposed terms and the online parameters, builds the symbolic model once and derives
+everything from it: the continuous dynamics, an RK4 step, every sensor output, the car state,
+and (lazily) their compiled numeric versions. The simulator, estimators, controllers and
+identification all use this one object.
 """
 
 from __future__ import annotations
@@ -23,16 +26,23 @@ from crs_core.codegen import SX_OPTIONS, NumericFunction, compile_functions
 from crs_core.errors import FieldError
 from crs_core.integrators import rk4
 from crs_core.model import sensors
-from crs_core.model.bicycle import INPUT_NAMES, STATE_NAMES, STATE_UNITS, state_derivative
+from crs_core.model.bicycle import DynamicBicycle
 from crs_core.model.chronos import (
     base_station_parameters,
     default_base_stations,
-    dynamics_parameters,
     photodiode_parameters,
 )
 from crs_core.model.effects import EFFECTS, Effect, effect_of_parameter
 from crs_core.model.lighthouse import BaseStation
 from crs_core.model.online import DEFAULT_REVERSION_S, OnlineParameters
+from crs_core.model.plant import (
+    CAR_STATE_NAMES,
+    ENCODER_PARAMETERS,
+    INPUT_NAMES,
+    Plant,
+    derived_imu,
+)
+from crs_core.model.plants import load_plant, plant_spec, resolve_model
 from crs_core.model.terms import CLOCK_STATE, OUTPUT_TARGETS, STATE_TARGETS, Term, terms_in_file
 from crs_core.parameters import ParameterSet
 from crs_core.yaml_io import load_yaml
@@ -43,6 +53,8 @@ from crs_core.yaml_io import load_yaml
 #: substep per 250 Hz sensor sample). One 1/30 s step is stable only above about 0.8 m/s.
 MAX_SUBSTEP = 0.004
 
+#: Rows per call of the batched car-state function of a model whose car state is not its state.
+CAR_STATES_BATCH = 256
 #: States of the input-free model (``estimated_inputs=True``): name, unit.
 ESTIMATED_INPUT_STATES = (("steer_estimated", "rad"), ("torque_estimated", "-"))
 #: Effects that act on the command or the actuators (undefined without commands).
@@ -110,7 +122,7 @@ def effects_in_file(path: str | Path) -> list[str]:
 
 
 class CarModel:
-    """Dynamic bicycle car with sensors and optional effects.
+    """A car's plant with sensors and optional effects.
 
     Parameters
     ----------
@@ -140,11 +152,17 @@ class CarModel:
     terms : sequence of Term
         Additive terms proposed from data (:mod:`crs_core.model.terms`), after every effect;
         their coefficients are parameters (``<name>_c1``, ...).
+    model : str or Plant, optional
+        The plant (:func:`~crs_core.model.plants.load_plant`: ``dynamic``, the default,
+        ``kinematic``, ``FILE.py:CLASS``, or a :class:`~crs_core.model.plant.Plant`).
 
     Attributes
     ----------
+    plant : Plant
+        The plant.
     state_names : tuple of str
-        ``x, y, yaw, vx, vy, omega`` followed by effect states.
+        The plant's states (the dynamic bicycle's ``x, y, yaw, vx, vy, omega``) followed by
+        effect states.
     input_names : tuple of str
         ``steer, torque`` (commanded).
     outputs : dict of str to SensorOutput
@@ -163,7 +181,15 @@ class CarModel:
         online_parameters: Sequence[str] = (),
         online_reversion_s: float = DEFAULT_REVERSION_S,
         terms: Sequence[Term] = (),
+        model: str | Plant | None = None,
     ) -> None:
+        self.plant = load_plant(model, "model")
+        if self.plant.inputs != INPUT_NAMES:
+            raise FieldError(
+                "model",
+                f"{self.plant.name} takes {self.plant.inputs}; the stack commands "
+                f"{', '.join(INPUT_NAMES)}",
+            )
         if base_stations is not None:
             n_base_stations = len(base_stations)
         if n_base_stations < 0:
@@ -181,7 +207,7 @@ class CarModel:
                 )
         self.n_base_stations = n_base_stations
         defaults = (
-            dynamics_parameters()
+            self.plant.parameters()
             .merged(photodiode_parameters())
             .merged(
                 base_station_parameters(
@@ -195,6 +221,11 @@ class CarModel:
             defaults = defaults.merged(ParameterSet(list(effect.parameters)))
         self.terms: tuple[Term, ...] = tuple(terms)
         for term in self.terms:
+            if term.target in STATE_TARGETS and term.target not in self.plant.state_names:
+                raise FieldError(
+                    f"terms.{term.name}.target",
+                    f"model {self.plant.name} has no state {term.target}",
+                )
             defaults = defaults.merged(ParameterSet(list(term.parameters())))
         if parameters is not None:
             missing = set(defaults.names) - set(parameters.names)
@@ -210,32 +241,56 @@ class CarModel:
         if self.has_clock:
             extra_states += (CLOCK_STATE,)
         extra_states += tuple((e.state_name, e.unit) for e in self.online.entries)
-        self.state_names = STATE_NAMES + tuple(name for name, _ in extra_states)
-        self.state_units = STATE_UNITS + tuple(unit for _, unit in extra_states)
+        self.state_names = self.plant.state_names + tuple(name for name, _ in extra_states)
+        self.state_units = self.plant.state_units + tuple(unit for _, unit in extra_states)
         self.nx, self.nu, self.np = len(self.state_names), 2, len(self.parameters)
         self._build_symbolic()
 
     def __reduce__(self):
-        """Pickle by the constructor arguments (the CasADi graph is rebuilt, not serialised):
-        a model crosses into worker processes."""
+        """Pickle by the constructor arguments (the CasADi graph is rebuilt, not serialised;
+        the plant by its spec): a model crosses into worker processes."""
         names = [e.name for e in self.effects]
         arguments = (names, self.n_base_stations, self.parameters, self.estimated_inputs)
         online = (self.online.names, self.online.reversion_s)
-        return (CarModel, (*arguments, None, *online, self.terms))
+        return (CarModel, (*arguments, None, *online, self.terms, plant_spec(self.plant)))
 
-    def with_parameters(self, parameters: ParameterSet) -> CarModel:
-        """This model's structure (effects, terms, stations, input mode, online parameters)
-        with ``parameters``' values."""
-        online = (self.online.names, self.online.reversion_s)
+    def _rebuilt(
+        self,
+        effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None] | None = None,
+        parameters: ParameterSet | None = None,
+        online: tuple[Sequence[str], float] | None = None,
+        terms: Sequence[Term] | None = None,
+    ) -> CarModel:
+        """A model of this one's plant, stations and input mode, with what is given changed."""
+        online_names, reversion = online or (self.online.names, self.online.reversion_s)
         return CarModel(
-            [e.name for e in self.effects],
+            [e.name for e in self.effects] if effects is None else effects,
             self.n_base_stations,
             parameters,
             self.estimated_inputs,
             None,
-            *online,
-            self.terms,
+            online_names,
+            reversion,
+            self.terms if terms is None else terms,
+            self.plant,
         )
+
+    def with_parameters(self, parameters: ParameterSet) -> CarModel:
+        """This model's structure (plant, effects, terms, stations, input mode, online
+        parameters) with ``parameters``' values."""
+        return self._rebuilt(parameters=parameters)
+
+    def require_states(self, names: Iterable[str], needed_by: str) -> list[int]:
+        """The indices of states ``names``; a model without one of them is refused in one
+        line saying what ``needed_by`` needs."""
+        missing = [n for n in names if n not in self.state_names]
+        if missing:
+            raise FieldError(
+                "model",
+                f"{needed_by} needs the state {', '.join(missing)}, which model "
+                f"{self.plant.name} does not have (states: {', '.join(self.state_names)})",
+            )
+        return [self.state_names.index(n) for n in names]
 
     # --- symbolic model ------------------------------------------------------------------
     def _build_symbolic(self) -> None:
@@ -254,13 +309,21 @@ class CarModel:
         if len(self.online):
             online_states = x[self.nx - len(self.online) :]
             xdot = ca.vertcat(xdot, self.online.derivative(online_states, parameter))
-        outputs = {
-            "imu": sensors.imu(x, applied, P),
-            "wheel_encoders": sensors.wheel_encoders(x, applied, P),
-            "pose": sensors.pose(x),
-        }
+        plant_state = x[: len(self.plant.states)]
+        car = self.plant.car_state(plant_state, applied, P)
+        if car.numel() != len(CAR_STATE_NAMES):
+            raise FieldError(
+                "model", f"{self.plant.name}.car_state() must give {len(CAR_STATE_NAMES)} values"
+            )
+        given = self.plant.sensors(plant_state, applied, P)
+        outputs = {"imu": given.get("imu", derived_imu(car, x, xdot))}
+        if "wheel_encoders" in given:
+            outputs["wheel_encoders"] = given["wheel_encoders"]
+        elif all(n in index for n in ENCODER_PARAMETERS):
+            outputs["wheel_encoders"] = sensors.wheel_speeds(car, applied[0], P)
+        outputs["pose"] = sensors.pose(car)
         for station in range(self.n_base_stations):
-            first, second = sensors.lighthouse(x, station, P)
+            first, second = sensors.lighthouse(car, station, P)
             outputs[f"lighthouse/{station}/1"] = first
             outputs[f"lighthouse/{station}/2"] = second
         for effect in self.effects:
@@ -269,13 +332,18 @@ class CarModel:
             if term.target in STATE_TARGETS:
                 continue
             sensor, signs, _ = OUTPUT_TARGETS[term.target]
-            added = term.value(x, applied, P, self._clock(x))
+            if sensor not in outputs:
+                raise FieldError(
+                    f"terms.{term.name}.target", f"model {self.plant.name} has no {sensor}"
+                )
+            added = term.value(car, applied, P, self._clock(x))
             outputs[sensor] = outputs[sensor] + ca.DM(signs) * added
         outputs["gyro"] = outputs["imu"][2]  # the yaw-rate channel alone, as recorded
         self.output_expressions: dict[str, ca.SX] = outputs
         self.outputs = {name: SensorOutput(name, _channels(name)) for name in outputs}
         self.xdot_expression = xdot
         self.applied_input_expression = applied
+        self.car_state_expression = car
 
     def _rhs(self, x: ca.SX, u: ca.SX, P) -> tuple[ca.SX, ca.SX]:
         """State derivative (without the online parameters') and applied input for augmented
@@ -283,7 +351,7 @@ class CarModel:
         for effect in self.effects:
             u = effect.command(u, P)
         derivatives = []
-        offset = len(STATE_NAMES)
+        offset = len(self.plant.states)
         for effect in self.effects:
             z = x[offset : offset + len(effect.states)]
             u, zdot = effect.actuator(z, u, P)
@@ -294,11 +362,20 @@ class CarModel:
             derivatives.append(ca.SX.zeros(2))
         if self.has_clock:
             derivatives.append(ca.SX(1))
-        base = state_derivative(x[: len(STATE_NAMES)], u, P)
-        for term in self.terms:
-            if term.target in STATE_TARGETS:
-                index = STATE_TARGETS[term.target][0]
-                base[index] = base[index] + term.value(x, u, P, self._clock(x))
+        plant_state = x[: len(self.plant.states)]
+        base = self.plant.derivative(plant_state, u, P)
+        if base.numel() != len(self.plant.states):
+            raise FieldError(
+                "model",
+                f"{self.plant.name}.derivative() gives {base.numel()} values for "
+                f"{len(self.plant.states)} states",
+            )
+        if any(term.target in STATE_TARGETS for term in self.terms):
+            car = self.plant.car_state(plant_state, u, P)
+            for term in self.terms:
+                if term.target in STATE_TARGETS:
+                    index = self.plant.state_names.index(term.target)
+                    base[index] = base[index] + term.value(car, u, P, self._clock(x))
         return ca.vertcat(base, *derivatives), u
 
     def _clock(self, x: ca.SX) -> ca.SX | None:
@@ -325,20 +402,25 @@ class CarModel:
         path: str | Path | None,
         effects: Iterable[str] | Mapping[str, float | Mapping[str, float] | None] = (),
         n_base_stations: int = 1,
+        model: str | Plant | None = None,
     ) -> CarModel:
         """The model with ``effects`` and the parameter YAML ``path`` applied (None: the Chronos
         defaults; :meth:`~crs_core.parameters.ParameterSet.updated_from_yaml`, whose errors name
-        the file). The effects whose parameters the file names are switched on too
-        (:func:`effects_in_file`: a ``params.yaml`` of ``crs discrepancy`` carries its effect),
-        and the terms it lists under ``terms:`` (:func:`~crs_core.model.terms.terms_in_file`);
-        an effect's own value (``steering_lag=0.05``) wins over the file."""
+        the file). The plant is ``model`` or the one the file names under ``model:``
+        (:func:`~crs_core.model.plants.model_in_file`; the two must agree). The effects whose
+        parameters the file names are switched on too (:func:`effects_in_file`: a
+        ``params.yaml`` of ``crs discrepancy`` carries its effect), and the terms it lists under
+        ``terms:`` (:func:`~crs_core.model.terms.terms_in_file`); an effect's own value
+        (``steering_lag=0.05``) wins over the file."""
         if path is None:
-            return cls(effects, n_base_stations)
+            return cls(effects, n_base_stations, model=model)
+        plant = load_plant(resolve_model(model, path), "model")
         given = dict(effects) if isinstance(effects, Mapping) else dict.fromkeys(effects)
         spec = {**dict.fromkeys(effects_in_file(path)), **given}
         terms = terms_in_file(path)
-        model = cls(spec, n_base_stations, terms=terms)
-        return cls(spec, n_base_stations, model.parameters.updated_from_yaml(path), terms=terms)
+        built = cls(spec, n_base_stations, terms=terms, model=plant)
+        parameters = built.parameters.updated_from_yaml(path)
+        return cls(spec, n_base_stations, parameters, terms=terms, model=plant)
 
     def with_effects_at_zero(self, effects: Iterable[str]) -> CarModel:
         """This model with the registry ``effects`` it lacks switched on, their parameters at 0
@@ -350,13 +432,9 @@ class CarModel:
                 spec[name] = dict.fromkeys((p.name for p in EFFECTS[name].parameters), 0.0)
         if len(spec) == len(self.effects):
             return self
-        stations, inputs = self.n_base_stations, self.estimated_inputs
-        widened = CarModel(spec, stations, estimated_inputs=inputs, terms=self.terms).parameters
+        widened = self._rebuilt(effects=spec, online=((), self.online.reversion_s)).parameters
         parameters = widened.updated({n: self.parameters.value(n) for n in self.parameters.names})
-        online = self.online
-        return CarModel(
-            spec, stations, parameters, inputs, None, online.names, online.reversion_s, self.terms
-        )
+        return self._rebuilt(effects=spec, parameters=parameters)
 
     def with_online(self, names: Sequence[str], reversion_s: float) -> CarModel:
         """This model with online parameters ``names`` (:mod:`crs_core.model.online`); an
@@ -364,17 +442,24 @@ class CarModel:
         when this model lacks it."""
         owners = [effect_of_parameter(n) for n in names if n not in self.parameters.names]
         base = self.with_effects_at_zero(owner for owner in owners if owner is not None)
-        effects = [e.name for e in base.effects]
-        return CarModel(
-            effects,
-            base.n_base_stations,
-            base.parameters,
-            base.estimated_inputs,
-            None,
-            names,
-            reversion_s,
-            base.terms,
-        )
+        return base._rebuilt(parameters=base.parameters, online=(names, reversion_s))
+
+    @property
+    def car_state_is_state(self) -> bool:
+        """The car state is the first six states (the dynamic bicycle's)."""
+        return isinstance(self.plant, DynamicBicycle)
+
+    @cached_property
+    def car_state_function(self) -> ca.Function:
+        """``car_state(x, u, p) -> car``: :data:`CAR_STATE_NAMES` of state ``x`` under command
+        ``u``."""
+        return self.function_of_xup("car_state", self.car_state_expression, "car")
+
+    @cached_property
+    def car_state_batch_function(self) -> ca.Function:
+        """:attr:`car_state_function` over :data:`CAR_STATES_BATCH` columns of ``x`` and ``u``
+        with one ``p``."""
+        return self.car_state_function.map("car_state_batch", "serial", CAR_STATES_BATCH, [2], [])
 
     @cached_property
     def dynamics_function(self) -> ca.Function:
@@ -412,12 +497,14 @@ class CarModel:
             return 0.0
         return (parameters or self.parameters).value("input_delay")
 
-    def initial_state(self, pose_and_velocity: Iterable[float], u: Iterable[float] = (0, 0)):
-        """Augmented state from the 6 base states, effect states at rest under command ``u``."""
-        base = [float(v) for v in pose_and_velocity]
-        if len(base) != len(STATE_NAMES):
-            raise ValueError(f"expected {len(STATE_NAMES)} base states, got {len(base)}")
+    def initial_state(self, car_state: Iterable[float], u: Iterable[float] = (0, 0)):
+        """Augmented state from the 6 values of the car state (:data:`CAR_STATE_NAMES`; the
+        plant's state nearest to it), effect states at rest under command ``u``."""
+        car = [float(v) for v in car_state]
+        if len(car) != len(CAR_STATE_NAMES):
+            raise ValueError(f"expected {len(CAR_STATE_NAMES)} car states, got {len(car)}")
         command = [float(v) for v in u]
+        base = [float(v) for v in self.plant.state_from_car(car, command, self.parameters.value)]
         extra = [value for e in self.effects for value in e.initial_states(command)]
         if self.estimated_inputs:
             extra += command
@@ -435,6 +522,8 @@ class CarModel:
         if self.terms:
             described = json.dumps([t.to_dict() for t in self.terms], sort_keys=True)
             parts.append("terms_" + hashlib.sha256(described.encode()).hexdigest()[:10])
+        if type(self.plant) is not DynamicBicycle:
+            parts.insert(0, self.plant.name)
         return "_".join(parts) or "base"
 
     @cached_property
@@ -448,7 +537,9 @@ class CarModel:
             names += "; terms: " + ", ".join(t.equation() for t in self.terms)
         inputs = "; inputs estimated" if self.estimated_inputs else ""
         online = f"; online: {', '.join(self.online.names)}" if len(self.online) else ""
-        return f"CarModel(effects: {names}; stations: {self.n_base_stations}{inputs}{online})"
+        stations = f"stations: {self.n_base_stations}"
+        plant = f"model: {self.plant.name}; "
+        return f"CarModel({plant}effects: {names}; {stations}{inputs}{online})"
 
 
 class NumericModel:
@@ -469,6 +560,14 @@ class NumericModel:
         self.functions: dict[str, NumericFunction] = compile_functions(
             functions, _c_name(f"chronos_{model.tag}_{model.n_base_stations}bs"), backend
         )
+        if not model.car_state_is_state:
+            self.functions.update(
+                compile_functions(
+                    [model.car_state_function, model.car_state_batch_function],
+                    _c_name(f"car_state_{model.tag}_{model.n_base_stations}bs"),
+                    backend,
+                )
+            )
         self.backend = self.functions["f"].backend
         self._slices = {}
         start = 0
@@ -499,6 +598,36 @@ class NumericModel:
     def applied_input(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
         """The input that reaches the car (after offset and actuator lags)."""
         return self.functions["applied_input"](x, u, p)[0]
+
+    def car_state(self, x: np.ndarray, u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The car state :data:`CAR_STATE_NAMES` at state ``x`` under command ``u``."""
+        if self.model.car_state_is_state:
+            return np.array(x[: len(CAR_STATE_NAMES)], dtype=float)
+        return self.functions["car_state"](x, u, p)[0]
+
+    def car_states(
+        self, states: np.ndarray, inputs: np.ndarray, p: np.ndarray | None = None
+    ) -> np.ndarray:
+        """The car state of each row of ``states`` (N x nx) under the command in the same row of
+        ``inputs`` (N x 2), N x 6; ``p`` defaults to the model's parameters."""
+        states = np.asarray(states, dtype=float)
+        if self.model.car_state_is_state:
+            return states[:, : len(CAR_STATE_NAMES)].copy()
+        p = self.model.parameters.vector() if p is None else p
+        inputs = np.broadcast_to(np.asarray(inputs, dtype=float), (len(states), 2))
+        out = np.empty((len(states), len(CAR_STATE_NAMES)))
+        batch = self.functions["car_state_batch"]
+        for start in range(0, len(states), CAR_STATES_BATCH):
+            stop = min(start + CAR_STATES_BATCH, len(states))
+            x_block = np.zeros((self.model.nx, CAR_STATES_BATCH))
+            u_block = np.zeros((2, CAR_STATES_BATCH))
+            x_block[:, : stop - start] = states[start:stop].T
+            u_block[:, : stop - start] = inputs[start:stop].T
+            values = np.asarray(batch(x_block, u_block, p)[0]).reshape(
+                len(CAR_STATE_NAMES), CAR_STATES_BATCH, order="F"
+            )
+            out[start:stop] = values[:, : stop - start].T
+        return out
 
 
 def _channels(sensor: str) -> tuple[str, ...]:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import casadi as ca
 
 from crs_core.errors import parse_finite
-from crs_core.model.bicycle import ParameterAccess
+from crs_core.model.plant import ParameterAccess
 from crs_core.parameters import Parameter
 
 

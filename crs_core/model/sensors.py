@@ -1,7 +1,9 @@
 r"""Sensor models of the Chronos car (paper, Sec. III-B), written once in CasADi.
 
-All take the state ``x``, the *applied* input ``u`` (after any actuator effect) and the parameter
-accessor ``P``. Channel order is fixed and named in :data:`SENSOR_CHANNELS`.
+All take the car state ``car`` (:data:`~crs_core.model.plant.CAR_STATE_NAMES`), the *applied*
+steering angle (after any actuator effect) where it matters and the parameter accessor ``P``, so
+that every model (:class:`~crs_core.model.plant.Plant`) shares them; the dynamic bicycle's IMU is
+written with its forces (:class:`~crs_core.model.bicycle.DynamicBicycle`).
 
 IMU note: an accelerometer senses specific force, the net external force per mass in body axes,
 :math:`a = \dot v_{body} + \omega \times v`. The paper prints
@@ -14,21 +16,16 @@ from __future__ import annotations
 
 import casadi as ca
 
-from crs_core.model.bicycle import ParameterAccess, body_specific_force
 from crs_core.model.lighthouse import rotation_from_angles, sweep_angles
+from crs_core.model.plant import ParameterAccess
 
 N_PHOTODIODES = 4
 
 
-def imu(x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
-    """``[a_x, a_y, omega]``: body specific force (m/s^2) and yaw rate (rad/s)."""
-    ax, ay = body_specific_force(x, u, P)
-    return ca.vertcat(ax, ay, x[5])
-
-
-def wheel_encoders(x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
-    """Wheel angular speeds ``[fl, fr, rl, rr]`` in rad/s, no-skid (paper Eq. 2)."""
-    vx, vy, omega, delta = x[3], x[4], x[5], u[0]
+def wheel_speeds(car: ca.SX, delta: ca.SX, P: ParameterAccess) -> ca.SX:
+    """Wheel angular speeds ``[fl, fr, rl, rr]`` in rad/s, no-skid (paper Eq. 2), for car state
+    ``car`` and applied steering angle ``delta`` (rad)."""
+    vx, vy, omega = car[3], car[4], car[5]
     half_track = 0.5 * P("b_car") * omega
     lateral_front = vy + P("lf") * omega
     return ca.vertcat(
@@ -39,16 +36,17 @@ def wheel_encoders(x: ca.SX, u: ca.SX, P: ParameterAccess) -> ca.SX:
     ) / P("r")
 
 
-def lighthouse(x: ca.SX, station: int, P: ParameterAccess) -> tuple[ca.SX, ca.SX]:
-    """Sweep angles (rad) of the 4 photodiodes, planes 1 and 2 of base station ``station``."""
+def lighthouse(car: ca.SX, station: int, P: ParameterAccess) -> tuple[ca.SX, ca.SX]:
+    """Sweep angles (rad) of the 4 photodiodes, planes 1 and 2 of base station ``station``, for
+    the pose of car state ``car``."""
     b = f"bs{station}_"
     rotation = rotation_from_angles(P(b + "phi1"), P(b + "phi2"), P(b + "phi3"))
     position = ca.vertcat(P(b + "x"), P(b + "y"), P(b + "z"))
     diodes = [(P(f"lh_d{k}_x"), P(f"lh_d{k}_y")) for k in range(N_PHOTODIODES)]
-    first, second = sweep_angles(x[0:3], diodes, rotation, position, P(b + "dt1"), P(b + "dt2"))
+    first, second = sweep_angles(car[0:3], diodes, rotation, position, P(b + "dt1"), P(b + "dt2"))
     return ca.vertcat(*first), ca.vertcat(*second)
 
 
-def pose(x: ca.SX) -> ca.SX:
-    """Motion-capture pose ``[x, y, yaw]`` (m, m, rad)."""
-    return x[0:3]
+def pose(car: ca.SX) -> ca.SX:
+    """Motion-capture pose ``[x, y, yaw]`` (m, m, rad) of car state ``car``."""
+    return car[0:3]

@@ -31,12 +31,12 @@ from crs_core.errors import FieldError
 from crs_core.parameters import Parameter
 from crs_core.yaml_io import load_yaml
 
-#: Variables a monomial may use: where they come from (a base state's or an applied input's index;
+#: Variables a monomial may use: where they come from (a car state's or an applied input's index;
 #: ``t`` the clock state's value) and unit.
 TERM_VARIABLES: dict[str, tuple[str, int, str]] = {
-    "vx": ("state", 3, "m/s"),
-    "vy": ("state", 4, "m/s"),
-    "omega": ("state", 5, "rad/s"),
+    "vx": ("car", 3, "m/s"),
+    "vy": ("car", 4, "m/s"),
+    "omega": ("car", 5, "rad/s"),
     "steer": ("input", 0, "rad"),
     "torque": ("input", 1, "-"),
     "t": ("clock", 0, "s"),
@@ -44,12 +44,8 @@ TERM_VARIABLES: dict[str, tuple[str, int, str]] = {
 #: The state a model with a term in ``t`` carries: the time since its state began, s
 #: (derivative 1, 0 at the start: in a recording's fit and prediction, the time into it).
 CLOCK_STATE = ("clock", "s")
-#: Targets: state derivatives (state index, unit of the derivative) and sensor outputs (unit).
-STATE_TARGETS: dict[str, tuple[int, str]] = {
-    "vx": (3, "m/s^2"),
-    "vy": (4, "m/s^2"),
-    "omega": (5, "rad/s^2"),
-}
+#: Targets: the derivative of the model's state of that name (its unit), and sensor outputs.
+STATE_TARGETS: dict[str, str] = {"vx": "m/s^2", "vy": "m/s^2", "omega": "rad/s^2"}
 #: Sensor-output targets: the sensor, the sign with which the term adds to each of its channels
 #: (``wheel_encoders``: fl, fr, rl, rr), and the unit.
 OUTPUT_TARGETS: dict[str, tuple[str, tuple[float, ...], str]] = {
@@ -122,7 +118,7 @@ class Term:
     def unit(self) -> str:
         """The target's unit (a derivative's for a state target)."""
         if self.target in STATE_TARGETS:
-            return STATE_TARGETS[self.target][1]
+            return STATE_TARGETS[self.target]
         return OUTPUT_TARGETS[self.target][2]
 
     def coefficient_names(self) -> tuple[str, ...]:
@@ -169,12 +165,13 @@ class Term:
         """A monomial has ``t`` in it (the model then carries :data:`CLOCK_STATE`)."""
         return any("t" in monomial for monomial in self.monomials)
 
-    def value(self, x: ca.SX, u: ca.SX, parameter: Any, clock: ca.SX | None = None) -> ca.SX:
-        """The term's value for state ``x``, applied input ``u``, parameter access
-        ``parameter(name) -> SX`` and the clock state (needed when :attr:`uses_time`)."""
+    def value(self, car: ca.SX, u: ca.SX, parameter: Any, clock: ca.SX | None = None) -> ca.SX:
+        """The term's value for car state ``car`` (:data:`~crs_core.model.plant.CAR_STATE_NAMES`),
+        applied input ``u``, parameter access ``parameter(name) -> SX`` and the clock state
+        (needed when :attr:`uses_time`)."""
         if self.uses_time and clock is None:
             raise ValueError(f"term {self.name!r} uses t: its model needs a clock state")
-        values = {"state": x, "input": u, "clock": clock if clock is not None else ca.SX(0)}
+        values = {"car": car, "input": u, "clock": clock if clock is not None else ca.SX(0)}
         total = ca.SX(0)
         for name, monomial in zip(self.coefficient_names(), self.monomials, strict=True):
             product = ca.SX(1)
