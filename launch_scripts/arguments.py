@@ -13,6 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from crs_core.errors import FieldError
+
 OVERWRITE_HELP = (
     "replace the --out an earlier crs run wrote (a folder holding other files is always refused)"
 )
@@ -214,6 +216,31 @@ def add_effect(
         action="append",
         metavar="NAME[.PARAM][=VALUE]",
         help=help_text,
+    )
+
+
+def _parse_model(text: str) -> str:
+    """A model spec that loads (:func:`~crs_core.model.plants.load_plant`), kept as given."""
+    from crs_core.model.plants import load_plant
+
+    try:
+        load_plant(text)
+    except FieldError as error:
+        raise ValueError(error.reason) from None
+    return text.strip()
+
+
+def add_model(
+    parser: argparse.ArgumentParser,
+    help_text: str = "the model: dynamic (default), kinematic, or FILE.py:CLASS / MODULE:CLASS, "
+    "a model of your own (docs/own-model.md); by default the one --params names",
+    flag: str = "--model",
+    dest: str = "model",
+) -> None:
+    """``--model SPEC``: which model a command runs (``flag`` and ``dest``: another option of
+    the same kind, e.g. the simulated car's ``--car-model``)."""
+    parser.add_argument(
+        flag, dest=dest, type=argument_type(_parse_model), metavar="MODEL", help=help_text
     )
 
 

@@ -199,7 +199,7 @@ class SimulationSession:
         for name, clock in self._clocks.items():
             self._push(clock.next(), _SENSOR, name)
         self.truth_t: list[float] = [0.0]
-        self.truth_x: list[np.ndarray] = [self._x[:6].copy()]
+        self.truth_x: list[np.ndarray] = [self.base_state]
         self.inputs: list[InputSample] = []
         self.measurements: list[Measurement] = []
         self.applied_inputs: list[InputSample] = []
@@ -223,8 +223,8 @@ class SimulationSession:
 
     @property
     def base_state(self) -> np.ndarray:
-        """True ``[x, y, yaw, vx, vy, omega]`` now."""
-        return self._x[:6].copy()
+        """True car state ``[x, y, yaw, vx, vy, omega]`` now (the model's state mapped to it)."""
+        return self._numeric.car_state(self._x, self._u, self._p)
 
     @property
     def applied_command(self) -> np.ndarray:
@@ -328,7 +328,7 @@ class SimulationSession:
                 self.truth_t.clear()
                 self.truth_x.clear()
             self.truth_t.append(t)
-            self.truth_x.append(self._x[:6].copy())
+            self.truth_x.append(self.base_state)
 
     def _acquire(self, name: str) -> Measurement | None:
         """One sample of sensor ``name`` now, or None if it is lost."""

@@ -46,7 +46,7 @@ from crs_core.discrepancy.hypotheses import extended_model
 from crs_core.errors import FieldError
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.identification.data import Y_LAYOUT
-from crs_core.identification.problem import DEFAULT_FIT, check_fit, prior_std
+from crs_core.identification.problem import check_fit, default_fit, prior_std
 from crs_core.model import CarModel
 from crs_core.model.effects import EFFECTS, effect_of_parameter
 from crs_core.track import Track
@@ -191,10 +191,10 @@ def with_open_effects(model: CarModel, names: Sequence[str]) -> CarModel:
     return extended_model(model, added, defaults)
 
 
-def default_fit(model: CarModel, open_names: Sequence[str] = ()) -> tuple[str, ...]:
-    """``crs sysid``'s default fit (the dynamics, ``r``, ``b_car`` and every effect
-    parameter) plus any open name it lacks."""
-    names = DEFAULT_FIT + tuple(p.name for e in model.effects for p in e.parameters)
+def planned_fit(model: CarModel, open_names: Sequence[str] = ()) -> tuple[str, ...]:
+    """``crs sysid``'s default fit (:func:`~crs_core.identification.problem.default_fit`)
+    plus any open name it lacks."""
+    names = default_fit(model)
     return names + tuple(n for n in open_names if n not in names)
 
 

@@ -345,7 +345,7 @@ def fit_hypothesis(
         values[lags[0].name] = _profile_time_constant(
             train, extended, current, lags[0], replace(settings, starts=1), progress
         )
-    warm = WarmStart(values, current.states[:, :6].copy())
+    warm = WarmStart(values, current.states)
     fit_settings = replace(settings, fit=fit, starts=1)
     delay = 0.0
     if DELAY_EFFECT in effects:

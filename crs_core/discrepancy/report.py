@@ -121,7 +121,8 @@ def write_final_params(result: DiscrepancyResult, path: Path) -> Path:
     delay = _named_delay(result)
     if delay is not None and DELAY_EFFECT not in entries:
         value, std = delay
-        entry = CarModel({DELAY_EFFECT: {DELAY_EFFECT: value}}).parameters.to_dict()[DELAY_EFFECT]
+        delayed = CarModel({DELAY_EFFECT: {DELAY_EFFECT: value}}, model=result.final.model)
+        entry = delayed.parameters.to_dict()[DELAY_EFFECT]
         if math.isfinite(std) and std > 0:
             entry["prior_std"] = std
         entries[DELAY_EFFECT] = entry
@@ -132,11 +133,15 @@ def write_final_params(result: DiscrepancyResult, path: Path) -> Path:
         "# Load it with --params on crs sysid / validate / sim / estimate (effects inferred).",
         "# Fitted parameters: prior -> identified +- std.",
     ]
-    document = {"parameters": entries}
+    document = {"model": result.final.model, "parameters": entries}
     if result.terms:
         header.append("# Terms proposed from the data (coefficients: <name>_c1, ...):")
         header += [f"#   {term.equation()}" for term in result.terms]
-        document = {"terms": [term.to_dict() for term in result.terms], **document}
+        document = {
+            "model": result.final.model,
+            "terms": [term.to_dict() for term in result.terms],
+            "parameters": entries,
+        }
     body = yaml.safe_dump(document, sort_keys=False)
     path.write_text("\n".join(header + comments) + "\n" + body)
     return path

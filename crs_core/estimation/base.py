@@ -382,7 +382,7 @@ class Estimator:
             estimate = self._lost_estimate(t)
         else:
             full_x, full_covariance = self._estimate(t)
-            x, covariance = full_x[:6].copy(), full_covariance[:6, :6].copy()
+            x, covariance = self._car_view(full_x, full_covariance, t)
             problem = self._implausible(x, t)
             if problem:
                 self.diagnostics.reinitializations += 1
@@ -484,6 +484,16 @@ class Estimator:
         self.diagnostics.fallbacks += 1
         self._health.fallback(stamp, reason)
 
+    def _car_view(
+        self, x: np.ndarray, covariance: np.ndarray, t: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The car state and its covariance at ``t`` of a whole state (``nx``) and its
+        covariance; a (6,) state is one."""
+        if x.size != self.model.nx or self.model.car_state_is_state:
+            return x[:6].copy(), covariance[:6, :6].copy()
+        numeric, p, u = self.model.numeric, self.model.parameters.vector(), self._command_at(t)
+        return numeric.car_state(x, u, p), numeric.car_covariance(x, covariance, u, p)
+
     # --- to implement -----------------------------------------------------------------
     def _estimate(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """Process the queue up to ``t``; the state at ``t`` and its covariance: the model's
@@ -495,7 +505,11 @@ class Estimator:
         raise NotImplementedError
 
     def current_state(self) -> np.ndarray:
-        """The newest base state the estimator holds (6,)."""
+        """The newest car state the estimator holds (6,)."""
+        raise NotImplementedError
+
+    def _command_at(self, t: float) -> np.ndarray:
+        """The command in effect at ``t`` (``[steer rad, torque -]``)."""
         raise NotImplementedError
 
 

@@ -191,6 +191,7 @@ class ExtendedKalmanFilter(Estimator):
         super().__init__(sensors, model, settings)
         self.settings: EkfSettings = settings
         self._steps = EkfSteps(model, settings.noise, settings.gate_probability)
+        self._p = model.parameters.vector()
         self._initial_std = initial_std_for(settings.initial_std, model)
         self._cap = RejectionCap(settings.max_consecutive_rejections)
         self.reset(0.0, np.zeros(6))
@@ -206,14 +207,23 @@ class ExtendedKalmanFilter(Estimator):
         self._x = self.model.initial_state(x0, self._last_input)
         self._P = np.diag(self._initial_std**2)
         if covariance is not None:
-            self._P[:6, :6] = covariance
+            n = len(self.model.plant.states)
+            self._P[:n, :n] = self.model.numeric.plant_covariance(
+                covariance, self._x, self._last_input, self._p
+            )
         self._u = np.array(self._last_input, dtype=float)
         self._cap.clear()
         self._history: list[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = []
         self._remember()
 
     def current_state(self) -> np.ndarray:
-        return self._x[:6].copy()
+        return self.model.numeric.car_state(self._x, self._u, self._p)
+
+    def _command_at(self, t: float) -> np.ndarray:
+        if t >= self._t or not self._history:
+            return self._u
+        k = bisect.bisect_right(self._history, t, key=lambda h: h[0]) - 1
+        return self._history[max(k, 0)][3]
 
     # --- propagation and update -------------------------------------------------------
     def _update(self, measurement: Measurement) -> None:

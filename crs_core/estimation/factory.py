@@ -132,4 +132,5 @@ def input_free_model(model: CarModel) -> CarModel:
         estimated_inputs=True,
         online_parameters=model.online.names,
         online_reversion_s=model.online.reversion_s,
+        model=model.plant,
     )

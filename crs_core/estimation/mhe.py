@@ -64,7 +64,7 @@ from crs_core.estimation.mhe_problem import (
     measurement_groups,
     offset_output_functions,
 )
-from crs_core.estimation.noise import check_effect_state_names, initial_std_for
+from crs_core.estimation.noise import check_effect_state_names, initial_std_for, per_plant_state
 from crs_core.estimation.readout import ForwardReadOut
 from crs_core.estimation.rejection import RejectionCap
 from crs_core.measurements import InputSample, Measurement
@@ -234,18 +234,26 @@ class MovingHorizonEstimator(Estimator):
 
     @staticmethod
     def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
-        names = model.state_names[6:]
+        plant = model.plant
+        if [plant.car_state_like(n) for n in plant.state_names[:3]] != ["x", "y", "yaw"]:
+            raise FieldError(
+                "model", f"the MHE needs the pose as the first three states of {plant.name}"
+            )
+        names = model.state_names[len(plant.states) :]
         check_effect_state_names(s.extra_state_bounds, "extra_state_bounds")
         table = {**EXTRA_STATE_BOUNDS, **model.online.bounds, **s.extra_state_bounds}
         extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]
+        free = (-_UNBOUNDED,) * 3  # the pose is not bounded
+        lower = per_plant_state((*free, *s.state_lower), model, "state_lower")[3:]
+        upper = per_plant_state((*free, *s.state_upper), model, "state_upper")[3:]
         return np.concatenate(
             [
-                s.process_bound,
-                np.full(model.nx - 6, _UNBOUNDED),
+                per_plant_state(s.process_bound, model, "process_bound"),
+                np.full(len(names), _UNBOUNDED),
                 [s.bound_weight],
-                s.state_lower,
+                lower,
                 [lo for lo, _ in extra],
-                s.state_upper,
+                upper,
                 [hi for _, hi in extra],
                 [s.bound_weight],
             ]
@@ -262,14 +270,18 @@ class MovingHorizonEstimator(Estimator):
         return float(self._times[len(self._times) - self._active])
 
     def current_state(self) -> np.ndarray:
-        return self._X[:6, -1].copy()
+        return self.model.numeric.car_state(
+            self._X[:, -1], self._command_at(self._times[-1]), self._p
+        )
 
     # --- state of the window ------------------------------------------------------------
     def _reset_state(self, t0: float, x0: np.ndarray, covariance: np.ndarray | None) -> None:
         x = self.model.initial_state(x0, self._last_input)
         weight = self._default_initial_weight.copy()
         if covariance is not None:
-            weight[:6] = 1.0 / np.clip(np.diag(covariance), 1e-12, None)
+            n = len(self.model.plant.states)
+            plant = self.model.numeric.plant_covariance(covariance, x, self._last_input, self._p)
+            weight[:n] = 1.0 / np.clip(np.diag(plant), 1e-12, None)
         self._input_history: list[InputSample] = [InputSample(t0, self._last_input)]
         self._pending: list[tuple[float, str, int, Measurement]] = []
         self._anchor = t0  # node k sits at anchor + k / rate_hz

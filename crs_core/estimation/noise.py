@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -13,6 +13,7 @@ from crs_core.measurements import parse_lighthouse
 from crs_core.model.car_model import ESTIMATED_INPUT_STATES, CarModel
 from crs_core.model.effects import EFFECTS
 from crs_core.model.online import STATE_PREFIX as ONLINE_STATE_PREFIX
+from crs_core.model.plant import CAR_STATE_NAMES
 from crs_core.model.terms import CLOCK_STATE
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
@@ -101,8 +102,9 @@ class EstimatorNoise:
         return np.array(table[sensor], dtype=float)
 
     def process_std_for(self, model: CarModel) -> np.ndarray:
-        """Process noise per state of ``model`` (base six first; an online parameter's is its
-        random walk, :mod:`crs_core.model.online`).
+        """Process noise per state of ``model``: the plant's states from :attr:`process_std`
+        (:func:`per_plant_state`), the others by name (an online parameter's is its random
+        walk, :mod:`crs_core.model.online`).
 
         Entries for effect states this model lacks are allowed (one setting serves the
         commanded and the input-free model); names no model has are refused.
@@ -112,9 +114,10 @@ class EstimatorNoise:
         defaults |= model.online.process_std
         extra = [
             self.extra_process_std.get(name, defaults.get(name, EXTRA_STATE_FALLBACK[0]))
-            for name in model.state_names[6:]
+            for name in model.state_names[len(model.plant.states) :]
         ]
-        return np.array([*self.process_std, *extra], dtype=float)
+        plant = per_plant_state(self.process_std, model, "noise.process_std")
+        return np.array([*plant, *extra], dtype=float)
 
 
 def check_effect_state_names(names: Iterable[str], field: str) -> None:
@@ -131,9 +134,32 @@ def check_effect_state_names(names: Iterable[str], field: str) -> None:
 
 
 def initial_std_for(base_std: tuple[float, ...], model: CarModel) -> np.ndarray:
-    """Initial standard deviation per state of ``model``: ``base_std`` for the six, defaults
-    for the rest (an online parameter's: its prior's)."""
+    """Initial standard deviation per state of ``model``: ``base_std`` (the car state's) for
+    the plant's states (:func:`per_plant_state`), defaults for the rest (an online
+    parameter's: its prior's)."""
     defaults = {name: std for name, (_, std) in EXTRA_STATE_DEFAULTS.items()}
     defaults |= model.online.prior_std
-    extra = [defaults.get(n, EXTRA_STATE_FALLBACK[1]) for n in model.state_names[6:]]
-    return np.array([*base_std, *extra], dtype=float)
+    rest = model.state_names[len(model.plant.states) :]
+    extra = [defaults.get(n, EXTRA_STATE_FALLBACK[1]) for n in rest]
+    plant = per_plant_state(base_std, model, "initial_std")
+    return np.array([*plant, *extra], dtype=float)
+
+
+def per_plant_state(
+    values: Sequence[float], model: CarModel, field: str, names: Sequence[str] = CAR_STATE_NAMES
+) -> list[float]:
+    """A setting given per car state (``values`` for ``names``) for each state of ``model``'s
+    plant: the value of the car state it is like (:meth:`~crs_core.model.plant.Plant.
+    car_state_like`). A plant state like none of ``names`` is refused in one line."""
+    table = dict(zip(names, values, strict=True))
+    out = []
+    for name in model.plant.state_names:
+        similar = model.plant.car_state_like(name)
+        if similar not in table:
+            raise FieldError(
+                field,
+                f"gives {', '.join(names)}; state {name} of model {model.plant.name} is like "
+                f"{similar or 'none of them'} (set its Plant.like)",
+            )
+        out.append(float(table[similar]))
+    return out

@@ -51,6 +51,8 @@ from crs_core.estimation.online_track import OnlineTrack
 from crs_core.measurements import InputSample, Measurement, in_stamp_order
 from crs_core.model import CarModel
 from crs_core.model.car_model import effects_in_file
+from crs_core.model.plant import Plant
+from crs_core.model.plants import load_plant, resolve_model
 from crs_core.model.terms import Term, terms_in_file
 
 #: Integer codes of the status words in ``estimates.npz``.
@@ -71,8 +73,11 @@ def dataset_model(
     parameters_yaml: str | Path | None = None,
     effects: Mapping[str, Any] = MappingProxyType({}),
     values: Mapping[str, float] = MappingProxyType({}),
+    model: str | Plant | None = None,
 ) -> CarModel:
-    """The Chronos model with the dataset's Lighthouse geometry (stations, photodiodes).
+    """The model ``model`` (:func:`~crs_core.model.plants.load_plant`; by default the one
+    ``parameters_yaml`` names, else the dynamic bicycle) with the dataset's Lighthouse geometry
+    (stations, photodiodes).
 
     ``effects`` (the ``CarModel`` effects mapping) are switched on, and those whose parameters
     ``parameters_yaml`` names (:func:`~crs_core.model.car_model.effects_in_file`), with the
@@ -83,16 +88,17 @@ def dataset_model(
     refused with a :class:`~crs_core.errors.FieldError` naming ``geometry.base_stations``.
     """
     terms: tuple[Term, ...] = ()
+    plant = load_plant(resolve_model(model, parameters_yaml), "model")
     if parameters_yaml is not None:
         effects = {**dict.fromkeys(effects_in_file(parameters_yaml)), **effects}
         terms = terms_in_file(parameters_yaml)
     n = len(dataset.geometry.known_stations())
     geometry = {name: p.value for name, p in dataset.geometry.parameters().items()}
-    parameters = CarModel(effects, n_base_stations=n, terms=terms).parameters.updated(geometry)
-    parameters = parameters.updated(dict(values))
+    skeleton = CarModel(effects, n_base_stations=n, terms=terms, model=plant)
+    parameters = skeleton.parameters.updated(geometry).updated(dict(values))
     if parameters_yaml is not None:
         parameters = parameters.updated_from_yaml(parameters_yaml)
-    return CarModel(effects, n_base_stations=n, parameters=parameters, terms=terms)
+    return CarModel(effects, n_base_stations=n, parameters=parameters, terms=terms, model=plant)
 
 
 def dataset_stream(dataset: Dataset) -> tuple[list[Measurement], list[InputSample], str]:

@@ -35,42 +35,27 @@ import casadi as ca
 import numpy as np
 
 from crs_core.errors import FieldError
-from crs_core.estimation.noise import EstimatorNoise
+from crs_core.estimation.noise import EstimatorNoise, per_plant_state
 from crs_core.identification.data import Y_LAYOUT, FieData
 from crs_core.identification.jacobian import DefectBlock, MeasurementBlock, residual_jacobian
 from crs_core.model import CarModel
+from crs_core.model.bicycle import DynamicBicycle
 from crs_core.model.car_model import MAX_SUBSTEP
 from crs_core.settings import Settings, positive
 
-#: The paper's 15 dynamics parameters.
-DYNAMICS_FIT = (
-    "m",
-    "Iz",
-    "lf",
-    "lr",
-    "Df",
-    "Cf",
-    "Bf",
-    "Dr",
-    "Cr",
-    "Br",
-    "Cm1",
-    "Cm2",
-    "Cd0",
-    "Cd1",
-    "Cd2",
-)
-#: The default ``crs sysid --fit``: the dynamics parameters and the wheel encoders' radius and
-#: track width (the encoders see the effective track width, not the nominal one: on real run 1
-#: from the rough prior, validated on run 2, 0.230 m held out without them, 0.173 m with them).
-DEFAULT_FIT = (*DYNAMICS_FIT, "r", "b_car")
+#: The default ``crs sysid --fit`` of the dynamic bicycle
+#: (:attr:`~crs_core.model.bicycle.DynamicBicycle.default_fit`).
+DEFAULT_FIT = DynamicBicycle.default_fit
+#: The paper's 15 dynamics parameters (the default without the wheel encoders' geometry).
+DYNAMICS_FIT = tuple(name for name in DEFAULT_FIT if name not in ("r", "b_car"))
 #: Prior standard deviation, relative to the value, of a fitted parameter whose
 #: ``prior_std`` is 0 (or of a parameter at 0: a quarter of its bound range).
 DEFAULT_RELATIVE_PRIOR = 0.5
 #: Standard deviation of the prior on the first state ``[x, y, yaw, vx, vy, omega]`` around the
 #: estimator's value at the first sample (m, m, rad, m/s, m/s, rad/s).
 X0_STD = (0.05, 0.05, 0.1, 0.5, 0.5, 1.0)
-#: :math:`\mathbb X_{ID}`: bounds on states by name (the rest unbounded).
+#: :math:`\mathbb X_{ID}`: bounds on the plant's states by the car state they are like (the
+#: rest unbounded).
 STATE_BOUNDS = {"vx": (-5.0, 5.0), "vy": (-5.0, 5.0), "omega": (-15.0, 15.0)}
 #: Substep counts used (the smallest one with substeps <= MAX_SUBSTEP is picked per interval):
 #: few distinct counts keep the number of mapped functions small.
@@ -136,6 +121,16 @@ def prior_std(model: CarModel, name: str) -> float:
     if parameter.value != 0:
         return DEFAULT_RELATIVE_PRIOR * abs(parameter.value)
     return max((parameter.upper - parameter.lower) / 4, 1e-6)
+
+
+def default_fit(model: CarModel) -> tuple[str, ...]:
+    """What ``crs sysid`` fits by default: the plant's
+    :attr:`~crs_core.model.plant.Plant.default_fit` (every plant parameter with a prior std > 0
+    when it names none), then every effect parameter."""
+    plant = model.plant.default_fit or tuple(
+        p.name for p in model.plant.parameters().values() if p.prior_std > 0
+    )
+    return plant + tuple(p.name for e in model.effects for p in e.parameters)
 
 
 def check_fit(model: CarModel, fit: Sequence[str]) -> None:
@@ -239,9 +234,10 @@ class FieProblem:
         lo = [(self.model.parameters[n].lower - v) / s for n, v, s in self._theta_rows()]
         hi = [(self.model.parameters[n].upper - v) / s for n, v, s in self._theta_rows()]
         x_lo, x_hi = np.full(self.nx, -np.inf), np.full(self.nx, np.inf)
-        for name, (low, high) in STATE_BOUNDS.items():
-            i = self.model.state_names.index(name)
-            x_lo[i], x_hi[i] = low, high
+        for i, name in enumerate(self.model.plant.state_names):
+            similar = self.model.plant.car_state_like(name)
+            if similar in STATE_BOUNDS:
+                x_lo[i], x_hi[i] = STATE_BOUNDS[similar]
         return (
             np.concatenate([lo, np.tile(x_lo, self.n)]),
             np.concatenate([hi, np.tile(x_hi, self.n)]),
@@ -307,8 +303,9 @@ class FieProblem:
             Y = ca.vertcat(Y1, Y[plane1_rows:, :])
         measured = (Y - ca.DM(data.y.T)) * ca.DM(data.weight.T)
         # priors: theta (already scaled by its std) and the first state
-        x0_std = np.concatenate(
-            [X0_STD, np.full(nx - len(X0_STD), 0.05)]  # effect states: rad / -
+        n_plant = len(model.plant.states)
+        x0_std = np.concatenate(  # effect states: rad / -
+            [per_plant_state(X0_STD, model, "X0_STD"), np.full(nx - n_plant, 0.05)]
         )
         prior_x0 = (X[:, 0] - ca.DM(self.x0_prior)) / ca.DM(x0_std)
         self.blocks = {

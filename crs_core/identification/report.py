@@ -66,7 +66,8 @@ def result_summary(result: FieResult) -> dict[str, Any]:
 
 
 def write_params_yaml(result: FieResult, path: Path) -> Path:
-    """Every model parameter as a full entry; fitted ones with their identified std."""
+    """The model (``model:``, its spec) and every parameter as a full entry; fitted ones with
+    their identified std."""
     entries = result.parameters.to_dict()
     lines = ["# Identified by crs sysid (FIE). Fitted parameters: prior -> identified +- std."]
     for i, name in enumerate(result.fit):
@@ -77,7 +78,8 @@ def write_params_yaml(result: FieResult, path: Path) -> Path:
             f"# {name}: {result.theta_prior[i]:.6g} -> {result.theta[i]:.6g} +- {std:.3g} "
             f"{result.prior[name].unit} ({verdict})"
         )
-    text = "\n".join(lines) + "\n" + yaml.safe_dump({"parameters": entries}, sort_keys=False)
+    document = {"model": result.model, "parameters": entries}
+    text = "\n".join(lines) + "\n" + yaml.safe_dump(document, sort_keys=False)
     path.write_text(text)
     return path
 

@@ -24,7 +24,7 @@ from crs_core.identification.data import FieData, input_segments
 from crs_core.identification.problem import FieProblem, FieSettings, check_fit
 from crs_core.identification.uncertainty import ParameterUncertainty, parameter_uncertainty
 from crs_core.model import CarModel
-from crs_core.model.bicycle import STATE_NAMES
+from crs_core.model.plants import DEFAULT_MODEL, plant_spec
 from crs_core.model.terms import CLOCK_STATE
 from crs_core.parameters import ParameterSet
 
@@ -94,6 +94,7 @@ class FieResult:
     solver_status : str, IPOPT's return status of the best start
     settings : FieSettings
     starts : list of per-start summaries (cost, iterations, status, time_s)
+    model : str, the spec of the model's plant (:func:`~crs_core.model.plants.plant_spec`)
     """
 
     parameters: ParameterSet
@@ -116,6 +117,7 @@ class FieResult:
     solver_status: str
     settings: FieSettings
     starts: list[dict[str, Any]] = field(default_factory=list)
+    model: str = DEFAULT_MODEL
 
     @property
     def time_per_iteration_s(self) -> float:
@@ -146,7 +148,12 @@ def initial_trajectory(
     for k in np.flatnonzero(lost)[np.flatnonzero(lost) > first]:
         x[k] = x[k - 1]  # hold through a later loss
     x[:, 2] = np.unwrap(x[:, 2])
-    return _with_effect_states(dataset, model, x, model.parameters.vector())
+    u = dataset.u if dataset.u is not None else np.zeros((len(x), 2))
+    P = model.parameters.value
+    plant = np.stack(
+        [model.plant.state_from_car(row, cmd, P) for row, cmd in zip(x, u, strict=True)]
+    )
+    return _with_effect_states(dataset, model, plant, model.parameters.vector())
 
 
 def effect_state_trajectory(
@@ -155,7 +162,7 @@ def effect_state_trajectory(
     states: np.ndarray,
     p: np.ndarray | None = None,
 ) -> np.ndarray:
-    """``states`` ``(N, nx)`` with the effect states (after the six base states) integrated
+    """``states`` ``(N, nx)`` with the effect states (after the plant's states) integrated
     through ``dataset``'s commands (the FIE's held-command segments,
     :func:`~crs_core.identification.data.input_segments`) from their value at the first sample
     with parameter vector ``p`` (default the model's), the base states kept. At rest under the
@@ -165,7 +172,7 @@ def effect_state_trajectory(
     n_effect = sum(len(e.initial_states([0.0, 0.0])) for e in model.effects)
     if n_effect == 0:
         return states
-    base = len(STATE_NAMES)  # the effects' states come first after the base states
+    base = len(model.plant.states)  # the effects' states come first after the plant's
     effect = slice(base, base + n_effect)
     numeric = model.numeric
     p = model.parameters.vector() if p is None else p
@@ -187,8 +194,9 @@ class WarmStart:
     ----------
     values : mapping of parameter name to value; fitted parameters named here start there (the
         prior stays the model's)
-    states : (N, >= 6) state trajectory on the dataset's stamps; its base six states are used,
-        effect states are run through the commands (:func:`effect_state_trajectory`)
+    states : (N, >= n) state trajectory on the dataset's stamps of a model of the same plant;
+        its plant's n states are used, effect states are run through the commands
+        (:func:`effect_state_trajectory`)
     """
 
     values: dict[str, float]
@@ -198,23 +206,24 @@ class WarmStart:
 def _warm_states(
     dataset: Dataset, model: CarModel, states: np.ndarray, p: np.ndarray
 ) -> np.ndarray:
-    """``states``' base six columns, effect states run through the commands with parameter
+    """``states``' plant columns, effect states run through the commands with parameter
     vector ``p``."""
-    if states.shape[0] != len(dataset.t) or states.shape[1] < 6:
+    n = len(model.plant.states)
+    if states.shape[0] != len(dataset.t) or states.shape[1] < n:
         raise FieldError(
-            "warm_start.states", f"expected ({len(dataset.t)}, >= 6), got {states.shape}"
+            "warm_start.states", f"expected ({len(dataset.t)}, >= {n}), got {states.shape}"
         )
-    return _with_effect_states(dataset, model, states[:, :6], p)
+    return _with_effect_states(dataset, model, states[:, :n], p)
 
 
 def _with_effect_states(
     dataset: Dataset, model: CarModel, base: np.ndarray, p: np.ndarray
 ) -> np.ndarray:
-    """Model states ``(N, nx)`` from base states ``(N, 6)``: effect states at rest under the
+    """Model states ``(N, nx)`` from plant states ``(N, n)``: effect states at rest under the
     first command, then run through the commands with parameter vector ``p``; a term's clock
     the time since the recording's start (:attr:`~crs_core.dataset.Dataset.recording_start`)."""
     u = dataset.u if dataset.u is not None else np.zeros((len(base), 2))
-    at_rest = np.stack([model.initial_state(row, cmd) for row, cmd in zip(base, u, strict=True)])
+    at_rest = np.stack([model.augmented_state(row, cmd) for row, cmd in zip(base, u, strict=True)])
     if model.has_clock:
         at_rest[:, model.state_names.index(CLOCK_STATE[0])] = dataset.t - dataset.recording_start
     return effect_state_trajectory(dataset, model, at_rest, p)
@@ -343,4 +352,5 @@ def identify(
         solver_status=summary["status"],
         settings=settings,
         starts=starts,
+        model=plant_spec(model.plant),
     )

@@ -456,6 +456,12 @@ class CarModel:
         return self.function_of_xup("car_state", self.car_state_expression, "car")
 
     @cached_property
+    def car_state_jacobian_function(self) -> ca.Function:
+        """``car_state_jacobian(x, u, p) -> J``: the car state's Jacobian in the state, 6 x nx."""
+        jacobian = ca.jacobian(self.car_state_expression, self.x_sym)
+        return self.function_of_xup("car_state_jacobian", ca.densify(jacobian), "J")
+
+    @cached_property
     def car_state_batch_function(self) -> ca.Function:
         """:attr:`car_state_function` over :data:`CAR_STATES_BATCH` columns of ``x`` and ``u``
         with one ``p``."""
@@ -504,7 +510,15 @@ class CarModel:
         if len(car) != len(CAR_STATE_NAMES):
             raise ValueError(f"expected {len(CAR_STATE_NAMES)} car states, got {len(car)}")
         command = [float(v) for v in u]
-        base = [float(v) for v in self.plant.state_from_car(car, command, self.parameters.value)]
+        plant = self.plant.state_from_car(car, command, self.parameters.value)
+        return self.augmented_state(plant, command)
+
+    def augmented_state(self, plant_state: Iterable[float], u: Iterable[float] = (0, 0)):
+        """Augmented state from the plant's states, effect states at rest under command ``u``."""
+        base = [float(v) for v in plant_state]
+        if len(base) != len(self.plant.states):
+            raise ValueError(f"expected {len(self.plant.states)} plant states, got {len(base)}")
+        command = [float(v) for v in u]
         extra = [value for e in self.effects for value in e.initial_states(command)]
         if self.estimated_inputs:
             extra += command
@@ -563,7 +577,11 @@ class NumericModel:
         if not model.car_state_is_state:
             self.functions.update(
                 compile_functions(
-                    [model.car_state_function, model.car_state_batch_function],
+                    [
+                        model.car_state_function,
+                        model.car_state_batch_function,
+                        model.car_state_jacobian_function,
+                    ],
                     _c_name(f"car_state_{model.tag}_{model.n_base_stations}bs"),
                     backend,
                 )
@@ -604,6 +622,26 @@ class NumericModel:
         if self.model.car_state_is_state:
             return np.array(x[: len(CAR_STATE_NAMES)], dtype=float)
         return self.functions["car_state"](x, u, p)[0]
+
+    def car_covariance(
+        self, x: np.ndarray, covariance: np.ndarray, u: np.ndarray, p: np.ndarray
+    ) -> np.ndarray:
+        """The car state's covariance (6 x 6) from the state's (nx x nx) at ``x``, linearised."""
+        if self.model.car_state_is_state:
+            return np.array(covariance[:6, :6], dtype=float)
+        J = self.functions["car_state_jacobian"](x, u, p)[0]
+        return J @ covariance @ J.T
+
+    def plant_covariance(
+        self, car_covariance: np.ndarray, x: np.ndarray, u: np.ndarray, p: np.ndarray
+    ) -> np.ndarray:
+        """The plant states' covariance (least squares, linearised at ``x``) that gives the car
+        state's ``car_covariance`` (6 x 6): where an estimator restarts from a car state."""
+        if self.model.car_state_is_state:
+            return np.array(car_covariance, dtype=float)
+        n = len(self.model.plant.states)
+        G = np.linalg.pinv(self.functions["car_state_jacobian"](x, u, p)[0][:, :n])
+        return G @ car_covariance @ G.T
 
     def car_states(
         self, states: np.ndarray, inputs: np.ndarray, p: np.ndarray | None = None

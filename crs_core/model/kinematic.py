@@ -23,6 +23,7 @@ slides (a fast corner, a spin) it is wrong, and docs/own-model.md shows how far.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -47,6 +48,9 @@ class KinematicBicycle(Plant):
     name = "kinematic"
     description = "kinematic bicycle: rolling without slip, the drive along the velocity"
     states = (("x", "m"), ("y", "m"), ("yaw", "rad"), ("v", "m/s"))
+    like: ClassVar[dict[str, str]] = {"v": "vx"}
+    #: The mass is not fitted: every force here is seen only per mass.
+    default_fit = ("lf", "lr", "Cm1", "Cm2", "Cd0", "Cd1", "Cd2", "r", "b_car")
 
     def parameters(self) -> ParameterSet:
         """Mass, axle distances, motor, friction and encoder geometry (the dynamic model's

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -53,13 +54,19 @@ class Plant(ABC):
     """
 
     #: Short name, used in generated code's names and in a parameter YAML's ``model:``.
-    name: str = ""
+    name: ClassVar[str] = ""
     #: One line saying what the model is.
-    description: str = ""
+    description: ClassVar[str] = ""
     #: The states, ``(name, unit)`` each, in order.
-    states: tuple[tuple[str, str], ...] = ()
+    states: ClassVar[tuple[tuple[str, str], ...]] = ()
     #: The inputs' names (the stack commands :data:`INPUT_NAMES`).
-    inputs: tuple[str, ...] = INPUT_NAMES
+    inputs: ClassVar[tuple[str, ...]] = INPUT_NAMES
+    #: For each state not named like a car state, the car state it is like
+    #: (``{"v": "vx"}``): the estimators give it that state's noise, initial uncertainty and
+    #: bounds.
+    like: ClassVar[dict[str, str]] = {}
+    #: The parameters ``crs sysid`` fits by default (empty: every one with a prior std > 0).
+    default_fit: ClassVar[tuple[str, ...]] = ()
     #: Where it was loaded from (:func:`~crs_core.model.plants.load_plant` sets it).
     spec: str = ""
 
@@ -105,6 +112,10 @@ class Plant(ABC):
         values = dict(zip(CAR_STATE_NAMES, (float(v) for v in car), strict=True))
         return np.array([values.get(name, 0.0) for name in self.state_names])
 
+    def car_state_like(self, name: str) -> str | None:
+        """The car state the state ``name`` is like: itself if it is one, else :attr:`like`'s."""
+        return name if name in CAR_STATE_NAMES else self.like.get(name)
+
     def sensors(self, x: ca.SX, u: ca.SX, P: ParameterAccess) -> dict[str, ca.SX]:
         """Sensor outputs the plant models itself (``imu`` ``[ax, ay, omega]``, ``wheel_encoders``
         ``[fl, fr, rl, rr]`` rad/s); those it leaves out are derived (module docstring)."""
@@ -122,6 +133,13 @@ class Plant(ABC):
         for name in names:
             if not name.isidentifier():
                 raise FieldError(f"model {self.name}.states", f"{name!r} is not an identifier")
+        for name, similar in self.like.items():
+            if name not in names or similar not in CAR_STATE_NAMES:
+                raise FieldError(
+                    f"model {self.name}.like",
+                    f"{name!r}: {similar!r} must map a state to one of "
+                    f"{', '.join(CAR_STATE_NAMES)}",
+                )
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name})"

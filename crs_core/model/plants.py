@@ -46,7 +46,7 @@ def load_plant(spec: str | Plant | None, field: str = "--model") -> Plant:
         plant.validate()
     except FieldError as error:
         raise FieldError(field, f"{text}: {error}") from None
-    plant.spec = text
+    plant.spec = _canonical(text)
     return plant
 
 
@@ -89,10 +89,11 @@ def resolve_model(given: str | Plant | None, params_file: str | Path | None) -> 
 
 
 def _canonical(spec: str) -> str:
-    """A spec with a file's path resolved, so that two ways of writing it compare equal."""
+    """A spec with a file's path made absolute: it loads from anywhere, and two ways of
+    writing it compare equal."""
     location, _, name = spec.rpartition(":")
     if location.endswith(".py"):
-        return f"{Path(location).resolve()}:{name}"
+        return f"{Path(location).expanduser().resolve()}:{name}"
     return spec
 
 

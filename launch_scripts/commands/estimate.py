@@ -13,7 +13,7 @@ import yaml
 
 from crs_core.errors import FieldError, parse_finite
 from crs_core.estimation import INPUT_MODES, KINDS, parse_sensor_set
-from launch_scripts.arguments import Command, add_out, bounded_number, command_line
+from launch_scripts.arguments import Command, add_model, add_out, bounded_number, command_line
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recording
 
@@ -63,6 +63,7 @@ def estimate(args: argparse.Namespace) -> None:
         stamps_within,
     )
     from crs_core.model.online import parse_online_names
+    from crs_core.model.plants import plant_spec
     from launch_scripts.estimate_report import format_summary, write_figure, write_online_figure
 
     x0 = parse_x0(args.x0)
@@ -95,7 +96,7 @@ def estimate(args: argparse.Namespace) -> None:
     elif args.output_rate is not None:
         at = rate_stamps(dataset, args.output_rate)
     try:
-        model = dataset_model(dataset, args.params)
+        model = dataset_model(dataset, args.params, model=args.model)
     except yaml.YAMLError as error:
         problem = str(error).splitlines()[0]
         raise ValueError(f"--params: {args.params} is not valid YAML ({problem})") from None
@@ -139,6 +140,7 @@ def estimate(args: argparse.Namespace) -> None:
         "command": command_line(),
         "dataset": str(Path(args.dataset).resolve()),
         "params": str(args.params) if args.params else None,
+        "model": plant_spec(model.plant),
         **result.diagnostics,
         "reference": comparison,
     }
@@ -176,6 +178,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument("dataset", type=Path, help=RECORDING_HELP)
     add_bag_options(sub)
     sub.add_argument("--estimator", choices=KINDS, required=True, help="EKF or MHE")
+    add_model(sub)
     sub.add_argument(
         "--sensors",
         default="auto",

@@ -63,7 +63,7 @@ def design_inputs(
     ``params`` when there is one) and where that came from. Errors name ``--params`` or
     ``--open``."""
     from crs_core.discrepancy.drive_design import (
-        default_fit,
+        planned_fit,
         prior_covariance,
         prior_from,
         with_open_effects,
@@ -80,7 +80,7 @@ def design_inputs(
         model = with_open_effects(model, open_names)
     except FieldError as error:
         raise error.renamed("--open") from None
-    fit = default_fit(model, open_names)
+    fit = planned_fit(model, open_names)
     try:
         check_fit(model, fit)  # what the FIE cannot fit, no drive decides
     except FieldError as error:

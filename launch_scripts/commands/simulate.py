@@ -13,10 +13,12 @@ from crs_core.control.path_following import PathFollowerSettings
 from crs_core.errors import FieldError
 from crs_core.model import EFFECTS, CarModel
 from crs_core.model.effects import effect_spec
+from crs_core.model.plants import load_plant, resolve_model
 from launch_scripts.arguments import (
     Command,
     add_duration,
     add_effect,
+    add_model,
     add_out,
     add_seed,
     add_simulated_stations,
@@ -40,11 +42,15 @@ def build_model(
     stations: int,
     params_yaml: Path | None,
     option: str = "--params",
+    model: str | None = None,
 ) -> CarModel:
-    """The car model with ``effects``, ``stations`` base stations and the parameters of
-    ``params_yaml`` (``None``: the Chronos parameters); a bad file names ``option``."""
+    """The car model ``model`` (a spec; by default the one ``params_yaml`` names, else the
+    dynamic bicycle) with ``effects``, ``stations`` base stations and the parameters of
+    ``params_yaml`` (``None``: the model's defaults); a bad file names ``option``, a model
+    that contradicts it ``--model``."""
+    plant = load_plant(resolve_model(model, params_yaml))
     try:
-        return CarModel.from_file(params_yaml, effect_spec(effects), stations)
+        return CarModel.from_file(params_yaml, effect_spec(effects), stations, plant)
     except (ValueError, KeyError) as error:
         message = error.args[0] if isinstance(error, KeyError) else str(error)
         raise FieldError(option, str(message)) from None
@@ -58,7 +64,7 @@ def simulate(args: argparse.Namespace) -> Path:
     from sim.simulator import Simulator
 
     track = read_track(args.track) if args.track else load_demo_track()
-    model = build_model(args.effect or [], args.stations, args.params)
+    model = build_model(args.effect or [], args.stations, args.params, model=args.model)
     out = prepare_output(args.out, args.command, args.overwrite)
     sensors = SensorSuite(blackouts=tuple(args.blackout or ()))
     if args.noise_free:
@@ -114,6 +120,11 @@ def add_arguments(sub: argparse.ArgumentParser, duration: float, demo: bool) -> 
         "lighthouse:10:1.127",
     )
     add_simulated_stations(sub, "Lighthouse base stations, 1..8 (default 1)")
+    add_model(
+        sub,
+        "the simulated car's model: dynamic (default), kinematic, or FILE.py:CLASS "
+        "(docs/own-model.md); by default the one --params names",
+    )
     sub.add_argument(
         "--speed",
         type=bounded_number("speed", "m/s", 0.0, 5.0),

@@ -11,12 +11,14 @@ from pathlib import Path
 
 from crs_core.identification.data import FieData
 from crs_core.identification.models import identification_model
-from crs_core.identification.problem import DEFAULT_FIT, FieSettings
+from crs_core.identification.problem import DEFAULT_FIT, FieSettings, default_fit
 from crs_core.model import CarModel
 from crs_core.model.car_model import effects_in_file
+from crs_core.model.plants import plant_spec
 from launch_scripts.arguments import (
     Command,
     add_effect,
+    add_model,
     add_out,
     add_process_scale,
     bounded_number,
@@ -26,10 +28,11 @@ from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recor
 
 
 def parse_fit(text: str | None, model: CarModel) -> tuple[str, ...]:
-    """``--fit a,b,c`` (default: the 15 dynamics parameters, the wheel encoders' ``r`` and
-    ``b_car``, and every effect parameter)."""
+    """``--fit a,b,c`` (default: :func:`~crs_core.identification.problem.default_fit`, for the
+    dynamic bicycle the 15 dynamics parameters, the wheel encoders' ``r`` and ``b_car``, and
+    every effect parameter)."""
     if text is None:
-        return DEFAULT_FIT + tuple(p.name for e in model.effects for p in e.parameters)
+        return default_fit(model)
     names = tuple(part.strip() for part in text.split(",") if part.strip())
     if not names:
         raise ValueError("--fit: name at least one parameter")
@@ -47,8 +50,9 @@ def add_fit(parser: argparse.ArgumentParser, what: str) -> None:
     """``--fit a,b,c`` (:func:`parse_fit`): ``what`` they are, and the default."""
     parser.add_argument(
         "--fit",
-        help=f"{what} (default: the 15 dynamics parameters and the wheel encoders' radius and "
-        f"track width, {','.join(DEFAULT_FIT)}, plus every --effect parameter)",
+        help=f"{what} (default: the model's own list, for the dynamic model the 15 dynamics "
+        f"parameters and the wheel encoders' radius and track width, {','.join(DEFAULT_FIT)}, "
+        "plus every --effect parameter)",
     )
 
 
@@ -58,7 +62,7 @@ def run_sysid(args: argparse.Namespace) -> int:
     from crs_core.identification.solve import identify, stderr_progress
 
     dataset = load_recording(args.dataset, args)
-    model = identification_model(dataset, args.effect or [], args.params, "--params")
+    model = identification_model(dataset, args.effect or [], args.params, "--params", args.model)
     settings = FieSettings(
         fit=parse_fit(args.fit, model),
         hessian=args.hessian,
@@ -89,10 +93,12 @@ def run_validate(args: argparse.Namespace) -> int:
     effects = list(
         dict.fromkeys([*(e for e, _, _ in args.effect or []), *effects_in_file(args.params)])
     )
-    model = identification_model(dataset, effects, args.params, "--params")
+    model = identification_model(dataset, effects, args.params, "--params", args.model)
     prior = None
     if args.prior is not None:
-        given = identification_model(dataset, effects, args.prior, "--prior").parameters
+        given = identification_model(
+            dataset, effects, args.prior, "--prior", plant_spec(model.plant)
+        ).parameters
         # a term of --params the prior lacks is at 0 there (no term)
         absent = {
             n: 0.0 for t in model.terms for n in t.coefficient_names() if n not in given.names
@@ -130,6 +136,7 @@ def add_sysid_arguments(sub: argparse.ArgumentParser) -> None:
     )
     add_fit(sub, "comma-separated parameter names to identify")
     add_effect(sub, "add a model effect (repeatable)")
+    add_model(sub)
     sub.add_argument(
         "--starts",
         type=bounded_number("starts", "", 1, kind=int, include_low=True),
@@ -162,6 +169,7 @@ def add_validate_arguments(sub: argparse.ArgumentParser) -> None:
         help="open-loop horizon, s (default 2.0, the paper's)",
     )
     add_effect(sub, "model effect (repeatable; inferred from --params)")
+    add_model(sub)
     add_out(sub, "output folder", required=True)
 
 

@@ -11,6 +11,8 @@ nothing in crs_core knows it.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import casadi as ca
 import numpy as np
 
@@ -34,6 +36,15 @@ class LinearTyreCar(Plant):
         ("lateral", "m/s"),
         ("yaw_rate", "rad/s"),
     )
+    #: Each state is like the car state of the same place (the estimators' noise and bounds).
+    like: ClassVar[dict[str, str]] = {
+        "px": "x",
+        "py": "y",
+        "heading": "yaw",
+        "forward": "vx",
+        "lateral": "vy",
+        "yaw_rate": "omega",
+    }
 
     def parameters(self) -> ParameterSet:
         # name, value, unit, lower, upper, prior std, description

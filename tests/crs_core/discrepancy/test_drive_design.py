@@ -11,9 +11,9 @@ from crs_core.discrepancy.drive_design import (
     SEARCHES,
     DesignSettings,
     base_drive,
-    default_fit,
     design_drive,
     evaluate_drive,
+    planned_fit,
     prior_covariance,
     prior_from,
     rollout,
@@ -35,7 +35,7 @@ SETTINGS = DesignSettings(
 @pytest.fixture(scope="module")
 def setup():
     model = with_open_effects(CarModel(), OPEN)
-    fit = default_fit(model, OPEN)
+    fit = planned_fit(model, OPEN)
     return model, fit, prior_covariance(model, fit), load_demo_track()
 
 

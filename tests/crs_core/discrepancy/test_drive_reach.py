@@ -10,8 +10,8 @@ import pytest
 from crs_core.discrepancy.drive_design import (
     DesignSettings,
     base_drive,
-    default_fit,
     evaluate_drive,
+    planned_fit,
     prior_covariance,
 )
 from crs_core.discrepancy.drive_reach import drive_summary, slip_used
@@ -34,7 +34,7 @@ def test_the_peak_slip_fraction_is_one_at_the_curves_peak() -> None:
 def test_a_gentle_drive_is_limited_by_nothing_and_tells_its_sigma() -> None:
     model, track = CarModel(), load_demo_track()
     settings = DesignSettings(duration_s=2.0, segment_s=1.0, process_scale=0.1)
-    fit = default_fit(model, ("Dr", "Br"))
+    fit = planned_fit(model, ("Dr", "Br"))
     drive = base_drive(settings, ("Dr", "Br"), track)
     design = evaluate_drive(
         model, drive, fit, ("Dr", "Br"), prior_covariance(model, fit), track, settings
