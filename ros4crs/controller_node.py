@@ -47,7 +47,8 @@ latter with ``mpcc`` only), ``rate_hz``, ``v_ref`` (m/s, path follower), ``stale
 :class:`~crs_core.discrepancy.drive_file.DriveController`), ``drive_after`` (s: the follower
 alone before the drive), ``track_file``
 (CRS track YAML; default DEMO_TRACK), ``params_file`` (model parameter YAML: the prediction
-model).
+model's and the MPCC's), ``model`` (their model: ``dynamic``, ``kinematic`` or
+``FILE.py:CLASS``; empty: the one ``params_file`` names, else dynamic).
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ from crs_core.control.recovery import StuckRecovery
 from crs_core.control.supervisor import Supervisor, SupervisorSettings
 from crs_core.discrepancy.drive_file import DriveController, load_drive
 from crs_core.estimation.base import OnlineValue
+from crs_core.model import CarModel
 from ros4crs import conversions
 from ros4crs.node_support import (
     STREAM_OUT_QOS,
@@ -114,6 +116,20 @@ SUPERVISOR_PARAMETERS = SettingsParameters(
 COMMAND_DELAY_PARAMETERS = SettingsParameters(
     CommandDelaySettings, ("initial",), rename={"initial": "command_delay"}
 )
+
+
+def wheelbase(model: CarModel) -> float:
+    """The path follower's wheelbase, m: the model's ``lf + lr`` (a model without them is
+    refused naming the ``model`` parameter)."""
+    names = model.parameters.names
+    missing = [name for name in ("lf", "lr") if name not in names]
+    if missing:
+        raise ParameterError(
+            "model",
+            f"the path follower needs the wheelbase lf + lr; model {model.plant.name} has no "
+            f"parameter {', '.join(missing)}",
+        )
+    return model.parameters.value("lf") + model.parameters.value("lr")
 
 
 class ControllerNode(Node):
@@ -212,15 +228,11 @@ class ControllerNode(Node):
             )
             controller.warm_up()
         elif drive is not None:
-            parameters = model.parameters
-            wheelbase = parameters.value("lf") + parameters.value("lr")
             controller = DriveController(
-                drive, track, wheelbase, t_start=None, lead_in_s=drive_after
+                drive, track, wheelbase(model), t_start=None, lead_in_s=drive_after
             )
         else:
-            parameters = model.parameters
-            wheelbase = parameters.value("lf") + parameters.value("lr")
-            controller = PathFollower(track, wheelbase, limits)
+            controller = PathFollower(track, wheelbase(model), limits)
         recovery = None
         if recover and self.output == "torque":
             recovery = StuckRecovery(track, limits.steer_max)

@@ -49,7 +49,9 @@ controller: an MPCC fed estimates 110-180 ms old steered bang-bang and spun the 
 ``horizon`` (MHE), ``catch_up_solves`` (MHE: an update that finds more grid nodes due, because it
 came late, solves only the newest this many and predicts the others, so that a loaded machine's
 late update does not make the next one later still; default 2), ``inputs`` (auto | commanded |
-estimated), ``stations``, ``params_file`` (model parameter YAML, optional), ``track_file`` (CRS
+estimated), ``stations``, ``params_file`` (model parameter YAML, optional), ``model`` (the
+model: ``dynamic``, ``kinematic`` or ``FILE.py:CLASS``; empty: the one ``params_file`` names, else
+dynamic; the estimate published is always the car state it maps to), ``track_file`` (CRS
 track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track's start),
 ``blind_start`` (ignore ``initial_state`` and initialise from the Lighthouse), ``time_offsets``
 (per sensor or group the delay of its stamps, e.g. "lh:0.004,imu:0.001"; keep ``lag`` larger),
@@ -254,7 +256,9 @@ class EstimatorNode(Node):
         )
         self._timer = self.create_timer(1.0 / self.rate_hz, self._update)
         self.create_timer(1.0, self._publish_diagnostics)
-        self.get_logger().info(f"{kind} on {sensors} at {self.rate_hz:g} Hz")
+        self.get_logger().info(
+            f"{kind} on {sensors} at {self.rate_hz:g} Hz, model {model.plant.name}"
+        )
 
     def _subscribe(self, family: str, msg_type: type) -> None:
         topic = conversions.TOPICS[family]

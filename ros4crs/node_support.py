@@ -183,13 +183,41 @@ def declare_initial_state(node: Node, description: str) -> list[float]:
 
 
 def declare_model(node: Node, effects: Any = (), n_base_stations: int = 1) -> CarModel:
-    """The car model with the ``params_file`` parameter (a parameter YAML, empty for the
-    Chronos defaults) applied."""
+    """The car model: the ``model`` parameter (a spec, :func:`~crs_core.model.plants.load_plant`:
+    ``dynamic``, ``kinematic``, ``FILE.py:CLASS`` or ``MODULE:CLASS``; empty: the one the
+    ``params_file`` names under ``model:``, else the dynamic bicycle) with the ``params_file``
+    parameter (a parameter YAML, empty for the model's defaults) applied. A model that does not
+    load, or that contradicts the file's ``model:``, is refused naming ``model``."""
     from crs_core.model import CarModel
+    from crs_core.model.plants import load_plant, model_in_file, resolve_model
 
-    path = declare(node, "params_file", "", "model parameter YAML; empty: defaults", file_or_empty)
+    spec = declare(
+        node,
+        "model",
+        "",
+        "the model: dynamic, kinematic or FILE.py:CLASS; empty: the params_file's model:, "
+        "else dynamic",
+    ).strip()
     try:
-        return CarModel.from_file(path or None, effects, n_base_stations)
+        plant = load_plant(spec, "model") if spec else None
+    except FieldError as error:
+        raise ParameterError("model", error.reason) from None
+    path = declare(node, "params_file", "", "model parameter YAML; empty: defaults", file_or_empty)
+    if path:
+        try:
+            model_in_file(path)
+        except FieldError as error:  # the file's own model: is malformed
+            raise ParameterError("params_file", f"{error.field}: {error.reason}") from None
+        try:
+            plant = load_plant(resolve_model(plant, path), "model")
+        except FieldError as error:
+            raise ParameterError("model", error.reason) from None
+    try:
+        return CarModel.from_file(path or None, effects, n_base_stations, plant)
+    except FieldError as error:
+        if error.field != "model":
+            raise ParameterError("params_file", str(error)) from None
+        raise ParameterError("model", error.reason) from None  # e.g. other inputs than ours
     except (ValueError, KeyError, OSError) as error:
         message = error.args[0] if isinstance(error, KeyError) else error
         raise ParameterError("params_file", str(message)) from None

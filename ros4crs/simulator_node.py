@@ -14,7 +14,9 @@ wall-clock times; at any other factor the node publishes ``/clock`` and the othe
 Parameters: ``seed``, ``noise_free``, ``effects`` ("name=value,..."), ``blackouts``
 ("sensor:start:duration;..."), ``stations``, ``rate_factor``, ``tick_hz``, ``truth_rate_hz``,
 ``initial_state`` (6 floats; default the track's start), ``track_file`` (CRS track YAML; default
-DEMO_TRACK), ``params_file`` (parameter YAML of the simulated car), ``duration`` (s, 0 = forever),
+DEMO_TRACK), ``params_file`` (parameter YAML of the simulated car), ``model`` (its model:
+``dynamic``, ``kinematic`` or ``FILE.py:CLASS``; empty: the one ``params_file`` names, else
+dynamic; the ground truth is its car state), ``duration`` (s, 0 = forever),
 ``wait_for_subscribers`` (simulated time starts once every sensor topic has this many
 subscribers, so a launched stack misses nothing at the start; 0 = start at once),
 ``wait_for_commands`` (bool, default false: simulated time also waits for a publisher on

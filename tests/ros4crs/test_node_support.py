@@ -33,6 +33,14 @@ CASES = [
     ("estimator_node", ["-p", "params_file:={tmp}/none.yaml"], "params_file: no such file"),
     ("estimator_node", ["-p", "params_file:={tmp}/bad.yaml"], "params_file: {tmp}/bad.yaml: "),
     ("estimator_node", ["-p", "time_offsets:=lh"], "error: time_offsets: "),
+    ("estimator_node", ["-p", "model:=bogus"], "error: model: unknown model 'bogus' (built in:"),
+    (
+        "controller_node",
+        ["-p", "model:=kinematic", "-p", "params_file:={tmp}/dynamic.yaml"],
+        "error: model: kinematic contradicts {tmp}/dynamic.yaml, whose parameters are of model "
+        "dynamic",
+    ),
+    ("simulator_node", ["-p", "model:={tmp}/none.py:Car"], "error: model: {tmp}/none.py: no such"),
     ("estimator_node", ["-p", "catch_up_solves:=0"], "error: catch_up_solves: must be in 1..1000"),
     ("estimator_node", ["-p", "max_lag:=-0.1"], "error: max_lag: must be a finite number >= 0"),
     (
@@ -149,6 +157,7 @@ def outcomes(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[tuple
     """The temporary folder, and (exit code, stderr, expected line) per case."""
     tmp = tmp_path_factory.mktemp("startup")
     (tmp / "bad.yaml").write_text("parameters:\n  m: heavy\n")
+    (tmp / "dynamic.yaml").write_text("model: dynamic\nparameters:\n  m: 0.2\n")
     env = {**os.environ, "ROS_DOMAIN_ID": "171", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
     cases = [(module, [a.format(tmp=tmp) for a in arguments]) for module, arguments, _ in CASES]
     result = subprocess.run(
@@ -181,7 +190,7 @@ def test_bad_parameter_is_one_line_naming_it(outcomes, case: int):
 def test_nothing_was_written_or_deleted(outcomes):
     """The refused recorder (an existing ``output``) and the others left the folder as it was."""
     tmp, _ = outcomes
-    assert sorted(p.name for p in tmp.iterdir()) == ["bad.yaml"]
+    assert sorted(p.name for p in tmp.iterdir()) == ["bad.yaml", "dynamic.yaml"]
 
 
 def test_unknown_executor_is_a_start_up_error():
@@ -208,3 +217,63 @@ def test_a_bad_executor_is_a_field_error_naming_the_variable(monkeypatch) -> Non
     with pytest.raises(FieldError) as error:
         make_executor()
     assert error.value.field == "CRS_EXECUTOR"
+
+
+class _Node:
+    """What :func:`ros4crs.node_support.declare` asks of a node: ``declare_parameter``, with
+    the values given (else the default), recording the names declared."""
+
+    def __init__(self, **values: object) -> None:
+        self.values, self.declared = values, []
+
+    def declare_parameter(self, name: str, default: object, descriptor: object):
+        from types import SimpleNamespace
+
+        self.declared.append(name)
+        return SimpleNamespace(value=self.values.get(name, default))
+
+
+OWN_MODEL = Path(__file__).resolve().parents[1] / "own_model" / "linear_tyre_car.py"
+
+
+def test_the_model_parameter_picks_the_nodes_model(tmp_path: Path) -> None:
+    """``model`` is declared beside ``params_file``: empty, the file's ``model:`` or else the
+    dynamic bicycle; a built-in name or a file of one's own otherwise."""
+    from ros4crs.node_support import declare_model
+
+    node = _Node()
+    assert declare_model(node).plant.name == "dynamic"
+    assert {"model", "params_file"} <= set(node.declared)
+    assert declare_model(_Node(model="kinematic")).plant.name == "kinematic"
+    assert declare_model(_Node(model=f"{OWN_MODEL}:LinearTyreCar")).plant.name == "linear_tyre"
+    params = tmp_path / "kinematic.yaml"
+    params.write_text("model: kinematic\nparameters:\n  lf: 0.05\n")
+    model = declare_model(_Node(params_file=str(params)))
+    assert model.plant.name == "kinematic" and model.parameters.value("lf") == 0.05
+    assert declare_model(_Node(params_file=str(params), model="kinematic")).nx == 4
+
+
+@pytest.mark.parametrize(
+    ("values", "field", "message"),
+    [
+        ({"model": "bogus"}, "model", "unknown model 'bogus'"),
+        ({"model": "nowhere.py:Car"}, "model", "nowhere.py: no such file"),
+        ({"model": f"{OWN_MODEL}:Nothing"}, "model", "has no Plant subclass Nothing"),
+        ({"model": "dynamic", "params_file": "KIN"}, "model", "dynamic contradicts KIN, whose"),
+        ({"params_file": "BAD_MODEL"}, "params_file", "BAD_MODEL: model: must be a model name"),
+    ],
+)
+def test_a_bad_model_parameter_is_refused_naming_it(
+    values: dict, field: str, message: str, tmp_path: Path
+) -> None:
+    from ros4crs.node_support import ParameterError, declare_model
+
+    files = {"KIN": tmp_path / "kinematic.yaml", "BAD_MODEL": tmp_path / "bad_model.yaml"}
+    files["KIN"].write_text("model: kinematic\nparameters:\n  lf: 0.05\n")
+    files["BAD_MODEL"].write_text("model: 3\nparameters:\n  m: 0.2\n")
+    values = {name: str(files.get(value, value)) for name, value in values.items()}
+    for key, path in files.items():
+        message = message.replace(key, str(path))
+    with pytest.raises(ParameterError) as raised:
+        declare_model(_Node(**values))
+    assert raised.value.field == field and message in raised.value.reason, raised.value
