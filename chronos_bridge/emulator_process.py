@@ -32,6 +32,8 @@ The core is :class:`chronos_bridge.emulator.CarEmulator`; this module only paces
   start when not clean, and its counters end the summary line;
 - ``--params FILE`` and ``--effect NAME[.PARAM][=VALUE]`` (repeatable) make the emulated car
   differ from the defaults, and from the host's model: its truth is its own (a car to identify);
+  ``--model SPEC`` is its model (``dynamic``, the default unless ``--params`` names another,
+  ``kinematic``, or ``FILE.py:CLASS``: :func:`~crs_core.model.plants.load_plant`);
 - ``--truth-out FILE`` writes, on exit, an ``.npz`` with the emulator's ground truth and the
   link's timing log (:func:`write_truth`), all on the clock of its packet stamps (Unix s), so
   a host's estimates and latencies can be checked against them (``crs launch car --emulate``).
@@ -63,6 +65,7 @@ from chronos_bridge.impairment import (
 from crs_core.errors import FieldError, parse_finite
 from crs_core.model import CarModel
 from crs_core.model.effects import effect_spec, parse_effect
+from crs_core.model.plants import load_plant, resolve_model
 from sim.drift import DriftSchedule, load_drift
 
 PROG = "crs car-emulator"
@@ -94,6 +97,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--params",
         help="the emulated car's parameter YAML (its truth; default the Chronos defaults): a car "
         "that is not the host's model",
+    )
+    parser.add_argument(
+        "--model",
+        metavar="MODEL",
+        help="the emulated car's model: dynamic (default), kinematic, or FILE.py:CLASS / "
+        "MODULE:CLASS (docs/own-model.md); by default the one --params names",
     )
     parser.add_argument(
         "--effect",
@@ -179,7 +188,7 @@ def options(args: argparse.Namespace) -> dict:
         duration = parse_finite(args.duration)
         if duration is None or not duration > 0:
             raise FieldError("--duration", f"{args.duration!r} is not a number of seconds > 0")
-    model = _car_model(args.params, args.effect or [])
+    model = _car_model(args.params, args.effect or [], args.model)
     return {
         "model": model,
         "drift": _drift(args.drift, model),
@@ -194,8 +203,10 @@ def options(args: argparse.Namespace) -> dict:
     }
 
 
-def _car_model(params: str | None, effects: list[str]) -> CarModel:
-    """The emulated car: the parameter file and effects given (``--params``, ``--effect``)."""
+def _car_model(params: str | None, effects: list[str], model: str | None = None) -> CarModel:
+    """The emulated car: the model, the parameter file and the effects given (``--model``,
+    ``--params``, ``--effect``; a ``--model`` that contradicts the file's ``model:`` is
+    refused naming it)."""
     parsed = []
     for text in effects:
         try:
@@ -204,8 +215,9 @@ def _car_model(params: str | None, effects: list[str]) -> CarModel:
             raise FieldError("--effect", str(error)) from None
     if params is not None and not Path(params).is_file():
         raise FieldError("--params", f"{params!r} is not a file")
+    plant = load_plant(resolve_model(model, params))  # errors name --model
     try:
-        return CarModel.from_file(params, effect_spec(parsed))
+        return CarModel.from_file(params, effect_spec(parsed), model=plant)
     except (ValueError, KeyError) as error:
         message = error.args[0] if isinstance(error, KeyError) else str(error)
         raise FieldError("--params", str(message)) from None
@@ -225,7 +237,8 @@ def _drift(path: str | None, model: CarModel) -> DriftSchedule | None:
 
 def _describe_car(args: argparse.Namespace) -> str:
     """``params FILE, effects a, b`` for the start-up line of a car that is not the default."""
-    parts = [f"params {args.params}"] if args.params is not None else []
+    parts = [f"model {args.model}"] if args.model is not None else []
+    parts += [f"params {args.params}"] if args.params is not None else []
     if args.effect:
         parts.append("effects " + ", ".join(args.effect))
     if args.drift is not None:
@@ -362,7 +375,7 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG}: listening on {bind[0]}:{sock.getsockname()[1]}, sending to {host[0]}:{host[1]}",
         flush=True,
     )
-    if args.params is not None or args.effect or args.drift is not None:
+    if args.model is not None or args.params is not None or args.effect or args.drift is not None:
         print(f"{PROG}: car {_describe_car(args)}", file=sys.stderr, flush=True)
     if not (link.up.clean and link.down.clean):
         print(

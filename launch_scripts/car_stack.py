@@ -158,7 +158,7 @@ def car_nodes(
     if link.given and not emulate:
         raise ValueError("--link: only for emulated cars (a real car's link is the real one)")
     car = options.car
-    if (car.params_file or car.effects) and not emulate:
+    if (car.params_file or car.effects or car.model) and not emulate:
         raise ValueError("--car-params: only for emulated cars (a real car is what it is)")
     if car_ips and len(car_ips) != cars:
         raise ValueError(f"cars: {cars} cars need {cars} addresses, got {len(car_ips)}")
@@ -167,9 +167,8 @@ def car_nodes(
     check_cars(cars)
     per_car, global_topics = RECORD_SETS[options.record]
     files = options.files()
-    params_file = options.params_file
-    # the emulated cars are the stack's params_file unless they have their own
-    truth = car if car.params_file or params_file is None else replace(car, params_file=params_file)
+    # the emulated cars' own model and parameters (the stack's file only if it is of their model)
+    truth = options.truth() if emulate else car
     nodes, emulators, topics = [], [], list(global_topics)
     for i in range(1, cars + 1):
         ns, host_port = f"/car{i}", ports[0] + i - 1
@@ -222,12 +221,16 @@ def run_car_stack(
     out, bag, domain = run_folder(out, domain_id)
     nodes = car_nodes(cars, options, bag, out, emulate, car_ips, ports, link)
     estimator = options.estimator
+    model = options.model_spec()
+    car_model = options.truth().model if emulate else None  # a real car is what it is
     warm_compile_cache(
         estimator,
         options.controller,
         options.output,
         options.params_file,
         car_effects=options.car.effects,
+        model=model,
+        car_model=car_model,
     )
     recorded = options.part.runs("recorder")
     what = "emulated car(s) on loopback UDP" if emulate else f"car(s) at {', '.join(car_ips)}"
@@ -235,7 +238,7 @@ def run_car_stack(
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
-        write_online_parameters(contents_of, out, options.params_file)
+        write_online_parameters(contents_of, out, options.params_file, model)
         return analyse_car_run(contents_of, bag, cars, out, emulate)
 
     report = launch_and_report(
@@ -252,12 +255,13 @@ def run_car_stack(
             "estimator": estimator,
             "controller": options.controller,
             "output": options.output,
+            "model": model,
             "hold_safe": controller_hold_safe(options, over_udp=True),
             "duration_s": duration,
             "recorded": options.record,
             "seed": options.seed,
             "link": asdict(link),
-            "car_truth": options.car.described(),
+            "car_truth": replace(options.car, model=car_model).described(),
             "part": options.part.described(),
         },
     )

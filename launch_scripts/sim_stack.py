@@ -12,7 +12,7 @@ import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -24,6 +24,7 @@ from crs_core.control.overload import OverloadSettings
 from crs_core.model.effects import effect_text
 from crs_core.track import Track, load_demo_track, read_track
 from launch_scripts.launcher import Launcher, NodeSpec
+from launch_scripts.stack_models import car_model_and_parameters, model_spec
 from launch_scripts.stack_part import StackPart
 from launch_scripts.stack_plot import plot
 from launch_scripts.visualizer import VizSettings, visualizer_node
@@ -77,21 +78,35 @@ class CarTruth:
     Attributes
     ----------
     params_file : Path or None
-        Their parameter YAML (None: the stack's ``params_file``).
+        Their parameter YAML (None: the stack's ``params_file`` when it is a file of their
+        model, else their model's defaults: :mod:`launch_scripts.stack_models`).
     effects : tuple
         Their hidden effects, parsed (:func:`crs_core.model.effects.parse_effect`).
     drift_file : Path or None
         A schedule of changes to their truth while they race (:mod:`sim.drift`; None: none).
+    model : str or None
+        Their model, a spec (:func:`~crs_core.model.plants.load_plant`; None: the one their
+        ``params_file`` names, else the dynamic bicycle; never the stack's model).
     """
 
     params_file: Path | None = None
     effects: tuple[tuple[str, str | None, float | None], ...] = ()
     drift_file: Path | None = None
+    model: str | None = None
+
+    def resolved(self, stack_params: Path | None) -> CarTruth:
+        """This truth with its model (a canonical spec) and its parameter file (its own, else
+        ``stack_params`` when that is a file of its model, else None) decided
+        (:func:`~launch_scripts.stack_models.car_model_and_parameters`)."""
+        model, params = car_model_and_parameters(self.model, self.params_file, stack_params)
+        return replace(self, model=model, params_file=params)
 
     def simulator_parameters(self) -> dict[str, str]:
-        """The simulator node's ``params_file``, ``effects`` and ``drift_file`` for this truth
-        (none: its defaults)."""
-        out = {"params_file": str(Path(self.params_file).resolve())} if self.params_file else {}
+        """The simulator node's ``model``, ``params_file``, ``effects`` and ``drift_file`` for
+        this truth (none: its defaults)."""
+        out = {"model": self.model} if self.model else {}
+        if self.params_file:
+            out["params_file"] = str(Path(self.params_file).resolve())
         if self.effects:
             out["effects"] = ",".join(effect_text(e) for e in self.effects)
         if self.drift_file:
@@ -99,17 +114,21 @@ class CarTruth:
         return out
 
     def described(self) -> dict[str, Any]:
-        """For a report: the parameter file, the effects and the drift schedule (None / [] /
-        None: the stack's model, unchanging)."""
+        """For a report: the model, the parameter file, the effects and the drift schedule
+        (None / None / [] / None: the defaults, unchanging)."""
         return {
+            "model": self.model,
             "params_file": str(self.params_file) if self.params_file else None,
             "effects": [effect_text(e) for e in self.effects],
             "drift_file": str(self.drift_file) if self.drift_file else None,
         }
 
     def emulator_arguments(self) -> list[str]:
-        """``crs car-emulator``'s ``--params``, ``--effect`` and ``--drift`` for this truth."""
-        out = ["--params", str(Path(self.params_file).resolve())] if self.params_file else []
+        """``crs car-emulator``'s ``--model``, ``--params``, ``--effect`` and ``--drift`` for
+        this truth."""
+        out = ["--model", self.model] if self.model else []
+        if self.params_file:
+            out += ["--params", str(Path(self.params_file).resolve())]
         for effect in self.effects:
             out += ["--effect", effect_text(effect)]
         if self.drift_file:
@@ -147,8 +166,12 @@ class StackOptions:
         Lighthouse (the car waits, its controller seeing no estimate, until they have).
     params_file : Path or None
         The cars' parameter YAML, for every car's nodes: the model of the estimator and the
-        controller, and the simulated or emulated truth unless ``car`` has its own (None: the
-        Chronos parameters).
+        controller, and the simulated or emulated truth unless ``car`` has its own or is of
+        another model (None: the model's defaults).
+    model : str or None
+        The estimators' and controllers' model, a spec
+        (:func:`~crs_core.model.plants.load_plant`; None: the one ``params_file`` names under
+        ``model:``, else the dynamic bicycle). The simulated or emulated cars' is ``car.model``.
     track_file : Path or None
         Track YAML (CRS format) for every car's nodes (None: DEMO_TRACK). Simulated cars only:
         the car stack races DEMO_TRACK (where the emulator starts) and refuses it.
@@ -206,6 +229,17 @@ class StackOptions:
     online_parameters: tuple[str, ...] = ()
     drive_file: Path | None = None
     drive_after: float = 0.0
+    model: str | None = None
+
+    def model_spec(self) -> str:
+        """The estimators' and controllers' model, a canonical spec (errors name
+        ``--model``: :func:`~launch_scripts.stack_models.model_spec`)."""
+        return model_spec(self.model, self.params_file)
+
+    def truth(self) -> CarTruth:
+        """The simulated or emulated cars' truth, its model and parameter file decided
+        (:meth:`CarTruth.resolved`)."""
+        return self.car.resolved(self.params_file)
 
     def pipeline_process(self) -> str:
         """The process a car's pipeline nodes share (``""``: each its own)."""
@@ -249,6 +283,9 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
     per_car, global_topics = RECORD_SETS[options.record]
     nodes, topics = [], list(global_topics)
     files = options.files()
+    # the simulated cars' own model and parameters (the stack's file only if it is of their model)
+    truth = options.truth()
+    track = {name: path for name, path in files.items() if name == "track_file"}
     # the default torque stack passes no extra parameters (the nodes' defaults)
     onboard_loop = {"onboard": True} if options.onboard or options.output == "velocity" else {}
     for i in range(1, cars + 1):
@@ -265,8 +302,8 @@ def stack_nodes(cars: int, options: StackOptions, bag: Path) -> list[NodeSpec]:
                     "wait_for_subscribers": options.part.sensor_subscribers(),
                     "wait_for_commands": True,
                     **onboard_loop,
-                    **files,
-                    **options.car.simulator_parameters(),
+                    **track,
+                    **truth.simulator_parameters(),
                 },
                 process=options.pipeline_process(),
             ),
@@ -304,7 +341,8 @@ def car_control_nodes(
     **estimator_parameters: Any,
 ) -> list[NodeSpec]:
     """A car's estimator (with ``estimator_parameters``) and controller, in every stack, with
-    the parameter ``files``; the default torque stack passes the controller no ``output`` (the
+    the parameter ``files`` and the stack's ``model`` (:meth:`StackOptions.model_spec`); the
+    default torque stack passes the controller no ``output`` (the
     node's default), and ``hold_safe`` as :func:`controller_hold_safe` says (``over_udp``: the
     commands go to a car over UDP)."""
     commands: dict[str, Any] = {"output": options.output} if options.output == "velocity" else {}
@@ -318,6 +356,7 @@ def car_control_nodes(
         "estimator": options.estimator,
         "blind_start": options.blind_start,
     }
+    model = {"model": options.model_spec()}
     if options.online_parameters:
         estimator["online_parameters"] = ",".join(options.online_parameters)
     return [
@@ -325,14 +364,14 @@ def car_control_nodes(
             "estimator",
             "ros4crs.estimator_node",
             ns,
-            {**estimator, **estimator_parameters, **files},
+            {**estimator, **estimator_parameters, **files, **model},
             process=options.pipeline_process(),
         ),
         NodeSpec(
             "controller",
             "ros4crs.controller_node",
             ns,
-            {"controller": options.controller, **commands, **files},
+            {"controller": options.controller, **commands, **files, **model},
             process=options.pipeline_process(),
         ),
     ]
@@ -357,19 +396,22 @@ def run_stack(
     out, bag, domain = run_folder(out, domain_id)
     nodes = stack_nodes(cars, options, bag)
     track = read_track(options.track_file) if options.track_file else load_demo_track()
+    model, truth = options.model_spec(), options.truth()
     warm_compile_cache(
         options.estimator,
         options.controller,
         options.output,
         options.params_file,
         car_effects=options.car.effects,
+        model=model,
+        car_model=truth.model,
     )
     recorded = options.part.runs("recorder")
     contents_of: dict[str, BagContents] = {}  # the bag read once, for the report and the figure
 
     def analyse_run() -> dict[str, Any]:
         contents_of.update(read_cars(bag, cars))
-        write_online_parameters(contents_of, out, options.params_file)
+        write_online_parameters(contents_of, out, options.params_file, model)
         write_drift_truth(contents_of, out)
         return analyse(contents_of, cars, track)
 
@@ -385,9 +427,10 @@ def run_stack(
             "estimator": options.estimator,
             "controller": options.controller,
             "output": options.output,
+            "model": model,
             "duration_s": duration,
             "recorded": options.record,
-            "car_truth": options.car.described(),
+            "car_truth": replace(options.car, model=truth.model).described(),
             "part": options.part.described(),
         },
     )
@@ -595,11 +638,15 @@ def read_cars(bag: Path, cars: int) -> dict[str, BagContents]:
 
 
 def write_online_parameters(
-    contents_of: dict[str, BagContents], out: Path, params_file: Path | None
+    contents_of: dict[str, BagContents],
+    out: Path,
+    params_file: Path | None,
+    model: str | None = None,
 ) -> list[Path]:
     """``out/online_parameters_carN.csv`` (``t, name, value, std``) of each car whose
     estimator published online parameters: ``t`` in s since the car's first command, each
-    parameter's prior first (the model of ``params_file``'s)."""
+    parameter's prior first (of the model ``model``, a spec, with ``params_file``'s values;
+    None: the file's model, else the dynamic one)."""
     from crs_core.estimation.online_track import OnlineTrack
     from crs_core.model import CarModel
     from crs_core.model.online import DEFAULT_REVERSION_S
@@ -613,12 +660,13 @@ def write_online_parameters(
         track = OnlineTrack.empty(len(messages), names)
         for k, (_, parameters) in enumerate(messages):
             track.set(k, parameters)
-        model = CarModel.from_file(params_file).with_online(names, DEFAULT_REVERSION_S)
+        base = CarModel.from_file(params_file, model=model)
+        online_model = base.with_online(names, DEFAULT_REVERSION_S)
         origin = contents.inputs[0].stamp
         stamps = np.array([stamp for stamp, _ in messages]) - origin
         path = out / f"online_parameters_{car}.csv"
         prior_t = min(0.0, float(stamps[0]))  # estimates before the first command: earlier
-        written.append(track.write_csv(path, stamps, model.online.priors, prior_t))
+        written.append(track.write_csv(path, stamps, online_model.online.priors, prior_t))
     return written
 
 

@@ -22,7 +22,8 @@ from pathlib import Path
 __all__ = ["warm_compile_cache"]
 
 #: What this process has warmed already: (estimator, controller, output, parameter text,
-#: car effects, cache folder) of each call (a second call finds the same files in the cache).
+#: car effects, the stack's and the car's model, cache folder) of each call (a second call finds
+#: the same files in the cache).
 _warmed: set[tuple] = set()
 
 
@@ -33,6 +34,8 @@ def warm_compile_cache(
     params_file: Path | None = None,
     label: str = "[launch]",
     car_effects: Sequence[tuple[str, str | None, float | None]] = (),
+    model: str | None = None,
+    car_model: str | None = None,
 ) -> float:
     """Build (and so compile and cache) the estimator's, the controller's and the simulated
     car's functions with the nodes' default settings, with a line before and after on stdout;
@@ -54,6 +57,11 @@ def warm_compile_cache(
     car_effects : sequence of parsed effects, optional
         The simulated or emulated cars' hidden effects (their truth model's structure; its
         parameter values do not change the compiled code).
+    model : str, optional
+        The estimator's and controller's model, a spec (default: the one ``params_file`` names,
+        else the dynamic bicycle).
+    car_model : str, optional
+        The simulated or emulated cars' model, a spec (default: the dynamic bicycle).
     """
     from chronos_bridge.emulator import CarEmulator
     from crs_core.codegen import cache_dir
@@ -68,21 +76,30 @@ def warm_compile_cache(
     parameters = None  # a file that cannot be read: CarModel.from_file says why below
     if params_file is not None and Path(params_file).is_file():
         parameters = Path(params_file).read_text()
-    key = (estimator, controller, output, parameters, tuple(car_effects), str(cache_dir()))
+    key = (
+        estimator,
+        controller,
+        output,
+        parameters,
+        tuple(car_effects),
+        model,
+        car_model,
+        str(cache_dir()),
+    )
     if key in _warmed:
         print(f"{label} compiled model functions ready (warmed earlier in this process)")
         return 0.0
     print(f"{label} preparing the compiled model functions (compiled once, then cached)")
     started = time.perf_counter()
-    model = CarModel.from_file(params_file)
+    stack_model = CarModel.from_file(params_file, model=model)
     # the nodes' defaults: the estimator's rate is RealtimeSettings', the MPCC's MpccSettings'
     rate_hz = RealtimeSettings.rate_hz
     settings = MheSettings(rate_hz=rate_hz) if estimator == "mhe" else EkfSettings()
-    make_estimator(estimator, "lh+imu+we", model, settings)
+    make_estimator(estimator, "lh+imu+we", stack_model, settings)
     if controller == "mpcc":
-        Mpcc(load_demo_track(), model, MpccSettings(), output=output)
+        Mpcc(load_demo_track(), stack_model, MpccSettings(), output=output)
     # the simulator's truth model with the onboard loop
-    CarEmulator(model=CarModel(effect_spec(car_effects)))
+    CarEmulator(model=CarModel(effect_spec(car_effects), model=car_model))
     elapsed = time.perf_counter() - started
     _warmed.add(key)
     print(f"{label} compiled model functions ready in {elapsed:.1f} s")

@@ -19,6 +19,7 @@ from launch_scripts.arguments import (
     add_duration,
     add_effect,
     add_estimator,
+    add_model,
     add_out,
     add_track,
     add_zenoh_open,
@@ -29,6 +30,7 @@ from launch_scripts.arguments import (
 from launch_scripts.commands.simulate import build_model
 from launch_scripts.output_folder import prepare_output
 from launch_scripts.sim_stack import RECORD_SETS, CarTruth, StackOptions
+from launch_scripts.stack_models import car_model_and_parameters
 from launch_scripts.stack_part import (
     STACK_NODES,
     ZENOH_FLAGS,
@@ -90,8 +92,9 @@ def _stack_options(args: argparse.Namespace) -> StackOptions:
         drive_file=args.drive,
         drive_after=args.drive_after,
         params_file=args.params,
+        model=args.model,
         track_file=args.track,
-        car=CarTruth(args.car_params, tuple(args.car_effect or ()), args.car_drift),
+        car=CarTruth(args.car_params, tuple(args.car_effect or ()), args.car_drift, args.car_model),
         part=_stack_part(args),
         online_parameters=_online_names(args.online_params),
         viz=_viz_settings(args),
@@ -171,16 +174,24 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
         except ValueError as error:
             raise ValueError(f"--drive: {error}") from None
     if args.params is not None:
-        build_model([], 1, args.params)
-    car_truth = args.car_params is not None or args.car_effect or args.car_drift is not None
-    if car_truth and args.scenario == "car" and not args.emulate:
+        build_model([], 1, args.params, model=args.model)  # a contradicting --model: refused
+    car_options = (
+        ("--car-params", args.car_params is not None),
+        ("--car-model", args.car_model is not None),
+        ("--car-effect", bool(args.car_effect)),
+        ("--car-drift", args.car_drift is not None),
+    )
+    given = [option for option, present in car_options if present]
+    if given and args.scenario == "car" and not args.emulate:
         raise ValueError(
-            "--car-params: only for simulated or emulated cars (a real car is what it is)"
+            f"{given[0]}: only for simulated or emulated cars (a real car is what it is)"
         )
-    if car_truth:
-        model = build_model(
-            args.car_effect or [], 1, args.car_params or args.params, "--car-params"
+    if args.scenario == "sim" or args.emulate:
+        # the cars' model (--car-model, else --car-params', else dynamic) and its parameters
+        car_model, car_params = car_model_and_parameters(
+            args.car_model, args.car_params, args.params
         )
+        model = build_model(args.car_effect or [], 1, car_params, "--car-params", car_model)
         if args.car_drift is not None:
             try:
                 load_drift(args.car_drift).model_for(model)
@@ -189,7 +200,8 @@ def _check_and_prepare(args: argparse.Namespace) -> None:
     if args.online_params is not None:
         online = _online_names(args.online_params)
         try:
-            build_model([], 1, args.params).with_online(online, DEFAULT_REVERSION_S)
+            model = build_model([], 1, args.params, model=args.model)
+            model.with_online(online, DEFAULT_REVERSION_S)
         except FieldError as error:
             raise error.renamed("--online-params") from None
     prepare_output(Path(args.out), "launch", args.overwrite)
@@ -371,14 +383,30 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument(
         "--params",
         type=Path,
-        help="parameter YAML of the cars: the simulated truth and the model of the estimators "
-        "and controllers (default: the Chronos parameters)",
+        help="parameter YAML of the cars: the model of the estimators and controllers, and the "
+        "simulated truth when it is of the cars' model (--car-model) (default: the model's "
+        "defaults, for the dynamic model the Chronos parameters)",
+    )
+    add_model(
+        sub,
+        "the estimators' and controllers' model: dynamic (default), kinematic, or FILE.py:CLASS "
+        "/ MODULE:CLASS, a model of your own (docs/own-model.md); by default the one --params "
+        "names",
     )
     sub.add_argument(
         "--car-params",
         type=Path,
         help="sim, car --emulate: the simulated or emulated cars' own parameter YAML, their "
-        "truth apart from the stack's model (--params): a car to identify (default: --params)",
+        "truth apart from the stack's model (--params): a car to identify (default: --params "
+        "when it is of the cars' model, else the model's defaults)",
+    )
+    add_model(
+        sub,
+        "sim, car --emulate: the simulated or emulated cars' model, their truth: dynamic, "
+        "kinematic or FILE.py:CLASS; by default the one --car-params names, else dynamic (not "
+        "--model: the stack's model meets the dynamic car)",
+        flag="--car-model",
+        dest="car_model",
     )
     add_effect(
         sub,

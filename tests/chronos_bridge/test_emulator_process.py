@@ -257,6 +257,11 @@ def test_a_drifting_car_logs_its_drifted_parameters(tmp_path: Path) -> None:
         (["--params", "BAD"], "--params: BAD: unknown parameter"),
         (["--drift", "nowhere.yaml"], "--drift: drift: cannot read nowhere.yaml"),
         (["--drift", "DRIFT"], "--drift: drift[0].parameter: the car has no parameter 'warp'"),
+        (["--model", "bogus"], "--model: unknown model 'bogus' (built in: dynamic, kinematic"),
+        (
+            ["--model", "dynamic", "--params", "KIN"],
+            "--model: dynamic contradicts KIN, whose parameters are of model kinematic",
+        ),
     ],
 )
 def test_car_option_errors_name_the_option(
@@ -268,7 +273,10 @@ def test_car_option_errors_name_the_option(
     bad.write_text("parameters:\n  warp_drive: 1.0\n")
     drift = tmp_path / "drift.yaml"
     drift.write_text("drift:\n  - {parameter: warp, at_s: 1, factor: 2}\n")
-    options = [{"BAD": str(bad), "DRIFT": str(drift)}.get(o, o) for o in options]
-    message = message.replace("BAD", str(bad))
+    kinematic = tmp_path / "kinematic.yaml"
+    kinematic.write_text("model: kinematic\nparameters:\n  lf: 0.05\n")
+    files = {"BAD": str(bad), "DRIFT": str(drift), "KIN": str(kinematic)}
+    options = [files.get(o, o) for o in options]
+    message = message.replace("BAD", str(bad)).replace("KIN", str(kinematic))
     err = refused(["car-emulator", "--host", "127.0.0.1", "--host-port", "9", *options])
     assert err.startswith(f"crs car-emulator: error: {message}"), err

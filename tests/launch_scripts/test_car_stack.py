@@ -69,3 +69,39 @@ def test_emulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path) -> None
     with pytest.raises(ValueError, match=r"^--car-params: only for emulated cars"):
         real = StackOptions("ekf", car=CarTruth(truth))
         car_nodes(1, real, tmp_path, tmp_path, False, ["10.0.0.2"])
+
+
+def test_the_emulated_cars_are_of_their_own_model(tmp_path) -> None:
+    """The emulators get the cars' model (``--model``, as the emulator parses it: dynamic by
+    default, not the stack's), the estimators and controllers the stack's."""
+    from chronos_bridge.emulator_process import add_arguments, options
+    from launch_scripts.car_stack import car_nodes
+    from launch_scripts.sim_stack import CarTruth, StackOptions
+
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+
+    def plants(stack_options: StackOptions) -> dict[str, str]:
+        nodes = car_nodes(1, stack_options, tmp_path / "bag", tmp_path, True)
+        pipeline = ("estimator", "controller")
+        out = {n.name: n.parameters["model"] for n in nodes if n.name in pipeline}
+        (emulator,) = [n for n in nodes if n.name == "emulator"]
+        out["emulator"] = options(parser.parse_args(emulator.arguments))["model"].plant.name
+        return out
+
+    assert plants(StackOptions("ekf", model="kinematic")) == {
+        "estimator": "kinematic",
+        "controller": "kinematic",
+        "emulator": "dynamic",
+    }
+    told = plants(StackOptions("ekf", car=CarTruth(model="kinematic")))
+    assert told == {"estimator": "dynamic", "controller": "dynamic", "emulator": "kinematic"}
+    with pytest.raises(ValueError, match=r"^--car-params: only for emulated cars"):
+        car_nodes(
+            1,
+            StackOptions("ekf", car=CarTruth(model="kinematic")),
+            tmp_path,
+            tmp_path,
+            False,
+            ["10.0.0.2"],
+        )

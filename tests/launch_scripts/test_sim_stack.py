@@ -90,6 +90,7 @@ def test_simulated_cars_are_their_own_truth_or_the_stacks_model(tmp_path: Path):
     assert plain["simulator"]["params_file"] == str(stack.resolve())
     assert "effects" not in plain["simulator"]
     assert car.described() == {
+        "model": None,
         "params_file": str(truth),
         "effects": ["steering_lag.tau_steer=0.06", "gyro_bias"],
         "drift_file": None,
@@ -198,3 +199,40 @@ def test_a_drive_reaches_every_cars_controller_as_its_file(tmp_path: Path):
         assert parameters["controller"] == "path"
         assert parameters["drive_file"] == str(drive.resolve())
         assert parameters["drive_after"] == 30.0
+
+
+def test_every_node_gets_its_model_the_simulators_the_cars_own(tmp_path: Path):
+    """The estimators and controllers of every car get the stack's model, the simulators the
+    cars' (the dynamic one unless told, whatever the stack's); the cars take the stack's
+    parameter file only when it is of their model."""
+    from launch_scripts.sim_stack import CarTruth
+
+    own = Path("tests/own_model/linear_tyre_car.py").resolve()
+
+    def models(options: StackOptions) -> dict[str, tuple[str, str | None]]:
+        nodes = stack_nodes(2, options, tmp_path / "bag")
+        return {
+            f"{spec.namespace}/{spec.name}": (
+                spec.parameters["model"],
+                spec.parameters.get("params_file"),
+            )
+            for spec in nodes
+            if spec.name in ("simulator", "estimator", "controller")
+        }
+
+    default = models(StackOptions("ekf"))
+    assert len(default) == 6 and set(default.values()) == {("dynamic", None)}
+    given = models(StackOptions("mhe", model=f"{own}:LinearTyreCar"))
+    for car in ("/car1", "/car2"):
+        assert given[f"{car}/estimator"] == given[f"{car}/controller"]
+        assert given[f"{car}/estimator"] == (f"{own}:LinearTyreCar", None)
+        assert given[f"{car}/simulator"] == ("dynamic", None)
+    kinematic = tmp_path / "kinematic.yaml"
+    kinematic.write_text("model: kinematic\nparameters:\n  m: 0.2\n")
+    by_file = models(StackOptions("ekf", params_file=kinematic))
+    assert by_file["/car2/estimator"] == ("kinematic", str(kinematic.resolve()))
+    assert by_file["/car2/simulator"] == ("dynamic", None)  # not a file of its model
+    told = models(StackOptions("ekf", params_file=kinematic, car=CarTruth(model="kinematic")))
+    assert told["/car1/simulator"] == ("kinematic", str(kinematic.resolve()))
+    with pytest.raises(ValueError, match=r"^--car-model: dynamic contradicts"):
+        models(StackOptions("ekf", car=CarTruth(kinematic, model="dynamic")))

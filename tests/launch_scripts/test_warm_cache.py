@@ -20,3 +20,28 @@ def test_a_second_call_for_the_same_stack_builds_nothing(tmp_path, capsys) -> No
         warm_compile_cache("ekf", "path", "torque", params, car_effects=(("gyro_bias", None, 0.1),))
         > 0
     )
+
+
+def test_it_builds_the_models_the_stack_runs(monkeypatch, capsys) -> None:
+    """The estimator's (and controller's) model is the stack's ``model``, the simulated car's
+    its ``car_model``; each pair of models is a stack of its own."""
+    import chronos_bridge.emulator
+    import crs_core.estimation
+
+    built: list[tuple[str, str]] = []
+    monkeypatch.setattr(
+        crs_core.estimation,
+        "make_estimator",
+        lambda kind, sensors, model, settings: built.append(("estimator", model.plant.name)),
+    )
+    monkeypatch.setattr(
+        chronos_bridge.emulator,
+        "CarEmulator",
+        lambda model: built.append(("car", model.plant.name)),
+    )
+    warm_compile_cache("ekf", "path", "torque", model="kinematic", label="[a]")
+    assert built == [("estimator", "kinematic"), ("car", "dynamic")]
+    built.clear()
+    warm_compile_cache("ekf", "path", "torque", model="kinematic", car_model="kinematic")
+    assert built == [("estimator", "kinematic"), ("car", "kinematic")]
+    capsys.readouterr()

@@ -161,3 +161,83 @@ def test_online_and_drift_options_are_refused_with_one_line(
 def test_drive_after_needs_a_drive(tmp_path: Path, crs_refuses) -> None:
     err = crs_refuses(["launch", "sim", "--drive-after", "5", "--out", str(tmp_path / "o")])
     assert err == "crs launch: error: --drive-after: needs --drive\n"
+
+
+#: The model of a file of its own, as ``--model`` takes it (loaded by path).
+OWN_MODEL = "tests/own_model/linear_tyre_car.py:LinearTyreCar"
+
+
+def test_the_model_options_are_in_the_help(crs) -> None:
+    code, out, _ = crs(["launch", "--help"])
+    assert code == 0
+    flat = " ".join(out.split())
+    assert "--model MODEL the estimators' and controllers' model" in flat, flat
+    assert "--car-model MODEL sim, car --emulate: the simulated or emulated cars' model" in flat
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["launch", "sim", "--params", "KIN", "--model", "dynamic"],
+            "--model: dynamic contradicts KIN, whose parameters are of model kinematic",
+        ),
+        (
+            ["launch", "car", "--emulate", "--params", "KIN", "--model", OWN_MODEL],
+            f"--model: {OWN_MODEL} contradicts KIN, whose parameters are of model kinematic",
+        ),
+        (
+            ["launch", "sim", "--car-params", "KIN", "--car-model", "dynamic"],
+            "--car-model: dynamic contradicts KIN, whose parameters are of model kinematic",
+        ),
+        (
+            ["launch", "car", "--emulate", "--car-params", "KIN", "--car-model", OWN_MODEL],
+            f"--car-model: {OWN_MODEL} contradicts KIN, whose parameters are of model kinematic",
+        ),
+        (["launch", "sim", "--model", "bogus"], "argument --model: unknown model 'bogus'"),
+        (["launch", "sim", "--car-model", "no.py:Car"], "argument --car-model: no.py: no such"),
+        (
+            ["launch", "car", "--car-ip", "10.0.0.2", "--car-model", "kinematic"],
+            "--car-model: only for simulated or emulated cars",
+        ),
+    ],
+)
+def test_a_model_that_contradicts_its_parameters_is_refused_before_the_out_is_touched(
+    argv: list[str], message: str, tmp_path: Path, crs_refuses
+) -> None:
+    kinematic = tmp_path / "kinematic.yaml"
+    kinematic.write_text("model: kinematic\nparameters:\n  m: 0.2\n")
+    argv = [str(kinematic) if a == "KIN" else a for a in argv]
+    out = tmp_path / "out"
+    err = crs_refuses([*argv, "--out", str(out)])
+    assert message.replace("KIN", str(kinematic)) in err, err
+    assert not out.exists()
+
+
+def test_launch_passes_the_stacks_model_and_the_cars_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--model is the stack's; --car-model the cars' (by default dynamic, not --model's), each
+    to the options the stack is run with; the stack's --params of a kinematic model gives the
+    stack that model, and leaves the dynamic cars their defaults."""
+    from launch_scripts import sim_stack
+
+    seen: list[Any] = []
+    monkeypatch.setattr(sim_stack, "run_stack", lambda cars, options, *a: seen.append(options))
+    monkeypatch.setattr(sim_stack, "summary", lambda report, out: "done")
+    monkeypatch.setattr("launch_scripts.commands.launch.verdict", lambda report, laps: 0)
+    assert main(["launch", "sim", "--model", "kinematic", "--out", str(tmp_path / "a")]) == 0
+    options = seen[-1]
+    assert (options.model, options.car.model) == ("kinematic", None)
+    assert (options.model_spec(), options.truth().model) == ("kinematic", "dynamic")
+    argv = ["launch", "sim", "--model", OWN_MODEL, "--car-model", "kinematic"]
+    assert main([*argv, "--out", str(tmp_path / "b")]) == 0
+    options = seen[-1]
+    assert options.model_spec() == f"{Path(OWN_MODEL.split(':')[0]).resolve()}:LinearTyreCar"
+    assert options.truth().model == "kinematic"
+    kinematic = tmp_path / "kinematic.yaml"
+    kinematic.write_text("model: kinematic\nparameters:\n  m: 0.2\n")
+    assert main(["launch", "sim", "--params", str(kinematic), "--out", str(tmp_path / "c")]) == 0
+    options = seen[-1]
+    assert options.model_spec() == "kinematic"
+    assert (options.truth().model, options.truth().params_file) == ("dynamic", None)
