@@ -90,6 +90,8 @@ def run_outage_loop(
         np.array([x0, y0, heading, 0.0, 0.0, 0.0]), keep_history=False
     )
     host, held, last_received = car.base_state, np.zeros(2), 0.0
+    model = mpcc.model
+    reckoned = None  # the host's dead-reckoned model state through an outage (None: link up)
     laps = LapCounter(track.length)
     laps.update(0.0, track.project(x0, y0).s)  # on the line: the lap from rest starts
     replaced_before = mpcc.hold_safe_replaced
@@ -98,9 +100,13 @@ def run_outage_loop(
         link_up = not np.any((t >= windows[:, 0]) & (t < windows[:, 1]))
         # the host sees the car while the link is up, else dead-reckons with its own commands
         if link_up:
-            host = car.base_state
-        else:
-            host = mpcc.model.numeric.step(host, mpcc.last_command, mpcc.p, dt)
+            host, reckoned = car.base_state, None
+        else:  # in the model's own state (not the car state for every model), from the last seen
+            u = mpcc.last_command
+            if reckoned is None:
+                reckoned = model.initial_state(host, u)
+            reckoned = model.numeric.step(reckoned, u, mpcc.p, dt)
+            host = model.numeric.car_state(reckoned, u, mpcc.p)
         command = mpcc(host, None, dt, hold_safe)
         cut = last_received + cut_off  # the firmware's cut-off, if no command comes first
         if link_up:
