@@ -164,6 +164,7 @@ class HoldSafetyFilter:
         self._tree = cKDTree(self._centre)
         self.envelope = braking_envelope(track, s.lateral, s.braking, top_speed, s.edge_clearance)
         self._nx = model.nx
+        self._model = model
         self._p = parameters.vector()
         holds = max(round(s.hold_time / s.sample_time), 0)
         coasts = max(round(s.coast_time / s.sample_time), 1)
@@ -173,7 +174,7 @@ class HoldSafetyFilter:
         rollout = _rollout_function(step, model.nx, holds, coasts)
         recovery = _recovery_function(
             step,
-            model.nx,
+            model,
             max(round(s.recovery_time / s.sample_time), 0),
             _RecoveryLaw(
                 values["lf"] + values["lr"],
@@ -198,7 +199,7 @@ class HoldSafetyFilter:
         at the edge already is the MPCC's to bring back)."""
         state = np.asarray(x, dtype=float).ravel()[: self._nx]
         command = np.asarray(u, dtype=float).ravel()[:2]
-        if math.hypot(state[3], state[4]) < self.settings.min_speed:
+        if self._speeds(state[:, None], command[:1])[0] < self.settings.min_speed:
             return command.copy()  # braking is always safe: filtered, a slow car stood at the edge
         angle = command[0] if steering is None else float(steering)
         if self.excess(state, command[None, :], angle)[0] <= 0.0:
@@ -239,8 +240,19 @@ class HoldSafetyFilter:
         outside = np.max(np.abs(lateral), axis=1) - self.bound
         ends = samples[:, steps - 1 :: steps]
         outside = np.maximum(outside, self._recovery_excess(recovery, ends, count))
-        too_fast = np.hypot(states[3, :, -1], states[4, :, -1]) - self.envelope(s[:, -1])
+        too_fast = self._speeds(states[: self._nx, :, -1], states[self._nx, :, -1])
+        too_fast = too_fast - self.envelope(s[:, -1])
         return np.maximum(outside, too_fast * self.settings.sample_time)
+
+    def _speeds(self, states: NDArray[np.float64], steering: ArrayLike) -> np.ndarray:
+        """The car's speed (m/s) of each column of model ``states`` (nx x K) steering at
+        ``steering`` rad (K,)."""
+        if self._model.car_state_is_state:
+            return np.hypot(states[3], states[4])
+        angles = np.broadcast_to(np.asarray(steering, dtype=float), (states.shape[1],))
+        inputs = np.column_stack((angles, np.zeros_like(angles)))
+        car = self._model.numeric.car_states(states.T, inputs, self._p)
+        return np.hypot(car[:, 3], car[:, 4])
 
     def _recovery_excess(
         self, recovery: ca.Function, ends: NDArray[np.float64], count: int
@@ -360,7 +372,9 @@ def _lagged_step(model: CarModel, step: float, lag: float) -> ca.Function:
     )
 
 
-def _recovery_function(step: ca.Function, nx: int, steps: int, law: _RecoveryLaw) -> ca.Function:
+def _recovery_function(
+    step: ca.Function, model: CarModel, steps: int, law: _RecoveryLaw
+) -> ca.Function:
     """``recover(xs0, reference, p)``: the states ``[x; delta]`` after each of ``steps`` of the
     lagged ``step`` driving back to the track, ``(nx + 1, steps)``.
 
@@ -369,12 +383,14 @@ def _recovery_function(step: ca.Function, nx: int, steps: int, law: _RecoveryLaw
     zero), and the car steers by the Stanley law along it: curvature feed-forward, minus the
     heading error, minus ``atan(gain * lateral / v)``, with full braking down to
     ``min_speed``."""
+    nx = model.nx
     xs0, p = ca.SX.sym("xs0", nx + 1), ca.SX.sym("p", step.numel_in(3))
     reference = ca.SX.sym("reference", 4)
     cx, cy, heading, curvature = (reference[i] for i in range(4))
     xs, samples = xs0, []
     for _ in range(steps):
-        dx, dy = xs[0] - cx, xs[1] - cy
+        car = model.car_state_function(xs[:nx], ca.vertcat(xs[nx], 0.0), p)
+        dx, dy = car[0] - cx, car[1] - cy
         along = ca.cos(heading) * dx + ca.sin(heading) * dy
         left = -ca.sin(heading) * dx + ca.cos(heading) * dy
         # signed distance to the arc and the arc's direction there (exact for a circle; well
@@ -384,11 +400,11 @@ def _recovery_function(step: ca.Function, nx: int, steps: int, law: _RecoveryLaw
             1.0 + ca.sqrt((curvature * along) ** 2 + bend**2)
         )
         track_heading = heading + ca.atan2(curvature * along, bend)
-        error = ca.atan2(ca.sin(xs[2] - track_heading), ca.cos(xs[2] - track_heading))
-        speed = ca.fmax(ca.sqrt(xs[3] ** 2 + xs[4] ** 2), 0.3)
+        error = ca.atan2(ca.sin(car[2] - track_heading), ca.cos(car[2] - track_heading))
+        speed = ca.fmax(ca.sqrt(car[3] ** 2 + car[4] ** 2), 0.3)
         steer = ca.atan(law.wheelbase * curvature) - error - ca.atan(law.gain * lateral / speed)
         steer = ca.fmin(ca.fmax(steer, -law.steer_max), law.steer_max)
-        torque = ca.if_else(xs[3] > law.min_speed, law.braking_torque, 0.0)
+        torque = ca.if_else(car[3] > law.min_speed, law.braking_torque, 0.0)
         xs = step(xs, steer, torque, p)
         samples.append(xs)
     out = ca.horzcat(*samples) if samples else ca.SX(nx + 1, 0)

@@ -142,6 +142,10 @@ class Mpcc:
             raise ValueError(f"output: one of {OUTPUTS}, got {output!r}")
         self.model = model or CarModel()
         self.settings = settings or MpccSettings()
+        racing_speed = self.model.plant.racing_speed
+        if racing_speed is not None and self.settings.progress_speed_max > racing_speed:
+            # a simple model plans only as fast as it holds (Plant.racing_speed)
+            self.settings = replace(self.settings, progress_speed_max=racing_speed)
         self.settings.validate()
         self.output = output
         self.path = ReferencePath(track)
@@ -173,6 +177,7 @@ class Mpcc:
         self._rollout, self._merit_function = checks["mpcc_rollout"], checks["mpcc_merit"]
         self._parameter_columns = np.tile(self.p[:, None], (1, self.problem.N))
         self._nxc = self.model.nx
+        self._vx = self.problem.speed_index
         values = parameters or self.model.parameters
         self._wheelbase_parts = (values.value("lf"), values.value("lr"))
         self._drive_off = PathFollower(
@@ -329,7 +334,8 @@ class Mpcc:
         self._hold_safe = bool(hold_safe) and self.output == "torque"
         state = np.asarray(x, dtype=float).ravel()
         if state.size not in (6, self._nxc) or not np.all(np.isfinite(state)):
-            return self.stop(None, f"x: need {self._nxc} finite states, got {state.tolist()}")
+            sizes = "6" if self._nxc == 6 else f"6 (the car state) or {self._nxc}"
+            return self.stop(None, f"x: need {sizes} finite states, got {state.tolist()}")
         self._held = 0
         self._follow_steering(self.settings.dt if elapsed is None else float(elapsed))
         self._v_upper[2] = self.settings.progress_speed_max
@@ -386,15 +392,23 @@ class Mpcc:
         target = float(self._command[0])
         self._steering = target + (self._steering - target) * decay
 
+    def _is_model_state(self, state: np.ndarray) -> bool:
+        """``state`` is the model's whole state, not the car state: it has the model's size,
+        and a model whose car state is not its first six states is given the car state."""
+        return state.size == self._nxc and (self.model.car_state_is_state or state.size != 6)
+
     def _initial_stage_state(self, state: np.ndarray) -> np.ndarray:
-        nxc = self._nxc
-        state = self._kinematic_at_low_speed(state)
-        if state.size == nxc:
+        nxc, model = self._nxc, self.model
+        if model.car_state_is_state or not self._is_model_state(state):
+            state = self._kinematic_at_low_speed(state)
+        if self._is_model_state(state):
             car = state
-        elif self._Z is not None:  # effect states from the plan
-            car = np.concatenate((state, self._Z[1, 6:nxc]))
         else:
-            car = self.model.initial_state(state, self._command)
+            plant = model.plant.state_from_car(state, self._command, model.parameters.value)
+            if self._Z is not None:  # effect states from the plan
+                car = np.concatenate((plant, self._Z[1, len(plant) : nxc]))
+            else:
+                car = model.augmented_state(plant, self._command)
         if self._delay > 0:
             car = self._through_delay(car)
         near = None if self._Z is None else float(self._Z[1, nxc])
@@ -443,7 +457,7 @@ class Mpcc:
         return bool(
             math.hypot(z0[0] - planned[0], z0[1] - planned[1]) > position
             or abs(float(wrap_angle(z0[2] - planned[2]))) > yaw
-            or abs(z0[3] - planned[3]) > speed
+            or abs(z0[self._vx] - planned[self._vx]) > speed
         )
 
     def _shifted_inputs(self, stages: int) -> np.ndarray:
@@ -455,7 +469,7 @@ class Mpcc:
         """``V`` rolled out from ``z0``; where the car stands in it (no stage reaches
         ``kinematic_speed``), :meth:`_driving_guess` instead."""
         Z = self._rolled_out(z0, V)
-        if np.max(Z[:, 3]) >= self.settings.kinematic_speed:
+        if np.max(Z[:, self._vx]) >= self.settings.kinematic_speed:
             return Z, V
         return self._driving_guess(z0)
 
@@ -477,8 +491,10 @@ class Mpcc:
         car = np.array(z0[:nxc], dtype=float)
         theta = np.empty(N + 1)
         theta[0] = z0[nxc]
+        command = self._command
         for k in range(N):
-            V[k, :2] = follower(k * dt, car[:6], limit)
+            V[k, :2] = follower(k * dt, numeric.car_state(car, command, self.p), limit)
+            command = V[k, :2]
             car = numeric.step(car, V[k, :2], self.p, dt)
             theta[k + 1] = self.path.progress(car[0], car[1], theta[k])
         V[:, 2] = np.clip(np.diff(theta) / dt, 0.0, limit)
@@ -622,8 +638,9 @@ class Mpcc:
         vx = 0.0
         if x is not None:
             state = np.asarray(x, dtype=float).ravel()
-            if state.size > 3 and math.isfinite(state[3]):
-                vx = float(state[3])
+            index = self._vx if state.size == self.problem.nz else 3
+            if state.size > index and math.isfinite(state[index]):
+                vx = float(state[index])
         s = self.settings
         torque = min(max(-s.brake_gain * vx, s.torque_min), 0.0) if vx > 0.05 else 0.0
         return np.array([0.0, torque])
@@ -632,7 +649,7 @@ class Mpcc:
         s = self.settings
         V[:, 0] = np.clip(V[:, 0], -s.steer_max, s.steer_max)
         V[:, 1] = np.clip(V[:, 1], s.torque_min, s.torque_max)
-        self._never_into_reverse(V, float(z0[3]))
+        self._never_into_reverse(V, float(z0[self._vx]))
         self._safe_to_hold(V, z0)
         self._Z, self._V, self._failures = Z, V, 0
         self._command = V[0, :2].copy()
@@ -682,7 +699,7 @@ class Mpcc:
             command = self.stop(z0, reason)
             mode, slack = "stop", 0.0
         else:  # the shifted previous plan: the guess is that plan shifted by one stage
-            self._never_into_reverse(V, float(z0[3]))
+            self._never_into_reverse(V, float(z0[self._vx]))
             self._safe_to_hold(V, z0)
             self._Z, self._V = Z, V
             self._command = V[0, :2].copy()
@@ -705,7 +722,7 @@ class Mpcc:
             self._in_flight.append(command.copy())
         if self.output == "torque":
             return command.copy()
-        speed = 0.0 if Z is None else float(Z[self._velocity_stage, 3])
+        speed = 0.0 if Z is None else float(Z[self._velocity_stage, self._vx])
         return np.array([command[0], min(max(speed, 0.0), self.settings.velocity_max)])
 
 

@@ -366,6 +366,18 @@ class MpccProblem:
     """
 
     def __init__(self, model: CarModel, settings: MpccSettings) -> None:
+        plant = model.plant
+        if [plant.car_state_like(n) for n in plant.state_names[:3]] != ["x", "y", "yaw"]:
+            raise FieldError(
+                "model", f"the MPCC needs the pose as the first three states of {plant.name}"
+            )
+        like = [plant.car_state_like(n) for n in plant.state_names]
+        if "vx" not in like:
+            raise FieldError("model", f"the MPCC needs a state like vx in {plant.name}")
+        #: Where the state like ``vx`` (the speed the MPCC bounds and brakes by) sits.
+        self.speed_index = like.index("vx")
+        #: Where the state like ``vy`` sits (None: the model cannot slide sideways).
+        self.lateral_index = like.index("vy") if "vy" in like else None
         self.model = model
         self.settings = settings
         self.nx_car = model.nx
@@ -393,10 +405,14 @@ class MpccProblem:
         contour = sin_h * dx - cos_h * dy
         lag = -cos_h * dx - sin_h * dy + (z[nxc] - ref[3])
         previous = z[nxc + 1 : nxc + 4]
-        # lateral velocity beyond the kinematic bicycle's: the car sliding (tires saturated)
-        names = list(self.model.parameters.names)
-        lf, lr = p[names.index("lf")], p[names.index("lr")]
-        sideslip = z[4] - z[3] * lr * ca.tan(v[0]) / (lf + lr)
+        # lateral velocity beyond the kinematic bicycle's: the car sliding (tires saturated);
+        # a model without a lateral velocity cannot slide
+        sideslip = ca.SX(0)
+        if self.lateral_index is not None:
+            names = list(self.model.parameters.names)
+            lf, lr = p[names.index("lf")], p[names.index("lr")]
+            vx, vy = z[self.speed_index], z[self.lateral_index]
+            sideslip = vy - vx * lr * ca.tan(v[0]) / (lf + lr)
         # weighted squared residuals plus linear terms (progress reward, exact slack penalty)
         residuals = ca.vertcat(contour, lag, v[:3] - previous, v[0], v[1], v[3], sideslip)
         residual_weights = ca.vertcat(

@@ -275,6 +275,7 @@ class Supervisor:
         self.settings = settings or SupervisorSettings()
         self.output = output
         self._mpcc = controller if isinstance(controller, Mpcc) else None
+        self._model = model
         self._numeric = model.numeric if model is not None else None
         self._p = model.parameters.vector() if model is not None else None
         self._model_parameters = model.parameters if model is not None else None
@@ -445,6 +446,12 @@ class Supervisor:
             return x
         t = max(stamp, target - self.settings.stale_timeout)
         sent = self._sent
+        assert self._model is not None
+        acting = [
+            u for k, (_, u) in enumerate(sent) if k + 1 >= len(sent) or sent[k + 1][0] + delay > t
+        ]
+        u = acting[0] if acting else STOP
+        x = self._model.initial_state(x, u)  # the car state as the model's state
         for k, (_issued, u) in enumerate(sent):
             until = sent[k + 1][0] + delay if k + 1 < len(sent) else target
             if until <= t:
@@ -452,8 +459,9 @@ class Supervisor:
             x = self._numeric.step(x, u, self._p, until - t)
             t = until
         if t < target:  # no command sent yet (the first tick)
+            u = STOP
             x = self._numeric.step(x, STOP, self._p, target - t)
-        return x
+        return self._numeric.car_state(x, u, self._p)
 
     # --- steps ---------------------------------------------------------------------------
     def _stale_reason(self, now: float) -> str:

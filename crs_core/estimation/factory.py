@@ -23,9 +23,19 @@ KINDS = ("ekf", "mhe")
 INPUT_MODES = ("auto", "commanded", "estimated")
 
 
+#: The sensor groups a car's estimator uses unless told otherwise, of those its model explains.
+STACK_SENSORS = ("lh", "imu", "we")
+
+
+def default_sensors(model: CarModel) -> str:
+    """``"lh+imu+we"``, without the groups ``model``'s plant does not explain
+    (:attr:`~crs_core.model.plant.Plant.explains`: the kinematic bicycle's ``"lh+we"``)."""
+    return "+".join(g for g in STACK_SENSORS if g in model.plant.explains)
+
+
 def make_estimator(
     kind: str,
-    sensors: str | frozenset[str] = "lh+imu+we",
+    sensors: str | frozenset[str] | None = None,
     model: CarModel | None = None,
     settings: EstimatorSettings | None = None,
     *,
@@ -36,8 +46,8 @@ def make_estimator(
     Parameters
     ----------
     kind : {"ekf", "mhe"}
-    sensors : str or set
-        Sensor groups, e.g. ``"lh+imu+we"``.
+    sensors : str or set, optional
+        Sensor groups, e.g. ``"lh+imu+we"``; default :func:`default_sensors`.
     model : CarModel, optional
         The estimation model with commanded inputs (its parameters, effects, stations).
     settings : EkfSettings or MheSettings, optional
@@ -63,6 +73,8 @@ def make_estimator(
     elif not isinstance(settings, settings_type):
         raise TypeError(f"settings: a {kind} needs {settings_type.__name__}, got {settings!r}")
     model = model or CarModel()
+    if sensors is None:
+        sensors = default_sensors(model)
     if model.estimated_inputs:
         raise FieldError("model", "give the commanded model; inputs='estimated' builds the other")
     if settings.online_parameters:

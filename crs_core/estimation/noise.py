@@ -117,6 +117,8 @@ class EstimatorNoise:
             for name in model.state_names[len(model.plant.states) :]
         ]
         plant = per_plant_state(self.process_std, model, "noise.process_std")
+        own = model.plant.process_std
+        plant = [own.get(n, v) for n, v in zip(model.plant.state_names, plant, strict=True)]
         return np.array([*plant, *extra], dtype=float)
 
 

@@ -117,13 +117,20 @@ def dataset_stream(dataset: Dataset) -> tuple[list[Measurement], list[InputSampl
     return measurements, inputs, source
 
 
-def available_sensors(dataset: Dataset) -> str:
-    """The groups of :data:`AUTO_SENSOR_GROUPS` the dataset has data for, e.g. ``"lh+we+gyro"``."""
+def available_sensors(dataset: Dataset, model: CarModel | None = None) -> str:
+    """The groups of :data:`AUTO_SENSOR_GROUPS` the dataset has data for, e.g.
+    ``"lh+we+gyro"``, and that ``model``'s plant explains
+    (:attr:`~crs_core.model.plant.Plant.explains`; every group without a model)."""
     measurements, _, _ = dataset_stream(dataset)
     present = {sensor_group(m.sensor) for m in measurements}
-    groups = [g for g in AUTO_SENSOR_GROUPS if g in present]
+    explained = model.plant.explains if model is not None else AUTO_SENSOR_GROUPS
+    groups = [g for g in AUTO_SENSOR_GROUPS if g in present and g in explained]
     if not groups:
-        raise FieldError("sensors", "the dataset has no Lighthouse, IMU, gyro or wheel data")
+        raise FieldError(
+            "sensors",
+            "the dataset has no Lighthouse, IMU, gyro or wheel data"
+            + ("" if model is None else f" that model {model.plant.name} explains"),
+        )
     return "+".join(groups)
 
 
@@ -269,7 +276,7 @@ def estimate_dataset(
         raise FieldError("dataset", "has no samples (t.npy is empty)")
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise FieldError("rate_hz", f"must be finite and > 0, got {rate_hz}")
-    sensor_text = available_sensors(dataset) if sensors == "auto" else sensors
+    sensor_text = available_sensors(dataset, model) if sensors == "auto" else sensors
     groups = parse_sensor_set(sensor_text)
     start_x, start_cov = (None, None) if x0 is None else initial_state(x0)
     measurements, recorded_inputs, source = dataset_stream(dataset)

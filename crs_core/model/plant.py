@@ -21,11 +21,12 @@ parameters ``lf``, ``r`` and ``b_car``).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from typing import ClassVar
 
 import casadi as ca
 import numpy as np
+from numpy.typing import ArrayLike
 
 from crs_core.errors import FieldError
 from crs_core.parameters import ParameterSet
@@ -65,6 +66,16 @@ class Plant(ABC):
     #: (``{"v": "vx"}``): the estimators give it that state's noise, initial uncertainty and
     #: bounds.
     like: ClassVar[dict[str, str]] = {}
+    #: Process noise (per sqrt(s)) of states whose model error is not the car state's they are
+    #: like: where the model is wrong, the estimators must let the state move (the kinematic
+    #: bicycle's yaw follows its steering geometry, which an understeering car does not).
+    process_std: ClassVar[dict[str, float]] = {}
+    #: The sensor groups (:data:`~crs_core.estimation.base.SENSOR_GROUPS`) whose readings of a
+    #: real car the model explains: the estimators' default sensors are these.
+    explains: ClassVar[tuple[str, ...]] = ("lh", "imu", "gyro", "we", "pose")
+    #: The highest progress speed the MPCC plans with this model, m/s (None: its settings'):
+    #: where a simple model holds on the car.
+    racing_speed: ClassVar[float | None] = None
     #: The parameters ``crs sysid`` fits by default (empty: every one with a prior std > 0).
     default_fit: ClassVar[tuple[str, ...]] = ()
     #: Where it was loaded from (:func:`~crs_core.model.plants.load_plant` sets it).
@@ -101,15 +112,13 @@ class Plant(ABC):
             )
         return ca.vertcat(*(x[self.state_names.index(n)] for n in CAR_STATE_NAMES))
 
-    def state_from_car(
-        self, car: Sequence[float], u: Sequence[float], P: Callable[[str], float]
-    ) -> np.ndarray:
+    def state_from_car(self, car: ArrayLike, u: ArrayLike, P: Callable[[str], float]) -> np.ndarray:
         """A state whose car state is (nearest to) ``car`` under applied input ``u``, with the
         numeric parameter values ``P``: where an estimator or the simulator starts.
 
         The default sets the states named like the car state's and the others to 0.
         """
-        values = dict(zip(CAR_STATE_NAMES, (float(v) for v in car), strict=True))
+        values = dict(zip(CAR_STATE_NAMES, np.asarray(car, dtype=float).tolist(), strict=True))
         return np.array([values.get(name, 0.0) for name in self.state_names])
 
     def car_state_like(self, name: str) -> str | None:

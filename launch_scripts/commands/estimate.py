@@ -250,7 +250,8 @@ def _check_reach(model: CarModel, dataset: Dataset, sensors: str) -> None:
     from crs_core.estimation.offline import available_sensors
 
     try:
-        groups = parse_sensor_set(available_sensors(dataset) if sensors == "auto" else sensors)
+        chosen = available_sensors(dataset, model) if sensors == "auto" else sensors
+        groups = parse_sensor_set(chosen)
     except FieldError:
         return
     try:
