@@ -45,7 +45,8 @@ def warm_compile_cache(
     Parameters
     ----------
     estimator : {"ekf", "mhe"}
-        The estimator node's kind (default sensors ``lh+imu+we``).
+        The estimator node's kind (its default sensors: ``lh+imu+we``, of those the model
+        explains).
     controller : {"mpcc", "path"}
         The controller node's kind (only the MPCC compiles).
     output : {"torque", "velocity"}
@@ -95,7 +96,7 @@ def warm_compile_cache(
     # the nodes' defaults: the estimator's rate is RealtimeSettings', the MPCC's MpccSettings'
     rate_hz = RealtimeSettings.rate_hz
     settings = MheSettings(rate_hz=rate_hz) if estimator == "mhe" else EkfSettings()
-    make_estimator(estimator, "lh+imu+we", stack_model, settings)
+    make_estimator(estimator, None, stack_model, settings)  # the node's default sensors
     if controller == "mpcc":
         Mpcc(load_demo_track(), stack_model, MpccSettings(), output=output)
     # the simulator's truth model with the onboard loop

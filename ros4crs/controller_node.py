@@ -197,7 +197,11 @@ class ControllerNode(Node):
         drive = None
         if kind == "mpcc":
             limits = MpccSettings(rate_hz=rate_hz, solve_time_budget=solve_budget)
+            # a simple model races only as fast as it holds (the MPCC caps its plan the same)
+            racing_speed = model.plant.racing_speed
             max_speed = limits.progress_speed_max
+            if racing_speed is not None:
+                max_speed = min(max_speed, racing_speed)
         elif drive_file:
             try:
                 drive = load_drive(drive_file)

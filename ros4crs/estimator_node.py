@@ -41,7 +41,8 @@ and holds the last torque command if the car switches to velocity mode later: re
 run.
 
 Parameters: ``estimator`` (ekf | mhe), ``input_topic`` (input | input/applied), ``sensors``
-(e.g. "lh+imu+we"), ``rate_hz``, ``lag`` (s,
+(e.g. "lh+imu+we"; default: those of lh+imu+we its model explains, the kinematic bicycle's
+"lh+we", :func:`~crs_core.estimation.factory.default_sensors`), ``rate_hz``, ``lag`` (s,
 default 0.02), ``max_lag`` (s; default 0.1 for the EKF, which drops late data, and 0 for the MHE,
 which takes them into its window at its next update, where a longer lag would only delay the
 controller: an MPCC fed estimates 110-180 ms old steered bang-bang and spun the car; not above
@@ -81,6 +82,7 @@ from crs_core.estimation import (
     parse_sensor_set,
 )
 from crs_core.estimation.base import parse_time_offsets
+from crs_core.estimation.factory import default_sensors
 from crs_core.estimation.realtime import RealtimeEstimator, RealtimeSettings
 from crs_core.measurements import Measurement
 from crs_core.model.online import parse_online_names
@@ -115,8 +117,15 @@ class EstimatorNode(Node):
     def __init__(self, **node_options: Any) -> None:
         super().__init__("estimator", **node_options)
         kind = declare(self, "estimator", "mhe", "ekf or mhe", one_of(*KINDS))
+        stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
+        model = declare_model(self, n_base_stations=stations)
+        # by default lh+imu+we, of those the model explains (the kinematic bicycle: lh+we)
         sensors = declare(
-            self, "sensors", "lh+imu+we", "sensor groups joined by +", parsed_with(parse_sensor_set)
+            self,
+            "sensors",
+            default_sensors(model),
+            "sensor groups joined by +",
+            parsed_with(parse_sensor_set),
         )
         # the EKF drops late data; the MHE takes them into its window at the next update, and
         # a larger lag would only make the controller's loop slower (a max_lag below lag:
@@ -153,8 +162,6 @@ class EstimatorNode(Node):
             parsed_with(lambda text: parse_online_names(text) if text.strip() else ()),
         )
         online_names = parse_online_names(online_text) if online_text.strip() else ()
-        stations = declare(self, "stations", 1, "Lighthouse base stations", in_range(1, 8))
-        model = declare_model(self, n_base_stations=stations)
         initial = np.asarray(declare_initial_state(self, "initial estimate"))
         offsets = parse_time_offsets(
             declare(
