@@ -206,13 +206,15 @@ def extended_model(
             raise FieldError("effects", f"unknown effect {name!r}; known: {', '.join(EFFECTS)}")
         spec[name] = {p.name: values.get(p.name, null_value(p)) for p in EFFECTS[name].parameters}
     all_terms = (*model.terms, *terms)
-    skeleton = CarModel(spec, n_base_stations=model.n_base_stations, terms=all_terms)
+    plant, stations = model.plant, model.n_base_stations
+    skeleton = CarModel(spec, n_base_stations=stations, terms=all_terms, model=plant)
     values = {n: model.parameters.value(n) for n in model.parameters.names}
     return CarModel(
         spec,
-        n_base_stations=model.n_base_stations,
+        n_base_stations=stations,
         parameters=skeleton.parameters.updated(values),
         terms=all_terms,
+        model=plant,
     )
 
 

@@ -164,7 +164,7 @@ def diagnose_prediction(
         "along": np.nanmean(along, axis=1),
         "across": np.nanmean(across, axis=1),
     }
-    regressors = regime_regressors(t, states, data.u)
+    regressors = regime_regressors(t, model.numeric.car_states(states, data.u), data.u)
     names = list(regressors)
     design = np.column_stack(
         [

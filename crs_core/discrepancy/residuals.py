@@ -163,8 +163,8 @@ def regime_regressors(t: np.ndarray, states: np.ndarray, u: np.ndarray) -> dict[
     ----------
     t : (N,) array
         Stamps, s.
-    states : (N, nx) array
-        States with columns ``x, y, yaw, vx, vy, omega`` first (m, m, rad, m/s, m/s, rad/s).
+    states : (N, 6) array
+        Car states ``x, y, yaw, vx, vy, omega`` (m, m, rad, m/s, m/s, rad/s).
     u : (N, 2) array
         Commands ``[steering (rad), torque (normalised)]``.
 
@@ -232,7 +232,7 @@ def diagnose(
         An identification result.
     regressors : dict of str to (N,) arrays, optional
         Regime variables per sample; default :func:`regime_regressors` of the result's
-        stamps, identified states and commands.
+        stamps, identified car states and commands.
 
     Returns
     -------
@@ -240,7 +240,7 @@ def diagnose(
         In the order of :data:`CHANNEL_GROUPS`, groups without measured samples left out.
     """
     if regressors is None:
-        regressors = regime_regressors(result.t, result.states, result.data.u)
+        regressors = regime_regressors(result.t, result.car_states, result.data.u)
     residuals, floors = fie_residuals(result)
     return [
         diagnose_residual(name, residuals[name], floors[name], regressors)

@@ -95,6 +95,7 @@ class FieResult:
     settings : FieSettings
     starts : list of per-start summaries (cost, iterations, status, time_s)
     model : str, the spec of the model's plant (:func:`~crs_core.model.plants.plant_spec`)
+    car_states : (N, 6) the car state of ``states`` (:data:`~crs_core.model.plant.CAR_STATE_NAMES`)
     """
 
     parameters: ParameterSet
@@ -118,6 +119,7 @@ class FieResult:
     settings: FieSettings
     starts: list[dict[str, Any]] = field(default_factory=list)
     model: str = DEFAULT_MODEL
+    car_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
 
     @property
     def time_per_iteration_s(self) -> float:
@@ -353,4 +355,5 @@ def identify(
         settings=settings,
         starts=starts,
         model=plant_spec(model.plant),
+        car_states=model.numeric.car_states(states, data.u),
     )

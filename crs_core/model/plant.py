@@ -46,7 +46,8 @@ ParameterAccess = Callable[[str], ca.SX]
 class Plant(ABC):
     """A model of a car's motion: states, parameters, dynamics, sensors.
 
-    Subclass it, set :attr:`name`, :attr:`states` and :attr:`description`, and write
+    Subclass it, set :attr:`name`, :attr:`states` (the pose first: ``x, y, yaw`` or states
+    like them, :attr:`like`) and :attr:`description`, and write
     :meth:`parameters`, :meth:`derivative` and :meth:`car_state` (the last two take the state
     ``x``, the *applied* input ``u = [steer rad, torque -]`` and a parameter accessor ``P``:
     ``P("m")`` is the symbol of the parameter ``m``). A plant whose states are named like the
@@ -142,6 +143,12 @@ class Plant(ABC):
         for name in names:
             if not name.isidentifier():
                 raise FieldError(f"model {self.name}.states", f"{name!r} is not an identifier")
+        pose = [self.car_state_like(n) for n in names[:3]]
+        if pose != ["x", "y", "yaw"]:
+            raise FieldError(
+                f"model {self.name}.states",
+                "the first three must be the pose (x, y, yaw or states like them, Plant.like)",
+            )
         for name, similar in self.like.items():
             if name not in names or similar not in CAR_STATE_NAMES:
                 raise FieldError(

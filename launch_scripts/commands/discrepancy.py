@@ -15,6 +15,7 @@ from crs_core.model import EFFECTS
 from launch_scripts.arguments import (
     Command,
     add_effect,
+    add_model,
     add_out,
     add_process_scale,
     bounded_number,
@@ -45,7 +46,7 @@ def run_discrepancy(args: argparse.Namespace) -> int:
 
     train = load_recording(args.train, args, "TRAIN")
     validation = load_recording(args.validate, args, "--validate") if args.validate else None
-    model = identification_model(train, args.effect or [], args.params, "--params")
+    model = identification_model(train, args.effect or [], args.params, "--params", args.model)
     identification = FieSettings(fit=parse_fit(args.fit, model), process_scale=args.process_scale)
     FieData.from_dataset(train, identification.noise)  # refuse bad data before touching --out
     if validation is not None:
@@ -92,6 +93,7 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
         help="the current model's parameter YAML, or 'rough' (default: the Chronos values)",
     )
     add_effect(sub, "an effect the current model already has (repeatable)")
+    add_model(sub)
     add_fit(sub, "parameters identified in every fit")
     sub.add_argument(
         "--candidates",

@@ -70,11 +70,18 @@ def design_inputs(
     )
     from crs_core.identification.problem import check_fit
     from crs_core.model import CarModel
+    from crs_core.model.bicycle import DynamicBicycle
     from crs_core.model.car_model import effects_in_file
 
     if params.is_dir():
         raise FieldError("--params", f"{params} is a folder, not a parameter YAML")
     model = CarModel.from_file(params, effects_in_file(params))
+    if not isinstance(model.plant, DynamicBicycle):
+        raise FieldError(
+            "--params",
+            f"plan-drive designs drives that tell the dynamic bicycle's tyres apart; model "
+            f"{model.plant.name} has no tyres",
+        )
     open_names = parse_open(open_text)
     try:
         model = with_open_effects(model, open_names)
