@@ -367,10 +367,6 @@ class MpccProblem:
 
     def __init__(self, model: CarModel, settings: MpccSettings) -> None:
         plant = model.plant
-        if [plant.car_state_like(n) for n in plant.state_names[:3]] != ["x", "y", "yaw"]:
-            raise FieldError(
-                "model", f"the MPCC needs the pose as the first three states of {plant.name}"
-            )
         like = [plant.car_state_like(n) for n in plant.state_names]
         if "vx" not in like:
             raise FieldError("model", f"the MPCC needs a state like vx in {plant.name}")

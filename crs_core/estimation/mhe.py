@@ -234,12 +234,7 @@ class MovingHorizonEstimator(Estimator):
 
     @staticmethod
     def _bound_data(model: CarModel, s: MheSettings) -> np.ndarray:
-        plant = model.plant
-        if [plant.car_state_like(n) for n in plant.state_names[:3]] != ["x", "y", "yaw"]:
-            raise FieldError(
-                "model", f"the MHE needs the pose as the first three states of {plant.name}"
-            )
-        names = model.state_names[len(plant.states) :]
+        names = model.state_names[len(model.plant.states) :]
         check_effect_state_names(s.extra_state_bounds, "extra_state_bounds")
         table = {**EXTRA_STATE_BOUNDS, **model.online.bounds, **s.extra_state_bounds}
         extra = [table.get(n, (-_UNBOUNDED, _UNBOUNDED)) for n in names]

@@ -33,6 +33,10 @@ def load_plant(spec: str | Plant | None, field: str = "--model") -> Plant:
     """The plant a spec names (the module docstring); a plant is returned as it is, None is the
     default. Errors are one line naming ``field``."""
     if isinstance(spec, Plant):
+        try:
+            spec.validate()
+        except FieldError as error:
+            raise FieldError(field, str(error)) from None
         return spec
     text = DEFAULT_MODEL if spec is None else str(spec).strip()
     if text in BUILT_IN:

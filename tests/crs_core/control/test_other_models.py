@@ -4,6 +4,7 @@ dynamic bicycle: CRS's kinematic bicycle and a model from a file outside crs_cor
 from __future__ import annotations
 
 from pathlib import Path
+from typing import ClassVar
 
 import casadi as ca
 import numpy as np
@@ -20,11 +21,13 @@ from crs_core.model.kinematic import KinematicBicycle
 OWN_MODEL = Path(__file__).resolve().parents[2] / "own_model" / "linear_tyre_car.py"
 
 
-class TurnedAround(KinematicBicycle):
-    """The kinematic bicycle with its speed first: no pose where the MPCC looks for it."""
+class Stationary(KinematicBicycle):
+    """The kinematic bicycle without a speed state the MPCC could bound (its speed a
+    parameter)."""
 
-    name = "turned"
-    states = (("v", "m/s"), ("x", "m"), ("y", "m"), ("yaw", "rad"))
+    name = "stationary"
+    states = (("x", "m"), ("y", "m"), ("yaw", "rad"), ("heading_rate", "rad/s"))
+    like: ClassVar[dict[str, str]] = {"heading_rate": "omega"}
 
 
 def test_the_problem_finds_the_speed_by_what_it_is_like_and_a_kinematic_car_never_slides():
@@ -34,8 +37,8 @@ def test_the_problem_finds_the_speed_by_what_it_is_like_and_a_kinematic_car_neve
     assert not ca.depends_on(residuals[-1], kinematic.z_sym)  # the sideslip term is 0
     own = MpccProblem(CarModel(model=f"{OWN_MODEL}:LinearTyreCar"), MpccSettings())
     assert (own.speed_index, own.lateral_index) == (3, 4)
-    with pytest.raises(FieldError, match="the MPCC needs the pose as the first three states"):
-        MpccProblem(CarModel(model=TurnedAround()), MpccSettings())
+    with pytest.raises(FieldError, match="the MPCC needs a state like vx in stationary"):
+        MpccProblem(CarModel(model=Stationary()), MpccSettings())
 
 
 def test_the_kinematic_mpcc_plans_only_as_fast_as_the_model_holds(track):

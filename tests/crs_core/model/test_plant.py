@@ -152,6 +152,15 @@ def test_a_plant_with_wrong_shapes_is_refused(tmp_path):
         CarModel(model=f"{source}:Short")
 
 
+def test_a_plant_without_its_pose_first_is_refused():
+    class TurnedAround(SensorlessBicycle):
+        name = "turned"
+        states = (("vx", "m/s"), ("x", "m"), ("y", "m"), ("yaw", "rad"), ("vy", "m/s"))
+
+    with pytest.raises(FieldError, match=r"^model: model turned\.states: the first three must"):
+        CarModel(model=TurnedAround())
+
+
 def test_what_a_model_lacks_is_named():
     kinematic = CarModel(model="kinematic")
     with pytest.raises(FieldError, match="model kinematic has no state vy"):
