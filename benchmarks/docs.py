@@ -32,6 +32,7 @@ from benchmarks.estimation import format_markdown as estimation_markdown
 from benchmarks.link import format_table as link_table
 from benchmarks.middleware_floor import format_markdown as floor_markdown
 from benchmarks.model import format_markdown as model_markdown
+from benchmarks.models import format_markdown as models_markdown
 from benchmarks.online_real import format_markdown as online_real_markdown
 from benchmarks.online_tuning import format_markdown as online_tuning_markdown
 from benchmarks.plan_drive import format_table as plan_drive_table
@@ -99,6 +100,7 @@ RENDERERS: dict[str, Callable[[dict[str, Any]], str]] = {
     "workflow": _headed("workflow", workflow_table),
     "plan_drive": _headed("plan-drive", plan_drive_table),
     "plan_drive_stack": _headed("plan-drive-stack", plan_drive_stack_table),
+    "models": _headed("models", models_markdown),
     "discrepancy": _headed("discrepancy", discrepancy_markdown),
     "calibration": _headed("calibration", calibration_markdown),
     "model": _headed("model", model_markdown),

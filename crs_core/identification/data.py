@@ -7,12 +7,14 @@ messages naming the field.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from crs_core.dataset import Dataset
 from crs_core.errors import FieldError, parse_finite
+from crs_core.estimation.base import sensor_group
 from crs_core.estimation.noise import EstimatorNoise
 from crs_core.measurements import lighthouse_sensor
 
@@ -73,6 +75,18 @@ class FieData:
             y=np.where(measured, dataset.y, 0.0),
             weight=weight,
         )
+
+    def explained_by(self, explains: Sequence[str]) -> FieData:
+        """These data with the channels of sensor groups outside ``explains`` (a plant's
+        :attr:`~crs_core.model.plant.Plant.explains`) weighted 0: a model is fitted to what it
+        can explain (the kinematic bicycle not to the gyro of an understeering car)."""
+        weight = self.weight.copy()
+        for sensor, columns in Y_LAYOUT:
+            if sensor_group(sensor) not in explains:
+                weight[:, columns] = 0.0
+        if not weight.any():
+            raise FieldError("dataset", "has no measurement the model explains")
+        return replace(self, weight=weight)
 
     @property
     def plane1_alpha(self) -> np.ndarray:

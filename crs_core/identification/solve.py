@@ -254,7 +254,7 @@ def identify(
     """
     settings = settings or FieSettings()
     check_fit(model, settings.fit)
-    data = FieData.from_dataset(dataset, settings.noise)
+    data = FieData.from_dataset(dataset, settings.noise).explained_by(model.plant.explains)
     started = time.perf_counter()
     rng = np.random.default_rng(settings.seed)
     problem: FieProblem | None = None

@@ -192,6 +192,16 @@ def plan_drive_stack(args: argparse.Namespace) -> Outcome:
     return result, f"{format_table(result)}\nruns (races, bags, sysid, plan): {work}"
 
 
+def models(args: argparse.Namespace) -> Outcome:
+    from benchmarks.models import format_markdown, models_benchmark, plot
+
+    work = _runs(args, "models")
+    result = _with_machine(models_benchmark(work, lambda line: print(line, file=sys.stderr)))
+    figure = work / "models.png"
+    plot(result, figure)
+    return result, f"{format_markdown(result)}\nplot: {figure}\nruns: {work}"
+
+
 def _add_seconds(parser: argparse.ArgumentParser, flag: str, default: float, what: str) -> None:
     """``--FLAG``: ``what`` in s, ``(5, 600]``."""
     name = flag.removeprefix("--")
@@ -550,6 +560,15 @@ BENCHMARKS: dict[str, tuple[Callable[[argparse.Namespace], Outcome], Any, str]] 
         "plan-drive, then the designed drive and the slalom each driven after a race (--drive "
         "--drive-after); crs sysid on each bag cut at the drive's start and end: the sigma of "
         "Dr, Br, tau_motor from the race alone and with the drive; ~9 min",
+    ),
+    "models": (
+        models,
+        None,
+        "the dynamic and kinematic bicycles and docs/own-model.md's model from a file, side by "
+        "side: where the kinematic one departs (a ramp drive on both), estimation and "
+        "identification on simulated drives (validated 2 s open-loop), an MPCC race on the "
+        "simulated dynamic car, identification and estimation on the two real recordings; "
+        "a plot of the departure beside --out; ~10 min",
     ),
     "sysid": (
         sysid,
