@@ -14,10 +14,11 @@ from numpy.typing import ArrayLike
 
 from crs_core.analysis.angles import wrap_angle
 from crs_core.analysis.laps import LapCounter
+from crs_core.model.car_state import CAR_STATE_NAMES
 from crs_core.track import Track
 
-#: Names of the base states ``[x, y, yaw, vx, vy, omega]``, in order.
-STATE_NAMES = ("x", "y", "yaw", "vx", "vy", "omega")
+#: Names of the car states ``[x, y, yaw, vx, vy, omega]``, in order.
+STATE_NAMES = CAR_STATE_NAMES
 
 
 def state_errors(estimate: ArrayLike, reference: ArrayLike) -> np.ndarray:

@@ -29,11 +29,20 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from crs_core.errors import FieldError
+from crs_core.model.car_state import CAR_STATE_NAMES, CAR_STATE_UNITS
 from crs_core.parameters import ParameterSet
 
-#: The car state every model maps its state to: what the suite publishes and races on.
-CAR_STATE_NAMES = ("x", "y", "yaw", "vx", "vy", "omega")
-CAR_STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
+__all__ = [
+    "CAR_STATE_NAMES",
+    "CAR_STATE_UNITS",
+    "ENCODER_PARAMETERS",
+    "INPUT_NAMES",
+    "INPUT_UNITS",
+    "ParameterAccess",
+    "Plant",
+    "derived_imu",
+]
+
 #: The inputs the stack commands a car with (a plant takes these, in this order).
 INPUT_NAMES = ("steer", "torque")
 INPUT_UNITS = ("rad", "-")
