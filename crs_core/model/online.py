@@ -116,6 +116,13 @@ class OnlineParameters:
         entries = []
         for name in names:
             if name == GRIP:
+                missing = [n for n in GRIP_SCALES if n not in parameters.names]
+                if missing:
+                    raise FieldError(
+                        "online_parameters",
+                        f"'grip' scales the tyre peaks {', '.join(GRIP_SCALES)}, which the "
+                        "model does not have",
+                    )
                 entries.append(
                     OnlineParameter(GRIP, 1.0, GRIP_PRIOR_STD, "-", *GRIP_BOUNDS, self.reversion_s)
                 )

@@ -173,6 +173,14 @@ def test_what_a_model_lacks_is_named():
     CarModel(terms=[slip], model="kinematic")
 
 
+def test_online_parameters_are_those_the_model_has():
+    with pytest.raises(FieldError, match="'grip' scales the tyre peaks Df, Dr, which the model"):
+        CarModel(model="kinematic", online_parameters=["grip"])
+    with pytest.raises(FieldError, match="no parameter 'Df'"):
+        CarModel(model="kinematic", online_parameters=["Df"])
+    assert CarModel(model="kinematic", online_parameters=["Cm1"]).state_names[-1] == "online_Cm1"
+
+
 def test_the_parameter_file_names_its_model(tmp_path):
     file = tmp_path / "params.yaml"
     file.write_text(yaml.safe_dump({"model": "kinematic", "parameters": {"m": 0.25}}))
