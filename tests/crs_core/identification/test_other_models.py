@@ -43,9 +43,7 @@ def test_the_kinematic_bicycle_is_identified_from_the_rough_prior(kinematic_driv
     assert model.plant.name == "kinematic"
     fit = default_fit(model)
     assert "m" not in fit and "Df" not in fit
-    result = identify(
-        kinematic_drive, model, FieSettings(fit=fit, process_scale=SIM_PROCESS_SCALE)
-    )
+    result = identify(kinematic_drive, model, FieSettings(fit=fit, process_scale=SIM_PROCESS_SCALE))
     truth = CarModel(model="kinematic").parameters
     for name, tolerance in (("lf", 0.1), ("lr", 0.1), ("r", 0.01), ("b_car", 0.05)):
         error = result.parameters.value(name) / truth.value(name) - 1
