@@ -247,8 +247,6 @@ class HoldSafetyFilter:
     def _speeds(self, states: NDArray[np.float64], steering: ArrayLike) -> np.ndarray:
         """The car's speed (m/s) of each column of model ``states`` (nx x K) steering at
         ``steering`` rad (K,)."""
-        if self._model.car_state_is_state:
-            return np.hypot(states[3], states[4])
         angles = np.broadcast_to(np.asarray(steering, dtype=float), (states.shape[1],))
         inputs = np.column_stack((angles, np.zeros_like(angles)))
         car = self._model.numeric.car_states(states.T, inputs, self._p)

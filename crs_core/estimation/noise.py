@@ -147,12 +147,11 @@ def initial_std_for(base_std: tuple[float, ...], model: CarModel) -> np.ndarray:
     return np.array([*plant, *extra], dtype=float)
 
 
-def per_plant_state(
-    values: Sequence[float], model: CarModel, field: str, names: Sequence[str] = CAR_STATE_NAMES
-) -> list[float]:
-    """A setting given per car state (``values`` for ``names``) for each state of ``model``'s
-    plant: the value of the car state it is like (:meth:`~crs_core.model.plant.Plant.
-    car_state_like`). A plant state like none of ``names`` is refused in one line."""
+def per_plant_state(values: Sequence[float], model: CarModel, field: str) -> list[float]:
+    """A setting given per car state (``values`` for :data:`CAR_STATE_NAMES`) for each state of
+    ``model``'s plant: the value of the car state it is like (:meth:`~crs_core.model.plant.
+    Plant.car_state_like`). A plant state like none of them is refused in one line."""
+    names = CAR_STATE_NAMES
     table = dict(zip(names, values, strict=True))
     out = []
     for name in model.plant.state_names:

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
-import yaml
 
 from crs_core.codegen import SX_OPTIONS, NumericFunction, compile_functions
 from crs_core.errors import FieldError
@@ -45,7 +44,7 @@ from crs_core.model.plant import (
 from crs_core.model.plants import load_plant, plant_spec, resolve_model
 from crs_core.model.terms import CLOCK_STATE, OUTPUT_TARGETS, STATE_TARGETS, Term, terms_in_file
 from crs_core.parameters import ParameterSet
-from crs_core.yaml_io import load_yaml
+from crs_core.yaml_io import mapping_in_file
 
 #: Largest RK4 substep (s). Measured with :func:`crs_core.model.stability.largest_stable_step`
 #: over speeds 0..3 m/s and full steering: the fastest Jacobian eigenvalue is about -380 1/s
@@ -112,11 +111,7 @@ class SensorOutput:
 def effects_in_file(path: str | Path) -> list[str]:
     """The effects whose parameters a parameter YAML names (so that its model can be rebuilt);
     none for a file that cannot be read (the parameter loader says what is wrong with it)."""
-    try:
-        document = load_yaml(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
-        return []
-    entries = document.get("parameters") if isinstance(document, dict) else None
+    entries = mapping_in_file(path).get("parameters")
     names = set(entries) if isinstance(entries, dict) else set()
     return [e.name for e in EFFECTS.values() if any(p.name in names for p in e.parameters)]
 
@@ -280,18 +275,6 @@ class CarModel:
         parameters) with ``parameters``' values."""
         return self._rebuilt(parameters=parameters)
 
-    def require_states(self, names: Iterable[str], needed_by: str) -> list[int]:
-        """The indices of states ``names``; a model without one of them is refused in one
-        line saying what ``needed_by`` needs."""
-        missing = [n for n in names if n not in self.state_names]
-        if missing:
-            raise FieldError(
-                "model",
-                f"{needed_by} needs the state {', '.join(missing)}, which model "
-                f"{self.plant.name} does not have (states: {', '.join(self.state_names)})",
-            )
-        return [self.state_names.index(n) for n in names]
-
     # --- symbolic model ------------------------------------------------------------------
     def _build_symbolic(self) -> None:
         x = ca.SX.sym("x", self.nx)
@@ -316,7 +299,7 @@ class CarModel:
                 "model", f"{self.plant.name}.car_state() must give {len(CAR_STATE_NAMES)} values"
             )
         given = self.plant.sensors(plant_state, applied, P)
-        outputs = {"imu": given.get("imu", derived_imu(car, x, xdot))}
+        outputs = {"imu": given["imu"] if "imu" in given else derived_imu(car, x, xdot)}
         if "wheel_encoders" in given:
             outputs["wheel_encoders"] = given["wheel_encoders"]
         elif all(n in index for n in ENCODER_PARAMETERS):
@@ -344,6 +327,11 @@ class CarModel:
         self.xdot_expression = xdot
         self.applied_input_expression = applied
         self.car_state_expression = car
+        #: The car state is the state's first six entries (the dynamic bicycle, and any plant
+        #: whose car_state() gives its states as they are): its numeric form a slice.
+        self.car_state_is_state = self.nx >= len(CAR_STATE_NAMES) and all(
+            ca.is_equal(car[i], x[i]) for i in range(len(CAR_STATE_NAMES))
+        )
 
     def _rhs(self, x: ca.SX, u: ca.SX, P) -> tuple[ca.SX, ca.SX]:
         """State derivative (without the online parameters') and applied input for augmented
@@ -443,11 +431,6 @@ class CarModel:
         owners = [effect_of_parameter(n) for n in names if n not in self.parameters.names]
         base = self.with_effects_at_zero(owner for owner in owners if owner is not None)
         return base._rebuilt(parameters=base.parameters, online=(names, reversion_s))
-
-    @property
-    def car_state_is_state(self) -> bool:
-        """The car state is the first six states (the dynamic bicycle's)."""
-        return isinstance(self.plant, DynamicBicycle)
 
     @cached_property
     def car_state_function(self) -> ca.Function:

@@ -16,13 +16,11 @@ import importlib.util
 import sys
 from pathlib import Path
 
-import yaml
-
 from crs_core.errors import FieldError
 from crs_core.model.bicycle import DynamicBicycle
 from crs_core.model.kinematic import KinematicBicycle
 from crs_core.model.plant import Plant
-from crs_core.yaml_io import load_yaml
+from crs_core.yaml_io import mapping_in_file
 
 #: The built-in models by name; the first is the default.
 BUILT_IN: dict[str, type[Plant]] = {"dynamic": DynamicBicycle, "kinematic": KinematicBicycle}
@@ -66,13 +64,9 @@ def plant_spec(plant: Plant) -> str:
 def model_in_file(path: str | Path) -> str | None:
     """The model spec a parameter YAML names under ``model:`` (None when it names none or the
     file cannot be read: the parameter loader says what is wrong with it)."""
-    try:
-        document = load_yaml(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
+    value = mapping_in_file(path).get("model")
+    if value is None:
         return None
-    if not isinstance(document, dict) or document.get("model") is None:
-        return None
-    value = document["model"]
     if not isinstance(value, str) or not value.strip():
         raise FieldError(f"{path}: model", f"must be a model name or FILE.py:CLASS, got {value!r}")
     return value.strip()

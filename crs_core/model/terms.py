@@ -25,11 +25,10 @@ from pathlib import Path
 from typing import Any
 
 import casadi as ca
-import yaml
 
 from crs_core.errors import FieldError
 from crs_core.parameters import Parameter
-from crs_core.yaml_io import load_yaml
+from crs_core.yaml_io import mapping_in_file
 
 #: Variables a monomial may use: where they come from (a car state's or an applied input's index;
 #: ``t`` the clock state's value) and unit.
@@ -251,10 +250,4 @@ def parse_terms(entries: Any, source: str = "terms") -> tuple[Term, ...]:
 def terms_in_file(path: str | Path) -> tuple[Term, ...]:
     """The terms a parameter YAML names under ``terms:`` (none for a file that cannot be read:
     the parameter loader says what is wrong with it)."""
-    try:
-        document = load_yaml(Path(path).read_text())
-    except (OSError, yaml.YAMLError):
-        return ()
-    if not isinstance(document, dict):
-        return ()
-    return parse_terms(document.get("terms"), f"{path}: terms")
+    return parse_terms(mapping_in_file(path).get("terms"), f"{path}: terms")

@@ -56,6 +56,7 @@ def test_the_dynamic_model_is_unchanged_by_the_interface():
     """The default model is the dynamic bicycle, with its states as the car state."""
     model = CarModel()
     assert isinstance(model.plant, DynamicBicycle) and model.car_state_is_state
+    assert not CarModel(model="kinematic").car_state_is_state
     assert model.state_names == ("x", "y", "yaw", "vx", "vy", "omega") and model.tag == "base"
     x, u = random_states(model, 1)[0]
     np.testing.assert_array_equal(model.numeric.car_state(x, u, model.parameters.vector()), x)
@@ -162,12 +163,8 @@ def test_a_plant_without_its_pose_first_is_refused():
 
 
 def test_what_a_model_lacks_is_named():
-    kinematic = CarModel(model="kinematic")
     with pytest.raises(FieldError, match="model kinematic has no state vy"):
         CarModel(terms=[Term("drift", "vy", (("vx",),))], model="kinematic")
-    with pytest.raises(FieldError, match="the MPCC needs the state vx, which model kinematic"):
-        kinematic.require_states(["vx"], "the MPCC")
-    assert kinematic.require_states(["x", "v"], "a test") == [0, 3]
     # a term in the car state's variables is the same whatever the plant's states are
     slip = Term("slip", "wheel_speeds", (("torque", "vx"),), coefficients=(2.0,))
     CarModel(terms=[slip], model="kinematic")
