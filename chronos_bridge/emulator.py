@@ -216,6 +216,7 @@ class CarEmulator:
         self._wheels = np.zeros(4)
         self._cutoff = MotorCutoff()
         self.last_measurements: tuple[Measurement, ...] = ()
+        self._later: list[Measurement] = []  # measured after this tick's stamp: the next packet
         self.last_battery: Battery | None = None
         self.steps = 0
         self.states_sent = 0
@@ -344,18 +345,26 @@ class CarEmulator:
         """One 4 ms firmware tick at clock ``now`` (s): the datagrams to send to the host.
 
         Cuts the motors if no valid reference arrived for 200 ms, advances the simulation by one
-        tick (the onboard loop, the sensors sampled at the tick), and returns the step's
+        tick (the onboard loop, the sensors sampled during it; the packet carries those measured
+        up to its stamp, the rest go with the next), and returns the step's
         ``CarState`` (<= 255 bytes), followed by the discovery ping when it is due and the
         answer to a host ping if one came.
         """
         self._clock(now)
         if self._cutoff.expired(now):
             self._apply("torque", self._steer_ref, 0.0)
-        t_next = (self.steps + 1) * TICK_S
-        measurements = self.session.advance(t_next)
+        t_tick = self.steps * TICK_S  # the simulation time this tick's packet is stamped at
+        measurements = self.session.advance((self.steps + 1) * TICK_S)
         self.steps += 1
         self.last_measurements = tuple(measurements)
-        for measurement in measurements:
+        # a packet carries what was measured up to its stamp, as the firmware's does (the host
+        # stamps a sweep from its deck ticks assuming it was measured before its packet): a
+        # sweep of the tick's later part goes out with the next packet
+        waiting, self._later = [*self._later, *measurements], []
+        for measurement in waiting:
+            if measurement.stamp > t_tick + 1e-9:
+                self._later.append(measurement)
+                continue
             if measurement.sensor == "wheel_encoders":
                 self._wheels = measurement.values
             self._assembler.add(measurement)

@@ -412,6 +412,10 @@ def run(args: argparse.Namespace) -> int:
             if was_paused and not emulator.paused:
                 log.resume_t.append(log.command_read_t[-1])
                 print(f"{PROG}: references again: drives", file=sys.stderr, flush=True)
+            if opts["truth_out"] is not None:  # the car at this tick's stamp, before it steps
+                log.record_step(
+                    emulator.unix_offset + now, emulator.truth().copy(), emulator.session.drifted
+                )
             datagrams = emulator.step(now)
             if emulator.pauses != pauses:
                 pauses = emulator.pauses
@@ -423,10 +427,6 @@ def run(args: argparse.Namespace) -> int:
                     f"{PROG}: no reference for {gap}: motors cut (pause {pauses})",
                     file=sys.stderr,
                     flush=True,
-                )
-            if opts["truth_out"] is not None:
-                log.record_step(
-                    emulator.unix_offset + now, emulator.truth().copy(), emulator.session.drifted
                 )
             for datagram in datagrams:
                 up.send(datagram, now)

@@ -131,6 +131,20 @@ def test_lighthouse_sweeps_are_raw_and_host_offsets_give_back_the_model_conventi
     assert 0.85 * len(sent) <= len(received) <= len(sent)
 
 
+def test_the_host_stamps_each_sweep_at_its_measurement_time() -> None:
+    """A packet carries the sweeps measured up to its stamp, as the firmware's does: the host's
+    deck clock (which takes the smallest packet-minus-deck-time offset as no latency) then
+    stamps every sweep when it was measured. Carrying a sweep measured later in the tick with
+    a packet stamped at the tick's start stamped every sweep up to a tick early, 4 ms, which
+    the IMU and wheel speeds (stamped right) contradicted by a car's 4 ms of motion."""
+    emulator = CarEmulator(seed=3, sensors=SensorSuite().ideal())
+    sent, _, received = _sweeps(emulator, 500)
+    measured = {(m.sensor, round(m.stamp + emulator.unix_offset, 4)) for m in sent}
+    assert {m.sensor for m in sent} == {"lighthouse/0/1", "lighthouse/0/2"}
+    assert len(received) >= len(sent) - 2  # the last tick's sweeps wait for the next packet
+    assert {(m.sensor, round(m.stamp, 4)) for m in received} <= measured
+
+
 def test_discovery_ping_every_5_s_and_host_pings() -> None:
     emulator = CarEmulator(seed=4)
     pings = []
