@@ -24,6 +24,7 @@ REGISTRY: dict[str, str] = {
     "demo": "launch_scripts.commands.simulate:DEMO",
     "dataset": "launch_scripts.commands.dataset:COMMAND",
     "estimate": "launch_scripts.commands.estimate:COMMAND",
+    "tune-noise": "launch_scripts.commands.tune_noise:COMMAND",
     "consistency": "launch_scripts.commands.consistency:COMMAND",
     "sysid": "launch_scripts.commands.sysid:SYSID",
     "validate": "launch_scripts.commands.sysid:VALIDATE",

@@ -50,7 +50,8 @@ controller: an MPCC fed estimates 110-180 ms old steered bang-bang and spun the 
 ``horizon`` (MHE), ``catch_up_solves`` (MHE: an update that finds more grid nodes due, because it
 came late, solves only the newest this many and predicts the others, so that a loaded machine's
 late update does not make the next one later still; default 2), ``inputs`` (auto | commanded |
-estimated), ``stations``, ``params_file`` (model parameter YAML, optional), ``model`` (the
+estimated), ``stations``, ``params_file`` (model parameter YAML, optional; its ``noise:``
+section, ``crs tune-noise``'s, sets the estimators' noise), ``model`` (the
 model: ``dynamic``, ``kinematic`` or ``FILE.py:CLASS``; empty: the one ``params_file`` names, else
 dynamic; the estimate published is always the car state it maps to), ``track_file`` (CRS
 track YAML; default DEMO_TRACK), ``initial_state`` (6 floats; default the track's start),
@@ -83,6 +84,7 @@ from crs_core.estimation import (
 )
 from crs_core.estimation.base import parse_time_offsets
 from crs_core.estimation.factory import default_sensors
+from crs_core.estimation.noise import EstimatorNoise, noise_in_file
 from crs_core.estimation.realtime import RealtimeEstimator, RealtimeSettings
 from crs_core.measurements import Measurement
 from crs_core.model.online import parse_online_names
@@ -109,6 +111,17 @@ FIX_RATE_HZ = 5.0
 #: The real-time policy's settings, all parameters (default, description and bounds: the
 #: dataclass's; ``max_lag``'s default is the node's, by estimator).
 REALTIME_PARAMETERS = SettingsParameters(RealtimeSettings, ("rate_hz", "lag", "max_lag"))
+
+
+def node_noise(node: Node) -> EstimatorNoise:
+    """The estimators' noise: the ``params_file``'s ``noise:`` section over the defaults
+    (:func:`~crs_core.estimation.noise.noise_in_file`; a bad entry refused naming
+    ``params_file``)."""
+    path = node.get_parameter("params_file").value or None
+    try:
+        return noise_in_file(path)
+    except FieldError as error:
+        raise ParameterError("params_file", str(error)) from None
 
 
 class EstimatorNode(Node):
@@ -172,8 +185,10 @@ class EstimatorNode(Node):
                 parsed_with(parse_time_offsets),
             )
         )
+        noise = node_noise(self)
         settings = (
             MheSettings(
+                noise=noise,
                 horizon=horizon,
                 rate_hz=self.rate_hz,
                 time_offsets=offsets,
@@ -181,7 +196,7 @@ class EstimatorNode(Node):
                 online_parameters=online_names,
             )
             if kind == "mhe"
-            else EkfSettings(time_offsets=offsets, online_parameters=online_names)
+            else EkfSettings(noise=noise, time_offsets=offsets, online_parameters=online_names)
         )
         try:
             self.estimator = make_estimator(kind, sensors, model, settings, inputs=inputs)

@@ -10,7 +10,9 @@ innovations agree (:class:`~crs_core.estimation.base.RejectionCap`), so the filt
 an outage has let it drift. An update that would leave the measurement further from the model
 output than the prediction did (possible when the sensor model is strongly nonlinear, far from
 the truth) is skipped, so an update never moves the estimate away from its data. All prediction
-and update maths is generated from the model and compiled (see :mod:`crs_core.codegen`).
+and update maths is generated from the model and compiled (see :mod:`crs_core.codegen`). On
+request the filter sums the Gaussian log-likelihood of its innovations (the evidence the data
+give a noise setting, :mod:`crs_core.estimation.noise_fit`).
 """
 
 from __future__ import annotations
@@ -47,10 +49,15 @@ class EkfSettings(EstimatorSettings):
     max_consecutive_rejections : int
         After this many rejections of one sensor in a row, a measurement whose innovation agrees
         with the previous rejected ones is accepted.
+    innovation_likelihood : bool
+        Sum the log-likelihood of every innovation whose model output is defined, gated or not
+        (:attr:`ExtendedKalmanFilter.log_likelihood`); off by default (two log-determinants
+        per update).
     """
 
     gate_probability: float = 0.9999
     max_consecutive_rejections: int = 25
+    innovation_likelihood: bool = False
 
     def _check_relations(self) -> None:
         super()._check_relations()
@@ -107,18 +114,19 @@ def build_ekf_functions(model: CarModel) -> list[ca.Function]:
 
 @dataclass(frozen=True)
 class UpdateResult:
-    """One measurement update, and which of the EKF's checks it passes.
+    r"""One measurement update, and which of the EKF's checks it passes.
 
     ``x``, ``P``: the updated state and covariance; ``normalised_innovation``: innovation over
-    the measurement standard deviation; ``defined``: the model output exists at the prediction;
-    ``within_gate``: the Mahalanobis distance is inside the gate; ``finite``: the update is
-    finite; ``closer``: it leaves the measurement no further from the model output than the
-    prediction did.
+    the measurement standard deviation; ``mahalanobis``: its :math:`\nu^\top S^{-1} \nu`;
+    ``defined``: the model output exists at the prediction; ``within_gate``: the Mahalanobis
+    distance is inside the gate; ``finite``: the update is finite; ``closer``: it leaves the
+    measurement no further from the model output than the prediction did.
     """
 
     x: np.ndarray
     P: np.ndarray
     normalised_innovation: np.ndarray
+    mahalanobis: float
     defined: bool
     within_gate: bool
     finite: bool
@@ -166,6 +174,7 @@ class EkfSteps:
             x_new,
             P_new,
             innovation / std,
+            float(d2[0]),
             defined=bool(np.isfinite(d2[0])),
             within_gate=bool(d2[0] <= self._gates[measurement.values.size]),
             finite=bool(np.all(np.isfinite(x_new)) and np.all(np.isfinite(P_new))),
@@ -174,7 +183,7 @@ class EkfSteps:
 
 
 class ExtendedKalmanFilter(Estimator):
-    """EKF over any subset of the car's sensors.
+    r"""EKF over any subset of the car's sensors.
 
     Parameters
     ----------
@@ -182,6 +191,16 @@ class ExtendedKalmanFilter(Estimator):
         Estimation model (its parameters are the identified ones) and sensor groups, as for
         :class:`~crs_core.estimation.base.Estimator`.
     settings : EkfSettings, optional
+
+    Attributes
+    ----------
+    log_likelihood : float
+        With ``settings.innovation_likelihood``: the sum over the updates so far of
+        :math:`-\tfrac12 (\nu^\top S^{-1}\nu + \log\det 2\pi S)`, the innovation
+        :math:`\nu` with covariance :math:`S = H P H^\top + R` (:math:`\log\det S` from
+        :math:`\det P^+ / \det P^- = \det R / \det S`); 0 otherwise.
+    likelihood_terms : int
+        The updates summed in :attr:`log_likelihood`.
     """
 
     def __init__(
@@ -194,6 +213,8 @@ class ExtendedKalmanFilter(Estimator):
         self._p = model.parameters.vector()
         self._initial_std = initial_std_for(settings.initial_std, model)
         self._cap = RejectionCap(settings.max_consecutive_rejections)
+        self.log_likelihood = 0.0
+        self.likelihood_terms = 0
         self.reset(0.0, np.zeros(6))
 
     def accepts(self, sensor: str) -> bool:
@@ -229,6 +250,8 @@ class ExtendedKalmanFilter(Estimator):
     def _update(self, measurement: Measurement) -> None:
         sensor, stamp = measurement.sensor, measurement.stamp
         result = self._steps.update(self._x, self._P, self._u, measurement)
+        if self.settings.innovation_likelihood:
+            self._add_likelihood(measurement.sensor, result)
         if not result.defined:  # the model output is undefined at the prediction
             self._reject(sensor, stamp)
             return
@@ -246,6 +269,21 @@ class ExtendedKalmanFilter(Estimator):
         self._cap.accepted(sensor)
         self._x, self._P = result.x, 0.5 * (result.P + result.P.T)
         self._accept(sensor, stamp)
+
+    def _add_likelihood(self, sensor: str, result: UpdateResult) -> None:
+        """Add the innovation's log-likelihood (:attr:`log_likelihood`), where it is finite."""
+        if not (result.defined and result.finite and math.isfinite(result.mahalanobis)):
+            return
+        std = self.settings.noise.measurement_std(sensor)
+        sign_before, before = np.linalg.slogdet(self._P)
+        sign_after, after = np.linalg.slogdet(result.P)
+        if sign_before <= 0 or sign_after <= 0:
+            return
+        log_det_s = 2.0 * float(np.sum(np.log(std))) + before - after
+        self.log_likelihood -= 0.5 * (
+            result.mahalanobis + log_det_s + std.size * math.log(2.0 * math.pi)
+        )
+        self.likelihood_terms += 1
 
     def process(self, t: float) -> None:
         """Apply every queued event stamped up to ``t``."""

@@ -1,10 +1,13 @@
-"""Noise settings the estimators assume (their tuning), shared by the EKF and the MHE."""
+"""Noise settings the estimators assume (their tuning), shared by the EKF and the MHE, and the
+``noise:`` section of a parameter YAML that carries a car's own (``crs tune-noise``)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -15,6 +18,7 @@ from crs_core.model.effects import EFFECTS
 from crs_core.model.online import STATE_PREFIX as ONLINE_STATE_PREFIX
 from crs_core.model.plant import CAR_STATE_NAMES
 from crs_core.model.terms import CLOCK_STATE
+from crs_core.yaml_io import mapping_in_file
 
 #: Defaults for the states effects add, by state name: process noise (per sqrt(s)) and the
 #: initial standard deviation. Actuator lags follow their command closely (small noise); the
@@ -163,4 +167,50 @@ def per_plant_state(values: Sequence[float], model: CarModel, field: str) -> lis
                 f"{similar or 'none of them'} (set its Plant.like)",
             )
         out.append(float(table[similar]))
+    return out
+
+
+#: The section of a parameter YAML holding the estimators' noise for that car.
+NOISE_KEY = "noise"
+
+
+def noise_in_file(path: str | Path | None, base: EstimatorNoise | None = None) -> EstimatorNoise:
+    """``base`` (default :class:`EstimatorNoise`) with the entries of the parameter YAML
+    ``path``'s ``noise:`` mapping (its field names; lists for tuples), or ``base`` itself where
+    the file has none. ``FieldError`` naming ``noise.<field>`` in the file for an unknown field
+    or a bad value."""
+    base = base or EstimatorNoise()
+    if path is None:
+        return base
+    entries = mapping_in_file(path).get(NOISE_KEY)
+    if entries is None:
+        return base
+    where = f"{path}: {NOISE_KEY}"
+    if not isinstance(entries, dict):
+        raise FieldError(where, "must be a mapping of EstimatorNoise fields")
+    known = [f.name for f in fields(EstimatorNoise)]
+    values: dict[str, Any] = {}
+    for key, value in entries.items():
+        if key not in known:
+            raise FieldError(f"{where}.{key}", f"unknown (known: {', '.join(known)})")
+        values[key] = tuple(value) if isinstance(value, list) else value
+    try:
+        return replace(base, **values)
+    except FieldError as error:
+        raise FieldError(f"{path}: {error.field}", error.reason) from None
+    except TypeError as error:
+        raise FieldError(where, str(error)) from None
+
+
+def noise_mapping(noise: EstimatorNoise, names: Sequence[str]) -> dict[str, Any]:
+    """The ``noise:`` entries ``names`` of ``noise`` as YAML-ready values (tuples as lists)."""
+    out: dict[str, Any] = {}
+    for name in names:
+        value = getattr(noise, name)
+        if isinstance(value, Mapping):
+            out[name] = {str(k): float(v) for k, v in value.items()}
+        elif isinstance(value, tuple | list):
+            out[name] = [float(v) for v in value]
+        else:
+            out[name] = float(value)
     return out

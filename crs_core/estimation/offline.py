@@ -337,6 +337,7 @@ def estimate_dataset(
         "inputs": inputs,
         "input_mode": getattr(estimator, "mode", inputs),
         "rate_hz": settings.rate_hz if isinstance(settings, MheSettings) else None,
+        "process_std": list(estimator.settings.noise.process_std),
         "start": "blind" if x0 is None else [float(v) for v in np.ravel(x0)],
         "data": source,
         "samples": n,

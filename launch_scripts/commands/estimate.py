@@ -54,6 +54,7 @@ def estimate(args: argparse.Namespace) -> None:
     from tqdm import tqdm
 
     from crs_core.estimation import EkfSettings, MheSettings
+    from crs_core.estimation.noise import noise_in_file
     from crs_core.estimation.offline import (
         data_span,
         dataset_model,
@@ -104,10 +105,14 @@ def estimate(args: argparse.Namespace) -> None:
         raise ValueError(f"--params: {error.args[0]}") from None
     except OSError as error:
         raise ValueError(f"--params: cannot read {args.params} ({error.strerror})") from None
+    try:
+        noise = noise_in_file(args.params)
+    except FieldError as error:
+        raise error.renamed(f"--params: {error.field}") from None
     settings = (
-        MheSettings(rate_hz=rate or MheSettings().rate_hz, online_parameters=online)
+        MheSettings(rate_hz=rate or MheSettings().rate_hz, noise=noise, online_parameters=online)
         if args.estimator == "mhe"
-        else EkfSettings(online_parameters=online)
+        else EkfSettings(noise=noise, online_parameters=online)
     )
     try:  # the model with its online parameters, before --out is touched
         online_model = model.with_online(online, settings.online_reversion_s)
@@ -211,8 +216,8 @@ def add_arguments(sub: argparse.ArgumentParser) -> None:
     sub.add_argument(
         "--params",
         type=Path,
-        help="parameter YAML applied to the model (default: the Chronos parameters with the "
-        "dataset's Lighthouse geometry)",
+        help="parameter YAML applied to the model, its noise: section (crs tune-noise) to the "
+        "estimator (default: the Chronos parameters with the dataset's Lighthouse geometry)",
     )
     when = sub.add_mutually_exclusive_group()
     when.add_argument(

@@ -8,6 +8,7 @@ from crs_core.errors import FieldError
 from crs_core.estimation import (
     EstimatorNoise,
 )
+from crs_core.estimation.noise import noise_in_file, noise_mapping
 from crs_core.model import CarModel
 
 
@@ -26,3 +27,33 @@ def test_whole_numbers_are_standard_deviations_too_and_a_bad_one_is_named():
     assert EstimatorNoise(wheel_std=(1, 2, 3, 4)).measurement_std("wheel_encoders")[3] == 4.0
     with pytest.raises(FieldError, match=r"noise\.wheel_std"):
         EstimatorNoise(wheel_std=0)
+
+
+def test_a_parameter_files_noise_section_overrides_the_defaults(tmp_path):
+    """``noise:`` entries replace those fields (lists become tuples); a file without the
+    section, or no file, gives the defaults."""
+    path = tmp_path / "params.yaml"
+    path.write_text("parameters: {m: 0.2}\nnoise:\n  process_std: [0.004, 0.004, 0.004, 1, 1, 6]\n")
+    noise = noise_in_file(path)
+    assert noise.process_std == (0.004, 0.004, 0.004, 1, 1, 6)
+    assert noise.lighthouse_std == EstimatorNoise().lighthouse_std
+    plain = tmp_path / "plain.yaml"
+    plain.write_text("parameters: {m: 0.2}\n")
+    assert noise_in_file(plain) == EstimatorNoise() == noise_in_file(None)
+    written = noise_mapping(noise, ["process_std", "wheel_std"])
+    assert written == {"process_std": [0.004, 0.004, 0.004, 1.0, 1.0, 6.0], "wheel_std": 2.5}
+
+
+@pytest.mark.parametrize(
+    ("section", "field"),
+    [
+        ("  process_stdev: [1, 1, 1, 1, 1, 1]", r"noise\.process_stdev: unknown"),
+        ("  process_std: [0.01, 0.01]", r"noise\.process_std: needs 6 values"),
+        ("  lighthouse_std: -1", r"noise\.lighthouse_std"),
+    ],
+)
+def test_a_bad_noise_entry_is_refused_naming_the_file_and_the_entry(tmp_path, section, field):
+    path = tmp_path / "params.yaml"
+    path.write_text(f"parameters: {{}}\nnoise:\n{section}\n")
+    with pytest.raises(FieldError, match=rf"params\.yaml: {field}"):
+        noise_in_file(path)
