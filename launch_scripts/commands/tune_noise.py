@@ -78,13 +78,11 @@ def tune_noise(args: argparse.Namespace) -> None:
 
 def write_figure(report: dict[str, Any], path: Path) -> None:
     """The log-likelihood over the scale of each group fitted (the chosen scale marked)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     groups = list(report["scales"])
-    fig, axes = plt.subplots(1, len(groups), figsize=(5 * len(groups), 3.6), squeeze=False)
+    fig = Figure(figsize=(5 * len(groups), 3.6), layout="constrained")
+    axes = fig.subplots(1, len(groups), squeeze=False)
     for ax, group in zip(axes[0], groups, strict=True):
         points = sorted(
             (e["scale"], e["log_likelihood"]) for e in report["evaluations"] if e["group"] == group
@@ -94,9 +92,7 @@ def write_figure(report: dict[str, Any], path: Path) -> None:
         ax.set_xlabel(f"scale of the {group} process noise")
         ax.set_ylabel("innovation log-likelihood")
         ax.legend()
-    fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def add_arguments(sub: argparse.ArgumentParser) -> None:
