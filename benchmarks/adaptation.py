@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 
 from crs_core.analysis.metrics import lap_statistics
+from crs_core.estimation.noise import EstimatorNoise
 from crs_core.model import CarModel
 from crs_core.track import load_demo_track
 from sim.closed_loop import off_track
@@ -73,14 +74,18 @@ def adaptation_benchmark(
     repeats: int = 3,
     schedules: tuple[str, ...] = ("issue", "own"),
     seed: int = 0,
+    tune_noise: bool = True,
 ) -> dict[str, Any]:
     """Race every schedule with and without online parameters, ``repeats`` times each
-    (JSON-ready: the settings, then one row per race)."""
+    (JSON-ready: the settings, the estimators' noise, then one row per race). With
+    ``tune_noise`` the estimators' process noise is first fitted to a steady race of the same
+    car (:func:`tuned_params`), as ``crs tune-noise`` fits it to a recording of a real car."""
     from launch_scripts.car_stack import EmulatedLink, run_car_stack
     from launch_scripts.sim_stack import CarTruth, StackOptions
 
     rows = []
     work_dir.mkdir(parents=True, exist_ok=True)
+    params, noise = tuned_params(work_dir, seed) if tune_noise else (None, None)
     for name in schedules:
         path: Path | None = None
         schedule = DriftSchedule(())
@@ -98,6 +103,7 @@ def adaptation_benchmark(
                     after_start_up=True,
                     record="estimates",
                     seed=seed + repeat,
+                    params_file=params,
                     car=CarTruth(drift_file=path),
                     online_parameters=ONLINE if online else (),
                 )
@@ -113,8 +119,40 @@ def adaptation_benchmark(
         "schedules": {name: SCHEDULES[name] for name in schedules},
         "tolerances": {k: list(v) for k, v in TOLERANCES.items()},
         "settle_s": SETTLE_S,
+        "noise": noise,
         "rows": rows,
     }
+
+
+#: Length of the steady race the estimators' noise is fitted to, s.
+TUNING_S = 60.0
+
+
+def tuned_params(work_dir: Path, seed: int) -> tuple[Path, dict[str, Any]]:
+    """Race the car that does not change for :data:`TUNING_S` behind the same link (plain
+    estimator, every sensor recorded; seed ``seed + 100``, no race's), fit the pose's process
+    noise to the recording (:func:`~crs_core.estimation.noise_fit.fit_process_noise`) and write
+    it into ``work_dir/tuning/params.yaml``; that file and the fit (JSON-ready)."""
+    from crs_core.estimation.noise import NOISE_KEY, noise_mapping
+    from crs_core.estimation.noise_fit import fit_process_noise
+    from crs_core.estimation.offline import dataset_model
+    from launch_scripts.car_stack import EmulatedLink, run_car_stack
+    from launch_scripts.sim_stack import StackOptions
+    from ros4crs.bag_dataset import dataset_from_bag
+
+    folder = work_dir / "tuning"
+    print(f"[bench] a steady {TUNING_S:g} s race to fit the estimators' noise to", flush=True)
+    options = StackOptions("mhe", after_start_up=True, record="all", seed=seed + 100)
+    link = EmulatedLink(both="typical", seed=seed + 100)
+    run_car_stack(1, options, TUNING_S, folder / "race", True, link=link)
+    dataset = dataset_from_bag(folder / "race" / "bag", "car1", reference="none")
+    fit = fit_process_noise(
+        dataset, dataset_model(dataset), progress=lambda line: print(f"[bench] {line}", flush=True)
+    )
+    path = folder / "params.yaml"
+    document = {"parameters": {}, NOISE_KEY: noise_mapping(fit.noise, ["process_std"])}
+    path.write_text(yaml.safe_dump(document, sort_keys=False))
+    return path, fit.to_dict()
 
 
 def race_row(report: dict[str, Any], run: Path, schedule: DriftSchedule) -> dict[str, Any]:
@@ -292,10 +330,17 @@ def format_markdown(result: dict[str, Any]) -> str:
     """Per schedule, the races without and with online parameters (ranges over the repeats),
     then the online parameters' figures."""
     rows = result["rows"]
+    noise = result.get("noise")
+    tuning = (
+        "the estimators' process noise fitted to a steady race of the car (x, y, yaw: "
+        f"{noise['process_std'][0]:.4g}; default {EstimatorNoise().process_std[0]:g})"
+        if noise
+        else "the estimators' default noise"
+    )
     lines = [
         f"{result['repeats']} repeat(s) of {result['duration_s']:g} s per schedule and mode, "
         f"emulated car behind a `{result['link']}` link, MHE; online: "
-        f"{', '.join(result['online_parameters'])}.",
+        f"{', '.join(result['online_parameters'])}; {tuning}.",
         "",
         "| schedule | online | laps | flying lap | after the grip change | contouring RMS / max "
         "| off track | cut-offs | RMSE x / y |",

@@ -73,14 +73,23 @@ def online_tuning_benchmark(
     duration: float = 120.0,
     seed: int = 0,
     variants: dict[str, Variant] = VARIANTS,
+    fit_noise: bool = True,
 ) -> dict[str, Any]:
     """Record one race, then estimate it with each of ``variants``, and the real recordings
-    with each of their noises (JSON-ready)."""
+    with each of their noises (JSON-ready). With ``fit_noise`` a variant ``fitted`` follows
+    the default: the pose's process noise ``crs tune-noise`` fits to a steady race of the same
+    car (:func:`benchmarks.adaptation.tuned_params`)."""
+    from benchmarks.adaptation import tuned_params
     from launch_scripts.car_stack import EmulatedLink, run_car_stack
     from launch_scripts.sim_stack import CarTruth, StackOptions
     from sim.drift import parse_drift
 
     work_dir.mkdir(parents=True, exist_ok=True)
+    if fit_noise:
+        fitted = tuned_params(work_dir, seed)[1]["process_std"]
+        first, *rest = variants.items()
+        pose = (float(fitted[0]), float(fitted[1]), float(fitted[2]))
+        variants = dict([first, ("fitted", first[1]._replace(pose_std=pose)), *rest])
     drift = work_dir / f"{SCHEDULE}.yaml"
     drift.write_text(yaml.safe_dump(SCHEDULES[SCHEDULE]))
     schedule = parse_drift(SCHEDULES[SCHEDULE])

@@ -83,7 +83,9 @@ def adaptation(args: argparse.Namespace) -> Outcome:
 
     work = _runs(args, "adaptation")
     schedules = tuple(args.schedules.split(","))
-    result = adaptation_benchmark(work, args.duration, args.repeats, schedules, args.seed)
+    result = adaptation_benchmark(
+        work, args.duration, args.repeats, schedules, args.seed, not args.default_noise
+    )
     figure = work / "adaptation.png"
     plot(result, figure)
     return _with_machine(result), f"{format_markdown(result)}\nplot: {figure}\nruns: {work}"
@@ -101,6 +103,12 @@ def _adaptation_options(parser: argparse.ArgumentParser) -> None:
         help=f"comma-separated, of {', '.join(SCHEDULES)} (default all)",
     )
     add_seed(parser, "noise and link seed of the first repeat")
+    parser.add_argument(
+        "--default-noise",
+        action="store_true",
+        help="race with the estimators' default noise instead of the one fitted to a steady "
+        "60 s race first (crs tune-noise)",
+    )
 
 
 def _known_names(option: str, known: tuple[str, ...], text: str) -> str:

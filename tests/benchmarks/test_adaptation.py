@@ -100,5 +100,10 @@ def test_the_table_has_a_row_per_schedule_and_mode_and_per_online_parameter(tmp_
     assert "| issue | no | 16 | 6.60 s | 6.90 s | 80 / 170 mm | 0.00 s | 0 | 1.0 / 1.2 mm |" in text
     assert "| issue | yes |" in text
     assert "| issue | Cm1 | 5 % | 90 % | 95 % | 0.04 | 0.8 σ |" in text
+    assert "the estimators' default noise" in text
+    fitted = format_markdown(result | {"noise": {"process_std": [0.0006] * 3 + [1.0, 1.0, 6.0]}})
+    assert "process noise fitted to a steady race of the car (x, y, yaw: 0.0006; default 0.02)" in (
+        fitted
+    )
     plot(result, tmp_path / "adaptation.png")
     assert (tmp_path / "adaptation.png").stat().st_size > 10_000
