@@ -133,7 +133,7 @@ def tuned_params(work_dir: Path, seed: int) -> tuple[Path, dict[str, Any]]:
     estimator, every sensor recorded; seed ``seed + 100``, no race's), fit the pose's process
     noise to the recording (:func:`~crs_core.estimation.noise_fit.fit_process_noise`) and write
     it into ``work_dir/tuning/params.yaml``; that file and the fit (JSON-ready)."""
-    from crs_core.estimation.noise import NOISE_KEY, noise_mapping
+    from crs_core.estimation.noise import with_noise
     from crs_core.estimation.noise_fit import fit_process_noise
     from crs_core.estimation.offline import dataset_model
     from launch_scripts.car_stack import EmulatedLink, run_car_stack
@@ -150,7 +150,7 @@ def tuned_params(work_dir: Path, seed: int) -> tuple[Path, dict[str, Any]]:
         dataset, dataset_model(dataset), progress=lambda line: print(f"[bench] {line}", flush=True)
     )
     path = folder / "params.yaml"
-    document = {"parameters": {}, NOISE_KEY: noise_mapping(fit.noise, ["process_std"])}
+    document = with_noise({"parameters": {}}, fit.noise, ["process_std"])
     path.write_text(yaml.safe_dump(document, sort_keys=False))
     return path, fit.to_dict()
 

@@ -202,6 +202,16 @@ def noise_in_file(path: str | Path | None, base: EstimatorNoise | None = None) -
         raise FieldError(where, str(error)) from None
 
 
+def with_noise(
+    document: Mapping[str, Any], noise: EstimatorNoise, names: Sequence[str]
+) -> dict[str, Any]:
+    """A parameter YAML's ``document`` with the fields ``names`` of ``noise`` in its ``noise:``
+    section (the section's other entries kept)."""
+    section = document.get(NOISE_KEY)
+    kept = dict(section) if isinstance(section, Mapping) else {}
+    return {**document, NOISE_KEY: kept | noise_mapping(noise, names)}
+
+
 def noise_mapping(noise: EstimatorNoise, names: Sequence[str]) -> dict[str, Any]:
     """The ``noise:`` entries ``names`` of ``noise`` as YAML-ready values (tuples as lists)."""
     out: dict[str, Any] = {}

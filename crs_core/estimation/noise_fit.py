@@ -169,7 +169,7 @@ def fit_process_noise(
 
     def evaluate(group: str, scale: float) -> float:
         noise = scaled(current, group, scale)
-        key = tuple(round(v, 12) for v in noise.process_std)
+        key = _cache_key(noise)
         if key not in cache:
             cache[key] = innovation_log_likelihood(dataset, model, noise, settings.sensors)
             evaluations.append(
@@ -194,9 +194,14 @@ def fit_process_noise(
         scale = _maximise(partial(evaluate, group), settings.scales, settings.tolerance)
         fitted[group] = scale
         current = scaled(current, group, scale)
-    key = tuple(round(v, 12) for v in current.process_std)
-    best, updates = cache[key]
+    best, updates = cache[_cache_key(current)]
     return NoiseFit(current, fitted, best, start_likelihood, updates, evaluations)
+
+
+def _cache_key(noise: EstimatorNoise) -> tuple[float, ...]:
+    """A noise setting's process noise, rounded so that the same scale reached two ways is one
+    evaluation."""
+    return tuple(round(v, 12) for v in noise.process_std)
 
 
 def _maximise(f: Callable[[float], float], grid: Sequence[float], tolerance: float) -> float:

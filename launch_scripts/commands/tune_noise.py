@@ -20,7 +20,7 @@ from launch_scripts.recording import RECORDING_HELP, add_bag_options, load_recor
 def tune_noise(args: argparse.Namespace) -> None:
     """Fit the process noise (``crs_core.estimation.noise_fit``) and write the outputs."""
     from crs_core.estimation import parse_sensor_set
-    from crs_core.estimation.noise import NOISE_KEY, noise_in_file, noise_mapping
+    from crs_core.estimation.noise import noise_in_file, with_noise
     from crs_core.estimation.noise_fit import NoiseFitSettings, fit_process_noise
     from crs_core.estimation.offline import dataset_model
     from crs_core.yaml_io import load_yaml
@@ -36,17 +36,16 @@ def tune_noise(args: argparse.Namespace) -> None:
             parse_sensor_set(args.sensors)
         except FieldError as error:
             raise error.renamed("--sensors") from None
+    try:
+        start = noise_in_file(args.params)
+    except FieldError as error:
+        raise error.renamed(f"--params: {error.field}") from None
     document: dict[str, Any] = {"parameters": {}}
     if args.params is not None:
         try:
-            start = noise_in_file(args.params)
             document = load_yaml(args.params.read_text())
-        except FieldError as error:
-            raise error.renamed(f"--params: {error.field}") from None
         except (OSError, yaml.YAMLError) as error:
             raise ValueError(f"--params: cannot read {args.params} ({error})") from None
-    else:
-        start = noise_in_file(None)
     dataset = load_recording(args.dataset, args)
     try:
         model = dataset_model(dataset, args.params, model=args.model)
@@ -56,10 +55,7 @@ def tune_noise(args: argparse.Namespace) -> None:
     fit = fit_process_noise(
         dataset, model, start, settings, progress=lambda line: print(f"[tune-noise] {line}")
     )
-    document[NOISE_KEY] = {
-        **(document.get(NOISE_KEY) or {}),
-        **noise_mapping(fit.noise, ["process_std"]),
-    }
+    document = with_noise(document, fit.noise, ["process_std"])
     (out / "params.yaml").write_text(
         f"# crs tune-noise: {command_line()}\n" + yaml.safe_dump(document, sort_keys=False)
     )

@@ -8,7 +8,7 @@ from crs_core.errors import FieldError
 from crs_core.estimation import (
     EstimatorNoise,
 )
-from crs_core.estimation.noise import noise_in_file, noise_mapping
+from crs_core.estimation.noise import noise_in_file, noise_mapping, with_noise
 from crs_core.model import CarModel
 
 
@@ -42,6 +42,11 @@ def test_a_parameter_files_noise_section_overrides_the_defaults(tmp_path):
     assert noise_in_file(plain) == EstimatorNoise() == noise_in_file(None)
     written = noise_mapping(noise, ["process_std", "wheel_std"])
     assert written == {"process_std": [0.004, 0.004, 0.004, 1.0, 1.0, 6.0], "wheel_std": 2.5}
+    document = {"parameters": {"m": 0.2}, "noise": {"wheel_std": 9.0, "process_std": [1] * 6}}
+    assert with_noise(document, noise, ["process_std"]) == {
+        "parameters": {"m": 0.2},
+        "noise": {"wheel_std": 9.0, "process_std": [0.004, 0.004, 0.004, 1.0, 1.0, 6.0]},
+    }
 
 
 @pytest.mark.parametrize(
